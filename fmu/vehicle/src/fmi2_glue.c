@@ -1,0 +1,358 @@
+/* FMI 2.0 Co-Simulation entry points for the vehicle model. Only moves values between
+ * the FMI API and VehicleModel; the equations are in vehicle_model.c. */
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "fmi2Functions.h"
+#include "var_access.h"
+#include "vehicle_model.h"
+
+typedef struct {
+    VehicleModel model;
+    fmi2CallbackFunctions cb;
+    char instance_name[128];
+    int logging_on;
+    int in_init;      /* between EnterInitializationMode and ExitInitializationMode */
+    int outputs_dirty;/* an input changed since the outputs were computed */
+    int failed;
+} Instance;
+
+static void log_msg(Instance *c, fmi2Status status, const char *category, const char *fmt, ...) {
+    if (!c || !c->cb.logger) return;
+    if (status == fmi2OK && !c->logging_on) return;
+    char buf[1024];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(buf, sizeof(buf), fmt, ap);
+    va_end(ap);
+    c->cb.logger(c->cb.componentEnvironment, c->instance_name, status, category, "%s", buf);
+}
+
+static fmi2Status access_error(Instance *c, const char *function, fmi2ValueReference vr, int code) {
+    char msg[256];
+    va_error(function, vr, code, msg, sizeof(msg));
+    log_msg(c, fmi2Error, "error", "%s", msg);
+    return fmi2Error;
+}
+
+static void refresh_outputs(Instance *c) {
+    if (c->model.initialized && c->outputs_dirty) {
+        vm_update_outputs(&c->model);
+        c->outputs_dirty = 0;
+    }
+}
+
+const char *fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
+const char *fmi2GetVersion(void) { return fmi2Version; }
+
+fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean loggingOn, size_t n, const fmi2String cats[]) {
+    (void)n;
+    (void)cats;
+    ((Instance *)c)->logging_on = loggingOn;
+    return fmi2OK;
+}
+
+fmi2Component fmi2Instantiate(fmi2String name, fmi2Type type, fmi2String guid, fmi2String location,
+                              const fmi2CallbackFunctions *functions, fmi2Boolean visible,
+                              fmi2Boolean loggingOn) {
+    (void)location;
+    (void)visible;
+    if (type != fmi2CoSimulation) return NULL;
+    if (!guid || strcmp(guid, VEHICLE_INSTANTIATION_TOKEN) != 0) {
+        if (functions && functions->logger)
+            functions->logger(functions->componentEnvironment, name, fmi2Error, "error",
+                              "GUID %s does not match %s", guid ? guid : "(null)", VEHICLE_INSTANTIATION_TOKEN);
+        return NULL;
+    }
+    Instance *c = (Instance *)calloc(1, sizeof(Instance));
+    if (!c) return NULL;
+    if (functions) c->cb = *functions;
+    snprintf(c->instance_name, sizeof(c->instance_name), "%s", name ? name : "vehicle");
+    c->logging_on = loggingOn;
+    vm_set_defaults(&c->model);
+    return c;
+}
+
+void fmi2FreeInstance(fmi2Component c) { free(c); }
+
+fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean tolDef, fmi2Real tol, fmi2Real start,
+                               fmi2Boolean stopDef, fmi2Real stop) {
+    (void)tolDef;
+    (void)tol;
+    (void)stopDef;
+    (void)stop;
+    ((Instance *)c)->model.time = start;
+    return fmi2OK;
+}
+
+fmi2Status fmi2EnterInitializationMode(fmi2Component c) {
+    ((Instance *)c)->in_init = 1;
+    return fmi2OK;
+}
+
+fmi2Status fmi2ExitInitializationMode(fmi2Component ci) {
+    Instance *c = (Instance *)ci;
+    char msg[512];
+    c->in_init = 0;
+    if (vm_initialize(&c->model, c->model.time, msg, sizeof(msg))) {
+        log_msg(c, fmi2Error, "error", "%s", msg);
+        c->failed = 1;
+        return fmi2Error;
+    }
+    c->outputs_dirty = 0;
+    return fmi2OK;
+}
+
+fmi2Status fmi2Terminate(fmi2Component c) {
+    (void)c;
+    return fmi2OK;
+}
+
+fmi2Status fmi2Reset(fmi2Component ci) {
+    Instance *c = (Instance *)ci;
+    vm_set_defaults(&c->model);
+    c->failed = 0;
+    c->in_init = 0;
+    c->outputs_dirty = 0;
+    return fmi2OK;
+}
+
+fmi2Status fmi2GetReal(fmi2Component ci, const fmi2ValueReference vr[], size_t n, fmi2Real value[]) {
+    Instance *c = (Instance *)ci;
+    refresh_outputs(c);
+    for (size_t i = 0; i < n; i++) {
+        const int code = va_get_real(&c->model, vr[i], &value[i]);
+        if (code) return access_error(c, "fmi2GetReal", vr[i], code);
+    }
+    return fmi2OK;
+}
+
+fmi2Status fmi2GetInteger(fmi2Component ci, const fmi2ValueReference vr[], size_t n, fmi2Integer value[]) {
+    Instance *c = (Instance *)ci;
+    for (size_t i = 0; i < n; i++) {
+        const int code = va_get_int(&c->model, vr[i], &value[i]);
+        if (code) return access_error(c, "fmi2GetInteger", vr[i], code);
+    }
+    return fmi2OK;
+}
+
+fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Boolean v[]) {
+    (void)vr;
+    (void)v;
+    if (n == 0) return fmi2OK;
+    log_msg((Instance *)c, fmi2Error, "error", "the model has no Boolean variables");
+    return fmi2Error;
+}
+
+fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2String v[]) {
+    (void)vr;
+    (void)v;
+    if (n == 0) return fmi2OK;
+    log_msg((Instance *)c, fmi2Error, "error", "the model has no String variables");
+    return fmi2Error;
+}
+
+
+fmi2Status fmi2SetReal(fmi2Component ci, const fmi2ValueReference vr[], size_t n, const fmi2Real value[]) {
+    Instance *c = (Instance *)ci;
+    for (size_t i = 0; i < n; i++) {
+        const int code = va_set_real(&c->model, vr[i], value[i]);
+        if (code) return access_error(c, "fmi2SetReal", vr[i], code);
+    }
+    c->outputs_dirty = 1;
+    return fmi2OK;
+}
+
+fmi2Status fmi2SetInteger(fmi2Component ci, const fmi2ValueReference vr[], size_t n, const fmi2Integer value[]) {
+    Instance *c = (Instance *)ci;
+    for (size_t i = 0; i < n; i++) {
+        const int code = va_set_int(&c->model, vr[i], value[i]);
+        if (code) return access_error(c, "fmi2SetInteger", vr[i], code);
+    }
+    return fmi2OK;
+}
+
+fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Boolean v[]) {
+    (void)vr;
+    (void)v;
+    if (n == 0) return fmi2OK;
+    log_msg((Instance *)c, fmi2Error, "error", "the model has no Boolean variables");
+    return fmi2Error;
+}
+
+fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2String v[]) {
+    (void)vr;
+    (void)v;
+    if (n == 0) return fmi2OK;
+    log_msg((Instance *)c, fmi2Error, "error", "the model has no String variables");
+    return fmi2Error;
+}
+
+/* ---- FMU state: the whole VehicleModel (RNG included) is plain data -------------------- */
+
+fmi2Status fmi2GetFMUstate(fmi2Component ci, fmi2FMUstate *state) {
+    Instance *c = (Instance *)ci;
+    VehicleModel *copy = *state ? (VehicleModel *)*state : (VehicleModel *)malloc(sizeof(VehicleModel));
+    if (!copy) return fmi2Error;
+    *copy = c->model;
+    *state = copy;
+    return fmi2OK;
+}
+
+fmi2Status fmi2SetFMUstate(fmi2Component ci, fmi2FMUstate state) {
+    Instance *c = (Instance *)ci;
+    if (!state) return fmi2Error;
+    c->model = *(const VehicleModel *)state;
+    c->outputs_dirty = 0;
+    c->failed = 0;
+    return fmi2OK;
+}
+
+fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *state) {
+    (void)c;
+    if (state) {
+        free(*state);
+        *state = NULL;
+    }
+    return fmi2OK;
+}
+
+fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate state, size_t *size) {
+    (void)c;
+    (void)state;
+    *size = sizeof(VehicleModel);
+    return fmi2OK;
+}
+
+fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate state, fmi2Byte bytes[], size_t size) {
+    (void)c;
+    if (size < sizeof(VehicleModel)) return fmi2Error;
+    memcpy(bytes, state, sizeof(VehicleModel));
+    return fmi2OK;
+}
+
+fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte bytes[], size_t size, fmi2FMUstate *state) {
+    (void)c;
+    if (size != sizeof(VehicleModel)) return fmi2Error;
+    VehicleModel *copy = *state ? (VehicleModel *)*state : (VehicleModel *)malloc(sizeof(VehicleModel));
+    if (!copy) return fmi2Error;
+    memcpy(copy, bytes, sizeof(VehicleModel));
+    *state = copy;
+    return fmi2OK;
+}
+
+fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReference u[], size_t nu,
+                                        const fmi2ValueReference z[], size_t nz, const fmi2Real dv[],
+                                        fmi2Real dz[]) {
+    (void)u;
+    (void)nu;
+    (void)z;
+    (void)nz;
+    (void)dv;
+    (void)dz;
+    log_msg((Instance *)c, fmi2Error, "error", "directional derivatives are not provided");
+    return fmi2Error;
+}
+
+/* ---- Co-Simulation -------------------------------------------------------------------- */
+
+fmi2Status fmi2SetRealInputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t n,
+                                       const fmi2Integer order[], const fmi2Real value[]) {
+    (void)vr;
+    (void)order;
+    (void)value;
+    if (n == 0) return fmi2OK;
+    log_msg((Instance *)c, fmi2Error, "error", "input derivatives are not supported");
+    return fmi2Error;
+}
+
+fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t n,
+                                        const fmi2Integer order[], fmi2Real value[]) {
+    (void)vr;
+    (void)order;
+    (void)value;
+    if (n == 0) return fmi2OK;
+    log_msg((Instance *)c, fmi2Error, "error", "output derivatives are not supported");
+    return fmi2Error;
+}
+
+fmi2Status fmi2DoStep(fmi2Component ci, fmi2Real t, fmi2Real h, fmi2Boolean noSetPrior) {
+    (void)noSetPrior;
+    Instance *c = (Instance *)ci;
+    char msg[512];
+    if (c->failed || !c->model.initialized) {
+        log_msg(c, fmi2Error, "error", "doStep called on an instance that is not initialized or has failed");
+        return fmi2Error;
+    }
+    if (fabs(t - c->model.time) > 1e-9 * fmax(1.0, fabs(t))) {
+        log_msg(c, fmi2Error, "error", "doStep at t = %.9g s, but the model is at t = %.9g s", t, c->model.time);
+        return fmi2Error;
+    }
+    if (vm_do_step(&c->model, t + h, msg, sizeof(msg))) {
+        log_msg(c, fmi2Error, "error", "%s", msg);
+        c->failed = 1;
+        return fmi2Error;
+    }
+    c->outputs_dirty = 0;
+    return fmi2OK;
+}
+
+fmi2Status fmi2CancelStep(fmi2Component c) {
+    (void)c;
+    return fmi2Error;
+}
+
+fmi2Status fmi2GetStatus(fmi2Component c, const fmi2StatusKind s, fmi2Status *value) {
+    (void)c;
+    (void)s;
+    (void)value;
+    return fmi2Discard;
+}
+
+fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real *value) {
+    if (s == fmi2LastSuccessfulTime) {
+        *value = ((Instance *)c)->model.time;
+        return fmi2OK;
+    }
+    return fmi2Discard;
+}
+
+fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind s, fmi2Integer *value) {
+    (void)c;
+    (void)s;
+    (void)value;
+    return fmi2Discard;
+}
+
+fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boolean *value) {
+    (void)c;
+    (void)s;
+    (void)value;
+    return fmi2Discard;
+}
+
+fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2String *value) {
+    (void)c;
+    (void)s;
+    (void)value;
+    return fmi2Discard;
+}
+
+/* ---- Model Exchange functions: not supported, exported because loaders expect them ---- */
+
+fmi2Status fmi2EnterEventMode(fmi2Component c) { (void)c; return fmi2Error; }
+fmi2Status fmi2NewDiscreteStates(fmi2Component c, fmi2EventInfo *e) { (void)c; (void)e; return fmi2Error; }
+fmi2Status fmi2EnterContinuousTimeMode(fmi2Component c) { (void)c; return fmi2Error; }
+fmi2Status fmi2CompletedIntegratorStep(fmi2Component c, fmi2Boolean a, fmi2Boolean *b, fmi2Boolean *d) {
+    (void)c; (void)a; (void)b; (void)d;
+    return fmi2Error;
+}
+fmi2Status fmi2SetTime(fmi2Component c, fmi2Real t) { (void)c; (void)t; return fmi2Error; }
+fmi2Status fmi2SetContinuousStates(fmi2Component c, const fmi2Real x[], size_t n) { (void)c; (void)x; (void)n; return fmi2Error; }
+fmi2Status fmi2GetDerivatives(fmi2Component c, fmi2Real d[], size_t n) { (void)c; (void)d; (void)n; return fmi2Error; }
+fmi2Status fmi2GetEventIndicators(fmi2Component c, fmi2Real e[], size_t n) { (void)c; (void)e; (void)n; return fmi2Error; }
+fmi2Status fmi2GetContinuousStates(fmi2Component c, fmi2Real x[], size_t n) { (void)c; (void)x; (void)n; return fmi2Error; }
+fmi2Status fmi2GetNominalsOfContinuousStates(fmi2Component c, fmi2Real x[], size_t n) { (void)c; (void)x; (void)n; return fmi2Error; }
