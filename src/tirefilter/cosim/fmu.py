@@ -1,0 +1,223 @@
+"""The vehicle FMU seen from Python: load once, reset between trials, step fast.
+
+fmpy loads the FMU and performs the calls; the hot path (set inputs, doStep, get outputs)
+calls the FMI functions with preallocated ctypes buffers so one communication step costs
+a few microseconds of Python.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import importlib.util
+import shutil
+import sys
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from tirefilter.errors import FMUError
+
+REPO_ROOT = Path(__file__).resolve().parents[3]
+FMU_DIR = REPO_ROOT / "fmu"
+BUILD_DIR = FMU_DIR / "build"
+INPUT_NAMES = ("delta", "drive_torque", "brake_torque", "surface", "bank")
+
+
+@lru_cache(maxsize=1)
+def fmu_build_module():
+    """fmu/build.py (the generator and compiler), imported by path."""
+    path = FMU_DIR / "build.py"
+    if not path.is_file():
+        raise FMUError(f"{path} not found: the FMU sources ship with the repository checkout")
+    spec = importlib.util.spec_from_file_location("tirefilter_fmu_build", path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def variable_table():
+    return fmu_build_module().load_table()
+
+
+def vehicle_fmu_path(fmi_version: str = "2", build_dir: Path = BUILD_DIR) -> Path:
+    return fmu_build_module().fmu_path(build_dir, fmi_version)
+
+
+def build_vehicle_fmu(build_dir: Path = BUILD_DIR, versions=("2", "3")) -> dict[str, Path]:
+    module = fmu_build_module()
+    try:
+        return module.build_vehicle(build_dir, tuple(versions))
+    except module.BuildError as exc:
+        raise FMUError(str(exc)) from None
+
+
+class VehicleFMU:
+    """One instance of the vehicle FMU (FMI 2.0 or 3.0 Co-Simulation).
+
+    `reset(parameters)` (re)initialises it for a run; `step(t, h, inputs)` sets the five
+    inputs, does one communication step and returns the output vector (a view into a
+    buffer, ordered as `output_names`, valid until the next step).
+    """
+
+    def __init__(self, fmi_version: str = "2", path: str | Path | None = None):
+        from fmpy import extract, read_model_description
+
+        self.fmi_version = str(fmi_version)
+        if self.fmi_version not in ("2", "3"):
+            raise FMUError(f"fmi_version must be '2' or '3', got {fmi_version!r}")
+        self.path = Path(path) if path else vehicle_fmu_path(self.fmi_version)
+        if not self.path.is_file():
+            raise FMUError(
+                f"vehicle FMU not found at {self.path}; build it with `tirefilter fmu build vehicle` "
+                "(or `python fmu/build.py`)"
+            )
+        self.model_description = read_model_description(str(self.path))
+        self._unzip_dir = extract(str(self.path))
+        self.messages: list[str] = []
+        variables = {v.name: v for v in self.model_description.modelVariables}
+        self.output_names = tuple(v.name for v in self.model_description.modelVariables if v.causality == "output")
+        self._vars = variables
+        self._in_vr = (ctypes.c_uint32 * len(INPUT_NAMES))(*[variables[n].valueReference for n in INPUT_NAMES])
+        self._out_vr = (ctypes.c_uint32 * len(self.output_names))(*[variables[n].valueReference for n in self.output_names])
+        self._in_buf = np.zeros(len(INPUT_NAMES))
+        self._out_buf = np.zeros(len(self.output_names))
+        self._in_ptr = self._in_buf.ctypes.data_as(ctypes.POINTER(ctypes.c_double))
+        self._out_ptr = self._out_buf.ctypes.data_as(ctypes.POINTER(ctypes.c_double))
+        self._slave = self._instantiate()
+        self._initialized = False
+
+    # -- setup ------------------------------------------------------------------------
+    def _log(self, status, message) -> None:
+        text = message.decode("utf-8", "replace") if isinstance(message, bytes) else str(message)
+        self.messages.append(text)
+
+    def _instantiate(self):
+        md = self.model_description
+        common = dict(guid=md.guid, unzipDirectory=self._unzip_dir, modelIdentifier=md.coSimulation.modelIdentifier,
+                      instanceName="vehicle")
+        if self.fmi_version == "2":
+            from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
+                                   fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
+            from fmpy.fmi2 import calloc, free
+
+            slave = FMU2Slave(**common)
+            callbacks = fmi2CallbackFunctions()
+            callbacks.logger = fmi2CallbackLoggerTYPE(lambda env, name, status, cat, msg: self._log(status, msg))
+            callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+            callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+            try:
+                from fmpy.logging import addLoggerProxy
+
+                addLoggerProxy(ctypes.byref(callbacks))
+            except Exception:  # pragma: no cover - proxy missing on exotic platforms
+                pass
+            self._callbacks = callbacks
+            slave.instantiate(callbacks=callbacks)
+            self._set_real = slave._functions["fmi2SetReal"]
+            self._get_real = slave._functions["fmi2GetReal"]
+            self._do_step_raw = slave._functions["fmi2DoStep"]
+        else:
+            from fmpy.fmi3 import FMU3Slave
+
+            slave = FMU3Slave(**common)
+            slave.instantiate(logMessage=lambda env, status, cat, msg: self._log(status, msg))
+            self._set_real = slave._functions["fmi3SetFloat64"]
+            self._get_real = slave._functions["fmi3GetFloat64"]
+            self._do_step_raw = slave._functions["fmi3DoStep"]
+            self._flags = [ctypes.c_bool() for _ in range(3)]
+            self._last_time = ctypes.c_double()
+        return slave
+
+    def reset(self, parameters: dict[str, float | int], start_time: float = 0.0) -> None:
+        """(Re)initialise with the given parameter values (others keep their defaults)."""
+        s = self._slave
+        if self._initialized:
+            s.reset()
+        self.messages.clear()
+        unknown = sorted(set(parameters) - set(self._vars))
+        if unknown:
+            raise FMUError(f"the vehicle FMU has no parameter {unknown[0]!r}")
+        reals = {k: float(v) for k, v in parameters.items() if self._vars[k].type in ("Real", "Float64")}
+        ints = {k: int(v) for k, v in parameters.items() if self._vars[k].type in ("Integer", "Int32")}
+        try:
+            if self.fmi_version == "2":
+                s.setupExperiment(startTime=start_time)
+                s.enterInitializationMode()
+                s.setReal([self._vars[k].valueReference for k in reals], list(reals.values()))
+                s.setInteger([self._vars[k].valueReference for k in ints], list(ints.values()))
+            else:
+                s.enterInitializationMode(startTime=start_time)
+                s.setFloat64([self._vars[k].valueReference for k in reals], list(reals.values()))
+                s.setInt32([self._vars[k].valueReference for k in ints], list(ints.values()))
+            s.exitInitializationMode()
+        except Exception as exc:
+            raise FMUError(f"vehicle FMU initialisation failed: {self._message(exc)}") from None
+        self._initialized = True
+        self.time = start_time
+
+    def _message(self, exc: Exception) -> str:
+        return "; ".join(self.messages) if self.messages else str(exc)
+
+    # -- hot path ---------------------------------------------------------------------
+    def outputs(self) -> np.ndarray:
+        """Current outputs (after reset or the last step)."""
+        n = len(self.output_names)
+        if self.fmi_version == "2":
+            self._get_real(self._slave.component, self._out_vr, n, self._out_ptr)
+        else:
+            self._get_real(self._slave.component, self._out_vr, n, self._out_ptr, n)
+        return self._out_buf
+
+    def step(self, t: float, h: float, inputs) -> np.ndarray:
+        """Set the inputs (ordered as INPUT_NAMES), step from t to t + h, return outputs."""
+        self._in_buf[:] = inputs
+        c = self._slave.component
+        try:
+            if self.fmi_version == "2":
+                self._set_real(c, self._in_vr, 5, self._in_ptr)
+                self._do_step_raw(c, t, h, 1)
+            else:
+                self._set_real(c, self._in_vr, 5, self._in_ptr, 5)
+                f = self._flags
+                self._do_step_raw(c, t, h, True, ctypes.byref(f[0]), ctypes.byref(f[1]), ctypes.byref(f[2]),
+                                  ctypes.byref(self._last_time))
+        except Exception as exc:
+            raise FMUError(f"vehicle FMU failed in the step from t = {t:.4f} s: {self._message(exc)}") from None
+        self.time = t + h
+        return self.outputs()
+
+    # -- FMU state ----------------------------------------------------------------------
+    def get_state(self):
+        """Snapshot of the whole FMU state (random generator included)."""
+        s = self._slave
+        return s.getFMUstate() if self.fmi_version == "2" else s.getFMUState()
+
+    def set_state(self, state) -> None:
+        s = self._slave
+        s.setFMUstate(state) if self.fmi_version == "2" else s.setFMUState(state)
+
+    def serialize_state(self, state) -> bytes:
+        s = self._slave
+        return bytes(s.serializeFMUstate(state) if self.fmi_version == "2" else s.serializeFMUState(state))
+
+    def deserialize_state(self, data: bytes):
+        s = self._slave
+        return s.deSerializeFMUstate(data) if self.fmi_version == "2" else s.deserializeFMUState(data)
+
+    def close(self) -> None:
+        if getattr(self, "_slave", None) is not None:
+            try:
+                if self._initialized:
+                    self._slave.terminate()
+                self._slave.freeInstance()
+            finally:
+                self._slave = None
+                shutil.rmtree(self._unzip_dir, ignore_errors=True)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()

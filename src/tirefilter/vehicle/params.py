@@ -1,0 +1,126 @@
+"""Vehicle, tire and sensor parameters: typed, immutable, validated on load."""
+
+from __future__ import annotations
+
+from dataclasses import MISSING, dataclass, fields
+from pathlib import Path
+
+from tirefilter.config import check_known_keys, get_choice, get_number, read_toml
+
+DRIVES = ("front", "rear", "all")
+
+
+@dataclass(frozen=True)
+class VehicleParams:
+    """Single-track vehicle (keys of the vehicle TOML, DESIGN.md)."""
+
+    mass: float  # kg
+    yaw_inertia: float  # kg m^2
+    lf: float  # m, CG to front axle
+    lr: float  # m, CG to rear axle
+    wheel_radius: float  # m
+    cg_height: float  # m
+    Cf_y: float  # N/rad, nominal front axle cornering stiffness
+    Cr_y: float  # N/rad, nominal rear axle cornering stiffness
+    Cx: float  # N per unit slip, nominal longitudinal stiffness of the driven axle
+    drive: str = "front"  # "front" | "rear" | "all"
+    steering_ratio: float | None = None  # steering-wheel angle / road-wheel angle
+    roll_gradient: float = 0.0  # rad of roll per m/s^2 of lateral acceleration
+    imu_x: float = 0.0  # m, IMU ahead of the CG
+    imu_y: float = 0.0  # m, IMU left of the CG
+    sigma_ax: float = 0.05  # m/s^2, accelerometer white-noise std
+    sigma_ay: float = 0.05  # m/s^2
+    sigma_yaw_rate: float = 0.0035  # rad/s, gyro white-noise std
+    # Truth-model details (optional keys, used by the vehicle FMU):
+    Cx_undriven: float | None = None  # N, longitudinal stiffness of the other axle (default Cx)
+    wheel_inertia_f: float = 3.6  # kg m^2, front axle spin inertia (both wheels)
+    wheel_inertia_r: float = 3.6  # kg m^2
+    brake_front_share: float = 0.6  # share of brake torque on the front axle
+    awd_front_share: float = 0.5  # share of drive torque on the front axle (drive = "all")
+    rolling_resistance: float = 0.0  # rolling-resistance coefficient
+    drag_coefficient: float = 0.0  # N s^2/m^2, 0.5 rho cd A
+
+    @property
+    def wheelbase(self) -> float:
+        return self.lf + self.lr
+
+    def static_axle_loads(self, g: float = 9.80665) -> tuple[float, float]:
+        """Front and rear static normal loads [N]."""
+        return self.mass * g * self.lr / self.wheelbase, self.mass * g * self.lf / self.wheelbase
+
+
+@dataclass(frozen=True)
+class PacejkaParams:
+    """Magic Formula F = D sin(C atan(B s - E (B s - atan(B s)))), D = mu Fz, per direction,
+    with the combined-slip weighting functions of Pacejka (2006), Sec. 4.3.2."""
+
+    mu_x: float
+    B_x: float
+    C_x: float
+    E_x: float
+    mu_y: float
+    B_y: float
+    C_y: float
+    E_y: float
+    rBx1: float = 0.0
+    rBx2: float = 0.0
+    Cxa: float = 1.0
+    rBy1: float = 0.0
+    rBy2: float = 0.0
+    Cyk: float = 1.0
+
+    def lateral_stiffness(self, Fz: float) -> float:
+        """Initial slope B C D of the lateral curve at load Fz [N/rad]."""
+        return self.B_y * self.C_y * self.mu_y * Fz
+
+    def longitudinal_stiffness(self, Fz: float) -> float:
+        return self.B_x * self.C_x * self.mu_x * Fz
+
+
+@dataclass(frozen=True)
+class SensorSpec:
+    """Which signals exist and how noisy they are (white noise and random-walk bias)."""
+
+    available: tuple[str, ...] = ("ax", "ay", "yaw_rate", "omega_f", "omega_r", "delta")
+    sigma_ax: float = 0.05  # m/s^2
+    sigma_ay: float = 0.05  # m/s^2
+    sigma_yaw_rate: float = 0.0035  # rad/s
+    sigma_omega: float = 0.0  # rad/s
+    sigma_delta: float = 0.0  # rad
+    bias_rw_ax: float = 0.0  # m/s^2 per sqrt(s)
+    bias_rw_ay: float = 0.0
+    bias_rw_yaw_rate: float = 0.0  # rad/s per sqrt(s)
+    bias0_ax: float = 0.0  # m/s^2, initial bias mean
+    bias0_ay: float = 0.0
+    bias0_yaw_rate: float = 0.0  # rad/s
+    bias0_std_ax: float = 0.0
+    bias0_std_ay: float = 0.0
+    bias0_std_yaw_rate: float = 0.0
+
+
+_POSITIVE = ("mass", "yaw_inertia", "lf", "lr", "wheel_radius", "Cf_y", "Cr_y", "Cx",
+             "wheel_inertia_f", "wheel_inertia_r")
+
+
+def load_vehicle(path: str | Path) -> VehicleParams:
+    """Read and check a vehicle TOML (DESIGN.md keys, SI units)."""
+    data = read_toml(path)
+    known = {f.name for f in fields(VehicleParams)}
+    check_known_keys(data, known, path)
+    values = {}
+    for f in fields(VehicleParams):
+        if f.name == "drive":
+            values["drive"] = get_choice(data, "drive", path, DRIVES, default="front")
+            continue
+        kwargs = {} if f.default is MISSING else {"default": f.default}
+        lo, lo_open, hi = None, False, None
+        if f.name in _POSITIVE or f.name in ("steering_ratio", "Cx_undriven"):
+            lo, lo_open = 0.0, True
+        elif f.name in ("cg_height", "rolling_resistance", "drag_coefficient", "roll_gradient") or f.name.startswith("sigma"):
+            lo = 0.0
+        if f.name in ("brake_front_share", "awd_front_share"):
+            lo, hi = 0.0, 1.0
+        if f.name == "roll_gradient":
+            hi = 0.05
+        values[f.name] = get_number(data, f.name, path, lo=lo, lo_open=lo_open, hi=hi, **kwargs)
+    return VehicleParams(**values)
