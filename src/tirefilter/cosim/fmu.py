@@ -170,16 +170,26 @@ class VehicleFMU:
             self._get_real(self._slave.component, self._out_vr, n, self._out_ptr, n)
         return self._out_buf
 
-    def step(self, t: float, h: float, inputs) -> np.ndarray:
-        """Set the inputs (ordered as INPUT_NAMES), step from t to t + h, return outputs."""
+    def set_inputs(self, inputs) -> None:
+        """Set the five inputs (ordered as INPUT_NAMES)."""
         self._in_buf[:] = inputs
         c = self._slave.component
         try:
             if self.fmi_version == "2":
                 self._set_real(c, self._in_vr, 5, self._in_ptr)
-                self._do_step_raw(c, t, h, 1)
             else:
                 self._set_real(c, self._in_vr, 5, self._in_ptr, 5)
+        except Exception as exc:
+            raise FMUError(f"vehicle FMU rejected the inputs {dict(zip(INPUT_NAMES, inputs))}: "
+                           f"{self._message(exc)}") from None
+
+    def do_step(self, t: float, h: float) -> np.ndarray:
+        """One communication step from t to t + h; returns the outputs."""
+        c = self._slave.component
+        try:
+            if self.fmi_version == "2":
+                self._do_step_raw(c, t, h, 1)
+            else:
                 f = self._flags
                 self._do_step_raw(c, t, h, True, ctypes.byref(f[0]), ctypes.byref(f[1]), ctypes.byref(f[2]),
                                   ctypes.byref(self._last_time))
@@ -187,6 +197,11 @@ class VehicleFMU:
             raise FMUError(f"vehicle FMU failed in the step from t = {t:.4f} s: {self._message(exc)}") from None
         self.time = t + h
         return self.outputs()
+
+    def step(self, t: float, h: float, inputs) -> np.ndarray:
+        """set_inputs, then do_step."""
+        self.set_inputs(inputs)
+        return self.do_step(t, h)
 
     # -- FMU state ----------------------------------------------------------------------
     def get_state(self):

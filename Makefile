@@ -1,0 +1,33 @@
+# Two commands do everything on a fresh machine (Python 3.11+, gcc):
+#   make run    set up, build the vehicle FMU, co-simulate the default scenario
+#   make test   set up, build the vehicle FMU, run the tests
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+SCENARIO ?= paper-sim
+OUT ?= runs/$(SCENARIO)
+
+.PHONY: setup fmu run test bench clean
+
+$(BIN)/tirefilter: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install --quiet --upgrade pip
+	$(BIN)/pip install --quiet -e '.[test]'
+	touch $@
+
+setup: $(BIN)/tirefilter
+
+fmu: setup
+	$(BIN)/tirefilter fmu build vehicle
+
+run: fmu
+	$(BIN)/tirefilter run --scenario $(SCENARIO) --out $(OUT) --rrd $(OUT)/$(SCENARIO).rrd
+
+test: fmu
+	$(BIN)/python -m pytest tests
+
+bench: fmu
+	$(BIN)/python benchmarks/bench_cosim.py
+
+clean:
+	rm -rf fmu/build runs

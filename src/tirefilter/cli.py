@@ -1,0 +1,147 @@
+"""The `tirefilter` command."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from tirefilter import __version__
+from tirefilter.config import read_toml
+from tirefilter.errors import ConfigError, TirefilterError
+
+# Estimators available in this version (DESIGN.md reserves mpf, augpf, rls, ekf, gpssm,
+# combined; each is added here when it lands).
+ESTIMATORS = ("none",)
+
+
+def _make_estimator(name: str, args, scenario, config: dict):
+    if name == "none":
+        return None
+    raise ConfigError("--estimator", "", f"estimator {name!r} is not available in this version")
+
+
+def cmd_run(args) -> int:
+    from tirefilter.cosim.run import run_scenario, write_run_json
+    from tirefilter.scenarios import load_scenario
+
+    scenario = load_scenario(args.scenario)
+    config = read_toml(args.config) if args.config else {}
+    estimator = _make_estimator(args.estimator, args, scenario, config)
+    out = Path(args.out) if args.out else Path("runs") / scenario.name
+    out.mkdir(parents=True, exist_ok=True)
+    results = out / "results.csv"
+    particles = args.particles if estimator is not None else None
+    summary = None
+    try:
+        summary, _ = run_scenario(scenario, estimator=estimator, seed=args.seed, fmi_version=args.fmi,
+                                  results_csv=results, rrd=args.rrd, progress=sys.stderr.isatty() and not args.quiet)
+    except TirefilterError as exc:
+        print(f"error: {exc}\n(rows up to the failure are in {results})", file=sys.stderr)
+        return 1
+    finally:
+        if summary is not None:
+            write_run_json(out / "run.json", summary, command=sys.argv, model=args.model, particles=particles,
+                           estimator_config=config, fmi_version=args.fmi)
+    print(f"scenario {scenario.name}: {summary.steps} samples over {scenario.duration:g} s "
+          f"({summary.communication_steps} FMU steps of {scenario.communication_step:g} s, FMI {args.fmi}.0), "
+          f"estimator {summary.estimator}, seed {args.seed}")
+    print(f"wall time {summary.wall_time_s:.2f} s ({scenario.duration / summary.wall_time_s:.0f}x real time)"
+          + (f", median step {summary.median_step_us:.1f} us" if summary.median_step_us else ""))
+    _print_truth_summary(results)
+    print(f"results: {results}\nsummary: {out / 'run.json'}" + (f"\nrecording: {args.rrd}" if args.rrd else ""))
+    return 0
+
+
+def _print_truth_summary(results: Path) -> None:
+    import numpy as np
+
+    from tirefilter.cosim.results import read_results
+
+    r = read_results(results)
+    rows = [("speed vx [m/s]", "true_vx"), ("lateral acc. ay [m/s^2]", "true_ay"), ("yaw rate [rad/s]", "true_yaw_rate"),
+            ("slip angle front [rad]", "true_alpha_f"), ("wheel slip front [-]", "true_lambda_f"),
+            ("Cf_y surface mean [N/rad]", "true_Cf_y_mean"), ("Cr_y surface mean [N/rad]", "true_Cr_y_mean")]
+    print(f"{'truth':28s}{'min':>12s}{'mean':>12s}{'max':>12s}")
+    for label, col in rows:
+        x = r[col]
+        print(f"{label:28s}{np.min(x):12.4g}{np.mean(x):12.4g}{np.max(x):12.4g}")
+    for col in ("Cf_y", "Cr_y", "Cx"):
+        if np.isfinite(r[col]).any():
+            err = 100 * (r[col] - r[f"true_{col}_mean"]) / r[f"true_{col}_mean"]
+            print(f"{col} error vs surface mean: mean {np.nanmean(err):+.2f}%, final {err[-1]:+.2f}%")
+
+
+def cmd_scenarios(args) -> int:
+    from tirefilter.scenarios import list_scenarios
+
+    scenarios = list_scenarios()
+    if args.json:
+        print(json.dumps([s.summary() for s in scenarios], indent=2))
+        return 0
+    for s in scenarios:
+        windows = ", ".join(f"{a:g}-{b:g} s" for a, b in s.excitation)
+        changes = ", ".join(f"{t:g} s" for t in s.surface_changes) or "none"
+        print(f"{s.name}\n  {s.description}\n  {s.duration:g} s, estimator {s.estimator_rate:g} Hz, "
+              f"{s.model.tire_model} tires, sensors {', '.join(s.sensors)}\n"
+              f"  excitation {windows}; surface changes {changes}\n  source: {s.source}")
+    return 0
+
+
+def cmd_fmu_build(args) -> int:
+    from tirefilter.cosim.fmu import build_vehicle_fmu
+
+    if args.target in ("vehicle", "all"):
+        for version, path in build_vehicle_fmu().items():
+            print(f"built vehicle FMU (FMI {version}.0): {path}")
+    if args.target == "estimator":
+        raise ConfigError("fmu build", "estimator", "the estimator FMU is not available in this version")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="tirefilter", description=__doc__)
+    p.add_argument("--version", action="version", version=f"tirefilter {__version__}")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    run = sub.add_parser("run", help="co-simulate a scenario against the vehicle FMU")
+    run.add_argument("--scenario", required=True, help="scenario name (see `tirefilter scenarios`) or TOML file")
+    run.add_argument("--estimator", default="none", choices=ESTIMATORS, help="estimator (default: none)")
+    run.add_argument("--model", default="auto", choices=("full", "lateral", "auto"),
+                     help="estimation model: full, lateral, or auto (full with wheel speeds)")
+    run.add_argument("--particles", type=int, default=500, help="number of particles (particle filters only)")
+    run.add_argument("--seed", type=int, default=0, help="seed of the run's SeedSequence")
+    run.add_argument("--config", help="estimator configuration TOML")
+    run.add_argument("--out", help="output folder (default runs/<scenario>)")
+    run.add_argument("--rrd", help="write a Rerun recording to this file")
+    run.add_argument("--fmi", default="2", choices=("2", "3"), help="vehicle FMU version (default 2)")
+    run.add_argument("--quiet", action="store_true", help="no progress bar")
+    run.set_defaults(func=cmd_run)
+
+    sc = sub.add_parser("scenarios", help="list the scenarios with their schedules")
+    sc.add_argument("--json", action="store_true", help="machine-readable list")
+    sc.set_defaults(func=cmd_scenarios)
+
+    fmu = sub.add_parser("fmu", help="FMU tools")
+    fsub = fmu.add_subparsers(dest="fmu_command", required=True)
+    build = fsub.add_parser("build", help="build FMUs from source into fmu/build/")
+    build.add_argument("target", nargs="?", default="vehicle", choices=("vehicle", "estimator", "all"))
+    build.set_defaults(func=cmd_fmu_build)
+    return p
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    if getattr(args, "particles", 1) is not None and getattr(args, "particles", 1) < 1:
+        print("error: --particles must be at least 1", file=sys.stderr)
+        return 2
+    try:
+        return args.func(args)
+    except TirefilterError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

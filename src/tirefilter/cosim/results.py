@@ -1,0 +1,95 @@
+"""The Result CSV (DESIGN.md), written incrementally so a failed run keeps its rows."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from tirefilter.estimators.base import Estimate
+
+ESTIMATE_COLUMNS = (
+    "t", "active", "vx", "vy", "yaw_rate", "beta",
+    "Cf_y", "Cr_y", "Cx", "Cf_y_std", "Cr_y_std", "Cx_std", "Cf_y_sigma", "Cr_y_sigma", "Cx_sigma",
+    "b_ax", "b_ay", "b_yaw_rate", "ess",
+)
+INPUT_TRUTH_COLUMNS = ("true_delta", "true_drive_torque", "true_brake_torque", "true_surface", "true_bank")
+
+
+def truth_column(fmu_output: str) -> str:
+    """Result-CSV column of a vehicle-FMU output: sensors get `meas_`, truth `true_`."""
+    if fmu_output.startswith("true_"):
+        return fmu_output
+    if fmu_output.endswith("_meas"):
+        return "meas_" + fmu_output[: -len("_meas")]
+    return "true_" + fmu_output
+
+
+def estimate_values(t: float, est: Estimate | None) -> list[float]:
+    """The estimate part of a row (NaN where there is no estimate)."""
+    if est is None:
+        return [t] + [math.nan] * (len(ESTIMATE_COLUMNS) - 1)
+    return [
+        t, 1.0 if est.active else 0.0, est.vx, est.vy, est.yaw_rate, est.beta,
+        est.Cf_y, est.Cr_y, est.Cx, est.Cf_y_std, est.Cr_y_std, est.Cx_std,
+        est.Cf_y_sigma, est.Cr_y_sigma, est.Cx_sigma, est.b_ax, est.b_ay, est.b_yaw_rate, est.ess,
+    ]
+
+
+def _cell(x: float) -> str:
+    return "" if x != x else repr(float(x))  # NaN -> empty cell; repr round-trips
+
+
+class ResultWriter:
+    """Appends rows to a CSV, flushing to disk every `flush_every` rows and on close.
+
+    Used as a context manager: whatever happens inside, the rows handed over so far end
+    up in the file.
+    """
+
+    def __init__(self, path: str | Path, columns: tuple[str, ...], flush_every: int = 100):
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.columns = tuple(columns)
+        self._file = self.path.open("w", newline="")
+        self._file.write(",".join(self.columns) + "\n")
+        self._pending: list[str] = []
+        self._flush_every = flush_every
+        self.rows = 0
+
+    def write(self, values) -> None:
+        if len(values) != len(self.columns):
+            raise ValueError(f"row has {len(values)} values for {len(self.columns)} columns")
+        self._pending.append(",".join(map(_cell, values)))
+        self.rows += 1
+        if len(self._pending) >= self._flush_every:
+            self.flush()
+
+    def flush(self) -> None:
+        if self._pending:
+            self._file.write("\n".join(self._pending) + "\n")
+            self._pending.clear()
+        self._file.flush()
+
+    def close(self) -> None:
+        if not self._file.closed:
+            self.flush()
+            self._file.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def read_results(path: str | Path) -> dict[str, np.ndarray]:
+    """Read a Result CSV into columns of floats (empty cells are NaN)."""
+    path = Path(path)
+    with path.open() as f:
+        header = f.readline().strip().split(",")
+        data = np.genfromtxt(f, delimiter=",", dtype=float, ndmin=2)
+    if data.size == 0:
+        data = np.empty((0, len(header)))
+    return {name: data[:, j] for j, name in enumerate(header)}

@@ -1,0 +1,82 @@
+"""The Estimator protocol of DESIGN.md and the records it exchanges."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+NAN = math.nan
+
+
+@dataclass(frozen=True)
+class Inputs:
+    """Known inputs at one sample. Optional signals are NaN when absent."""
+
+    delta: float  # rad, road-wheel steer angle
+    omega_f: float = NAN  # rad/s, front wheel rotation rate
+    omega_r: float = NAN  # rad/s, rear wheel rotation rate
+    vx: float = NAN  # m/s, longitudinal speed from other logic
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """IMU sample; any component may be NaN (missing)."""
+
+    ax: float = NAN  # m/s^2
+    ay: float = NAN  # m/s^2
+    yaw_rate: float = NAN  # rad/s
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """What an estimator reports at one step (field names as in the Result CSV).
+
+    Stiffness values are absolute (nominal plus estimated mean deviation); `*_std` is the
+    posterior std of that mean, `*_sigma` the estimated spread of the deviations.
+    """
+
+    active: bool
+    vx: float
+    vy: float
+    yaw_rate: float
+    Cf_y: float
+    Cr_y: float
+    Cx: float = NAN
+    Cf_y_std: float = NAN
+    Cr_y_std: float = NAN
+    Cx_std: float = NAN
+    Cf_y_sigma: float = NAN
+    Cr_y_sigma: float = NAN
+    Cx_sigma: float = NAN
+    b_ax: float = NAN
+    b_ay: float = NAN
+    b_yaw_rate: float = NAN
+    ess: float = NAN
+    state_std: tuple[float, float, float] = (NAN, NAN, NAN)  # vx, vy, yaw_rate
+
+    @property
+    def beta(self) -> float:
+        return math.atan2(self.vy, self.vx)
+
+
+@dataclass
+class Posterior:
+    """A snapshot of a particle posterior: particles, log-weights, per-particle stats."""
+
+    particles: np.ndarray  # (N, nx)
+    log_weights: np.ndarray  # (N,)
+    stats: dict = field(default_factory=dict)  # name -> (N, ...) arrays
+
+
+@runtime_checkable
+class Estimator(Protocol):
+    name: str
+
+    def reset(self, rng: np.random.Generator) -> None: ...
+
+    def step(self, t: float, u: Inputs, y: Measurement) -> Estimate: ...
+
+    def posterior(self) -> Posterior: ...
