@@ -53,6 +53,12 @@ def build_vehicle_fmu(build_dir: Path = BUILD_DIR, versions=("2", "3")) -> dict[
         raise FMUError(str(exc)) from None
 
 
+def _check(status: int, what: str) -> None:
+    """The raw FMI calls return a status: OK 0, warning 1, discard 2, error 3, fatal 4."""
+    if status > 1:
+        raise RuntimeError(f"{what} returned FMI status {status}")
+
+
 class VehicleFMU:
     """One instance of the vehicle FMU (FMI 2.0 or 3.0 Co-Simulation).
 
@@ -165,9 +171,11 @@ class VehicleFMU:
         """Current outputs (after reset or the last step)."""
         n = len(self.output_names)
         if self.fmi_version == "2":
-            self._get_real(self._slave.component, self._out_vr, n, self._out_ptr)
+            status = self._get_real(self._slave.component, self._out_vr, n, self._out_ptr)
         else:
-            self._get_real(self._slave.component, self._out_vr, n, self._out_ptr, n)
+            status = self._get_real(self._slave.component, self._out_vr, n, self._out_ptr, n)
+        if status > 1:
+            raise FMUError(f"vehicle FMU: reading the outputs failed: {self._message(RuntimeError(status))}")
         return self._out_buf
 
     def set_inputs(self, inputs) -> None:
@@ -176,9 +184,10 @@ class VehicleFMU:
         c = self._slave.component
         try:
             if self.fmi_version == "2":
-                self._set_real(c, self._in_vr, 5, self._in_ptr)
+                status = self._set_real(c, self._in_vr, 5, self._in_ptr)
             else:
-                self._set_real(c, self._in_vr, 5, self._in_ptr, 5)
+                status = self._set_real(c, self._in_vr, 5, self._in_ptr, 5)
+            _check(status, "set inputs")
         except Exception as exc:
             raise FMUError(f"vehicle FMU rejected the inputs {dict(zip(INPUT_NAMES, inputs))}: "
                            f"{self._message(exc)}") from None
@@ -188,11 +197,12 @@ class VehicleFMU:
         c = self._slave.component
         try:
             if self.fmi_version == "2":
-                self._do_step_raw(c, t, h, 1)
+                status = self._do_step_raw(c, t, h, 1)
             else:
                 f = self._flags
-                self._do_step_raw(c, t, h, True, ctypes.byref(f[0]), ctypes.byref(f[1]), ctypes.byref(f[2]),
-                                  ctypes.byref(self._last_time))
+                status = self._do_step_raw(c, t, h, True, ctypes.byref(f[0]), ctypes.byref(f[1]),
+                                           ctypes.byref(f[2]), ctypes.byref(self._last_time))
+            _check(status, "doStep")
         except Exception as exc:
             raise FMUError(f"vehicle FMU failed in the step from t = {t:.4f} s: {self._message(exc)}") from None
         self.time = t + h
