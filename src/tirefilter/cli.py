@@ -38,6 +38,7 @@ def cmd_run(args) -> int:
         summary, _ = run_scenario(scenario, estimator=estimator, seed=args.seed, fmi_version=args.fmi,
                                   results_csv=results, rrd=args.rrd, progress=sys.stderr.isatty() and not args.quiet)
     except TirefilterError as exc:
+        summary = getattr(exc, "summary", None)
         print(f"error: {exc}\n(rows up to the failure are in {results})", file=sys.stderr)
         return 1
     finally:

@@ -165,6 +165,7 @@ def run_scenario(
     except Exception as exc:
         summary.status = "failed"
         summary.error = str(exc)
+        exc.summary = summary  # callers write the run summary of a failed run too
         raise
     finally:
         bar.close()
