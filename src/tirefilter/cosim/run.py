@@ -12,7 +12,7 @@ import math
 import platform
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +20,6 @@ import numpy as np
 from tirefilter import __version__
 from tirefilter.cosim.fmu import INPUT_NAMES, VehicleFMU
 from tirefilter.cosim.results import ESTIMATE_COLUMNS, INPUT_TRUTH_COLUMNS, ResultWriter, estimate_values, truth_column
-from tirefilter.errors import TirefilterError
 from tirefilter.estimators.base import Estimator, Inputs, Measurement
 from tirefilter.scenarios import Scenario
 
@@ -45,7 +44,6 @@ class RunSummary:
     status: str = "ok"
     error: str | None = None
     results: str | None = None
-    extra: dict = field(default_factory=dict)
 
 
 class _Progress:
@@ -208,6 +206,3 @@ def write_run_json(path: str | Path, summary: RunSummary, *, command: list[str],
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     Path(path).write_text(json.dumps(record, indent=2) + "\n")
 
-
-class RunError(TirefilterError):
-    pass

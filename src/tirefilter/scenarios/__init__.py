@@ -11,6 +11,8 @@ import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from tirefilter.config import check_known_keys, get_choice, get_number, get_table, read_toml
 from tirefilter.errors import ConfigError
 from tirefilter.scenarios.profiles import INPUTS, InputSchedule, SpeedHold, parse_component
@@ -226,8 +228,6 @@ def _parse(data: dict, file: Path) -> Scenario:
 
 
 def _check_input_ranges(schedule: InputSchedule, duration: float, h: float, file) -> None:
-    import numpy as np
-
     t = np.arange(int(round(duration / h))) * h
     u = schedule.open_loop(t)
     limits = {"delta": (-np.pi / 2, np.pi / 2), "brake_torque": (0.0, np.inf), "surface": (0.01, 2.0),

@@ -8,7 +8,7 @@ acceleration that sets the load transfer).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -29,16 +29,14 @@ class TruthModel:
     tire_model: str = "linear"  # "linear" | "pacejka"
     pacejka: PacejkaParams | None = None
     load_transfer_time_constant: float = 0.1  # s
-    extra: dict = field(default_factory=dict)
 
     def axle_stiffness(self):
-        """Linear-model axle stiffness (Cf_y, Cr_y, Cf_x, Cr_x) at surface 1."""
+        """Linear-model axle stiffness (Cf_y, Cr_y, Cf_x, Cr_x) at surface 1: the vehicle's
+        Cx on the driven axle (front for all-wheel drive), Cx_undriven on the other."""
         v = self.vehicle
         other = v.Cx if v.Cx_undriven is None else v.Cx_undriven
         if v.drive == "rear":
             return v.Cf_y, v.Cr_y, other, v.Cx
-        if v.drive == "all":
-            return v.Cf_y, v.Cr_y, v.Cx, v.Cx if v.Cx_undriven is None else v.Cx_undriven
         return v.Cf_y, v.Cr_y, v.Cx, other
 
 
