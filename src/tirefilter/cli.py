@@ -11,15 +11,7 @@ from tirefilter import __version__
 from tirefilter.config import read_toml
 from tirefilter.errors import ConfigError, TirefilterError
 
-# Estimators available in this version (DESIGN.md reserves mpf, augpf, rls, ekf, gpssm,
-# combined; each is added here when it lands).
-ESTIMATORS = ("none",)
-
-
-def _make_estimator(name: str, args, scenario, config: dict):
-    if name == "none":
-        return None
-    raise ConfigError("--estimator", "", f"estimator {name!r} is not available in this version")
+from tirefilter.estimators import ESTIMATORS  # DESIGN.md reserves augpf, rls, ekf, gpssm, combined too
 
 
 def cmd_run(args) -> int:
@@ -28,11 +20,15 @@ def cmd_run(args) -> int:
 
     scenario = load_scenario(args.scenario)
     config = read_toml(args.config) if args.config else {}
-    estimator = _make_estimator(args.estimator, args, scenario, config)
+    from tirefilter.estimators import build_estimator, resolve_model
+
+    estimator = build_estimator(args.estimator, scenario, model=args.model, particles=args.particles, config=config)
     out = Path(args.out) if args.out else Path("runs") / scenario.name
     out.mkdir(parents=True, exist_ok=True)
     results = out / "results.csv"
-    particles = args.particles if estimator is not None else None
+    particles = getattr(getattr(estimator, "cfg", None), "particles", None)
+    model = resolve_model(args.model, scenario.sensors)
+    est_config = estimator.config_dict() if hasattr(estimator, "config_dict") else config
     summary = None
     try:
         summary, _ = run_scenario(scenario, estimator=estimator, seed=args.seed, fmi_version=args.fmi,
@@ -43,8 +39,8 @@ def cmd_run(args) -> int:
         return 1
     finally:
         if summary is not None:
-            write_run_json(out / "run.json", summary, command=sys.argv, model=args.model, particles=particles,
-                           estimator_config=config, fmi_version=args.fmi)
+            write_run_json(out / "run.json", summary, command=sys.argv, model=model, particles=particles,
+                           estimator_config=est_config, fmi_version=args.fmi)
     print(f"scenario {scenario.name}: {summary.steps} samples over {scenario.duration:g} s "
           f"({summary.communication_steps} FMU steps of {scenario.communication_step:g} s, FMI {args.fmi}.0), "
           f"estimator {summary.estimator}, seed {args.seed}")
@@ -111,7 +107,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--estimator", default="none", choices=ESTIMATORS, help="estimator (default: none)")
     run.add_argument("--model", default="auto", choices=("full", "lateral", "auto"),
                      help="estimation model: full, lateral, or auto (full with wheel speeds)")
-    run.add_argument("--particles", type=int, default=500, help="number of particles (particle filters only)")
+    run.add_argument("--particles", type=int, help="number of particles (particle filters; default from the scenario)")
     run.add_argument("--seed", type=int, default=0, help="seed of the run's SeedSequence")
     run.add_argument("--config", help="estimator configuration TOML")
     run.add_argument("--out", help="output folder (default runs/<scenario>)")

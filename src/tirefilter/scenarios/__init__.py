@@ -61,6 +61,19 @@ class Scenario:
     def vehicle(self) -> VehicleParams:
         return self.model.vehicle
 
+    def reference_stiffness(self) -> dict[str, float]:
+        """The true surface-1 stiffness at static load: the initial slope of the tire
+        curves (Pacejka B C mu F_z) or the linear values; Cx is the driven axle's."""
+        v = self.vehicle
+        if self.model.tire_model == "linear":
+            Cf_y, Cr_y, Cf_x, Cr_x = self.model.axle_stiffness()
+        else:
+            p = self.model.pacejka
+            Fz_f, Fz_r = v.static_axle_loads()
+            Cf_y, Cr_y = p.lateral_stiffness(Fz_f), p.lateral_stiffness(Fz_r)
+            Cf_x, Cr_x = p.longitudinal_stiffness(Fz_f), p.longitudinal_stiffness(Fz_r)
+        return {"Cf_y": Cf_y, "Cr_y": Cr_y, "Cx": Cr_x if v.drive == "rear" else Cf_x}
+
     def summary(self) -> dict:
         """The `tirefilter scenarios --json` record."""
         return {

@@ -1,0 +1,397 @@
+"""Noise-adaptive marginalized particle filter for tire stiffness, vehicle state and IMU
+bias: Algorithm 1 of Berntorp & Di Cairano (papers/000), with the corrections listed in
+DESIGN.md and derived in docs/derivations.md.
+
+Per particle: the state x (full model [vx, vy, r], lateral model [vy, r]), NiW statistics
+of the stiffness deviations w (full [dC_x, dCf_y, dCr_y], lateral [dCf_y, dCr_y]), and a
+Gaussian bias estimate (b, P) of the IMU channels. One step at sample k:
+
+  1. propagate x with the w sampled at k-1 (eq. (9), Euler or Heun), predict the bias
+     (eq. (29)) and, while learning, forget the statistics (eq. (20));
+  2. weight with the Student-t likelihood of eq. (36) (consistent scaling, see
+     derivations), normalise in log space, resample when ESS < threshold (every
+     per-particle quantity is copied);
+  3. Kalman update of the bias, eq. (30);
+  4. sample w_k from the conditional Student-t of eq. (39)-(41) given the accelerometer
+     residuals, and (gate open) update the statistics with that same w_k, eq. (19);
+     project the means onto the stiffness bounds (Sec. V);
+  5. report eq. (26)-(27): stiffness mean, posterior std of the mean, deviation spread.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from tirefilter.errors import ConfigError
+from tirefilter.estimators.base import Estimate, Inputs, Measurement, Posterior
+from tirefilter.stats import NiW, effective_sample_size, normalize_log_weights, systematic_resample
+from tirefilter.stats.student_t import t_conditional, t_logpdf, t_sample
+from tirefilter.vehicle.params import VehicleParams
+from tirefilter.vehicle.single_track import GRAVITY
+
+NAN = math.nan
+
+
+@dataclass(frozen=True)
+class MPFConfig:
+    """Options of the stiffness MPF (all settable from the `[mpf]` table of --config)."""
+
+    particles: int = 500
+    forgetting: float = 0.99  # lambda of eq. (20)
+    model: str = "full"  # "full" (wheel speeds) | "lateral" (vx given)
+    integrator: str = "heun"  # "euler" (the paper) | "heun" (same w, wheel slip held)
+    resample_threshold: float = 0.5  # resample when ESS < threshold * N
+    # initial stiffness: per-particle means drawn around `init_center` (absolute, per
+    # parameter, default nominal) with a relative spread of the reference stiffness
+    init_center: tuple[float, ...] | None = None
+    init_distribution: str = "normal"  # "normal" (init_std) | "uniform" (init_half_width)
+    init_std: float = 0.3  # relative
+    init_half_width: float = 0.1  # relative
+    init_reference: tuple[float, ...] | None = None  # stiffness the relative spreads refer to
+    init_sigma: float = 0.1  # prior guess of the deviation spread (relative), sets Lambda_0
+    within_share: float = 0.25  # share of the prior variance of the mean inside each particle
+    nu0_margin: float = 4.0  # nu_0 = n_w + 1 + margin (> n_w + 1: finite inverse-Wishart mean)
+    x0_mean: tuple[float, ...] | None = None  # initial state mean (full: vx, vy, r)
+    x0_std: tuple[float, ...] = (1.0, 0.5, 0.0175)  # full: vx, vy, r (lateral uses vy, r)
+    # observability gate (Sec. V) and linear-region gate
+    gate_speed: float = 5.0  # m/s
+    gate_steer: float = 0.0035  # rad (0.2 deg)
+    gate_ay_max: float = 4.0  # m/s^2
+    gate_alpha_max: float = 0.08  # rad
+    # parameter projection (Sec. V): stiffness bounds relative to the reference
+    bound_low: float = 0.2
+    bound_high: float = 3.0
+    # sensors
+    sigma: tuple[float, float, float] = (0.05, 0.05, 0.0035)  # ax, ay, yaw rate white noise
+    bias_rw: tuple[float, float, float] = (0.0, 0.0, 0.0)  # random-walk std per sqrt(s)
+    bias0_std: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    sample_period: float = 0.01  # s, used for the first step and as the bias-RW time base
+
+    def validated(self) -> "MPFConfig":
+        def bad(key, problem):
+            raise ConfigError("mpf configuration", key, problem)
+
+        if int(self.particles) != self.particles or self.particles < 1:
+            bad("particles", f"N must be an integer >= 1, got {self.particles!r}")
+        if not 0.0 < self.forgetting <= 1.0:
+            bad("forgetting", f"lambda must be in (0, 1], got {self.forgetting!r}")
+        if self.model not in ("full", "lateral"):
+            bad("model", f"expected full or lateral, got {self.model!r}")
+        if self.integrator not in ("euler", "heun"):
+            bad("integrator", f"expected euler or heun, got {self.integrator!r}")
+        if self.init_distribution not in ("normal", "uniform"):
+            bad("init_distribution", f"expected normal or uniform, got {self.init_distribution!r}")
+        for key in ("init_std", "init_half_width", "init_sigma", "gate_speed", "gate_steer", "gate_ay_max",
+                    "gate_alpha_max", "nu0_margin"):
+            if not getattr(self, key) >= 0:
+                bad(key, f"must be >= 0, got {getattr(self, key)!r}")
+        for key in ("sigma", "bias_rw", "bias0_std", "x0_std"):
+            if any(not v >= 0 for v in getattr(self, key)):
+                bad(key, f"noise values must be >= 0, got {getattr(self, key)!r}")
+        if min(self.sigma) <= 0:
+            bad("sigma", f"sensor noise must be > 0, got {self.sigma!r}")
+        if not 0 < self.within_share < 1:
+            bad("within_share", f"must be in (0, 1), got {self.within_share!r}")
+        if self.init_sigma <= 0:
+            bad("init_sigma", "must be > 0")
+        if not 0 < self.bound_low < self.bound_high:
+            bad("bound_low", "need 0 < bound_low < bound_high")
+        if self.sample_period <= 0:
+            bad("sample_period", "must be > 0")
+        return self
+
+
+class StiffnessMPF:
+    """Algorithm 1 of the stiffness paper, vectorised over particles."""
+
+    name = "mpf"
+
+    def __init__(self, vehicle: VehicleParams, config: MPFConfig = MPFConfig()):
+        self.vehicle = vehicle
+        self.cfg = config.validated()
+        v = vehicle
+        other = v.Cx if v.Cx_undriven is None else v.Cx_undriven
+        self.rear_drive = v.drive == "rear"
+        # nominal axle stiffness: driven axle's Cx is estimated, the other axle's is nominal
+        self.C_nom_fx = other if self.rear_drive else v.Cx
+        self.C_nom_rx = v.Cx if self.rear_drive else other
+        self.full = self.cfg.model == "full"
+        self.params = ("Cx", "Cf_y", "Cr_y") if self.full else ("Cf_y", "Cr_y")
+        self.C_nom = np.array([v.Cx, v.Cf_y, v.Cr_y] if self.full else [v.Cf_y, v.Cr_y])
+        self.n_w = len(self.params)
+        self.channels = (0, 1, 2) if self.full else (1, 2)  # ax, ay, yaw rate
+        self.roll_gain = 1.0 + v.roll_gradient * GRAVITY  # measured a^Y ~ (1 + k g) a^Y
+        sig = np.asarray(self.cfg.sigma)[list(self.channels)]
+        self.R = np.diag(sig**2)
+        self.q_bias = np.asarray(self.cfg.bias_rw)[list(self.channels)] ** 2
+        ref = np.asarray(self.cfg.init_reference if self.cfg.init_reference is not None else self.C_nom, float)
+        center = np.asarray(self.cfg.init_center if self.cfg.init_center is not None else ref, float)
+        if ref.shape != (self.n_w,) or center.shape != (self.n_w,):
+            raise ConfigError("mpf configuration", "init_center",
+                              f"needs {self.n_w} values ({', '.join(self.params)})")
+        self.C_ref, self.C_center = ref, center
+
+    def config_dict(self) -> dict:
+        d = asdict(self.cfg)
+        d.update(params=list(self.params), C_nominal=self.C_nom.tolist())
+        return d
+
+    # ---- initialisation ---------------------------------------------------------------
+    def reset(self, rng: np.random.Generator) -> None:
+        cfg, N, n = self.cfg, self.cfg.particles, self.n_w
+        self.rng = rng
+        # prior spread of the mean, split between particles and each particle's NiW
+        if cfg.init_distribution == "normal":
+            s = cfg.init_std
+            u = rng.standard_normal((N, n)) * s
+        else:
+            s = cfg.init_half_width / math.sqrt(3.0)
+            u = rng.uniform(-cfg.init_half_width, cfg.init_half_width, (N, n))
+        share = cfg.within_share if s > 0 else 0.0
+        means = self.C_center + np.sqrt(1.0 - share) * u * self.C_ref
+        sigma0 = cfg.init_sigma * self.C_ref  # prior guess of the deviation std
+        nu0 = n + 1.0 + cfg.nu0_margin
+        Lam0 = np.diag(sigma0**2) * (nu0 - n - 1.0)  # so that E[Sigma] = diag(sigma0^2)
+        gamma0 = max(share * s * s / cfg.init_sigma**2, 1e-6)  # gamma E[Sigma] = share s^2 C_ref^2
+        self.stats = NiW(np.full(N, gamma0), means - self.C_nom, np.broadcast_to(Lam0, (N, n, n)).copy(),
+                         np.full(N, nu0))
+        x0_std = np.asarray(cfg.x0_std, float)
+        if self.full:
+            mean = np.asarray(cfg.x0_mean if cfg.x0_mean is not None else (20.0, 0.0, 0.0), float)
+            self.x = mean + rng.standard_normal((N, 3)) * x0_std
+        else:
+            mean = np.asarray(cfg.x0_mean if cfg.x0_mean is not None else (0.0, 0.0), float)[-2:]
+            self.x = mean + rng.standard_normal((N, 2)) * x0_std[-2:]
+        m = len(self.channels)
+        self.b = np.zeros((N, m))
+        self.P = np.broadcast_to(np.diag(np.asarray(cfg.bias0_std)[list(self.channels)] ** 2), (N, m, m)).copy()
+        self.logw = np.full(N, -math.log(N))
+        self.w_prev = None
+        self.u_prev = None
+        self.t_prev = None
+        self.active = False
+        self.learned = False
+        self.resamples = 0
+
+    # ---- model ------------------------------------------------------------------------
+    def _kinematics(self, x, u, slip=None):
+        """Slip quantities of eq. (3)-(4) (small-angle form of the paper)."""
+        v = self.vehicle
+        if self.full:
+            vx, vy, r = x[:, 0], x[:, 1], x[:, 2]
+        else:
+            vx, vy, r = np.full(len(x), self._vx_in), x[:, 0], x[:, 1]
+        vxe = np.maximum(vx, 1.0)
+        alpha_f = u[0] - (vy + v.lf * r) / vxe
+        alpha_r = (v.lr * r - vy) / vxe
+        if slip is None and self.full:
+            Rw = v.wheel_radius
+            lam = []
+            for omega in (u[1], u[2]):
+                wr = Rw * omega
+                lam.append((wr - vx) / np.maximum(np.maximum(np.abs(vx), np.abs(wr)), 1.0))
+            slip = (lam[0], lam[1])
+        return vx, vy, r, alpha_f, alpha_r, slip
+
+    def _accelerations(self, x, u, slip=None):
+        """Nominal accelerations a = (a^X, a^Y, r') and their gradients B = d a / d w
+        (N, 3, n_w), from eq. (1) with F = (C_n + w) slip (eq. (2), (7))."""
+        v = self.vehicle
+        vx, vy, r, af, ar, slip = self._kinematics(x, u, slip)
+        cd, sd = math.cos(u[0]), math.sin(u[0])
+        m, I, lf, lr = v.mass, v.yaw_inertia, v.lf, v.lr
+        Ffy, Fry = v.Cf_y * af, v.Cr_y * ar
+        N = len(x)
+        B = np.zeros((N, 3, self.n_w))
+        if self.full:
+            lam_f, lam_r = slip
+            Ffx, Frx = self.C_nom_fx * lam_f, self.C_nom_rx * lam_r
+            if self.rear_drive:
+                B[:, 0, 0] = lam_r / m
+            else:
+                B[:, 0, 0] = lam_f * cd / m
+                B[:, 1, 0] = lam_f * sd / m
+                B[:, 2, 0] = lf * lam_f * sd / I
+            j = 1
+        else:
+            Ffx = Frx = 0.0
+            j = 0
+        B[:, 0, j] = -af * sd / m
+        B[:, 1, j] = af * cd / m
+        B[:, 2, j] = lf * af * cd / I
+        B[:, 1, j + 1] = ar / m
+        B[:, 2, j + 1] = -lr * ar / I
+        aX = (Ffx * cd - Ffy * sd + Frx) / m
+        aY = (Ffy * cd + Ffx * sd + Fry) / m
+        rdot = (lf * (Ffy * cd + Ffx * sd) - lr * Fry) / I
+        return np.stack([aX, aY, rdot], axis=1), B, vx, vy, r, af, ar, slip
+
+    def _xdot(self, x, u, w, slip=None):
+        a, B, vx, vy, r, *_ , slip = self._accelerations(x, u, slip)
+        acc = a + np.einsum("nij,nj->ni", B, w)
+        if self.full:
+            return np.stack([vy * r + acc[:, 0], -vx * r + acc[:, 1], acc[:, 2]], axis=1), slip
+        return np.stack([-vx * r + acc[:, 1], acc[:, 2]], axis=1), slip
+
+    def _propagate(self, x, u, w, dt):
+        """x_{k+1} = f(x_k) + g(x_k) w_k (eq. (9)): Euler, or Heun with the same w and the
+        wheel slip held over the step."""
+        k1, slip = self._xdot(x, u, w)
+        if self.cfg.integrator == "euler":
+            return x + dt * k1
+        k2, _ = self._xdot(x + dt * k1, u, w, slip)
+        return x + 0.5 * dt * (k1 + k2)
+
+    def _measurement(self, x, u):
+        """h(x, u) and d(x, u) of eq. (12) for the model's channels: the IMU sees the
+        accelerations (a^Y times the roll gain) and the yaw rate; d = d a / d w (no Ts:
+        DESIGN.md, eq. (12) trap)."""
+        a, B, vx, vy, r, af, ar, _ = self._accelerations(x, u)
+        h = np.stack([a[:, 0], self.roll_gain * a[:, 1], r], axis=1)
+        D = np.zeros((len(x), 3, self.n_w))
+        D[:, 0] = B[:, 0]
+        D[:, 1] = self.roll_gain * B[:, 1]
+        ch = list(self.channels)
+        return h[:, ch], D[:, ch], af, ar
+
+    # ---- the filter -------------------------------------------------------------------
+    def step(self, t: float, u: Inputs, y: Measurement) -> Estimate:
+        cfg = self.cfg
+        if self.full:
+            uk = np.array([u.delta, u.omega_f, u.omega_r], float)
+        else:
+            if not math.isfinite(u.vx):
+                raise ConfigError("inputs", "vx", f"the lateral model needs vx at every sample (t = {t} s)")
+            self._vx_in = u.vx
+            uk = np.array([u.delta, NAN, NAN], float)
+        if self.u_prev is not None:
+            # hold the last finite input where a sample is missing
+            uk = np.where(np.isfinite(uk), uk, self.u_prev)
+        if not math.isfinite(uk[0]):
+            uk[0] = 0.0
+
+        # 1. propagate from the previous sample
+        if self.t_prev is not None:
+            dt = t - self.t_prev
+            if dt <= 0:
+                raise ConfigError("inputs", "t", f"time must increase: {t} after {self.t_prev}")
+            self.x = self._propagate(self.x, self.u_prev, self.w_prev, dt)
+            self.P = self.P + np.diag(self.q_bias * dt)
+            if self.active:
+                self.stats.forget(cfg.forgetting)
+        self.t_prev, self.u_prev = t, uk
+
+        yk = np.array([y.ax, y.ay, y.yaw_rate], float)[list(self.channels)]
+        avail = np.isfinite(yk)
+        h, D, af, ar = self._measurement(self.x, uk)
+        mu_w, L11, nu_w = self.stats.predictive()
+
+        # 2. weights, eq. (36): joint Student-t of (w, residual) with common dof nu_w
+        a = np.flatnonzero(avail)
+        if a.size:
+            logw = self.logw + self._residual_loglik(yk, h, D, a, mu_w, L11, nu_w)
+            self.logw = normalize_log_weights(logw)
+        ess = float(effective_sample_size(self.logw))
+        if ess < cfg.resample_threshold * cfg.particles:
+            idx = systematic_resample(self.logw, self.rng)
+            self.x, self.b, self.P = self.x[idx], self.b[idx], self.P[idx]
+            self.stats = self.stats.take(idx)
+            h, D, af, ar = h[idx], D[idx], af[idx], ar[idx]
+            mu_w, L11, nu_w = mu_w[idx], L11[idx], nu_w[idx]
+            self.logw = np.full(cfg.particles, -math.log(cfg.particles))
+            self.resamples += 1
+
+        # gate: observability (speed, steering) and linear tire region
+        q = np.exp(self.logw)
+        vx_est = float(q @ self.x[:, 0]) if self.full else u.vx
+        ay_m = y.ay if math.isfinite(y.ay) else 0.0
+        self.active = bool(
+            vx_est > cfg.gate_speed and abs(uk[0]) > cfg.gate_steer and abs(ay_m) < cfg.gate_ay_max
+            and abs(float(q @ af)) < cfg.gate_alpha_max and abs(float(q @ ar)) < cfg.gate_alpha_max
+        )
+
+        # 3. bias, eq. (30) with the predicted statistics (the order of DESIGN.md)
+        if a.size:
+            self._bias_update(yk, h, D, a)
+
+        # 4. sample w_k given the accelerometer residuals, eq. (39)-(41)
+        c = np.array([j for j in a if self.channels[j] in (0, 1)], dtype=int)
+        if c.size:
+            resid = yk[c] - h[:, c] - self.b_prior[:, c]
+            Dc = D[:, c]
+            L12 = L11 @ np.swapaxes(Dc, 1, 2)
+            L22 = Dc @ L12 + ((nu_w - 2.0) / nu_w)[:, None, None] * (self.R[np.ix_(c, c)] + self.P_prior[:, c][:, :, c])
+            mu_c, Lam_c, nu_c = t_conditional(mu_w, np.einsum("nij,nj->ni", Dc, mu_w), L11, L12, L22, nu_w, resid)
+            w = t_sample(mu_c, Lam_c, nu_c, self.rng)
+        else:
+            w = t_sample(mu_w, L11, nu_w, self.rng)
+        if self.active:
+            self.stats.update(w)
+            lo = cfg.bound_low * self.C_ref - self.C_nom
+            hi = cfg.bound_high * self.C_ref - self.C_nom
+            self.stats.mu = np.clip(self.stats.mu, lo, hi)  # parameter projection (Sec. V)
+            self.learned = True
+        self.w_prev = w
+        return self._estimate(ess)
+
+    def _residual_loglik(self, yk, h, D, a, mu_w, L11, nu_w):
+        """log St(y - h - b; d mu, (1+gamma)/nu~ d Lam d^T + (nu~-2)/nu~ (R + P), nu~) on the
+        available channels a (eq. (36), consistently scaled)."""
+        Da = D[:, a]
+        resid = yk[a] - h[:, a] - self.b[:, a]
+        S = Da @ L11 @ np.swapaxes(Da, 1, 2) + ((nu_w - 2.0) / nu_w)[:, None, None] * (
+            self.R[np.ix_(a, a)] + self.P[:, a][:, :, a])
+        return t_logpdf(resid, np.einsum("nij,nj->ni", Da, mu_w), S, nu_w)
+
+    def _bias_update(self, yk, h, D, a):
+        """Per-particle Kalman update of the bias, eq. (30):
+        S = P + R + d Sigma_hat d^T, K = P S^-1, b += K (y - h - d mu - b), P -= K S K^T."""
+        self.b_prior, self.P_prior = self.b.copy(), self.P.copy()
+        Da = D[:, a]
+        Sig = self.stats.mean_sigma()
+        S = self.P[:, a][:, :, a] + self.R[np.ix_(a, a)] + Da @ Sig @ np.swapaxes(Da, 1, 2)
+        PaT = self.P[:, :, a]  # (N, m, |a|)
+        K = np.swapaxes(np.linalg.solve(S, np.swapaxes(PaT, 1, 2)), 1, 2)
+        innov = yk[a] - h[:, a] - np.einsum("nij,nj->ni", Da, self.stats.mu) - self.b[:, a]
+        self.b = self.b + np.einsum("nij,nj->ni", K, innov)
+        P = self.P - K @ S @ np.swapaxes(K, 1, 2)
+        self.P = 0.5 * (P + np.swapaxes(P, 1, 2))
+
+    def _estimate(self, ess: float) -> Estimate:
+        q = np.exp(self.logw)
+        x_mean = q @ self.x
+        x_std = np.sqrt(np.maximum(q @ (self.x - x_mean) ** 2, 0.0))
+        mu = self.stats.mu
+        mbar = q @ mu
+        spread = q @ (mu - mbar) ** 2
+        Esig = np.diagonal(self.stats.mean_sigma(), axis1=1, axis2=2)
+        var_mean = q @ (self.stats.gamma[:, None] * Esig) + spread  # posterior variance of the mean
+        sigma2 = q @ Esig + spread  # eq. (27b), diagonal, with nu - n_w - 1
+        C = self.C_nom + mbar
+        vals = dict(zip(self.params, zip(C, np.sqrt(var_mean), np.sqrt(sigma2))))
+        b = q @ self.b
+        bias = dict(zip(("ax", "ay", "yaw_rate") if self.full else ("ay", "yaw_rate"), b))
+        if self.full:
+            vx, vy, r = x_mean
+            std = tuple(x_std)
+        else:
+            vx, (vy, r) = self._vx_in, x_mean
+            std = (0.0, x_std[0], x_std[1])
+        cx = vals.get("Cx", (NAN, NAN, NAN))
+        return Estimate(
+            active=self.active, vx=float(vx), vy=float(vy), yaw_rate=float(r),
+            Cf_y=float(vals["Cf_y"][0]), Cr_y=float(vals["Cr_y"][0]), Cx=float(cx[0]),
+            Cf_y_std=float(vals["Cf_y"][1]), Cr_y_std=float(vals["Cr_y"][1]), Cx_std=float(cx[1]),
+            Cf_y_sigma=float(vals["Cf_y"][2]), Cr_y_sigma=float(vals["Cr_y"][2]), Cx_sigma=float(cx[2]),
+            b_ax=float(bias.get("ax", NAN)), b_ay=float(bias["ay"]), b_yaw_rate=float(bias["yaw_rate"]),
+            ess=ess, state_std=tuple(float(s) for s in std),
+        )
+
+    def posterior(self) -> Posterior:
+        return Posterior(self.x.copy(), self.logw.copy(),
+                         {"gamma": self.stats.gamma.copy(), "mu": self.stats.mu.copy(), "Lam": self.stats.Lam.copy(),
+                          "nu": self.stats.nu.copy(), "bias": self.b.copy(), "bias_cov": self.P.copy(),
+                          "C_nominal": self.C_nom.copy(), "params": self.params})
