@@ -157,3 +157,21 @@ def test_particle_filter_matches_the_kalman_filter():
         se = np.sqrt(P_kf / effective_sample_size(lw))
         assert abs(mean - m_kf) < 5 * se, (k, mean, m_kf, se)
         particles = particles[systematic_resample(lw, rng)]
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 4])
+def test_small_batched_linear_algebra_matches_numpy(n):
+    from tirefilter.stats.linalg import chol, chol_solve, logdet_chol, solve_lower, solve_upper_t
+
+    rng = np.random.default_rng(n)
+    S = np.stack([_spd(rng, n) for _ in range(50)])
+    L = chol(S)
+    np.testing.assert_allclose(L, np.linalg.cholesky(S), rtol=1e-12, atol=1e-12)
+    b = rng.standard_normal((50, n))
+    B = rng.standard_normal((50, n, 2))
+    np.testing.assert_allclose(chol_solve(L, b), np.linalg.solve(S, b[..., None])[..., 0], rtol=1e-10)
+    np.testing.assert_allclose(chol_solve(L, B), np.linalg.solve(S, B), rtol=1e-10)
+    np.testing.assert_allclose(solve_lower(L, b), np.linalg.solve(L, b[..., None])[..., 0], rtol=1e-10)
+    np.testing.assert_allclose(solve_upper_t(L, b), np.linalg.solve(np.swapaxes(L, 1, 2), b[..., None])[..., 0],
+                               rtol=1e-10)
+    np.testing.assert_allclose(logdet_chol(L), np.linalg.slogdet(S)[1], rtol=1e-12, atol=1e-12)

@@ -24,11 +24,12 @@ import math
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
+from scipy.special import gammaln
 
 from tirefilter.errors import ConfigError
 from tirefilter.estimators.base import Estimate, Inputs, Measurement, Posterior
 from tirefilter.stats import NiW, effective_sample_size, normalize_log_weights, systematic_resample
-from tirefilter.stats.student_t import t_conditional, t_logpdf, t_sample
+from tirefilter.stats.linalg import chol, chol_solve, logdet_chol, solve_lower
 from tirefilter.vehicle.params import VehicleParams
 from tirefilter.vehicle.single_track import GRAVITY
 
@@ -61,6 +62,7 @@ class MPFConfig:
     gate_steer: float = 0.0035  # rad (0.2 deg)
     gate_ay_max: float = 4.0  # m/s^2
     gate_alpha_max: float = 0.08  # rad
+    gate_vy_std: float = 0.15  # m/s: learn only once the lateral velocity is known this well
     # parameter projection (Sec. V): stiffness bounds relative to the reference
     bound_low: float = 0.2
     bound_high: float = 3.0
@@ -85,7 +87,7 @@ class MPFConfig:
         if self.init_distribution not in ("normal", "uniform"):
             bad("init_distribution", f"expected normal or uniform, got {self.init_distribution!r}")
         for key in ("init_std", "init_half_width", "init_sigma", "gate_speed", "gate_steer", "gate_ay_max",
-                    "gate_alpha_max", "nu0_margin"):
+                    "gate_alpha_max", "gate_vy_std", "nu0_margin"):
             if not getattr(self, key) >= 0:
                 bad(key, f"must be >= 0, got {getattr(self, key)!r}")
         for key in ("sigma", "bias_rw", "bias0_std", "x0_std"):
@@ -126,6 +128,7 @@ class StiffnessMPF:
         self.roll_gain = 1.0 + v.roll_gradient * GRAVITY  # measured a^Y ~ (1 + k g) a^Y
         sig = np.asarray(self.cfg.sigma)[list(self.channels)]
         self.R = np.diag(sig**2)
+        self.bias_on = bool(np.any(np.asarray(self.cfg.bias_rw) > 0) or np.any(np.asarray(self.cfg.bias0_std) > 0))
         self.q_bias = np.asarray(self.cfg.bias_rw)[list(self.channels)] ** 2
         ref = np.asarray(self.cfg.init_reference if self.cfg.init_reference is not None else self.C_nom, float)
         center = np.asarray(self.cfg.init_center if self.cfg.init_center is not None else ref, float)
@@ -285,15 +288,24 @@ class StiffnessMPF:
         self.t_prev, self.u_prev = t, uk
 
         yk = np.array([y.ax, y.ay, y.yaw_rate], float)[list(self.channels)]
-        avail = np.isfinite(yk)
+        a = np.flatnonzero(np.isfinite(yk))  # available channels, in the order ax, ay, yaw rate
+        nc = int(sum(self.channels[j] in (0, 1) for j in a))  # accelerometer channels lead
         h, D, af, ar = self._measurement(self.x, uk)
         mu_w, L11, nu_w = self.stats.predictive()
 
-        # 2. weights, eq. (36): joint Student-t of (w, residual) with common dof nu_w
-        a = np.flatnonzero(avail)
+        # 2. weights, eq. (36): the joint Student-t of (w, residual) with the common dof
+        #    nu~ = nu - n_w + 1 and every block scaled alike (derivations, Sec. 3)
         if a.size:
-            logw = self.logw + self._residual_loglik(yk, h, D, a, mu_w, L11, nu_w)
-            self.logw = normalize_log_weights(logw)
+            Da = D[:, a]
+            L12 = L11 @ np.swapaxes(Da, 1, 2)  # (N, n_w, |a|)
+            S = Da @ L12 + ((nu_w - 2.0) / nu_w)[:, None, None] * (self.R[np.ix_(a, a)] + self.P[:, a][:, :, a])
+            Lc = chol(S)
+            e = yk[a] - h[:, a] - self.b[:, a] - np.einsum("nij,nj->ni", Da, mu_w)
+            v = solve_lower(Lc, e)
+            p = a.size
+            loglik = (gammaln(0.5 * (nu_w + p)) - gammaln(0.5 * nu_w) - 0.5 * p * np.log(nu_w * np.pi)
+                      - 0.5 * logdet_chol(Lc) - 0.5 * (nu_w + p) * np.log1p(np.sum(v * v, axis=1) / nu_w))
+            self.logw = normalize_log_weights(self.logw + loglik)
         ess = float(effective_sample_size(self.logw))
         if ess < cfg.resample_threshold * cfg.particles:
             idx = systematic_resample(self.logw, self.rng)
@@ -301,63 +313,62 @@ class StiffnessMPF:
             self.stats = self.stats.take(idx)
             h, D, af, ar = h[idx], D[idx], af[idx], ar[idx]
             mu_w, L11, nu_w = mu_w[idx], L11[idx], nu_w[idx]
+            if a.size:
+                L12, Lc, v = L12[idx], Lc[idx], v[idx]
             self.logw = np.full(cfg.particles, -math.log(cfg.particles))
             self.resamples += 1
 
-        # gate: observability (speed, steering) and linear tire region
+        # gate: observability (speed, steering) and linear tire region (Sec. V)
         q = np.exp(self.logw)
         vx_est = float(q @ self.x[:, 0]) if self.full else u.vx
+        vy = self.x[:, 1 if self.full else 0]
+        vy_std = math.sqrt(max(float(q @ (vy - q @ vy) ** 2), 0.0))
         ay_m = y.ay if math.isfinite(y.ay) else 0.0
         self.active = bool(
             vx_est > cfg.gate_speed and abs(uk[0]) > cfg.gate_steer and abs(ay_m) < cfg.gate_ay_max
             and abs(float(q @ af)) < cfg.gate_alpha_max and abs(float(q @ ar)) < cfg.gate_alpha_max
+            and vy_std < cfg.gate_vy_std
         )
 
-        # 3. bias, eq. (30) with the predicted statistics (the order of DESIGN.md)
-        if a.size:
-            self._bias_update(yk, h, D, a)
-
-        # 4. sample w_k given the accelerometer residuals, eq. (39)-(41)
-        c = np.array([j for j in a if self.channels[j] in (0, 1)], dtype=int)
-        if c.size:
-            resid = yk[c] - h[:, c] - self.b_prior[:, c]
-            Dc = D[:, c]
-            L12 = L11 @ np.swapaxes(Dc, 1, 2)
-            L22 = Dc @ L12 + ((nu_w - 2.0) / nu_w)[:, None, None] * (self.R[np.ix_(c, c)] + self.P_prior[:, c][:, :, c])
-            mu_c, Lam_c, nu_c = t_conditional(mu_w, np.einsum("nij,nj->ni", Dc, mu_w), L11, L12, L22, nu_w, resid)
-            w = t_sample(mu_c, Lam_c, nu_c, self.rng)
+        # 3. sample w_k from the conditional given the accelerometer residuals, eq. (39)-(41);
+        #    the yaw-rate residual carries no information on w (d row 0) and is left out.
+        #    The leading nc x nc block of Lc is the Cholesky factor of their scale matrix.
+        if nc:
+            Lcc, vc = Lc[:, :nc, :nc], v[:, :nc]
+            L12c = L12[:, :, :nc]
+            M = solve_lower(Lcc, np.swapaxes(L12c, 1, 2))  # Lcc^-1 L21, (N, nc, n_w)
+            mu_c = mu_w + np.einsum("nki,nk->ni", M, vc)
+            scale = (nu_w + np.sum(vc * vc, axis=1)) / (nu_w + nc)
+            Lam_c = scale[:, None, None] * (L11 - np.swapaxes(M, 1, 2) @ M)
+            nu_c = nu_w + nc
         else:
-            w = t_sample(mu_w, L11, nu_w, self.rng)
+            mu_c, Lam_c, nu_c = mu_w, L11, nu_w
+        z = self.rng.standard_normal(mu_c.shape)
+        g = self.rng.chisquare(nu_c)
+        w = mu_c + np.einsum("nij,nj->ni", chol(Lam_c), z) * np.sqrt(nu_c / g)[:, None]
+
+        # 4. bias, eq. (30), with the predicted statistics (DESIGN.md order)
+        if a.size and self.bias_on:
+            self._bias_update(yk, h, D, a)
         if self.active:
-            self.stats.update(w)
+            self.stats.update(w)  # eq. (19) with the same w_k that drives the state
             lo = cfg.bound_low * self.C_ref - self.C_nom
             hi = cfg.bound_high * self.C_ref - self.C_nom
             self.stats.mu = np.clip(self.stats.mu, lo, hi)  # parameter projection (Sec. V)
-            self.learned = True
         self.w_prev = w
         return self._estimate(ess)
 
-    def _residual_loglik(self, yk, h, D, a, mu_w, L11, nu_w):
-        """log St(y - h - b; d mu, (1+gamma)/nu~ d Lam d^T + (nu~-2)/nu~ (R + P), nu~) on the
-        available channels a (eq. (36), consistently scaled)."""
-        Da = D[:, a]
-        resid = yk[a] - h[:, a] - self.b[:, a]
-        S = Da @ L11 @ np.swapaxes(Da, 1, 2) + ((nu_w - 2.0) / nu_w)[:, None, None] * (
-            self.R[np.ix_(a, a)] + self.P[:, a][:, :, a])
-        return t_logpdf(resid, np.einsum("nij,nj->ni", Da, mu_w), S, nu_w)
-
     def _bias_update(self, yk, h, D, a):
         """Per-particle Kalman update of the bias, eq. (30):
-        S = P + R + d Sigma_hat d^T, K = P S^-1, b += K (y - h - d mu - b), P -= K S K^T."""
-        self.b_prior, self.P_prior = self.b.copy(), self.P.copy()
+        S = P + R + d Sigma_hat d^T, K = P S^-1, b += K (y - h - d mu - b), P -= K S K^T
+        (= P - P_{:,a} K^T)."""
         Da = D[:, a]
-        Sig = self.stats.mean_sigma()
-        S = self.P[:, a][:, :, a] + self.R[np.ix_(a, a)] + Da @ Sig @ np.swapaxes(Da, 1, 2)
-        PaT = self.P[:, :, a]  # (N, m, |a|)
-        K = np.swapaxes(np.linalg.solve(S, np.swapaxes(PaT, 1, 2)), 1, 2)
+        S = self.P[:, a][:, :, a] + self.R[np.ix_(a, a)] + Da @ self.stats.mean_sigma() @ np.swapaxes(Da, 1, 2)
+        Pa = self.P[:, a, :]  # (N, |a|, m)
+        Kt = chol_solve(chol(S), Pa)  # K^T = S^-1 P_{a,:}
         innov = yk[a] - h[:, a] - np.einsum("nij,nj->ni", Da, self.stats.mu) - self.b[:, a]
-        self.b = self.b + np.einsum("nij,nj->ni", K, innov)
-        P = self.P - K @ S @ np.swapaxes(K, 1, 2)
+        self.b = self.b + np.einsum("nki,nk->ni", Kt, innov)
+        P = self.P - np.swapaxes(Pa, 1, 2) @ Kt
         self.P = 0.5 * (P + np.swapaxes(P, 1, 2))
 
     def _estimate(self, ess: float) -> Estimate:
