@@ -25,6 +25,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 from scipy.special import gammaln
+from scipy.stats import chi2
 
 from tirefilter.errors import ConfigError
 from tirefilter.estimators.base import Estimate, Inputs, Measurement, Posterior
@@ -63,6 +64,8 @@ class MPFConfig:
     gate_ay_max: float = 4.0  # m/s^2
     gate_alpha_max: float = 0.08  # rad
     gate_vy_std: float = 0.15  # m/s: learn only once the lateral velocity is known this well
+    outlier_prob: float = 1.0  # < 1: a particle skips learning when its residual is beyond this
+    # chi-square quantile (off by default: it also rejects the residuals of a real surface change)
     # parameter projection (Sec. V): stiffness bounds relative to the reference
     bound_low: float = 0.2
     bound_high: float = 3.0
@@ -95,6 +98,8 @@ class MPFConfig:
                 bad(key, f"noise values must be >= 0, got {getattr(self, key)!r}")
         if min(self.sigma) <= 0:
             bad("sigma", f"sensor noise must be > 0, got {self.sigma!r}")
+        if not 0 < self.outlier_prob <= 1:
+            bad("outlier_prob", f"must be in (0, 1], got {self.outlier_prob!r}")
         if not 0 < self.within_share < 1:
             bad("within_share", f"must be in (0, 1), got {self.within_share!r}")
         if self.init_sigma <= 0:
@@ -137,6 +142,12 @@ class StiffnessMPF:
                               f"needs {self.n_w} values ({', '.join(self.params)})")
         self.C_ref, self.C_center = ref, center
 
+    def _outlier_bound(self, nc: int) -> float:
+        cache = self.__dict__.setdefault("_bounds", {})
+        if nc not in cache:
+            cache[nc] = float(chi2.ppf(self.cfg.outlier_prob, nc))
+        return cache[nc]
+
     def config_dict(self) -> dict:
         d = asdict(self.cfg)
         d.update(params=list(self.params), C_nominal=self.C_nom.tolist())
@@ -157,6 +168,7 @@ class StiffnessMPF:
         means = self.C_center + np.sqrt(1.0 - share) * u * self.C_ref
         sigma0 = cfg.init_sigma * self.C_ref  # prior guess of the deviation std
         nu0 = n + 1.0 + cfg.nu0_margin
+        self.nu0 = nu0
         Lam0 = np.diag(sigma0**2) * (nu0 - n - 1.0)  # so that E[Sigma] = diag(sigma0^2)
         gamma0 = max(share * s * s / cfg.init_sigma**2, 1e-6)  # gamma E[Sigma] = share s^2 C_ref^2
         self.stats = NiW(np.full(N, gamma0), means - self.C_nom, np.broadcast_to(Lam0, (N, n, n)).copy(),
@@ -284,7 +296,7 @@ class StiffnessMPF:
             self.x = self._propagate(self.x, self.u_prev, self.w_prev, dt)
             self.P = self.P + np.diag(self.q_bias * dt)
             if self.active:
-                self.stats.forget(cfg.forgetting)
+                self.stats.forget(cfg.forgetting, nu_min=self.nu0)
         self.t_prev, self.u_prev = t, uk
 
         yk = np.array([y.ax, y.ay, y.yaw_rate], float)[list(self.channels)]
@@ -341,8 +353,12 @@ class StiffnessMPF:
             scale = (nu_w + np.sum(vc * vc, axis=1)) / (nu_w + nc)
             Lam_c = scale[:, None, None] * (L11 - np.swapaxes(M, 1, 2) @ M)
             nu_c = nu_w + nc
+            # outlier gate: the Mahalanobis distance beyond the chi-square quantile (the
+            # Student-t's F(nc, nu) tends to it; stricter for small nu)
+            learn = (np.sum(vc * vc, axis=1) < self._outlier_bound(nc)) if cfg.outlier_prob < 1 else None
         else:
             mu_c, Lam_c, nu_c = mu_w, L11, nu_w
+            learn = None
         z = self.rng.standard_normal(mu_c.shape)
         g = self.rng.chisquare(nu_c)
         w = mu_c + np.einsum("nij,nj->ni", chol(Lam_c), z) * np.sqrt(nu_c / g)[:, None]
@@ -351,7 +367,7 @@ class StiffnessMPF:
         if a.size and self.bias_on:
             self._bias_update(yk, h, D, a)
         if self.active:
-            self.stats.update(w)  # eq. (19) with the same w_k that drives the state
+            self.stats.update(w, learn)  # eq. (19) with the same w_k that drives the state
             lo = cfg.bound_low * self.C_ref - self.C_nom
             hi = cfg.bound_high * self.C_ref - self.C_nom
             self.stats.mu = np.clip(self.stats.mu, lo, hi)  # parameter projection (Sec. V)

@@ -46,12 +46,19 @@ class NiW:
             self.Lam = np.where(mask[..., None, None], Lam, self.Lam)
             self.nu = np.where(mask, nu, self.nu)
 
-    def forget(self, lam: float) -> None:
+    def forget(self, lam: float, nu_min: float = 0.0) -> None:
         """Prediction with exponential forgetting, eq. (20): gamma / lambda, nu lambda,
-        Lam lambda, mu unchanged."""
-        self.gamma = self.gamma / lam
-        self.nu = self.nu * lam
-        self.Lam = self.Lam * lam
+        Lam lambda, mu unchanged.
+
+        With `nu_min`, forgetting stops where it would take nu below nu_min (the factor
+        is max(lambda, nu_min / nu) per particle): statistics that receive no data (a
+        particle that skips learning) keep the prior's information instead of drifting to
+        nu <= n + 1, where the inverse-Wishart mean and the Student-t variance do not exist.
+        """
+        factor = np.maximum(lam, np.minimum(1.0, nu_min / self.nu)) if nu_min > 0 else np.full_like(self.nu, lam)
+        self.gamma = self.gamma / factor
+        self.nu = self.nu * factor
+        self.Lam = self.Lam * factor[..., None, None]
 
     def predictive(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Student-t predictive of the next observation, eq. (21) with d = n:
