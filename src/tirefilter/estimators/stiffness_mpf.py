@@ -58,12 +58,15 @@ class MPFConfig:
     nu0_margin: float = 4.0  # nu_0 = n_w + 1 + margin (> n_w + 1: finite inverse-Wishart mean)
     x0_mean: tuple[float, ...] | None = None  # initial state mean (full: vx, vy, r)
     x0_std: tuple[float, ...] = (1.0, 0.5, 0.0175)  # full: vx, vy, r (lateral uses vy, r)
+    x0_vx_from_wheels: bool = True  # full model: centre vx on R_w omega of the undriven axle
+    x0_vx_wheel_std: float = 0.1  # m/s, spread around it (the free-rolling wheel's slip)
     # observability gate (Sec. V) and linear-region gate
     gate_speed: float = 5.0  # m/s
     gate_steer: float = 0.0035  # rad (0.2 deg)
     gate_ay_max: float = 4.0  # m/s^2
     gate_alpha_max: float = 0.08  # rad
     gate_vy_std: float = 0.15  # m/s: learn only once the lateral velocity is known this well
+    gate_warmup: float = 1.0  # s after the first sample with learning off: the state settles first
     outlier_prob: float = 1.0  # < 1: a particle skips learning when its residual is beyond this
     # chi-square quantile (off by default: it also rejects the residuals of a real surface change)
     # parameter projection (Sec. V): stiffness bounds relative to the reference
@@ -90,7 +93,7 @@ class MPFConfig:
         if self.init_distribution not in ("normal", "uniform"):
             bad("init_distribution", f"expected normal or uniform, got {self.init_distribution!r}")
         for key in ("init_std", "init_half_width", "init_sigma", "gate_speed", "gate_steer", "gate_ay_max",
-                    "gate_alpha_max", "gate_vy_std", "nu0_margin"):
+                    "gate_alpha_max", "gate_vy_std", "gate_warmup", "nu0_margin"):
             if not getattr(self, key) >= 0:
                 bad(key, f"must be >= 0, got {getattr(self, key)!r}")
         for key in ("sigma", "bias_rw", "bias0_std", "x0_std"):
@@ -285,6 +288,11 @@ class StiffnessMPF:
         if self.u_prev is not None:
             # hold the last finite input where a sample is missing
             uk = np.where(np.isfinite(uk), uk, self.u_prev)
+        elif self.full and self.cfg.x0_vx_from_wheels:
+            omega = uk[1] if self.rear_drive else uk[2]  # the undriven axle hardly slips
+            if math.isfinite(omega):
+                vx0 = self.vehicle.wheel_radius * omega
+                self.x[:, 0] = vx0 + self.cfg.x0_vx_wheel_std * self.rng.standard_normal(len(self.x))
         if not math.isfinite(uk[0]):
             uk[0] = 0.0
 
@@ -297,6 +305,8 @@ class StiffnessMPF:
             self.P = self.P + np.diag(self.q_bias * dt)
             if self.active:
                 self.stats.forget(cfg.forgetting, nu_min=self.nu0)
+        if self.t_prev is None:
+            self.t_start = t
         self.t_prev, self.u_prev = t, uk
 
         yk = np.array([y.ax, y.ay, y.yaw_rate], float)[list(self.channels)]
@@ -339,7 +349,7 @@ class StiffnessMPF:
         self.active = bool(
             vx_est > cfg.gate_speed and abs(uk[0]) > cfg.gate_steer and abs(ay_m) < cfg.gate_ay_max
             and abs(float(q @ af)) < cfg.gate_alpha_max and abs(float(q @ ar)) < cfg.gate_alpha_max
-            and vy_std < cfg.gate_vy_std
+            and vy_std < cfg.gate_vy_std and t - self.t_start >= cfg.gate_warmup
         )
 
         # 3. sample w_k from the conditional given the accelerometer residuals, eq. (39)-(41);

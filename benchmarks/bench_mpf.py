@@ -1,0 +1,70 @@
+"""Stiffness MPF on paper-sim: accuracy against the DESIGN.md metrics, and per-step cost.
+
+    .venv/bin/python benchmarks/bench_mpf.py [--seeds 1 2 3] [--particles 500] [--model full]
+
+Per stiffness parameter, over the seeds:
+- the signed mean steady-state error and each trial's time-averaged absolute error;
+- the settling time after the 30 s surface change;
+- the 90% coverage of `*_std`;
+- `*_sigma` against the true 5% spread.
+
+Then the median step time at N and 10 N (the `median_step_us` of the run summary).
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from tirefilter.cosim.results import read_results
+from tirefilter.cosim.run import run_scenario
+from tirefilter.estimators import build_estimator
+from tirefilter.metrics import settling_time, stiffness_errors
+from tirefilter.scenarios import load_scenario
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
+    ap.add_argument("--particles", type=int, default=500)
+    ap.add_argument("--model", default="full", choices=("full", "lateral"))
+    args = ap.parse_args()
+    scenario = load_scenario("paper-sim")
+    params = ("Cx", "Cf_y", "Cr_y") if args.model == "full" else ("Cf_y", "Cr_y")
+    rows = {p: [] for p in params}
+    steps = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for seed in args.seeds:
+            est = build_estimator("mpf", scenario, model=args.model, particles=args.particles, config={})
+            path = Path(tmp) / f"{seed}.csv"
+            summary, _ = run_scenario(scenario, estimator=est, seed=seed, results_csv=path)
+            steps.append(summary.median_step_us)
+            r = read_results(path)
+            for p in params:
+                e = stiffness_errors(r, scenario, p)
+                e["settle"] = settling_time(r, p, 30.0)
+                rows[p].append(e)
+        print(f"paper-sim, model {args.model}, N = {args.particles}, lambda = {est.cfg.forgetting}, "
+              f"seeds {args.seeds}")
+        print(f"{'param':6s} {'mean err %':>10s} {'max trial |err| %':>18s} {'max |err| %':>12s} "
+              f"{'settle s (max)':>15s} {'coverage90':>11s} {'sigma % (true 5)':>17s}")
+        for p in params:
+            e = rows[p]
+            print(f"{p:6s} {np.mean([x['mean'] for x in e]):10.2f} {max(x['mean_abs'] for x in e):18.2f} "
+                  f"{max(x['max_abs'] for x in e):12.1f} {max(x['settle'] for x in e):15.2f} "
+                  f"{np.mean([x['coverage90'] for x in e]):11.2f} {np.mean([x['sigma_pct'] for x in e]):17.2f}")
+        print(f"median step at N = {args.particles}: {np.median(steps):.0f} us")
+        big = build_estimator("mpf", scenario, model=args.model, particles=10 * args.particles, config={})
+        s_big, _ = run_scenario(replace(scenario, duration=3.0), estimator=big, seed=1)
+        s_small, _ = run_scenario(replace(scenario, duration=3.0), estimator=build_estimator(
+            "mpf", scenario, model=args.model, particles=args.particles, config={}), seed=1)
+        print(f"median step at N = {10 * args.particles}: {s_big.median_step_us:.0f} us "
+              f"(ratio to N = {args.particles} over the same 3 s: {s_big.median_step_us / s_small.median_step_us:.1f})")
+
+
+if __name__ == "__main__":
+    main()
