@@ -58,6 +58,7 @@ class MPFConfig:
     nu0_margin: float = 4.0  # nu_0 = n_w + 1 + margin (> n_w + 1: finite inverse-Wishart mean)
     x0_mean: tuple[float, ...] | None = None  # initial state mean (full: vx, vy, r)
     x0_std: tuple[float, ...] = (1.0, 0.5, 0.0175)  # full: vx, vy, r (lateral uses vy, r)
+    state_noise: tuple[float, ...] = (0.0, 0.0, 0.0)  # additive process noise per sqrt(s), full: vx, vy, r
     x0_vx_from_wheels: bool = True  # full model: centre vx on R_w omega of the undriven axle
     x0_vx_wheel_std: float = 0.1  # m/s, spread around it (the free-rolling wheel's slip)
     # observability gate (Sec. V) and linear-region gate
@@ -96,7 +97,7 @@ class MPFConfig:
                     "gate_alpha_max", "gate_vy_std", "gate_warmup", "nu0_margin"):
             if not getattr(self, key) >= 0:
                 bad(key, f"must be >= 0, got {getattr(self, key)!r}")
-        for key in ("sigma", "bias_rw", "bias0_std", "x0_std"):
+        for key in ("sigma", "bias_rw", "bias0_std", "x0_std", "state_noise"):
             if any(not v >= 0 for v in getattr(self, key)):
                 bad(key, f"noise values must be >= 0, got {getattr(self, key)!r}")
         if min(self.sigma) <= 0:
@@ -302,6 +303,9 @@ class StiffnessMPF:
             if dt <= 0:
                 raise ConfigError("inputs", "t", f"time must increase: {t} after {self.t_prev}")
             self.x = self._propagate(self.x, self.u_prev, self.w_prev, dt)
+            q = np.asarray(cfg.state_noise, float)[-self.x.shape[1]:]
+            if np.any(q > 0):  # optional regularisation against sample impoverishment
+                self.x = self.x + math.sqrt(dt) * q * self.rng.standard_normal(self.x.shape)
             self.P = self.P + np.diag(self.q_bias * dt)
             if self.active:
                 self.stats.forget(cfg.forgetting, nu_min=self.nu0)
