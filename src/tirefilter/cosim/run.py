@@ -176,7 +176,7 @@ def run_scenario(
             recorder.close()
         if own_fmu:
             fmu.close()
-    return summary, (np.vstack(rows) if rows else None) if keep_rows else None
+    return summary, np.vstack(rows) if rows else None
 
 
 def write_run_json(path: str | Path, summary: RunSummary, *, command: list[str], model: str, particles: int | None,

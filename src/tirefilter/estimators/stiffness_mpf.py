@@ -24,13 +24,13 @@ import math
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
-from scipy.special import gammaln
 from scipy.stats import chi2
 
 from tirefilter.errors import ConfigError
 from tirefilter.estimators.base import Estimate, Inputs, Measurement, Posterior
 from tirefilter.stats import NiW, effective_sample_size, normalize_log_weights, systematic_resample
 from tirefilter.stats.linalg import chol, chol_solve, logdet_chol, solve_lower
+from tirefilter.stats.student_t import t_conditional, t_logpdf_whitened, t_sample
 from tirefilter.vehicle.params import VehicleParams
 from tirefilter.vehicle.single_track import GRAVITY
 
@@ -328,10 +328,7 @@ class StiffnessMPF:
             Lc = chol(S)
             e = yk[a] - h[:, a] - self.b[:, a] - np.einsum("nij,nj->ni", Da, mu_w)
             v = solve_lower(Lc, e)
-            p = a.size
-            loglik = (gammaln(0.5 * (nu_w + p)) - gammaln(0.5 * nu_w) - 0.5 * p * np.log(nu_w * np.pi)
-                      - 0.5 * logdet_chol(Lc) - 0.5 * (nu_w + p) * np.log1p(np.sum(v * v, axis=1) / nu_w))
-            self.logw = normalize_log_weights(self.logw + loglik)
+            self.logw = normalize_log_weights(self.logw + t_logpdf_whitened(v, logdet_chol(Lc), nu_w))
         ess = float(effective_sample_size(self.logw))
         if ess < cfg.resample_threshold * cfg.particles:
             idx = systematic_resample(self.logw, self.rng)
@@ -340,7 +337,7 @@ class StiffnessMPF:
             h, D, af, ar = h[idx], D[idx], af[idx], ar[idx]
             mu_w, L11, nu_w = mu_w[idx], L11[idx], nu_w[idx]
             if a.size:
-                L12, Lc, v = L12[idx], Lc[idx], v[idx]
+                L12, Lc, e = L12[idx], Lc[idx], e[idx]
             self.logw = np.full(cfg.particles, -math.log(cfg.particles))
             self.resamples += 1
 
@@ -360,22 +357,17 @@ class StiffnessMPF:
         #    the yaw-rate residual carries no information on w (d row 0) and is left out.
         #    The leading nc x nc block of Lc is the Cholesky factor of their scale matrix.
         if nc:
-            Lcc, vc = Lc[:, :nc, :nc], v[:, :nc]
-            L12c = L12[:, :, :nc]
-            M = solve_lower(Lcc, np.swapaxes(L12c, 1, 2))  # Lcc^-1 L21, (N, nc, n_w)
-            mu_c = mu_w + np.einsum("nki,nk->ni", M, vc)
-            scale = (nu_w + np.sum(vc * vc, axis=1)) / (nu_w + nc)
-            Lam_c = scale[:, None, None] * (L11 - np.swapaxes(M, 1, 2) @ M)
-            nu_c = nu_w + nc
-            # outlier gate: the Mahalanobis distance beyond the chi-square quantile (the
-            # Student-t's F(nc, nu) tends to it; stricter for small nu)
-            learn = (np.sum(vc * vc, axis=1) < self._outlier_bound(nc)) if cfg.outlier_prob < 1 else None
+            mu_c, Lam_c, nu_c = t_conditional(mu_w, 0.0, L11, L12[:, :, :nc], None, nu_w, e[:, :nc],
+                                              L22_chol=Lc[:, :nc, :nc])
+            if cfg.outlier_prob < 1:  # per-particle outlier gate on the accelerometer residuals
+                vc = solve_lower(Lc[:, :nc, :nc], e[:, :nc])
+                learn = np.sum(vc * vc, axis=1) < self._outlier_bound(nc)
+            else:
+                learn = None
         else:
             mu_c, Lam_c, nu_c = mu_w, L11, nu_w
             learn = None
-        z = self.rng.standard_normal(mu_c.shape)
-        g = self.rng.chisquare(nu_c)
-        w = mu_c + np.einsum("nij,nj->ni", chol(Lam_c), z) * np.sqrt(nu_c / g)[:, None]
+        w = t_sample(mu_c, Lam_c, nu_c, self.rng)
 
         # 4. bias, eq. (30), with the predicted statistics (DESIGN.md order)
         if a.size and self.bias_on:
