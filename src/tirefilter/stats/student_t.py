@@ -22,8 +22,10 @@ def t_logpdf_whitened(v, logdet, nu):
 
 def t_logpdf(x, mu, Lam, nu):
     """log St(x; mu, Lam, nu)."""
+    r = np.asarray(x, float) - mu
     L = chol(np.asarray(Lam, float))
-    v = solve_lower(L, np.asarray(x, float) - mu)
+    L = np.broadcast_to(L, np.broadcast_shapes(r.shape[:-1], L.shape[:-2]) + L.shape[-2:])
+    v = solve_lower(L, np.broadcast_to(r, L.shape[:-1]))
     return t_logpdf_whitened(v, logdet_chol(L), nu)
 
 
@@ -55,7 +57,9 @@ def t_conditional(mu1, mu2, L11, L12, L22, nu, x2, *, L22_chol=None):
     """
     d2 = np.shape(x2)[-1]
     Lc = chol(np.asarray(L22, float)) if L22_chol is None else L22_chol
-    v = solve_lower(Lc, np.asarray(x2, float) - mu2)  # whitened residual
+    r = np.asarray(x2, float) - mu2
+    Lc = np.broadcast_to(Lc, np.broadcast_shapes(r.shape[:-1], Lc.shape[:-2]) + Lc.shape[-2:])
+    v = solve_lower(Lc, np.broadcast_to(r, Lc.shape[:-1]))  # whitened residual
     M = solve_lower(Lc, np.swapaxes(L12, -1, -2))  # Lc^-1 L21, so L12 L22^-1 L21 = M^T M
     mu_c = mu1 + np.einsum("...ki,...k->...i", M, v)
     nu = np.asarray(nu, float)
