@@ -78,6 +78,7 @@ class MPFConfig:
     bias_rw: tuple[float, float, float] = (0.0, 0.0, 0.0)  # random-walk std per sqrt(s)
     bias0_std: tuple[float, float, float] = (0.0, 0.0, 0.0)
     sample_period: float = 0.01  # s, used for the first step and as the bias-RW time base
+    max_step: float = 0.02  # s, longest propagation step: longer sample intervals are sub-stepped
 
     def validated(self) -> "MPFConfig":
         def bad(key, problem):
@@ -112,6 +113,8 @@ class MPFConfig:
             bad("bound_low", "need 0 < bound_low < bound_high")
         if self.sample_period <= 0:
             bad("sample_period", "must be > 0")
+        if not self.max_step > 0:
+            bad("max_step", f"must be > 0, got {self.max_step!r}")
         return self
 
 
@@ -196,100 +199,103 @@ class StiffnessMPF:
         self.resamples = 0
 
     # ---- model ------------------------------------------------------------------------
-    def _kinematics(self, x, u, slip=None):
-        """Slip quantities of eq. (3)-(4) (small-angle form of the paper)."""
+    def _model(self, x, u, slip=None):
+        """The accelerations of eq. (1) with F = (C_n + w) slip (eq. (2), (7)), split as
+        a(x, u) + B(x, u) w: returns a (N, 3) = (a^X, a^Y, r') at w = 0, B = d a / d w
+        (N, 3, n_w), the slip angles and the wheel slip of eq. (3)-(4) (small-angle form
+        of the paper; `slip` given: held from an earlier evaluation)."""
         v = self.vehicle
         if self.full:
             vx, vy, r = x[:, 0], x[:, 1], x[:, 2]
         else:
-            vx, vy, r = np.full(len(x), self._vx_in), x[:, 0], x[:, 1]
-        vxe = np.maximum(vx, 1.0)
-        alpha_f = u[0] - (vy + v.lf * r) / vxe
-        alpha_r = (v.lr * r - vy) / vxe
-        if slip is None and self.full:
-            Rw = v.wheel_radius
-            lam = []
-            for omega in (u[1], u[2]):
-                wr = Rw * omega
-                lam.append((wr - vx) / np.maximum(np.maximum(np.abs(vx), np.abs(wr)), 1.0))
-            slip = (lam[0], lam[1])
-        return vx, vy, r, alpha_f, alpha_r, slip
-
-    def _accelerations(self, x, u, slip=None):
-        """Nominal accelerations a = (a^X, a^Y, r') and their gradients B = d a / d w
-        (N, 3, n_w), from eq. (1) with F = (C_n + w) slip (eq. (2), (7))."""
-        v = self.vehicle
-        vx, vy, r, af, ar, slip = self._kinematics(x, u, slip)
+            vx, vy, r = u[3], x[:, 0], x[:, 1]
+        inv_vx = 1.0 / np.maximum(vx, 1.0)
+        af = u[0] - (vy + v.lf * r) * inv_vx
+        ar = (v.lr * r - vy) * inv_vx
         cd, sd = math.cos(u[0]), math.sin(u[0])
         m, I, lf, lr = v.mass, v.yaw_inertia, v.lf, v.lr
         Ffy, Fry = v.Cf_y * af, v.Cr_y * ar
-        N = len(x)
-        B = np.zeros((N, 3, self.n_w))
+        B = np.zeros((len(x), 3, self.n_w))
+        j = 0
         if self.full:
+            if slip is None:
+                wr = v.wheel_radius * u[1:3, None]  # (2, 1) against vx (N,)
+                slip = (wr - vx) / np.maximum(np.maximum(np.abs(vx), np.abs(wr)), 1.0)
             lam_f, lam_r = slip
             Ffx, Frx = self.C_nom_fx * lam_f, self.C_nom_rx * lam_r
             if self.rear_drive:
-                B[:, 0, 0] = lam_r / m
+                B[:, 0, 0] = lam_r * (1.0 / m)
             else:
-                B[:, 0, 0] = lam_f * cd / m
-                B[:, 1, 0] = lam_f * sd / m
-                B[:, 2, 0] = lf * lam_f * sd / I
+                B[:, 0, 0] = lam_f * (cd / m)
+                B[:, 1, 0] = lam_f * (sd / m)
+                B[:, 2, 0] = lam_f * (lf * sd / I)
             j = 1
+            Fy_f = Ffy * cd + Ffx * sd
+            aX = (Ffx * cd - Ffy * sd + Frx) * (1.0 / m)
         else:
-            Ffx = Frx = 0.0
-            j = 0
-        B[:, 0, j] = -af * sd / m
-        B[:, 1, j] = af * cd / m
-        B[:, 2, j] = lf * af * cd / I
-        B[:, 1, j + 1] = ar / m
-        B[:, 2, j + 1] = -lr * ar / I
-        aX = (Ffx * cd - Ffy * sd + Frx) / m
-        aY = (Ffy * cd + Ffx * sd + Fry) / m
-        rdot = (lf * (Ffy * cd + Ffx * sd) - lr * Fry) / I
-        return np.stack([aX, aY, rdot], axis=1), B, vx, vy, r, af, ar, slip
+            Fy_f = Ffy * cd
+            aX = np.zeros_like(af)
+        B[:, 0, j] = af * (-sd / m)
+        B[:, 1, j] = af * (cd / m)
+        B[:, 2, j] = af * (lf * cd / I)
+        B[:, 1, j + 1] = ar * (1.0 / m)
+        B[:, 2, j + 1] = ar * (-lr / I)
+        a = np.array([aX, (Fy_f + Fry) * (1.0 / m), (lf * Fy_f - lr * Fry) * (1.0 / I)]).T
+        return a, B, af, ar, slip
 
-    def _xdot(self, x, u, w, slip=None):
-        a, B, vx, vy, r, *_ , slip = self._accelerations(x, u, slip)
+    def _xdot(self, x, u, a, B, w):
+        """x' of eq. (1) from the accelerations a + B w."""
         acc = a + np.einsum("nij,nj->ni", B, w)
         if self.full:
-            return np.stack([vy * r + acc[:, 0], -vx * r + acc[:, 1], acc[:, 2]], axis=1), slip
-        return np.stack([-vx * r + acc[:, 1], acc[:, 2]], axis=1), slip
+            vy, r = x[:, 1], x[:, 2]
+            return np.array([vy * r + acc[:, 0], acc[:, 1] - x[:, 0] * r, acc[:, 2]]).T
+        return np.array([acc[:, 1] - u[3] * x[:, 1], acc[:, 2]]).T
 
-    def _propagate(self, x, u, w, dt):
+    def _propagate(self, x, u, w, dt, first):
         """x_{k+1} = f(x_k) + g(x_k) w_k (eq. (9)): Euler, or Heun with the same w and the
-        wheel slip held over the step."""
-        k1, slip = self._xdot(x, u, w)
-        if self.cfg.integrator == "euler":
-            return x + dt * k1
-        k2, _ = self._xdot(x + dt * k1, u, w, slip)
-        return x + 0.5 * dt * (k1 + k2)
+        wheel slip held over the step. `first` = (a, B, slip) at x_k from the measurement
+        step. A step longer than `max_step` (a gap in a log) is split into equal
+        sub-steps with u and w held."""
+        n_sub = max(1, math.ceil(dt / self.cfg.max_step - 1e-9))
+        h = dt / n_sub
+        for i in range(n_sub):
+            a, B, _, _, slip = first if i == 0 else self._model(x, u)
+            k1 = self._xdot(x, u, a, B, w)
+            if self.cfg.integrator == "euler":
+                x = x + h * k1
+                continue
+            x1 = x + h * k1
+            a2, B2, *_ = self._model(x1, u, slip)
+            x = x + (0.5 * h) * (k1 + self._xdot(x1, u, a2, B2, w))
+        return x
 
-    def _measurement(self, x, u):
-        """h(x, u) and d(x, u) of eq. (12) for the model's channels: the IMU sees the
-        accelerations (a^Y times the roll gain) and the yaw rate; d = d a / d w (no Ts:
-        DESIGN.md, eq. (12) trap)."""
-        a, B, vx, vy, r, af, ar, _ = self._accelerations(x, u)
-        h = np.stack([a[:, 0], self.roll_gain * a[:, 1], r], axis=1)
-        D = np.zeros((len(x), 3, self.n_w))
-        D[:, 0] = B[:, 0]
-        D[:, 1] = self.roll_gain * B[:, 1]
-        ch = list(self.channels)
-        return h[:, ch], D[:, ch], af, ar
+    def _measurement(self, a, B, x):
+        """h(x, u) and d(x, u) of eq. (12) for the model's channels, from the model's
+        accelerations: the IMU sees the accelerations (a^Y times the roll gain) and the yaw
+        rate; d = d a / d w (no Ts: DESIGN.md, eq. (12) trap)."""
+        gain = self.roll_gain
+        r = x[:, -1]
+        if self.full:
+            h = np.array([a[:, 0], gain * a[:, 1], r]).T
+            D = B.copy()
+            D[:, 1] *= gain
+            D[:, 2] = 0.0
+        else:
+            h = np.array([gain * a[:, 1], r]).T
+            D = np.zeros((len(x), 2, self.n_w))
+            D[:, 0] = gain * B[:, 1]
+        return h, D
 
     # ---- the filter -------------------------------------------------------------------
     def step(self, t: float, u: Inputs, y: Measurement) -> Estimate:
         cfg = self.cfg
-        if self.full:
-            uk = np.array([u.delta, u.omega_f, u.omega_r], float)
-        else:
-            if not math.isfinite(u.vx):
-                raise ConfigError("inputs", "vx", f"the lateral model needs vx at every sample (t = {t} s)")
-            self._vx_in = u.vx
-            uk = np.array([u.delta, NAN, NAN], float)
+        uk = np.array([u.delta, u.omega_f, u.omega_r, u.vx], float)
         if self.u_prev is not None:
             # hold the last finite input where a sample is missing
             uk = np.where(np.isfinite(uk), uk, self.u_prev)
-        elif self.full and self.cfg.x0_vx_from_wheels:
+        if not self.full and not math.isfinite(uk[3]):
+            raise ConfigError("inputs", "vx", f"the lateral model needs vx; none given up to t = {t} s")
+        if self.u_prev is None and self.full and self.cfg.x0_vx_from_wheels:
             omega = uk[1] if self.rear_drive else uk[2]  # the undriven axle hardly slips
             if math.isfinite(omega):
                 vx0 = self.vehicle.wheel_radius * omega
@@ -302,7 +308,7 @@ class StiffnessMPF:
             dt = t - self.t_prev
             if dt <= 0:
                 raise ConfigError("inputs", "t", f"time must increase: {t} after {self.t_prev}")
-            self.x = self._propagate(self.x, self.u_prev, self.w_prev, dt)
+            self.x = self._propagate(self.x, self.u_prev, self.w_prev, dt, self._at_x)
             q = np.asarray(cfg.state_noise, float)[-self.x.shape[1]:]
             if np.any(q > 0):  # optional regularisation against sample impoverishment
                 self.x = self.x + math.sqrt(dt) * q * self.rng.standard_normal(self.x.shape)
@@ -316,15 +322,19 @@ class StiffnessMPF:
         yk = np.array([y.ax, y.ay, y.yaw_rate], float)[list(self.channels)]
         a = np.flatnonzero(np.isfinite(yk))  # available channels, in the order ax, ay, yaw rate
         nc = int(sum(self.channels[j] in (0, 1) for j in a))  # accelerometer channels lead
-        h, D, af, ar = self._measurement(self.x, uk)
+        model_k = self._model(self.x, uk)
+        h, D = self._measurement(model_k[0], model_k[1], self.x)
+        af, ar = model_k[2], model_k[3]
         mu_w, L11, nu_w = self.stats.predictive()
 
         # 2. weights, eq. (36): the joint Student-t of (w, residual) with the common dof
         #    nu~ = nu - n_w + 1 and every block scaled alike (derivations, Sec. 3)
         if a.size:
-            Da = D[:, a]
-            L12 = L11 @ np.swapaxes(Da, 1, 2)  # (N, n_w, |a|)
-            S = Da @ L12 + ((nu_w - 2.0) / nu_w)[:, None, None] * (self.R[np.ix_(a, a)] + self.P[:, a][:, :, a])
+            Da = D if a.size == D.shape[1] else D[:, a]
+            DL = Da @ L11  # (N, |a|, n_w) = L21
+            L12 = np.swapaxes(DL, 1, 2)
+            noise = self.R[np.ix_(a, a)] + self.P[:, a][:, :, a] if self.bias_on else self.R[np.ix_(a, a)]
+            S = DL @ np.swapaxes(Da, 1, 2) + ((nu_w - 2.0) / nu_w)[:, None, None] * noise
             Lc = chol(S)
             e = yk[a] - h[:, a] - self.b[:, a] - np.einsum("nij,nj->ni", Da, mu_w)
             v = solve_lower(Lc, e)
@@ -335,15 +345,17 @@ class StiffnessMPF:
             self.x, self.b, self.P = self.x[idx], self.b[idx], self.P[idx]
             self.stats = self.stats.take(idx)
             h, D, af, ar = h[idx], D[idx], af[idx], ar[idx]
+            a_k, B_k, _, _, slip_k = model_k
+            model_k = (a_k[idx], B_k[idx], af, ar, None if slip_k is None else slip_k[:, idx])
             mu_w, L11, nu_w = mu_w[idx], L11[idx], nu_w[idx]
             if a.size:
-                L12, Lc, e = L12[idx], Lc[idx], e[idx]
+                L12, Lc, e, v = L12[idx], Lc[idx], e[idx], v[idx]
             self.logw = np.full(cfg.particles, -math.log(cfg.particles))
             self.resamples += 1
 
         # gate: observability (speed, steering) and linear tire region (Sec. V)
         q = np.exp(self.logw)
-        vx_est = float(q @ self.x[:, 0]) if self.full else u.vx
+        vx_est = float(q @ self.x[:, 0]) if self.full else uk[3]
         vy = self.x[:, 1 if self.full else 0]
         vy_std = math.sqrt(max(float(q @ (vy - q @ vy) ** 2), 0.0))
         ay_m = y.ay if math.isfinite(y.ay) else 0.0
@@ -358,7 +370,7 @@ class StiffnessMPF:
         #    The leading nc x nc block of Lc is the Cholesky factor of their scale matrix.
         if nc:
             mu_c, Lam_c, nu_c = t_conditional(mu_w, 0.0, L11, L12[:, :, :nc], None, nu_w, e[:, :nc],
-                                              L22_chol=Lc[:, :nc, :nc])
+                                              L22_chol=Lc[:, :nc, :nc], x2_white=v[:, :nc])
             if cfg.outlier_prob < 1:  # per-particle outlier gate on the accelerometer residuals
                 vc = solve_lower(Lc[:, :nc, :nc], e[:, :nc])
                 learn = np.sum(vc * vc, axis=1) < self._outlier_bound(nc)
@@ -378,6 +390,7 @@ class StiffnessMPF:
             hi = cfg.bound_high * self.C_ref - self.C_nom
             self.stats.mu = np.clip(self.stats.mu, lo, hi)  # parameter projection (Sec. V)
         self.w_prev = w
+        self._at_x = model_k  # the first stage of the next propagation, at this x and u
         return self._estimate(ess)
 
     def _bias_update(self, yk, h, D, a):
@@ -411,7 +424,7 @@ class StiffnessMPF:
             vx, vy, r = x_mean
             std = tuple(x_std)
         else:
-            vx, (vy, r) = self._vx_in, x_mean
+            vx, (vy, r) = self.u_prev[3], x_mean
             std = (0.0, x_std[0], x_std[1])
         cx = vals.get("Cx", (NAN, NAN, NAN))
         return Estimate(

@@ -15,11 +15,19 @@ def chol(S: np.ndarray, jitter: float = 0.0) -> np.ndarray:
     n = S.shape[-1]
     L = np.zeros_like(S)
     for j in range(n):
-        d = S[..., j, j] + jitter - sum(L[..., j, k] ** 2 for k in range(j))
-        scale = np.abs(S[..., j, j]) * 1e-14 + 1e-300
-        L[..., j, j] = np.sqrt(np.maximum(d, scale))
-        for i in range(j + 1, n):
-            L[..., i, j] = (S[..., i, j] - sum(L[..., i, k] * L[..., j, k] for k in range(j))) / L[..., j, j]
+        Sjj = S[..., j, j]
+        d = Sjj + jitter if jitter else Sjj
+        for k in range(j):
+            d = d - L[..., j, k] * L[..., j, k]
+        Ljj = np.sqrt(np.maximum(d, np.abs(Sjj) * 1e-14 + 1e-300))
+        L[..., j, j] = Ljj
+        if j + 1 < n:
+            inv = 1.0 / Ljj
+            for i in range(j + 1, n):
+                acc = S[..., i, j]
+                for k in range(j):
+                    acc = acc - L[..., i, k] * L[..., j, k]
+                L[..., i, j] = acc * inv
     return L
 
 
@@ -54,6 +62,14 @@ def solve_upper_t(L: np.ndarray, b: np.ndarray) -> np.ndarray:
 def chol_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:
     """x with (L L^T) x = b."""
     return solve_upper_t(L, solve_lower(L, b))
+
+
+def gram(M: np.ndarray) -> np.ndarray:
+    """M^T M for (..., k, n) matrices, as a sum of k outer products (exactly symmetric)."""
+    G = M[..., 0, :, None] * M[..., 0, None, :]
+    for k in range(1, M.shape[-2]):
+        G = G + M[..., k, :, None] * M[..., k, None, :]
+    return G
 
 
 def logdet_chol(L: np.ndarray) -> np.ndarray:

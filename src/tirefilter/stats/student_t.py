@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import gammaln
 
-from tirefilter.stats.linalg import chol, logdet_chol, solve_lower
+from tirefilter.stats.linalg import chol, gram, logdet_chol, solve_lower
 
 
 def t_logpdf_whitened(v, logdet, nu):
@@ -15,9 +15,18 @@ def t_logpdf_whitened(v, logdet, nu):
     log Gamma((nu+p)/2) - log Gamma(nu/2) - p/2 log(nu pi) - 1/2 log|Lam|
     - (nu+p)/2 log(1 + |v|^2 / nu). Lets a caller reuse a factorisation it needs anyway."""
     p = v.shape[-1]
+    nu = _common(nu)
+    const = gammaln(0.5 * (nu + p)) - gammaln(0.5 * nu) - 0.5 * p * np.log(nu * np.pi)
+    return const - 0.5 * logdet - 0.5 * (nu + p) * np.log1p(np.einsum("...i,...i->...", v, v) / nu)
+
+
+def _common(nu):
+    """nu as a float when every batch element has the same degrees of freedom (the usual
+    case in a filter: the special functions and the chi-square draw then run once)."""
     nu = np.asarray(nu, float)
-    return (gammaln(0.5 * (nu + p)) - gammaln(0.5 * nu) - 0.5 * p * np.log(nu * np.pi) - 0.5 * logdet
-            - 0.5 * (nu + p) * np.log1p(np.sum(v * v, axis=-1) / nu))
+    if nu.ndim and nu.size and nu.flat[0] == nu.min() == nu.max():
+        return float(nu.flat[0])
+    return nu
 
 
 def t_logpdf(x, mu, Lam, nu):
@@ -37,14 +46,14 @@ def t_sample(mu, Lam, nu, rng: np.random.Generator, size=None):
     """
     mu = np.asarray(mu, float)
     L = chol(np.asarray(Lam, float))
-    nu = np.asarray(nu, float)
+    nu = _common(nu)
     shape = mu.shape if size is None else (size,) + mu.shape
     z = rng.standard_normal(shape)
-    u = rng.chisquare(np.broadcast_to(nu, shape[:-1]))
+    u = rng.chisquare(nu, shape[:-1]) if np.ndim(nu) == 0 else rng.chisquare(np.broadcast_to(nu, shape[:-1]))
     return mu + np.einsum("...ij,...j->...i", L, z) * np.sqrt(nu / u)[..., None]
 
 
-def t_conditional(mu1, mu2, L11, L12, L22, nu, x2, *, L22_chol=None):
+def t_conditional(mu1, mu2, L11, L12, L22, nu, x2, *, L22_chol=None, x2_white=None):
     """Conditional of x1 given x2 when (x1, x2) ~ St([mu1; mu2], [[L11, L12]; [L12^T, L22]], nu):
 
         nu_1|2  = nu + d2
@@ -53,16 +62,22 @@ def t_conditional(mu1, mu2, L11, L12, L22, nu, x2, *, L22_chol=None):
 
     (stiffness paper eq. (41), with the Mahalanobis term as a quadratic form). A caller
     that already has the Cholesky factor of L22 passes it as `L22_chol` (L22 is then not
-    read). Returns (mu_1|2, Lam_1|2, nu_1|2).
+    read); one that also has the whitened residual L22_chol^-1 (x2 - mu2) passes it as
+    `x2_white`. Returns (mu_1|2, Lam_1|2, nu_1|2).
     """
     d2 = np.shape(x2)[-1]
     Lc = chol(np.asarray(L22, float)) if L22_chol is None else L22_chol
-    r = np.asarray(x2, float) - mu2
-    Lc = np.broadcast_to(Lc, np.broadcast_shapes(r.shape[:-1], Lc.shape[:-2]) + Lc.shape[-2:])
-    v = solve_lower(Lc, np.broadcast_to(r, Lc.shape[:-1]))  # whitened residual
+    if x2_white is None:
+        r = np.asarray(x2, float) - mu2
+        if r.shape[:-1] != Lc.shape[:-2]:
+            Lc = np.broadcast_to(Lc, np.broadcast_shapes(r.shape[:-1], Lc.shape[:-2]) + Lc.shape[-2:])
+            r = np.broadcast_to(r, Lc.shape[:-1])
+        v = solve_lower(Lc, r)  # whitened residual
+    else:
+        v = x2_white
     M = solve_lower(Lc, np.swapaxes(L12, -1, -2))  # Lc^-1 L21, so L12 L22^-1 L21 = M^T M
     mu_c = mu1 + np.einsum("...ki,...k->...i", M, v)
     nu = np.asarray(nu, float)
-    scale = (nu + np.sum(v * v, axis=-1)) / (nu + d2)
-    Lam_c = scale[..., None, None] * (L11 - np.swapaxes(M, -1, -2) @ M)
-    return mu_c, 0.5 * (Lam_c + np.swapaxes(Lam_c, -1, -2)), nu + d2
+    scale = (nu + np.einsum("...i,...i->...", v, v)) / (nu + d2)
+    Lam_c = scale[..., None, None] * (L11 - gram(M))
+    return mu_c, Lam_c, nu + d2
