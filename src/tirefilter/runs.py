@@ -1,0 +1,172 @@
+"""What every estimator run shares, whether its samples come from the vehicle FMU
+(`cosim.run`) or from a recorded log (`replay.run`): the seed split, the sinks of the rows
+(Result CSV, Rerun recording, rows kept in memory), the timing of `Estimator.step`, the
+progress bar, the run summary and its JSON (DESIGN.md, "Run summary JSON").
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import platform
+import sys
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from tirefilter import __version__
+from tirefilter.estimators.base import Estimate, Estimator, Inputs, Measurement
+
+WARMUP_STEPS = 10  # steps left out of the median step time (first calls, caches)
+
+
+def spawn_seeds(seed: int) -> tuple[int, np.random.Generator]:
+    """One SeedSequence -> (the FMU's 31-bit seed, the estimator's Generator).
+
+    A replay spawns the same two children and uses the second, so a log written by a
+    co-simulation and replayed with the same seed gives the same estimates."""
+    fmu_ss, est_ss = np.random.SeedSequence(seed).spawn(2)
+    fmu_seed = int(fmu_ss.generate_state(1, dtype=np.uint32)[0] & 0x7FFFFFFF)
+    return fmu_seed, np.random.default_rng(est_ss)
+
+
+@dataclass(kw_only=True)
+class StepSummary:
+    """The fields every run summary has; co-simulation and replay add their own."""
+
+    seed: int
+    estimator: str
+    steps: int = 0  # estimator samples (Result-CSV rows)
+    wall_time_s: float = 0.0
+    median_step_us: float | None = None  # median wall time of Estimator.step after warm-up
+    status: str = "ok"  # "ok" | "failed"
+    error: str | None = None
+    results: str | None = None  # the Result CSV
+
+
+class Progress:
+    """A percentage bar on stderr (only when enabled, i.e. on a terminal)."""
+
+    def __init__(self, total: int, enabled: bool):
+        self.total, self.enabled, self._last = total, enabled, -1
+
+    def update(self, k: int) -> None:
+        if not self.enabled:
+            return
+        pct = int(100 * k / max(self.total, 1))
+        if pct != self._last:
+            self._last = pct
+            bar = "#" * (pct // 4)
+            sys.stderr.write(f"\r[{bar:<25}] {pct:3d}%")
+            sys.stderr.flush()
+
+    def close(self) -> None:
+        if self.enabled:
+            sys.stderr.write("\n")
+
+
+class RunOutputs:
+    """The sinks of one run's rows and the clock of its estimator steps.
+
+    Every row goes to the Result CSV (written incrementally), the Rerun recording and,
+    with `keep_rows`, a list in memory; `close` flushes what was handed over, so a run
+    that fails keeps its rows up to the failure.
+    """
+
+    def __init__(self, columns: tuple[str, ...], *, results_csv: str | Path | None = None, rrd: str | Path | None = None,
+                 estimator: str | None = None, keep_rows: bool = False, total: int = 0, progress: bool = False):
+        from tirefilter.cosim.results import ResultWriter
+
+        self.columns = tuple(columns)
+        self.writer = ResultWriter(results_csv, self.columns) if results_csv else None
+        self.recorder = None
+        if rrd:
+            from tirefilter.viz.rerun_log import RerunRecorder
+
+            self.recorder = RerunRecorder(rrd, self.columns, estimator)
+        self.kept: list[np.ndarray] | None = [] if keep_rows else None
+        self.bar = Progress(total, progress)
+        self.step_times: list[float] = []
+        self.rows = 0
+        self.last: np.ndarray | None = None
+
+    def step(self, estimator: Estimator, t: float, u: Inputs, y: Measurement) -> Estimate:
+        """`estimator.step(t, u, y)`, timed."""
+        ts = time.perf_counter()
+        est = estimator.step(t, u, y)
+        self.step_times.append(time.perf_counter() - ts)
+        return est
+
+    def write(self, row) -> None:
+        if self.writer:
+            self.writer.write(row)
+        if self.recorder:
+            self.recorder.log_row(row)
+        if self.kept is not None:
+            self.kept.append(row)
+        self.last = row
+        self.rows += 1
+
+    def progress(self, k: int) -> None:
+        self.bar.update(k)
+
+    def median_step_us(self) -> float | None:
+        if not self.step_times:
+            return None
+        return float(np.median(self.step_times[min(WARMUP_STEPS, len(self.step_times) - 1):]) * 1e6)
+
+    def kept_rows(self) -> np.ndarray | None:
+        return np.vstack(self.kept) if self.kept else None
+
+    def close(self) -> None:
+        self.bar.close()
+        if self.writer:
+            self.writer.close()
+        if self.recorder:
+            self.recorder.close()
+
+
+@contextmanager
+def run_outputs(summary: StepSummary, columns: tuple[str, ...], **options):
+    """`RunOutputs(columns, **options)` for the body of a run, filling in `summary`.
+
+    On leaving, whatever happened: the sinks are closed, and the summary gets the steps,
+    the wall time and the median step time. An exception marks the summary failed, is
+    given it as `exc.summary` (callers write the summary of a failed run too) and goes on.
+    """
+    out = RunOutputs(columns, **options)
+    t0 = time.perf_counter()
+    try:
+        yield out
+    except Exception as exc:
+        summary.status = "failed"
+        summary.error = str(exc)
+        exc.summary = summary
+        raise
+    finally:
+        out.close()
+        summary.wall_time_s = time.perf_counter() - t0
+        summary.steps = out.rows
+        summary.median_step_us = out.median_step_us()
+
+
+def write_summary_json(path: str | Path, summary: StepSummary, *, command: list[str], model: str | None,
+                       particles: int | None, estimator_config: dict, **extra) -> None:
+    """The run summary JSON of DESIGN.md: version, command line, the summary's fields,
+    model, N, the full estimator configuration, `extra`, and the platform."""
+    record = {
+        "version": __version__,
+        "command": list(command),
+        **dataclasses.asdict(summary),
+        "model": model,
+        "N": particles,
+        "estimator_config": estimator_config,
+        **extra,
+        "python": platform.python_version(),
+        "platform": platform.platform(),
+    }
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    Path(path).write_text(json.dumps(record, indent=2) + "\n")
