@@ -1,8 +1,10 @@
-"""Estimators following the protocol of `base.py`, and how a run builds one."""
+"""Estimators following the protocol of `base.py`, and how a run builds one: from a
+scenario (co-simulation) or from a vehicle and a recorded log (replay)."""
 
 from __future__ import annotations
 
 import dataclasses
+import math
 
 from tirefilter.errors import ConfigError
 
@@ -12,14 +14,11 @@ ESTIMATORS = ("none", "mpf")
 def mpf_config_for_scenario(scenario, *, model: str, particles: int | None, overrides: dict):
     """MPF options from a scenario (initialisation, rates, sensor spec) and the user's
     `[mpf]` table; initial stiffness is relative to the scenario's true surface mean."""
-    from tirefilter.estimators.stiffness_mpf import MPFConfig
-
     est = scenario.estimator
     ref = scenario.reference_stiffness()
-    full = model == "full"
-    params = ("Cx", "Cf_y", "Cr_y") if full else ("Cf_y", "Cr_y")
+    params = ("Cx", "Cf_y", "Cr_y") if model == "full" else ("Cf_y", "Cr_y")
     reference = tuple(ref[p] for p in params)
-    kw = {"model": model, "init_reference": reference, "sample_period": scenario.sample_period}
+    kw = {"init_reference": reference}
     init = est.get("initial_stiffness", {})
     if init.get("distribution") == "uniform":
         lo, hi = init["low"], init["high"]
@@ -30,17 +29,64 @@ def mpf_config_for_scenario(scenario, *, model: str, particles: int | None, over
                   init_center=tuple(init.get("mean", 1.0) * r for r in reference))
     if "forgetting" in est:
         kw["forgetting"] = est["forgetting"]
-    kw["particles"] = particles or est.get("particles", 500)
     x0 = est.get("initial_state", {})
     vx0 = scenario.truth.get("vx0", 20.0)
-    kw["x0_mean"] = tuple(x0.get("mean", (vx0, 0.0, 0.0)))
     if "std" in x0:
         kw["x0_std"] = tuple(x0["std"])
     s = scenario.sensor_spec
-    kw["sigma"] = (s.sigma_ax, s.sigma_ay, s.sigma_yaw_rate)
     kw["bias_rw"] = (s.bias_rw_ax, s.bias_rw_ay, s.bias_rw_yaw_rate)
     kw["bias0_std"] = (s.bias0_std_ax, s.bias0_std_ay, s.bias0_std_yaw_rate)
-    return apply_overrides(MPFConfig(**kw), overrides)
+    return _mpf_config(model, particles=particles or est.get("particles"), sample_period=scenario.sample_period,
+                       sigma=(s.sigma_ax, s.sigma_ay, s.sigma_yaw_rate),
+                       x0_mean=tuple(x0.get("mean", (vx0, 0.0, 0.0))), overrides=overrides, **kw)
+
+
+def mpf_config_for_log(vehicle, t, signals: dict, *, model: str, particles: int | None, overrides: dict):
+    """MPF options for a recorded log (no scenario, no truth) and the user's `[mpf]` table.
+
+    Stiffness starts around the vehicle TOML's nominal values (MPFConfig defaults:
+    `init_center` None = nominal, `init_std` 0.3), the white-noise `sigma` is the vehicle
+    TOML's `sigma_ax, sigma_ay, sigma_yaw_rate`, `sample_period` the median time step of
+    the log, and the initial state mean is taken from the log's first finite samples:
+    full model (v^X, 0, r) with v^X from `vx` or else from the undriven axle's wheel speed
+    (R_w omega), lateral model (0, r); r is the first yaw-rate sample (0 if none).
+    `t` (n,) are the sample times, `signals` maps log signal names to (n,) arrays (NaN =
+    missing sample).
+    """
+    import numpy as np
+
+    def first(name: str) -> float:
+        x = signals.get(name)
+        if x is None:
+            return math.nan
+        finite = np.flatnonzero(np.isfinite(x))
+        return float(x[finite[0]]) if finite.size else math.nan
+
+    r0 = first("yaw_rate")
+    r0 = r0 if math.isfinite(r0) else 0.0
+    if model == "full":
+        vx0 = first("vx")
+        if not math.isfinite(vx0):
+            vx0 = vehicle.wheel_radius * first("omega_f" if vehicle.drive == "rear" else "omega_r")
+        x0_mean = (vx0 if math.isfinite(vx0) else 20.0, 0.0, r0)
+    else:
+        x0_mean = (0.0, r0)
+    dt = np.diff(np.asarray(t, float))
+    return _mpf_config(model, particles=particles, sample_period=float(np.median(dt)) if dt.size else None,
+                       sigma=(vehicle.sigma_ax, vehicle.sigma_ay, vehicle.sigma_yaw_rate), x0_mean=x0_mean,
+                       overrides=overrides)
+
+
+def _mpf_config(model: str, *, particles: int | None, sample_period: float | None, sigma, x0_mean, overrides: dict,
+                **kw):
+    """What a scenario and a log both set, then the user's overrides."""
+    from tirefilter.estimators.stiffness_mpf import MPFConfig
+
+    defaults = MPFConfig()
+    config = MPFConfig(model=model, particles=particles or defaults.particles,
+                       sample_period=sample_period or defaults.sample_period, sigma=tuple(sigma),
+                       x0_mean=tuple(x0_mean), **kw)
+    return apply_overrides(config, overrides)
 
 
 def apply_overrides(config, overrides: dict, source: str = "--config [mpf]"):
@@ -60,15 +106,44 @@ def resolve_model(model: str, sensors) -> str:
     return "full" if {"omega_f", "omega_r"} <= set(sensors) else "lateral"
 
 
+def check_model_signals(model: str, signals, source, key: str) -> None:
+    """The signals a model needs: the lateral model takes v^X as an input (`vx`), the full
+    model the wheel speeds of both axles (`omega_f`, `omega_r`)."""
+    missing = {"lateral": ("vx",), "full": ("omega_f", "omega_r")}[model]
+    missing = [s for s in missing if s not in set(signals)]
+    if missing:
+        raise ConfigError(source, key, f"the {model} model needs {' and '.join(missing)} "
+                          f"(available: {', '.join(signals) or 'none'})")
+
+
 def build_estimator(name: str, scenario, *, model: str, particles: int | None, config: dict):
-    if name == "none":
-        return None
-    if name == "mpf":
+    """The estimator `name` for a co-simulation of `scenario` (None for "none")."""
+    if _known(name) == "mpf":
         from tirefilter.estimators.stiffness_mpf import StiffnessMPF
 
         model = resolve_model(model, scenario.sensors)
-        if model == "lateral" and "vx" not in scenario.sensors:
-            raise ConfigError(scenario.file, "sensors", "the lateral model needs vx")
+        check_model_signals(model, scenario.sensors, scenario.file, "sensors")
         cfg = mpf_config_for_scenario(scenario, model=model, particles=particles, overrides=config.get("mpf", {}))
         return StiffnessMPF(scenario.vehicle, cfg)
-    raise ConfigError("--estimator", "", f"unknown estimator {name!r} (available: {', '.join(ESTIMATORS)})")
+    return None
+
+
+def build_log_estimator(name: str, vehicle, t, signals: dict, *, model: str, particles: int | None, config: dict,
+                        source="log"):
+    """The estimator `name` for replaying a log (None for "none"): `signals` maps the
+    log's signal names that have samples to (n,) arrays, `source` names the log in errors."""
+    if _known(name) == "mpf":
+        from tirefilter.estimators.stiffness_mpf import StiffnessMPF
+
+        model = resolve_model(model, signals)
+        check_model_signals(model, tuple(signals), source, "columns")
+        cfg = mpf_config_for_log(vehicle, t, signals, model=model, particles=particles,
+                                 overrides=config.get("mpf", {}))
+        return StiffnessMPF(vehicle, cfg)
+    return None
+
+
+def _known(name: str) -> str:
+    if name not in ESTIMATORS:
+        raise ConfigError("--estimator", "", f"unknown estimator {name!r} (available: {', '.join(ESTIMATORS)})")
+    return name
