@@ -1,0 +1,94 @@
+"""The replay loop: a recorded log -> estimator -> Result CSV (and Rerun recording).
+
+The co-simulation master of `cosim.run` with the vehicle FMU replaced by the rows of a
+log: `estimator.reset(rng)` with the generator `spawn_seeds(seed)` gives a co-simulation,
+then `estimator.step(t, Inputs, Measurement)` for every row at the row's own time (the
+estimator takes dt = t - t_prev itself, so irregular sampling and gaps pass through),
+with missing samples passed on as NaN. The Result CSV has the estimate columns, then the
+log's signals as `meas_<name>`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from tirefilter.cosim.results import ESTIMATE_COLUMNS, estimate_values
+from tirefilter.errors import ReplayError
+from tirefilter.estimators.base import Estimator, Inputs, Measurement
+from tirefilter.replay.log import SIGNALS, Log
+from tirefilter.runs import StepSummary, run_outputs, spawn_seeds
+
+PROGRESS_EVERY = 256  # rows
+
+
+@dataclass(kw_only=True)
+class ReplaySummary(StepSummary):
+    log: str
+    vehicle: str | None = None  # the vehicle TOML
+    rows: int = 0  # rows of the log
+    duration_s: float = 0.0  # time span of the log
+    final: dict | None = None  # the last row's estimates (Result-CSV names; None for empty cells)
+
+
+def result_columns(log: Log) -> tuple[str, ...]:
+    """ESTIMATE_COLUMNS, then `meas_<name>` for each signal of the log."""
+    return ESTIMATE_COLUMNS + tuple(f"meas_{s}" for s in SIGNALS if s in log.signals)
+
+
+def replay_log(
+    log: Log,
+    *,
+    estimator: Estimator | None = None,
+    seed: int = 0,
+    results_csv: str | Path | None = None,
+    rrd: str | Path | None = None,
+    progress: bool = False,
+    keep_rows: bool = False,
+    vehicle_file: str | Path | None = None,
+) -> tuple[ReplaySummary, np.ndarray | None]:
+    """Run `estimator` (None: the log's signals only) over `log`; returns the summary and,
+    with keep_rows, the result rows (n, len(result_columns(log))).
+
+    Rows are written incrementally: when the estimator fails, every row before the
+    failure is in the CSV and the recording, and a ReplayError naming the row and its time
+    is raised after the summary has been filled in (`summary.status = "failed"`, also as
+    `exc.summary`).
+    """
+    _, rng = spawn_seeds(seed)  # the same generator a co-simulation with this seed gives its estimator
+    est_name = getattr(estimator, "name", None) if estimator is not None else None
+    columns = result_columns(log)
+    present = [s for s in SIGNALS if s in log.signals]
+    data = np.column_stack([log.signals[s] for s in present])
+    t_all = log.t.tolist()
+    sig = {s: log.signal(s).tolist() for s in SIGNALS}  # Python floats, as the co-simulation passes
+    summary = ReplaySummary(log=str(log.path), vehicle=str(vehicle_file) if vehicle_file else None, seed=seed,
+                            estimator=est_name or "none", rows=log.rows, duration_s=log.duration,
+                            results=str(results_csv) if results_csv else None)
+    with run_outputs(summary, columns, results_csv=results_csv, rrd=rrd, estimator=est_name, keep_rows=keep_rows,
+                     total=log.rows, progress=progress) as out:
+        if estimator is not None:
+            estimator.reset(rng)
+        for k, t in enumerate(t_all):
+            est = None
+            if estimator is not None:
+                u = Inputs(delta=sig["delta"][k], omega_f=sig["omega_f"][k], omega_r=sig["omega_r"][k],
+                           vx=sig["vx"][k])
+                y = Measurement(ax=sig["ax"][k], ay=sig["ay"][k], yaw_rate=sig["yaw_rate"][k])
+                try:
+                    est = out.step(estimator, t, u, y)
+                except Exception as exc:
+                    where = log.where(k)
+                    raise ReplayError(f"{log.path}: data row {where['row']} (file line {where['line']}, t = {t!r} s): "
+                                      f"{est_name} failed: {exc}") from exc
+            out.write(np.concatenate([estimate_values(t, est), data[k]]))
+            if k % PROGRESS_EVERY == 0:
+                out.progress(k)
+        if out.last is not None and estimator is not None:
+            summary.final = {c: (None if math.isnan(v) else float(v))
+                             for c, v in zip(ESTIMATE_COLUMNS, out.last[:len(ESTIMATE_COLUMNS)])}
+    return summary, out.kept_rows()
+
