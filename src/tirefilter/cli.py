@@ -16,39 +16,106 @@ from tirefilter.estimators import ESTIMATORS  # DESIGN.md reserves augpf, rls, e
 
 def cmd_run(args) -> int:
     from tirefilter.cosim.run import run_scenario, write_run_json
+    from tirefilter.estimators import build_estimator, resolve_model
     from tirefilter.scenarios import load_scenario
 
     scenario = load_scenario(args.scenario)
     config = read_toml(args.config) if args.config else {}
-    from tirefilter.estimators import build_estimator, resolve_model
-
     estimator = build_estimator(args.estimator, scenario, model=args.model, particles=args.particles, config=config)
     out = Path(args.out) if args.out else Path("runs") / scenario.name
     out.mkdir(parents=True, exist_ok=True)
     results = out / "results.csv"
-    particles = getattr(getattr(estimator, "cfg", None), "particles", None)
     model = resolve_model(args.model, scenario.sensors)
-    est_config = estimator.config_dict() if hasattr(estimator, "config_dict") else config
-    summary = None
-    try:
-        summary, _ = run_scenario(scenario, estimator=estimator, seed=args.seed, fmi_version=args.fmi,
-                                  results_csv=results, rrd=args.rrd, progress=sys.stderr.isatty() and not args.quiet)
-    except TirefilterError as exc:
-        summary = getattr(exc, "summary", None)
-        print(f"error: {exc}\n(rows up to the failure are in {results})", file=sys.stderr)
+    summary = _run_and_record(
+        lambda: run_scenario(scenario, estimator=estimator, seed=args.seed, fmi_version=args.fmi, results_csv=results,
+                             rrd=args.rrd, progress=_progress(args)),
+        lambda s: write_run_json(out / "run.json", s, command=sys.argv, model=model, fmi_version=args.fmi,
+                                 **_estimator_record(estimator, config)),
+        results)
+    if summary is None:
         return 1
-    finally:
-        if summary is not None:
-            write_run_json(out / "run.json", summary, command=sys.argv, model=model, particles=particles,
-                           estimator_config=est_config, fmi_version=args.fmi)
     print(f"scenario {scenario.name}: {summary.steps} samples over {scenario.duration:g} s "
           f"({summary.communication_steps} FMU steps of {scenario.communication_step:g} s, FMI {args.fmi}.0), "
           f"estimator {summary.estimator}, seed {args.seed}")
-    print(f"wall time {summary.wall_time_s:.2f} s ({scenario.duration / summary.wall_time_s:.0f}x real time)"
-          + (f", median step {summary.median_step_us:.1f} us" if summary.median_step_us else ""))
+    _print_timing(summary, scenario.duration)
     _print_truth_summary(results)
     print(f"results: {results}\nsummary: {out / 'run.json'}" + (f"\nrecording: {args.rrd}" if args.rrd else ""))
     return 0
+
+
+def cmd_replay(args) -> int:
+    from tirefilter.estimators import build_log_estimator, resolve_model
+    from tirefilter.replay import read_log, replay_log
+    from tirefilter.runs import write_summary_json
+    from tirefilter.vehicle.params import load_vehicle
+
+    vehicle = load_vehicle(args.vehicle)
+    log = read_log(args.log, vehicle, vehicle_name=args.vehicle)
+    config = read_toml(args.config) if args.config else {}
+    estimator = build_log_estimator(args.estimator, vehicle, log.t, {s: log.signals[s] for s in log.available},
+                                    model=args.model, particles=args.particles, config=config, source=log.path)
+    model = estimator.cfg.model if hasattr(estimator, "cfg") else resolve_model(args.model, log.available)
+    results = Path(args.out)
+    summary_json = results.with_suffix(".json")
+    summary = _run_and_record(
+        lambda: replay_log(log, estimator=estimator, seed=args.seed, results_csv=results, rrd=args.rrd,
+                           progress=_progress(args), vehicle_file=args.vehicle),
+        lambda s: write_summary_json(summary_json, s, command=sys.argv, model=model,
+                                     **_estimator_record(estimator, config)),
+        results)
+    if summary is None:
+        return 1
+    rate = (log.rows - 1) / log.duration if log.duration > 0 else float("nan")
+    print(f"replay of {log.path}: {log.rows} rows over {log.duration:g} s ({rate:.4g} Hz on average), "
+          f"estimator {summary.estimator}" + (f" ({model} model, N = {estimator.cfg.particles})"
+                                              if hasattr(estimator, "cfg") else "") + f", seed {args.seed}")
+    _print_timing(summary, log.duration)
+    final = summary.final or {}
+    estimates = [f"{p} {final[p]:.4g} +- {final[p + '_std']:.2g}" for p in ("Cf_y", "Cr_y", "Cx")
+                 if final.get(p) is not None and final.get(p + "_std") is not None]
+    if estimates:
+        print(f"final stiffness at t = {final['t']:g} s: {', '.join(estimates)} (mean +- posterior std of the mean)")
+    print(f"results: {results}\nsummary: {summary_json}" + (f"\nrecording: {args.rrd}" if args.rrd else ""))
+    return 0
+
+
+def cmd_check_log(args) -> int:
+    from tirefilter.replay import check_log
+
+    summary = check_log(args.log, args.vehicle)
+    print(json.dumps(summary.to_dict(), indent=2) if args.json else summary.format())
+    return 0
+
+
+def _progress(args) -> bool:
+    return sys.stderr.isatty() and not args.quiet
+
+
+def _estimator_record(estimator, config: dict) -> dict:
+    """N and the full estimator configuration for the run summary JSON."""
+    return {"particles": getattr(getattr(estimator, "cfg", None), "particles", None),
+            "estimator_config": estimator.config_dict() if hasattr(estimator, "config_dict") else config}
+
+
+def _run_and_record(run, write_summary, results: Path):
+    """`run()` -> (summary, rows); the summary is written by `write_summary` whether the run
+    succeeds or fails (then with status "failed"). Returns the summary, None on failure."""
+    summary = None
+    try:
+        summary, _ = run()
+    except TirefilterError as exc:
+        summary = getattr(exc, "summary", None)
+        print(f"error: {exc}\n(rows up to the failure are in {results})", file=sys.stderr)
+        return None
+    finally:
+        if summary is not None:
+            write_summary(summary)
+    return summary
+
+
+def _print_timing(summary, duration: float) -> None:
+    print(f"wall time {summary.wall_time_s:.2f} s ({duration / summary.wall_time_s:.0f}x real time)"
+          + (f", median step {summary.median_step_us:.1f} us" if summary.median_step_us else ""))
 
 
 def _print_truth_summary(results: Path) -> None:
@@ -115,6 +182,26 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--fmi", default="2", choices=("2", "3"), help="vehicle FMU version (default 2)")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
     run.set_defaults(func=cmd_run)
+
+    rp = sub.add_parser("replay", help="run an estimator over a recorded log (Log CSV)")
+    rp.add_argument("log", help="the log: Log CSV (or .csv.gz) with t, delta, ax, ay, yaw_rate, vx and/or omega_f, omega_r")
+    rp.add_argument("--vehicle", required=True, help="vehicle TOML (parameters, nominal stiffness, sensor noise)")
+    rp.add_argument("--estimator", default="mpf", choices=ESTIMATORS, help="estimator (default: mpf)")
+    rp.add_argument("--model", default="auto", choices=("full", "lateral", "auto"),
+                    help="estimation model: full (wheel speeds), lateral (vx given), or auto (full with wheel speeds)")
+    rp.add_argument("--particles", type=int, help="number of particles (default 500)")
+    rp.add_argument("--seed", type=int, default=0, help="seed of the run's SeedSequence")
+    rp.add_argument("--config", help="estimator configuration TOML ([mpf] table)")
+    rp.add_argument("--out", required=True, help="Result CSV to write; the run summary goes to its stem + .json")
+    rp.add_argument("--rrd", help="write a Rerun recording to this file")
+    rp.add_argument("--quiet", action="store_true", help="no progress bar")
+    rp.set_defaults(func=cmd_replay)
+
+    ck = sub.add_parser("check-log", help="check a recorded log and summarise what it holds")
+    ck.add_argument("log", help="the log: Log CSV (or .csv.gz)")
+    ck.add_argument("--vehicle", help="vehicle TOML (steering ratio, wheel radius)")
+    ck.add_argument("--json", action="store_true", help="machine-readable summary")
+    ck.set_defaults(func=cmd_check_log)
 
     sc = sub.add_parser("scenarios", help="list the scenarios with their schedules")
     sc.add_argument("--json", action="store_true", help="machine-readable list")
