@@ -70,6 +70,13 @@ class MPFConfig:
     gate_warmup: float = 1.0  # s after the first sample with learning off: the state settles first
     outlier_prob: float = 1.0  # < 1: a particle skips learning when its residual is beyond this
     # chi-square quantile (off by default: it also rejects the residuals of a real surface change)
+    # plausibility (not in the paper): a particle whose state leaves the physically possible
+    # region (sideslip beyond plausible_beta, |yaw rate| beyond plausible_yaw_rate, non-finite)
+    # gets weight zero; when every particle has left it the filter restarts from its prior
+    plausible_beta: float = 0.35  # rad (20 deg; the linear tire model ends far earlier)
+    plausible_yaw_rate: float = 2.0  # rad/s
+    restart_alpha: float = 0.15  # rad: estimated slip beyond this while |a^Y| < gate_ay_max ...
+    restart_after: float = 0.5  # s: ... for this long also restarts (0 disables)
     # parameter projection (Sec. V): stiffness bounds relative to the reference
     bound_low: float = 0.2
     bound_high: float = 3.0
@@ -95,7 +102,8 @@ class MPFConfig:
         if self.init_distribution not in ("normal", "uniform"):
             bad("init_distribution", f"expected normal or uniform, got {self.init_distribution!r}")
         for key in ("init_std", "init_half_width", "init_sigma", "gate_speed", "gate_steer", "gate_ay_max",
-                    "gate_alpha_max", "gate_vy_std", "gate_warmup", "nu0_margin"):
+                    "gate_alpha_max", "gate_vy_std", "gate_warmup", "nu0_margin", "plausible_beta",
+                    "plausible_yaw_rate", "restart_alpha", "restart_after"):
             if not getattr(self, key) >= 0:
                 bad(key, f"must be >= 0, got {getattr(self, key)!r}")
         for key in ("sigma", "bias_rw", "bias0_std", "x0_std", "state_noise"):
@@ -148,6 +156,7 @@ class StiffnessMPF:
             raise ConfigError("mpf configuration", "init_center",
                               f"needs {self.n_w} values ({', '.join(self.params)})")
         self.C_ref, self.C_center = ref, center
+        self._carried = None
 
     def _outlier_bound(self, nc: int) -> float:
         cache = self.__dict__.setdefault("_bounds", {})
@@ -162,8 +171,20 @@ class StiffnessMPF:
 
     # ---- initialisation ---------------------------------------------------------------
     def reset(self, rng: np.random.Generator) -> None:
-        cfg, N, n = self.cfg, self.cfg.particles, self.n_w
         self.rng = rng
+        self._draw_prior(x0_mean=None)
+        self.w_prev = None
+        self.u_prev = None
+        self.t_prev = None
+        self.active = False
+        self.resamples = 0
+        self.restarts = 0
+        self._contradiction_since = None
+
+    def _draw_prior(self, x0_mean) -> None:
+        """Particles from the initial distribution: stiffness statistics (or the carried
+        ones), state around x0_mean (default: the configured one), bias, equal weights."""
+        cfg, N, n, rng = self.cfg, self.cfg.particles, self.n_w, self.rng
         # prior spread of the mean, split between particles and each particle's NiW
         if cfg.init_distribution == "normal":
             s = cfg.init_std
@@ -180,23 +201,20 @@ class StiffnessMPF:
         gamma0 = max(share * s * s / cfg.init_sigma**2, 1e-6)  # gamma E[Sigma] = share s^2 C_ref^2
         self.stats = NiW(np.full(N, gamma0), means - self.C_nom, np.broadcast_to(Lam0, (N, n, n)).copy(),
                          np.full(N, nu0))
+        if self._carried is not None:  # statistics learned on an earlier drive replace the prior
+            logw, stats = self._carried
+            same = len(logw) == N and np.ptp(logw) == 0
+            self.stats = stats.take(np.arange(N) if same else systematic_resample(logw, rng, N))
+            self.stats.nu = np.maximum(self.stats.nu, nu0)
         x0_std = np.asarray(cfg.x0_std, float)
-        if self.full:
-            mean = np.asarray(cfg.x0_mean if cfg.x0_mean is not None else (20.0, 0.0, 0.0), float)
-            self.x = mean + rng.standard_normal((N, 3)) * x0_std
-        else:
-            mean = np.asarray(cfg.x0_mean if cfg.x0_mean is not None else (0.0, 0.0), float)[-2:]
-            self.x = mean + rng.standard_normal((N, 2)) * x0_std[-2:]
+        if x0_mean is None:
+            x0_mean = cfg.x0_mean if cfg.x0_mean is not None else ((20.0, 0.0, 0.0) if self.full else (0.0, 0.0))
+        nx = 3 if self.full else 2
+        self.x = np.asarray(x0_mean, float)[-nx:] + rng.standard_normal((N, nx)) * x0_std[-nx:]
         m = len(self.channels)
         self.b = np.zeros((N, m))
         self.P = np.broadcast_to(np.diag(np.asarray(cfg.bias0_std)[list(self.channels)] ** 2), (N, m, m)).copy()
         self.logw = np.full(N, -math.log(N))
-        self.w_prev = None
-        self.u_prev = None
-        self.t_prev = None
-        self.active = False
-        self.learned = False
-        self.resamples = 0
 
     # ---- model ------------------------------------------------------------------------
     def _model(self, x, u, slip=None):
@@ -339,6 +357,8 @@ class StiffnessMPF:
             e = yk[a] - h[:, a] - self.b[:, a] - np.einsum("nij,nj->ni", Da, mu_w)
             v = solve_lower(Lc, e)
             self.logw = normalize_log_weights(self.logw + t_logpdf_whitened(v, logdet_chol(Lc), nu_w))
+        if not self._plausible(uk):
+            return self._restart(t, uk, y)
         ess = float(effective_sample_size(self.logw))
         if ess < cfg.resample_threshold * cfg.particles:
             idx = systematic_resample(self.logw, self.rng)
@@ -359,11 +379,17 @@ class StiffnessMPF:
         vy = self.x[:, 1 if self.full else 0]
         vy_std = math.sqrt(max(float(q @ (vy - q @ vy) ** 2), 0.0))
         ay_m = y.ay if math.isfinite(y.ay) else 0.0
+        alpha = max(abs(float(q @ af)), abs(float(q @ ar)))
         self.active = bool(
             vx_est > cfg.gate_speed and abs(uk[0]) > cfg.gate_steer and abs(ay_m) < cfg.gate_ay_max
-            and abs(float(q @ af)) < cfg.gate_alpha_max and abs(float(q @ ar)) < cfg.gate_alpha_max
-            and vy_std < cfg.gate_vy_std and t - self.t_start >= cfg.gate_warmup
+            and alpha < cfg.gate_alpha_max and vy_std < cfg.gate_vy_std and t - self.t_start >= cfg.gate_warmup
         )
+        # a large slip angle with a small measured a^Y contradicts any tire: the state has
+        # locked onto a wrong sideslip (the sampled w explains the accelerations regardless)
+        contradiction = cfg.restart_alpha > 0 and alpha > cfg.restart_alpha and abs(ay_m) < cfg.gate_ay_max
+        self._contradiction_since = (self._contradiction_since or t) if contradiction else None
+        if contradiction and t - self._contradiction_since >= cfg.restart_after:
+            return self._restart(t, uk, y)
 
         # 3. sample w_k from the conditional given the accelerometer residuals, eq. (39)-(41);
         #    the yaw-rate residual carries no information on w (d row 0) and is left out.
@@ -392,6 +418,36 @@ class StiffnessMPF:
         self.w_prev = w
         self._at_x = model_k  # the first stage of the next propagation, at this x and u
         return self._estimate(ess)
+
+    def _plausible(self, uk) -> bool:
+        """Zero the weight of particles outside the physically possible region; False when
+        none is left."""
+        vx = self.x[:, 0] if self.full else uk[3]
+        vy, r = self.x[:, -2], self.x[:, -1]
+        ok = (np.abs(vy) <= self.cfg.plausible_beta * np.maximum(np.abs(vx), self.cfg.gate_speed)) & (
+            np.abs(r) <= self.cfg.plausible_yaw_rate)
+        if ok.all():
+            return True
+        if not ok.any():
+            return False
+        self.logw = normalize_log_weights(np.where(ok, self.logw, -np.inf))
+        return True
+
+    def _restart(self, t, uk, y) -> Estimate:
+        """Every particle has left the plausible region (the state diverged, typically after
+        learning an unstable stiffness from a wrong start): draw the particles from the prior
+        again, around the current speed and the measured yaw rate, and go on from there."""
+        if self.full:
+            omega = uk[1] if self.rear_drive else uk[2]  # the undriven axle
+            vx = self.vehicle.wheel_radius * omega if math.isfinite(omega) else float(np.median(self.x[:, 0]))
+        r0 = y.yaw_rate if math.isfinite(y.yaw_rate) else 0.0
+        self._draw_prior((vx, 0.0, r0) if self.full else (0.0, r0))
+        self.restarts += 1
+        self.t_start, self.t_prev, self.u_prev, self.active = t, t, uk, False
+        self._contradiction_since = None
+        self._at_x = self._model(self.x, uk)
+        self.w_prev = self.stats.mu.copy()  # the next propagation uses the prior means
+        return self._estimate(float(self.cfg.particles))
 
     def _bias_update(self, yk, h, D, a):
         """Per-particle Kalman update of the bias, eq. (30):
@@ -424,7 +480,7 @@ class StiffnessMPF:
             vx, vy, r = x_mean
             std = tuple(x_std)
         else:
-            vx, (vy, r) = self.u_prev[3], x_mean
+            vx, (vy, r) = (NAN if self.u_prev is None else self.u_prev[3]), x_mean
             std = (0.0, x_std[0], x_std[1])
         cx = vals.get("Cx", (NAN, NAN, NAN))
         return Estimate(
@@ -435,6 +491,54 @@ class StiffnessMPF:
             b_ax=float(bias.get("ax", NAN)), b_ay=float(bias["ay"]), b_yaw_rate=float(bias["yaw_rate"]),
             ess=ess, state_std=tuple(float(s) for s in std),
         )
+
+    # ---- carrying the learned stiffness from one drive to the next ----------------------
+    def learned_state(self) -> dict:
+        """The learned stiffness posterior (per-particle NiW statistics and weights, not the
+        vehicle state), as plain lists: what a car keeps between drives."""
+        if not hasattr(self, "stats"):
+            raise ConfigError("--save-state", "", "the filter has not been reset or run: nothing learned to save")
+        st = self.stats
+        return {"model": self.cfg.model, "params": list(self.params), "C_nominal": self.C_nom.tolist(),
+                "log_weights": self.logw.tolist(), "gamma": st.gamma.tolist(), "mu": st.mu.tolist(),
+                "Lam": st.Lam.tolist(), "nu": st.nu.tolist()}
+
+    def carry_over(self, state: dict, source: str = "state") -> None:
+        """Start the next `reset` from a `learned_state()` instead of the configured prior.
+
+        N may differ (the saved particles are resampled by weight). A full-model state
+        initialises a lateral-model filter by marginalising out dC_x: mu and gamma of the
+        lateral block are kept, Lambda's block is taken and nu drops by one (the
+        inverse-Wishart marginal of a sub-block). Nominal stiffness must be the same."""
+        def bad(key, problem):
+            raise ConfigError(source, key, problem)
+
+        try:
+            params = tuple(state["params"])
+            logw = np.asarray(state["log_weights"], float)
+            stats = NiW(np.asarray(state["gamma"], float), np.asarray(state["mu"], float),
+                        np.asarray(state["Lam"], float), np.asarray(state["nu"], float))
+            C_nom = np.asarray(state["C_nominal"], float)
+        except (KeyError, TypeError, ValueError) as exc:
+            bad("", f"not a stiffness state ({exc})")
+        n, N = len(params), len(logw)
+        if (stats.mu.shape != (N, n) or stats.Lam.shape != (N, n, n) or stats.gamma.shape != (N,)
+                or stats.nu.shape != (N,) or C_nom.shape != (n,)):
+            bad("", "array shapes do not match the parameter list and the number of particles")
+        if not all(np.all(np.isfinite(a)) for a in (stats.gamma, stats.mu, stats.Lam, stats.nu)):
+            bad("", "statistics contain non-finite values")
+        keep = [params.index(p) for p in self.params if p in params]
+        if len(keep) != self.n_w:
+            bad("params", f"saved for {', '.join(params)}; this filter estimates {', '.join(self.params)}")
+        if not np.allclose(C_nom[keep], self.C_nom, rtol=1e-12):
+            bad("C_nominal", f"saved nominal stiffness {C_nom[keep].tolist()} differs from the vehicle's "
+                f"{self.C_nom.tolist()}")
+        if len(keep) < n:
+            ix = np.array(keep)
+            stats = NiW(stats.gamma, stats.mu[:, ix], stats.Lam[:, ix][:, :, ix], stats.nu - (n - len(keep)))
+        if np.any(stats.nu <= self.n_w + 1):
+            bad("nu", f"degrees of freedom must exceed {self.n_w + 1}")
+        self._carried = (normalize_log_weights(logw), stats)
 
     def posterior(self) -> Posterior:
         return Posterior(self.x.copy(), self.logw.copy(),

@@ -24,20 +24,22 @@ def effective_sample_size(log_w_normalized: np.ndarray) -> np.ndarray:
     return 1.0 / np.sum(np.exp(2.0 * log_w_normalized), axis=-1)
 
 
-def systematic_resample(log_w_normalized: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Ancestor indices by systematic resampling: one uniform u, points (u + j) / N.
+def systematic_resample(log_w_normalized: np.ndarray, rng: np.random.Generator, count: int | None = None) -> np.ndarray:
+    """Ancestor indices by systematic resampling: one uniform u, points (u + j) / count
+    (count defaults to the number of particles).
 
     Works on the last axis; leading axes (Monte-Carlo trials) get independent uniforms.
     The caller applies the indices to every per-particle array.
     """
     w = np.exp(log_w_normalized)
     n = w.shape[-1]
+    m = n if count is None else int(count)
     cdf = np.cumsum(w, axis=-1)
     cdf[..., -1] = 1.0  # guard against round-off
-    u = (rng.random(w.shape[:-1] + (1,)) + np.arange(n)) / n
+    u = (rng.random(w.shape[:-1] + (1,)) + np.arange(m)) / m
     if w.ndim == 1:
         return np.searchsorted(cdf, u[0] if u.ndim > 1 else u, side="right").clip(0, n - 1)
-    idx = np.empty(w.shape, dtype=np.intp)
+    idx = np.empty(w.shape[:-1] + (m,), dtype=np.intp)
     for pos in np.ndindex(w.shape[:-1]):
         idx[pos] = np.searchsorted(cdf[pos], u[pos], side="right")
     return idx.clip(0, n - 1)
