@@ -49,14 +49,17 @@ def cmd_replay(args) -> int:
     from tirefilter.runs import write_summary_json
     from tirefilter.vehicle.params import load_vehicle
 
+    results = Path(args.out)
+    summary_json = results.with_suffix(".json")
+    if summary_json == results:
+        raise ConfigError("--out", "", f"{results}: the Result CSV needs another suffix than .json (the run summary "
+                          "goes to its stem + .json)")
     vehicle = load_vehicle(args.vehicle)
     log = read_log(args.log, vehicle, vehicle_name=args.vehicle)
     config = read_toml(args.config) if args.config else {}
     estimator = build_log_estimator(args.estimator, vehicle, log.t, {s: log.signals[s] for s in log.available},
                                     model=args.model, particles=args.particles, config=config, source=log.path)
     model = estimator.cfg.model if hasattr(estimator, "cfg") else resolve_model(args.model, log.available)
-    results = Path(args.out)
-    summary_json = results.with_suffix(".json")
     summary = _run_and_record(
         lambda: replay_log(log, estimator=estimator, seed=args.seed, results_csv=results, rrd=args.rrd,
                            progress=_progress(args), vehicle_file=args.vehicle),
@@ -171,30 +174,18 @@ def build_parser() -> argparse.ArgumentParser:
 
     run = sub.add_parser("run", help="co-simulate a scenario against the vehicle FMU")
     run.add_argument("--scenario", required=True, help="scenario name (see `tirefilter scenarios`) or TOML file")
-    run.add_argument("--estimator", default="none", choices=ESTIMATORS, help="estimator (default: none)")
-    run.add_argument("--model", default="auto", choices=("full", "lateral", "auto"),
-                     help="estimation model: full, lateral, or auto (full with wheel speeds)")
-    run.add_argument("--particles", type=int, help="number of particles (particle filters; default from the scenario)")
-    run.add_argument("--seed", type=int, default=0, help="seed of the run's SeedSequence")
-    run.add_argument("--config", help="estimator configuration TOML")
+    _estimator_options(run, default="none", particles="default from the scenario")
     run.add_argument("--out", help="output folder (default runs/<scenario>)")
-    run.add_argument("--rrd", help="write a Rerun recording to this file")
     run.add_argument("--fmi", default="2", choices=("2", "3"), help="vehicle FMU version (default 2)")
-    run.add_argument("--quiet", action="store_true", help="no progress bar")
+    _output_options(run)
     run.set_defaults(func=cmd_run)
 
     rp = sub.add_parser("replay", help="run an estimator over a recorded log (Log CSV)")
     rp.add_argument("log", help="the log: Log CSV (or .csv.gz) with t, delta, ax, ay, yaw_rate, vx and/or omega_f, omega_r")
     rp.add_argument("--vehicle", required=True, help="vehicle TOML (parameters, nominal stiffness, sensor noise)")
-    rp.add_argument("--estimator", default="mpf", choices=ESTIMATORS, help="estimator (default: mpf)")
-    rp.add_argument("--model", default="auto", choices=("full", "lateral", "auto"),
-                    help="estimation model: full (wheel speeds), lateral (vx given), or auto (full with wheel speeds)")
-    rp.add_argument("--particles", type=int, help="number of particles (default 500)")
-    rp.add_argument("--seed", type=int, default=0, help="seed of the run's SeedSequence")
-    rp.add_argument("--config", help="estimator configuration TOML ([mpf] table)")
+    _estimator_options(rp, default="mpf", particles="default 500")
     rp.add_argument("--out", required=True, help="Result CSV to write; the run summary goes to its stem + .json")
-    rp.add_argument("--rrd", help="write a Rerun recording to this file")
-    rp.add_argument("--quiet", action="store_true", help="no progress bar")
+    _output_options(rp)
     rp.set_defaults(func=cmd_replay)
 
     ck = sub.add_parser("check-log", help="check a recorded log and summarise what it holds")
@@ -213,6 +204,21 @@ def build_parser() -> argparse.ArgumentParser:
     build.add_argument("target", nargs="?", default="vehicle", choices=("vehicle", "estimator", "all"))
     build.set_defaults(func=cmd_fmu_build)
     return p
+
+
+def _estimator_options(p: argparse.ArgumentParser, *, default: str, particles: str) -> None:
+    """The estimator options `run` and `replay` share (DESIGN.md)."""
+    p.add_argument("--estimator", default=default, choices=ESTIMATORS, help=f"estimator (default: {default})")
+    p.add_argument("--model", default="auto", choices=("full", "lateral", "auto"),
+                   help="estimation model: full (wheel speeds), lateral (vx given), or auto (full with wheel speeds)")
+    p.add_argument("--particles", type=int, help=f"number of particles (particle filters; {particles})")
+    p.add_argument("--seed", type=int, default=0, help="seed of the run's SeedSequence")
+    p.add_argument("--config", help="estimator configuration TOML (the [mpf] table)")
+
+
+def _output_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--rrd", help="write a Rerun recording to this file")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
 def main(argv=None) -> int:

@@ -166,7 +166,7 @@ def _warnings(log: Log) -> list[str]:
         x = log.signals[name]
         if not math.isfinite(x[0]) and name in ("delta", "omega_f", "omega_r", "vx"):
             k = int(np.flatnonzero(np.isfinite(x))[0])
-            out.append(f"{name} is missing in the first {k} rows (up to t = {log.t[k]:g} s): the estimator has no "
+            out.append(f"{name} is missing in the first {k} rows (before t = {log.t[k]:g} s): the estimator has no "
                        f"value to hold there")
     for name in set(log.signals) - set(log.available):
         out.append(f"{name} has no samples at all")
