@@ -434,3 +434,24 @@ def test_real_recording_checks_and_replays(mbds_log, tmp_path):
         assert np.isfinite(r[col]).all(), col
     beta_true = read_results(mbds_log)["beta_true"][(log.t >= 300.0) & (log.t < 320.0)]
     assert math.degrees(np.sqrt(np.mean((r["beta"] - beta_true) ** 2))) < 3.0  # a sanity bound, not a benchmark
+
+
+def test_save_state_then_init_state_on_the_next_drive(log_columns, tmp_path, capsys):
+    """Drive 1 saves its stiffness posterior, drive 2 (another N) starts from it; a state
+    for another vehicle is refused with exit code 1 and the differing key named."""
+    path = write_log(tmp_path / "log.csv", {k: v[:400] for k, v in log_columns.items()})
+    state = tmp_path / "stiffness.json"
+    base = ["replay", str(path), "--vehicle", str(VEHICLE), "--model", "lateral", "--quiet"]
+    assert main(base + ["--particles", "60", "--out", str(tmp_path / "d1.csv"), "--save-state", str(state)]) == 0
+    assert json.loads(state.read_text())["params"] == ["Cf_y", "Cr_y"]
+    assert main(base + ["--particles", "80", "--out", str(tmp_path / "d2.csv"), "--init-state", str(state)]) == 0
+    first, second = read_results(tmp_path / "d1.csv"), read_results(tmp_path / "d2.csv")
+    for p in ("Cf_y", "Cr_y"):  # drive 2 starts where drive 1 ended (within the resampling spread)
+        assert abs(second[p][0] / first[p][-1] - 1) < 0.03, p
+    assert json.loads((tmp_path / "d2.json").read_text())["estimator_config"]["init_state"] == str(state)
+    capsys.readouterr()
+    other = tmp_path / "other.toml"
+    other.write_text(VEHICLE.read_text().replace("mass = 2050.0", "mass = 2150.0"))
+    assert main(["replay", str(path), "--vehicle", str(other), "--model", "lateral", "--quiet", "--particles", "20",
+                 "--out", str(tmp_path / "d3.csv"), "--init-state", str(state)]) == 1
+    assert "different vehicle (mass: saved" in capsys.readouterr().err

@@ -22,6 +22,7 @@ def cmd_run(args) -> int:
     scenario = load_scenario(args.scenario)
     config = read_toml(args.config) if args.config else {}
     estimator = build_estimator(args.estimator, scenario, model=args.model, particles=args.particles, config=config)
+    _init_state(args, estimator)
     out = Path(args.out) if args.out else Path("runs") / scenario.name
     out.mkdir(parents=True, exist_ok=True)
     results = out / "results.csv"
@@ -30,7 +31,7 @@ def cmd_run(args) -> int:
         lambda: run_scenario(scenario, estimator=estimator, seed=args.seed, fmi_version=args.fmi, results_csv=results,
                              rrd=args.rrd, progress=_progress(args)),
         lambda s: write_run_json(out / "run.json", s, command=sys.argv, model=model, fmi_version=args.fmi,
-                                 **_estimator_record(estimator, config)),
+                                 **_estimator_record(estimator, config, args)),
         results)
     if summary is None:
         return 1
@@ -40,6 +41,7 @@ def cmd_run(args) -> int:
     _print_timing(summary, scenario.duration)
     _print_truth_summary(results)
     print(f"results: {results}\nsummary: {out / 'run.json'}" + (f"\nrecording: {args.rrd}" if args.rrd else ""))
+    _save_state(args, estimator)
     return 0
 
 
@@ -59,12 +61,13 @@ def cmd_replay(args) -> int:
     config = read_toml(args.config) if args.config else {}
     estimator = build_log_estimator(args.estimator, vehicle, log.t, {s: log.signals[s] for s in log.available},
                                     model=args.model, particles=args.particles, config=config, source=log.path)
+    _init_state(args, estimator)
     model = estimator.cfg.model if hasattr(estimator, "cfg") else resolve_model(args.model, log.available)
     summary = _run_and_record(
         lambda: replay_log(log, estimator=estimator, seed=args.seed, results_csv=results, rrd=args.rrd,
                            progress=_progress(args), vehicle_file=args.vehicle),
         lambda s: write_summary_json(summary_json, s, command=sys.argv, model=model,
-                                     **_estimator_record(estimator, config)),
+                                     **_estimator_record(estimator, config, args)),
         results)
     if summary is None:
         return 1
@@ -79,6 +82,7 @@ def cmd_replay(args) -> int:
     if estimates:
         print(f"final stiffness at t = {final['t']:g} s: {', '.join(estimates)} (mean +- posterior std of the mean)")
     print(f"results: {results}\nsummary: {summary_json}" + (f"\nrecording: {args.rrd}" if args.rrd else ""))
+    _save_state(args, estimator)
     return 0
 
 
@@ -90,14 +94,31 @@ def cmd_check_log(args) -> int:
     return 0
 
 
+def _init_state(args, estimator) -> None:
+    if args.init_state:
+        from tirefilter.estimators.state_file import load_state
+
+        load_state(estimator, args.init_state)
+
+
+def _save_state(args, estimator) -> None:
+    if args.save_state:
+        from tirefilter.estimators.state_file import save_state
+
+        print(f"stiffness posterior: {save_state(estimator, args.save_state)}")
+
+
 def _progress(args) -> bool:
     return sys.stderr.isatty() and not args.quiet
 
 
-def _estimator_record(estimator, config: dict) -> dict:
-    """N and the full estimator configuration for the run summary JSON."""
-    return {"particles": getattr(getattr(estimator, "cfg", None), "particles", None),
-            "estimator_config": estimator.config_dict() if hasattr(estimator, "config_dict") else config}
+def _estimator_record(estimator, config: dict, args) -> dict:
+    """N and the full estimator configuration for the run summary JSON (with the state
+    file it started from, if any)."""
+    est_config = estimator.config_dict() if hasattr(estimator, "config_dict") else dict(config)
+    if args.init_state:
+        est_config["init_state"] = str(args.init_state)
+    return {"particles": getattr(getattr(estimator, "cfg", None), "particles", None), "estimator_config": est_config}
 
 
 def _run_and_record(run, write_summary, results: Path):
@@ -213,7 +234,9 @@ def _estimator_options(p: argparse.ArgumentParser, *, default: str, particles: s
                    help="estimation model: full (wheel speeds), lateral (vx given), or auto (full with wheel speeds)")
     p.add_argument("--particles", type=int, help=f"number of particles (particle filters; {particles})")
     p.add_argument("--seed", type=int, default=0, help="seed of the run's SeedSequence")
-    p.add_argument("--config", help="estimator configuration TOML (the [mpf] table)")
+    p.add_argument("--config", help="estimator configuration TOML (the [mpf] or [kf] table)")
+    p.add_argument("--init-state", metavar="FILE", help="start from the stiffness posterior saved by --save-state")
+    p.add_argument("--save-state", metavar="FILE", help="save the learned stiffness posterior at the end (JSON)")
 
 
 def _output_options(p: argparse.ArgumentParser) -> None:

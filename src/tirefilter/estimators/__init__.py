@@ -8,7 +8,7 @@ import math
 
 from tirefilter.errors import ConfigError
 
-ESTIMATORS = ("none", "mpf")
+ESTIMATORS = ("none", "mpf", "kf")  # kf: linear single-track Kalman filter, fixed stiffness (baseline)
 
 
 def mpf_config_for_scenario(scenario, *, model: str, particles: int | None, overrides: dict):
@@ -125,6 +125,10 @@ def build_estimator(name: str, scenario, *, model: str, particles: int | None, c
         check_model_signals(model, scenario.sensors, scenario.file, "sensors")
         cfg = mpf_config_for_scenario(scenario, model=model, particles=particles, overrides=config.get("mpf", {}))
         return StiffnessMPF(scenario.vehicle, cfg)
+    if name == "kf":
+        check_model_signals(_kf_model(model), scenario.sensors, scenario.file, "sensors")
+        s = scenario.sensor_spec
+        return _kf(scenario.vehicle, config, sigma_ay=s.sigma_ay, sigma_yaw_rate=s.sigma_yaw_rate)
     return None
 
 
@@ -140,7 +144,24 @@ def build_log_estimator(name: str, vehicle, t, signals: dict, *, model: str, par
         cfg = mpf_config_for_log(vehicle, t, signals, model=model, particles=particles,
                                  overrides=config.get("mpf", {}))
         return StiffnessMPF(vehicle, cfg)
+    if name == "kf":
+        check_model_signals(_kf_model(model), tuple(signals), source, "columns")
+        return _kf(vehicle, config)
     return None
+
+
+def _kf_model(model: str) -> str:
+    if model == "full":
+        raise ConfigError("--model", "full", "the kf baseline has the lateral model only (v^X given)")
+    return "lateral"
+
+
+def _kf(vehicle, config: dict, **defaults):
+    """The kf baseline: the vehicle's fixed stiffness, the user's `[kf]` table on top."""
+    from tirefilter.estimators.linear_kf import KFConfig, LinearKF
+
+    base = KFConfig(**{k: v for k, v in defaults.items() if k not in config.get("kf", {})})
+    return LinearKF(vehicle, apply_overrides(base, config.get("kf", {}), "--config [kf]"))
 
 
 def _known(name: str) -> str:

@@ -39,7 +39,7 @@ def load_state(estimator, path: str | Path) -> None:
     Errors name the file and what does not match: not a state file, another format
     version, another vehicle (the differing keys), another parameter set."""
     path = Path(path)
-    if not hasattr(estimator, "carry_over"):
+    if not hasattr(estimator, "carry_over"):  # also estimator None (`--estimator none`)
         raise ConfigError("--init-state", "", f"estimator {getattr(estimator, 'name', estimator)!r} cannot start "
                           "from a saved stiffness posterior")
     try:

@@ -24,7 +24,6 @@ import math
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
-from scipy.stats import chi2
 
 from tirefilter.errors import ConfigError
 from tirefilter.estimators.base import Estimate, Inputs, Measurement, Posterior
@@ -161,6 +160,8 @@ class StiffnessMPF:
     def _outlier_bound(self, nc: int) -> float:
         cache = self.__dict__.setdefault("_bounds", {})
         if nc not in cache:
+            from scipy.stats import chi2  # only with the outlier gate on; scipy.stats imports slowly
+
             cache[nc] = float(chi2.ppf(self.cfg.outlier_prob, nc))
         return cache[nc]
 
