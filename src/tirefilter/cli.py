@@ -195,7 +195,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     run = sub.add_parser("run", help="co-simulate a scenario against the vehicle FMU")
     run.add_argument("--scenario", required=True, help="scenario name (see `tirefilter scenarios`) or TOML file")
-    _estimator_options(run, default="none", particles="default from the scenario")
+    _estimator_options(run, default="mpf", particles="default from the scenario")
     run.add_argument("--out", help="output folder (default runs/<scenario>)")
     run.add_argument("--fmi", default="2", choices=("2", "3"), help="vehicle FMU version (default 2)")
     _output_options(run)
