@@ -67,6 +67,7 @@ class MPFConfig:
     gate_alpha_max: float = 0.08  # rad
     gate_vy_std: float = 0.15  # m/s: learn only once the lateral velocity is known this well
     gate_warmup: float = 1.0  # s after the first sample with learning off: the state settles first
+    informed_start: bool = True  # initial (r, vy) of each particle conditioned on the first samples
     outlier_prob: float = 1.0  # < 1: a particle skips learning when its residual is beyond this
     # chi-square quantile (off by default: it also rejects the residuals of a real surface change)
     # plausibility (not in the paper): a particle whose state leaves the physically possible
@@ -334,11 +335,14 @@ class StiffnessMPF:
             self.P = self.P + np.diag(self.q_bias * dt)
             if self.active:
                 self.stats.forget(cfg.forgetting, nu_min=self.nu0)
+        yk = np.array([y.ax, y.ay, y.yaw_rate], float)[list(self.channels)]
+        start_logw = None
         if self.t_prev is None:
             self.t_start = t
+            if cfg.informed_start:
+                start_logw = self._informed_start(uk, yk)
         self.t_prev, self.u_prev = t, uk
 
-        yk = np.array([y.ax, y.ay, y.yaw_rate], float)[list(self.channels)]
         a = np.flatnonzero(np.isfinite(yk))  # available channels, in the order ax, ay, yaw rate
         nc = int(sum(self.channels[j] in (0, 1) for j in a))  # accelerometer channels lead
         model_k = self._model(self.x, uk)
@@ -357,7 +361,10 @@ class StiffnessMPF:
             Lc = chol(S)
             e = yk[a] - h[:, a] - self.b[:, a] - np.einsum("nij,nj->ni", Da, mu_w)
             v = solve_lower(Lc, e)
-            self.logw = normalize_log_weights(self.logw + t_logpdf_whitened(v, logdet_chol(Lc), nu_w))
+            if start_logw is None:
+                self.logw = normalize_log_weights(self.logw + t_logpdf_whitened(v, logdet_chol(Lc), nu_w))
+        if start_logw is not None:
+            self.logw = normalize_log_weights(start_logw)
         if not self._plausible(uk):
             return self._restart(t, uk, y)
         ess = float(effective_sample_size(self.logw))
@@ -419,6 +426,46 @@ class StiffnessMPF:
         self.w_prev = w
         self._at_x = model_k  # the first stage of the next propagation, at this x and u
         return self._estimate(ess)
+
+    def _informed_start(self, uk, yk) -> np.ndarray:
+        """Draw each particle's initial (r, vy) from its prior conditioned on the first yaw
+        rate and a^Y samples, given the particle's own stiffness mean (Gaussian, a^Y
+        linearised in vy), and return the log marginal likelihood of those samples as the
+        first weights (they replace the step's weighting: the samples are used once).
+
+        Why: weighting prior draws by the first a^Y collapses the cloud onto the few
+        particles whose vy happens to fit their stiffness (ESS of a handful out of 500), and
+        a biased stiffness prior then locks in a vy offset (derivations, Sec. 9). Drawn
+        this way, every stiffness hypothesis keeps a consistent state and the yaw dynamics
+        decide between them."""
+        logw = np.zeros(len(self.x))
+        jr, jy = len(self.channels) - 1, len(self.channels) - 2  # yaw rate, a^Y
+        ix_r, ix_vy = self.x.shape[1] - 1, self.x.shape[1] - 2
+        std = np.asarray(self.cfg.x0_std, float)[-2:]
+        var_vy, var_r = std[0] ** 2, std[1] ** 2
+        if math.isfinite(yk[jr]) and var_r > 0:
+            s2 = self.R[jr, jr]
+            gain = var_r / (var_r + s2)
+            e = yk[jr] - self.b[:, jr] - self.x[:, ix_r]
+            logw += -0.5 * (e * e / (var_r + s2) + math.log(2 * math.pi * (var_r + s2)))
+            self.x[:, ix_r] += gain * e + math.sqrt(var_r * (1 - gain)) * self.rng.standard_normal(len(self.x))
+        if math.isfinite(yk[jy]) and var_vy > 0:
+            a, B, *_ = self._model(self.x, uk)
+            h, D = self._measurement(a, B, self.x)
+            x1 = self.x.copy()
+            x1[:, ix_vy] += 1.0
+            h1, _ = self._measurement(*self._model(x1, uk)[:2], x1)
+            k = (h1 - h)[:, jy]  # d a^Y / d vy at w = 0 (the w-dependent part is left out)
+            mu_w, L11, nu_w = self.stats.predictive()
+            d = D[:, jy]
+            S = np.einsum("ni,nij,nj->n", d, L11, d) * nu_w / (nu_w - 2.0) + self.R[jy, jy] + self.P[:, jy, jy]
+            e = yk[jy] - h[:, jy] - self.b[:, jy] - np.einsum("ni,ni->n", d, mu_w)
+            Se = k * k * var_vy + S
+            gain = k * var_vy / Se
+            logw += -0.5 * (e * e / Se + np.log(2 * math.pi * Se))
+            self.x[:, ix_vy] += gain * e + np.sqrt(np.maximum(var_vy * (1 - gain * k), 0.0)) * self.rng.standard_normal(
+                len(self.x))
+        return logw
 
     def _plausible(self, uk) -> bool:
         """Zero the weight of particles outside the physically possible region; False when
