@@ -490,6 +490,9 @@ class StiffnessMPF:
             vx = self.vehicle.wheel_radius * omega if math.isfinite(omega) else float(np.median(self.x[:, 0]))
         r0 = y.yaw_rate if math.isfinite(y.yaw_rate) else 0.0
         self._draw_prior((vx, 0.0, r0) if self.full else (0.0, r0))
+        if self.cfg.informed_start:
+            yk = np.array([y.ax, y.ay, y.yaw_rate], float)[list(self.channels)]
+            self.logw = normalize_log_weights(self._informed_start(uk, yk))
         self.restarts += 1
         self.t_start, self.t_prev, self.u_prev, self.active = t, t, uk, False
         self._contradiction_since = None
