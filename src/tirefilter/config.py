@@ -23,6 +23,13 @@ def read_toml(path: str | Path) -> dict[str, Any]:
         raise ConfigError(path, "", f"not valid TOML ({exc})") from None
 
 
+def _missing(file, name: str, default: Any, expected: str) -> Any:
+    """The value of an absent key: its default, or an error when it has none."""
+    if default is _MISSING:
+        raise ConfigError(file, name, f"missing (expected {expected})")
+    return default
+
+
 def get_number(
     table: dict,
     key: str,
@@ -38,9 +45,7 @@ def get_number(
     """A finite number from `table[key]` within [lo, hi] ((lo, hi] with lo_open)."""
     name = f"{prefix}{key}"
     if key not in table:
-        if default is _MISSING:
-            raise ConfigError(file, name, "missing (expected a number)")
-        return default
+        return _missing(file, name, default, "a number")
     value = table[key]
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ConfigError(file, name, f"expected {'an integer' if integer else 'a number'}, got {value!r}")
@@ -59,9 +64,7 @@ def get_number(
 def get_choice(table: dict, key: str, file, choices: tuple[str, ...], *, prefix: str = "", default: Any = _MISSING):
     name = f"{prefix}{key}"
     if key not in table:
-        if default is _MISSING:
-            raise ConfigError(file, name, f"missing (expected one of {', '.join(choices)})")
-        return default
+        return _missing(file, name, default, f"one of {', '.join(choices)}")
     value = table[key]
     if value not in choices:
         raise ConfigError(file, name, f"expected one of {', '.join(choices)}, got {value!r}")
@@ -71,9 +74,7 @@ def get_choice(table: dict, key: str, file, choices: tuple[str, ...], *, prefix:
 def get_table(table: dict, key: str, file, *, prefix: str = "", default: Any = _MISSING) -> dict:
     name = f"{prefix}{key}"
     if key not in table:
-        if default is _MISSING:
-            raise ConfigError(file, name, "missing (expected a table)")
-        return default
+        return _missing(file, name, default, "a table")
     value = table[key]
     if not isinstance(value, dict):
         raise ConfigError(file, name, f"expected a table, got {type(value).__name__}")
