@@ -21,7 +21,7 @@ Gaussian bias estimate (b, P) of the IMU channels. One step at sample k:
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
@@ -150,6 +150,8 @@ class StiffnessMPF:
         self.R = np.diag(sig**2)
         self.bias_on = bool(np.any(np.asarray(self.cfg.bias_rw) > 0) or np.any(np.asarray(self.cfg.bias0_std) > 0))
         self.q_bias = np.asarray(self.cfg.bias_rw)[list(self.channels)] ** 2
+        q = np.asarray(self.cfg.state_noise, float)[-(3 if self.full else 2):]
+        self.state_noise = q if np.any(q > 0) else None
         ref = np.asarray(self.cfg.init_reference if self.cfg.init_reference is not None else self.C_nom, float)
         center = np.asarray(self.cfg.init_center if self.cfg.init_center is not None else ref, float)
         if ref.shape != (self.n_w,) or center.shape != (self.n_w,):
@@ -329,10 +331,10 @@ class StiffnessMPF:
             if dt <= 0:
                 raise ConfigError("inputs", "t", f"time must increase: {t} after {self.t_prev}")
             self.x = self._propagate(self.x, self.u_prev, self.w_prev, dt, self._at_x)
-            q = np.asarray(cfg.state_noise, float)[-self.x.shape[1]:]
-            if np.any(q > 0):  # optional regularisation against sample impoverishment
-                self.x = self.x + math.sqrt(dt) * q * self.rng.standard_normal(self.x.shape)
-            self.P = self.P + np.diag(self.q_bias * dt)
+            if self.state_noise is not None:  # optional regularisation against sample impoverishment
+                self.x = self.x + math.sqrt(dt) * self.state_noise * self.rng.standard_normal(self.x.shape)
+            if self.bias_on:
+                self.P = self.P + np.diag(self.q_bias * dt)
             if self.active:
                 self.stats.forget(cfg.forgetting, nu_min=self.nu0)
         yk = np.array([y.ax, y.ay, y.yaw_rate], float)[list(self.channels)]
