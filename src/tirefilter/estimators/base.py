@@ -71,6 +71,24 @@ class Posterior:
     stats: dict = field(default_factory=dict)  # name -> (N, ...) arrays
 
 
+@dataclass(frozen=True)
+class FrictionCurve:
+    """A friction estimate mu(alpha) per axle on a fixed slip grid, as friction
+    estimators report it (`friction()`); mu is lateral force over normal load.
+
+    Arrays are (G,); `visited` is (alpha_f min, alpha_f max, alpha_r min, alpha_r max)
+    over the samples seen while learning was active, in rad (NaN before any).
+    """
+
+    t: float  # s, time of the snapshot
+    alpha: np.ndarray  # (G,) rad, the fixed grid over [-L, L]
+    mu_f: np.ndarray  # (G,) front axle, posterior mean
+    mu_f_std: np.ndarray  # (G,) its posterior std
+    mu_r: np.ndarray  # (G,) rear axle
+    mu_r_std: np.ndarray  # (G,)
+    visited: tuple[float, float, float, float] = (NAN, NAN, NAN, NAN)
+
+
 @runtime_checkable
 class Estimator(Protocol):
     name: str
