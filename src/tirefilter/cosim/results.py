@@ -26,6 +26,11 @@ def truth_column(fmu_output: str) -> str:
     return "true_" + fmu_output
 
 
+def result_columns(fmu_outputs) -> tuple[str, ...]:
+    """The Result-CSV header of a co-simulation: estimates, FMU outputs, FMU inputs."""
+    return ESTIMATE_COLUMNS + tuple(truth_column(n) for n in fmu_outputs) + INPUT_TRUTH_COLUMNS
+
+
 def estimate_values(t: float, est: Estimate | None) -> list[float]:
     """The estimate part of a row (NaN where there is no estimate)."""
     if est is None:

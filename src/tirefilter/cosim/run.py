@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from tirefilter.cosim.fmu import INPUT_NAMES, VehicleFMU
-from tirefilter.cosim.results import ESTIMATE_COLUMNS, INPUT_TRUTH_COLUMNS, estimate_values, truth_column
+from tirefilter.cosim.results import estimate_values, result_columns
 from tirefilter.estimators.base import Estimator, Inputs, Measurement
 from tirefilter.runs import StepSummary, run_outputs, spawn_seeds, write_summary_json
 from tirefilter.scenarios import Scenario
@@ -67,7 +67,7 @@ def run_scenario(
     idx = {name: j for j, name in enumerate(out_names)}
     sensors = set(scenario.sensors)
     est_name = getattr(estimator, "name", None) if estimator is not None else None
-    columns = ESTIMATE_COLUMNS + tuple(truth_column(n_) for n_ in out_names) + INPUT_TRUTH_COLUMNS
+    columns = result_columns(out_names)
 
     def sensor(name: str, output: str, y) -> float:
         return float(y[idx[output]]) if name in sensors else math.nan
