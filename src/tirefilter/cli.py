@@ -188,6 +188,20 @@ def cmd_fmu_build(args) -> int:
     return 0
 
 
+def cmd_bench_stiffness(args) -> int:
+    from tirefilter.study.stiffness import PARTS, StudyOptions, run_stiffness_study
+
+    opts = StudyOptions(out=Path(args.out), parts=tuple(args.part or PARTS), trials=args.trials,
+                        particles=tuple(args.particles) if args.particles else None,
+                        scenarios=tuple(args.scenario) if args.scenario else None,
+                        estimators=tuple(args.estimators) if args.estimators else None, workers=args.workers,
+                        seed=args.seed, duration=args.duration, plots=not args.no_plots,
+                        progress=sys.stderr.isatty() and not args.quiet)
+    run_stiffness_study(opts)
+    print(f"report: {opts.out / 'report.md'}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="tirefilter", description=__doc__)
     p.add_argument("--version", action="version", version=f"tirefilter {__version__}")
@@ -224,6 +238,26 @@ def build_parser() -> argparse.ArgumentParser:
     build = fsub.add_parser("build", help="build FMUs from source into fmu/build/")
     build.add_argument("target", nargs="?", default="vehicle", choices=("vehicle", "estimator", "all"))
     build.set_defaults(func=cmd_fmu_build)
+
+    bench = sub.add_parser("bench", help="Monte-Carlo studies")
+    bsub = bench.add_subparsers(dest="bench_command", required=True)
+    st = bsub.add_parser("stiffness", help="the stiffness paper's comparisons (Sec. VI, VII): tables, plots",
+                         description="Parts: accuracy (paper-sim, 100 trials), particles (v^Y RMSE against N), "
+                         "comparison (snow-sine, asphalt-normal: every estimator), cost (step time against N). "
+                         "Trials already in --out are not run again.")
+    st.add_argument("--part", nargs="+", choices=("accuracy", "particles", "comparison", "cost"),
+                    help="parts to run (default: all)")
+    st.add_argument("--trials", type=int, help="trials per configuration (default: 100, 20, 50 by part)")
+    st.add_argument("--particles", type=int, nargs="+", help="N (default: 500; 50 100 200 500 1000 for particles)")
+    st.add_argument("--scenario", nargs="+", help="scenarios (default: by part)")
+    st.add_argument("--estimators", nargs="+", help="estimators (default: by part)")
+    st.add_argument("--workers", type=int, help="worker processes (default: one per CPU)")
+    st.add_argument("--seed", type=int, default=0, help="seed of the study's SeedSequence")
+    st.add_argument("--duration", type=float, help="shorten every trial to this many seconds")
+    st.add_argument("--out", default="runs/bench-stiffness", help="output folder (default runs/bench-stiffness)")
+    st.add_argument("--no-plots", action="store_true", help="tables only")
+    st.add_argument("--quiet", action="store_true", help="no progress bar")
+    st.set_defaults(func=cmd_bench_stiffness)
     return p
 
 
@@ -246,8 +280,9 @@ def _output_options(p: argparse.ArgumentParser) -> None:
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
-    if getattr(args, "particles", 1) is not None and getattr(args, "particles", 1) < 1:
-        print("error: --particles must be at least 1", file=sys.stderr)
+    particles = getattr(args, "particles", None)
+    if any(n < 1 for n in (particles if isinstance(particles, list) else [particles or 1])):
+        print(f"error: --particles must be at least 1, got {particles}", file=sys.stderr)
         return 2
     try:
         return args.func(args)
