@@ -355,13 +355,15 @@ class StiffnessMPF:
         # 2. weights, eq. (36): the joint Student-t of (w, residual) with the common dof
         #    nu~ = nu - n_w + 1 and every block scaled alike (derivations, Sec. 3)
         if a.size:
-            Da = D if a.size == D.shape[1] else D[:, a]
+            every = a.size == len(self.channels)  # the usual case: no indexing needed
+            Da = D if every else D[:, a]
             DL = Da @ L11  # (N, |a|, n_w) = L21
             L12 = np.swapaxes(DL, 1, 2)
-            noise = self.R[np.ix_(a, a)] + self.P[:, a][:, :, a] if self.bias_on else self.R[np.ix_(a, a)]
+            R = self.R if every else self.R[np.ix_(a, a)]
+            noise = (R + (self.P if every else self.P[:, a][:, :, a])) if self.bias_on else R
             S = DL @ np.swapaxes(Da, 1, 2) + ((nu_w - 2.0) / nu_w)[:, None, None] * noise
             Lc = chol(S)
-            e = yk[a] - h[:, a] - self.b[:, a] - np.einsum("nij,nj->ni", Da, mu_w)
+            e = yk[a] - (h + self.b if every else h[:, a] + self.b[:, a]) - np.einsum("nij,nj->ni", Da, mu_w)
             v = solve_lower(Lc, e)
             if start_logw is None:
                 self.logw = normalize_log_weights(self.logw + t_logpdf_whitened(v, logdet_chol(Lc), nu_w))
@@ -522,7 +524,7 @@ class StiffnessMPF:
         mu = self.stats.mu
         mbar = q @ mu
         spread = q @ (mu - mbar) ** 2
-        Esig = np.diagonal(self.stats.mean_sigma(), axis1=1, axis2=2)
+        Esig = np.diagonal(self.stats.Lam, axis1=1, axis2=2) / (self.stats.nu - self.n_w - 1.0)[:, None]  # E[Sigma]
         var_mean = q @ (self.stats.gamma[:, None] * Esig) + spread  # posterior variance of the mean
         sigma2 = q @ Esig + spread  # eq. (27b), diagonal, with nu - n_w - 1
         C = self.C_nom + mbar
