@@ -36,8 +36,13 @@ class FMUHost:
         except Exception:  # pragma: no cover - proxy missing on exotic platforms
             pass
         self._callbacks = callbacks
-        self.slave.instantiate(callbacks=callbacks, loggingOn=True)
+        try:
+            self.slave.instantiate(callbacks=callbacks, loggingOn=True)
+        except Exception:
+            shutil.rmtree(self.unzip_dir, ignore_errors=True)
+            raise FMUError(f"{self.path.name}: instantiation failed: " + "; ".join(m for _, m in self.messages)) from None
         self.time = 0.0
+        self.failed = False  # after fmi2Error/fmi2Fatal the instance gets no further calls
 
     def _log(self, env, name, status, category, message):
         text = message.decode("utf-8", "replace") if isinstance(message, bytes) else str(message)
@@ -68,16 +73,24 @@ class FMUHost:
         return out
 
     def initialize(self, parameters: dict, start_time: float = 0.0) -> None:
-        self.slave.setupExperiment(startTime=start_time)
-        self.set(parameters)
-        self.slave.enterInitializationMode()
-        self.slave.exitInitializationMode()
+        try:
+            self.slave.setupExperiment(startTime=start_time)
+            self.set(parameters)
+            self.slave.enterInitializationMode()
+            self.slave.exitInitializationMode()
+        except Exception:
+            self.failed = True
+            raise
         self.time = start_time
 
     def step(self, h: float, inputs: dict | None = None) -> None:
-        if inputs:
-            self.set(inputs)
-        self.slave.doStep(currentCommunicationPoint=self.time, communicationStepSize=h)
+        try:
+            if inputs:
+                self.set(inputs)
+            self.slave.doStep(currentCommunicationPoint=self.time, communicationStepSize=h)
+        except Exception:
+            self.failed = True
+            raise
         self.time += h
 
     def outputs(self) -> dict:
@@ -103,9 +116,10 @@ class FMUHost:
         if self.slave is None:
             return
         try:
-            if terminate:
-                self.slave.terminate()
-            self.slave.freeInstance()
+            if not self.failed:  # FMI: no calls after fmi2Fatal (pythonfmu 0.7 has freed it already)
+                if terminate:
+                    self.slave.terminate()
+                self.slave.freeInstance()
         except Exception:
             pass
         finally:

@@ -20,12 +20,14 @@ from __future__ import annotations
 
 import copy
 import math
+import sys
 import tomllib
 from dataclasses import fields
 from pathlib import Path
 from xml.etree.ElementTree import SubElement
 
 import numpy as np
+import scipy.special  # noqa: F401  the estimators need it: a missing scipy fails the load, not later
 from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Boolean, Integer, Real, String
 from pythonfmu.enums import Fmi2Initial, Fmi2Status
 
@@ -87,10 +89,23 @@ def _vehicle_parameters():
     return out
 
 
+# pythonfmu 0.7's loader (findClass in its C++ layer) releases one reference to the entry
+# module's __dict__ that it only borrowed, on every instantiation: the second or third
+# instance in one process then finds the module emptied ("module has no attribute ...") or
+# crashes. Every instance gives that reference back here, so any number of instances works.
+_MODULE_DICT_REFS: list = []
+
+
 class _Slave(Fmi2Slave):
     """What both FMUs share: explicit getters/setters for dotted names, InitialUnknowns in
     the model description (fmpy's validation asks for them), logging an error before
-    raising it."""
+    raising it, and the reference that pythonfmu's loader drops (above)."""
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        module = sys.modules.get(type(self).__module__)
+        if module is not None:
+            _MODULE_DICT_REFS.append(module.__dict__)
 
     def _add(self, kind, name, causality, value, description, variability=None, initial=None):
         self._values[name] = value

@@ -22,7 +22,7 @@ _NUMPY_ALLOWED = {
     ("numpy.core.multiarray", "scalar"), ("numpy._core.multiarray", "scalar"),
     ("numpy.core.numeric", "_frombuffer"), ("numpy._core.numeric", "_frombuffer"),
     ("numpy.random._pickle", "__generator_ctor"), ("numpy.random._pickle", "__bit_generator_ctor"),
-    ("numpy.random._pickle", "__randomstate_ctor"),
+    ("numpy.random._pickle", "__randomstate_ctor"), ("numpy.random.bit_generator", "__pyx_unpickle_SeedSequence"),
 }
 _BUILTINS_ALLOWED = {"slice", "set", "frozenset", "complex", "range", "tuple", "list", "dict", "float", "int",
                      "bool", "str", "bytes"}
