@@ -259,17 +259,66 @@ def test_ssp_driver_plays_the_profile(ssp_run):
 
 def test_ssp_truth_matches_in_process_cosimulation_within_the_coupling_bound(ssp_run):
     """Row j of the SSP holds the vehicle at t_{j+1}, row k of the in-process run the vehicle
-    at t_k. While the speed-hold torque is zero (straight at the set speed) the PI's one-step
-    delay changes nothing and the truth is the same bit for bit; once the steering starts it
-    is bounded by the delay's effect (measured: |dvx| 1e-4 m/s, |d yaw rate| 1e-6 rad/s,
-    |d a^Y_meas| 0.01 m/s^2 over the first 1.5 s of steering)."""
+    at t_k. While the inputs are constant (straight at the set speed, 20 s) the Jacobi
+    coupling changes nothing and truth and sensors are the same bit for bit. Once the steer
+    changes, two coupling effects appear: the sensors with direct feedthrough of the inputs
+    (a^X, a^Y) are read before the master sets the new inputs (in-process: after), and the
+    speed-hold PI sees v^X one step late. Measured over the first 1.5 s of steering:
+    |d a^Y_meas| <= 0.01 m/s^2 (the steer change of one 10 ms step), |dvx| 1e-4 m/s,
+    |d yaw rate| 1e-6 rad/s; the bounds below are 3-5 times those."""
     sc, r, rows, names = ssp_run
     n = len(r)
     col = {c: rows[1:n + 1, names.index(c)] for c in ("true_vx", "true_yaw_rate", "meas_ay", "true_drive_torque")}
-    start = int(np.argmax(np.abs(col["true_drive_torque"]) > 0))  # first row the PI acts
+    # the first row where the steer or the drive torque changes
+    start = min(int(np.argmax(np.abs(col["true_drive_torque"]) > 0)), int(np.argmax(r["driver.drive_torque"] != 0)),
+                int(np.argmax(r["driver.delta"] != 0)))
     assert 19.9 < (start + 1) * sc.communication_step < 20.5
     for name, c in (("vehicle.vx", "true_vx"), ("vehicle.yaw_rate", "true_yaw_rate"), ("vehicle.ay_meas", "meas_ay")):
         np.testing.assert_array_equal(r[name][:start], col[c][:start])
     assert np.max(np.abs(r["vehicle.vx"] - col["true_vx"])) < 1e-3
     assert np.max(np.abs(r["vehicle.yaw_rate"] - col["true_yaw_rate"])) < 1e-5
     assert np.max(np.abs(r["vehicle.ay_meas"] - col["meas_ay"])) < 0.05
+
+
+def test_native_host_runs_the_fmu_with_libpython_preloaded(fmus, tmp_path):
+    """A plain C host (no Python) runs the estimator FMU as the README says: libpython
+    preloaded, PYTHONHOME and PYTHONPATH set; its result equals fmpy's. Without the
+    preload the library cannot load (undefined Python symbols)."""
+    import shutil
+    import sysconfig
+    import zipfile
+    from pathlib import Path
+
+    from fmpy import read_model_description
+
+    from tirefilter.cosim.fmu import fmu_build_module
+
+    cc = shutil.which("cc") or shutil.which("gcc")
+    libpython = Path(sysconfig.get_config_var("LIBDIR") or "") / (sysconfig.get_config_var("LDLIBRARY") or "")
+    if not cc or not libpython.is_file() or libpython.suffix != ".so" and ".so." not in libpython.name:
+        pytest.skip("needs a C compiler and a shared libpython")
+    host = tmp_path / "host_python_fmu"
+    src = Path(__file__).resolve().parents[1] / "fmu" / "tests" / "host_python_fmu.c"
+    subprocess.run([cc, "-std=c99", f"-I{fmu_build_module().fmi_headers_dir()}", str(src), "-ldl", "-o", str(host)],
+                   check=True, capture_output=True)
+    unzipped = tmp_path / "fmu"
+    with zipfile.ZipFile(fmus["estimator"]) as zf:
+        zf.extractall(unzipped)
+    md = read_model_description(str(fmus["estimator"]))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    import numpy
+
+    args = [str(host), str(unzipped), "TirefilterMPF", md.guid, str(vr["y.ay"]), "0.3", str(vr["vy"]), "50"]
+    site = str(Path(numpy.__file__).resolve().parents[1])
+    base = {"PATH": os.environ.get("PATH", "/usr/bin:/bin")}
+    bare = subprocess.run(args, capture_output=True, text=True, env=base, timeout=120)
+    assert bare.returncode == 1 and "undefined symbol: _Py" in bare.stderr
+    env = dict(base, LD_PRELOAD=str(libpython), PYTHONHOME=sys.base_prefix, PYTHONPATH=site)
+    proc = subprocess.run(args, capture_output=True, text=True, env=env, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    native = float(proc.stdout.strip().splitlines()[-1].split("=")[1])
+    with FMUHost(fmus["estimator"]) as h:
+        h.initialize({})
+        for _ in range(50):
+            h.step(0.01, {"y.ay": 0.3})
+        assert native == h.get(["vy"])["vy"] and math.isfinite(native)
