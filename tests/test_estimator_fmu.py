@@ -164,6 +164,17 @@ def test_bad_parameters_rejected_at_initialisation(fmus, name, value, expect):
         assert any(expect in m for m in host.errors()), host.messages
 
 
+def test_estimator_failure_is_logged_with_the_sample_time(fmus):
+    """The lateral model without any v^X: the Python estimator's error, through the FMI logger."""
+    from fmpy.fmi1 import FMICallException
+
+    with FMUHost(fmus["estimator"]) as host:
+        host.initialize({"model": 2})
+        with pytest.raises(FMICallException):
+            host.step(0.01, {"u.vx": math.nan, "y.ay": 0.1})
+        assert any("the estimator failed at t = 0 s" in m and "vx" in m for m in host.errors()), host.messages
+
+
 def test_rerun_recording_parameter(fmus, snow, tmp_path):
     _, params, stream = snow
     rrd = tmp_path / "est.rrd"

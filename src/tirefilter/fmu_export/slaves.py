@@ -34,7 +34,7 @@ from pythonfmu.enums import Fmi2Initial, Fmi2Status
 from tirefilter.errors import TirefilterError
 from tirefilter.fmu_export import state as fmu_state
 
-# FMI inputs of the estimator FMU -> (record, field) of the Estimator protocol
+# FMI inputs of the estimator FMU (u.: Inputs, y.: Measurement of the Estimator protocol) -> (unit, description)
 ESTIMATOR_INPUTS = {
     "u.delta": ("rad", "road-wheel steer angle"),
     "u.omega_f": ("rad/s", "front wheel rotation rate (axle mean)"),
@@ -44,7 +44,8 @@ ESTIMATOR_INPUTS = {
     "y.ay": ("m/s2", "measured lateral acceleration (IMU)"),
     "y.yaw_rate": ("rad/s", "measured yaw rate (IMU)"),
 }
-# Outputs: the estimate columns of the Result CSV (DESIGN.md) plus the state stds and a counter
+# Outputs (unit, description): the estimate columns of the Result CSV (DESIGN.md), the state stds;
+# `active` (Boolean) and `samples` (Integer) are added in EstimatorSlave.__init__
 ESTIMATOR_OUTPUTS = {
     "t": ("s", "time of the sample the outputs belong to"),
     "vx": ("m/s", "longitudinal velocity estimate"),
@@ -250,9 +251,8 @@ class EstimatorSlave(_Slave):
         try:
             est = build_log_estimator(self.estimator_name, vehicle, np.array([0.0, self.Ts]), signals,
                                       model=MODELS[model], particles=int(particles), config=config, source="FMU")
-        except ConfigError as exc:
-            key = exc.key if exc.file != "FMU" else exc.key
-            raise _param_error("config" if exc.file.startswith("--config") else key or "config", str(exc)) from None
+        except ConfigError as exc:  # the FMU parameters are checked above: what is left is in `config`
+            raise _param_error("config", str(exc)) from None
         _, rng = spawn_seeds(int(seed))
         est.reset(rng)
         self._est = est
@@ -283,8 +283,8 @@ class EstimatorSlave(_Slave):
             y = Measurement(ax=v["y.ax"], ay=v["y.ay"], yaw_rate=v["y.yaw_rate"])
             try:
                 est = self._est.step(s, u, y)
-            except TirefilterError as exc:
-                self._fail(f"{self.instance_name}: the estimator failed at t = {s:.6g} s: {exc}")
+            except Exception as exc:  # logged with the sample time, then fatal for this instance
+                self._fail(f"{self.instance_name}: the estimator failed at t = {s:.6g} s: {type(exc).__name__}: {exc}")
             self._publish(s, est)
         return True
 
