@@ -333,3 +333,14 @@ def test_native_host_runs_the_fmu_with_libpython_preloaded(fmus, tmp_path):
         for _ in range(50):
             h.step(0.01, {"y.ay": 0.3})
         assert native == h.get(["vy"])["vy"] and math.isfinite(native)
+
+
+def test_cli_builds_the_estimator_fmu(capsys):
+    from fmpy.validation import validate_fmu
+
+    from tirefilter.cli import main
+    from tirefilter.cosim.fmu import BUILD_DIR
+
+    assert main(["fmu", "build", "estimator"]) == 0
+    assert "built estimator FMU mpf" in capsys.readouterr().out
+    assert validate_fmu(str(BUILD_DIR / "TirefilterMPF.fmu")) == []

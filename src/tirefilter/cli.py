@@ -191,8 +191,14 @@ def cmd_fmu_build(args) -> int:
     if args.target in ("ssp", "all"):
         from tirefilter.fmu_export.ssp import build_ssp
 
+        from tirefilter.fmu_export.ssp import surface_connected
+        from tirefilter.scenarios import load_scenario
+
         path = build_ssp(args.scenario, seed=args.seed, particles=args.particles)
         print(f"built SSP of {args.scenario} (driver -> vehicle -> estimator, seed {args.seed}): {path}")
+        if surface_connected(load_scenario(args.scenario)):
+            print("note: the scenario changes the surface, so the SSP connects it; fmpy's simulate_ssp starts "
+                  "connectors at 0, which the vehicle rejects (README, 'The SSP')")
     return 0
 
 

@@ -124,6 +124,15 @@ def _component(name: str, source: str, connectors: list[tuple[str, str, str]]) -
     return out
 
 
+def surface_connected(scenario) -> bool:
+    """Whether the SSP connects the driver's surface to the vehicle: only when the scenario
+    changes it. Then fmpy's simulate_ssp cannot run the SSP (the 0 of the first step is
+    outside the vehicle's [0.01, 2]); masters that initialise connectors from the FMUs'
+    initial outputs can."""
+    grid = np.arange(int(round(scenario.duration / scenario.communication_step)) + 1) * scenario.communication_step
+    return bool(np.any(scenario.inputs.open_loop(grid)[:, 3] != 1.0))
+
+
 def build_ssp(scenario_name: str = "snow-sine", out: Path | None = None, *, seed: int = 0,
               particles: int | None = None, stop_time: float | None = None, estimator: str = "mpf") -> Path:
     """Build `<out>` (default fmu/build/<scenario>.ssp) for one run of the scenario."""
@@ -143,8 +152,7 @@ def build_ssp(scenario_name: str = "snow-sine", out: Path | None = None, *, seed
     md = read_model_description(str(vehicle_fmu))
     vtypes = {v.name: v.type for v in md.modelVariables}
     est_types = {"vehicle.drive": "Integer", "particles": "Integer", "seed": "Integer", "model": "Integer"}
-    grid = np.arange(int(round(scenario.duration / scenario.communication_step)) + 1) * scenario.communication_step
-    changes_surface = bool(np.any(scenario.inputs.open_loop(grid)[:, 3] != 1.0))
+    changes_surface = surface_connected(scenario)
     est_identifier = ESTIMATOR_FMUS[estimator].model_identifier
     stop = float(stop_time if stop_time is not None else scenario.duration)
 
