@@ -183,8 +183,22 @@ def cmd_fmu_build(args) -> int:
     if args.target in ("vehicle", "all"):
         for version, path in build_vehicle_fmu().items():
             print(f"built vehicle FMU (FMI {version}.0): {path}")
-    if args.target == "estimator":
-        raise ConfigError("fmu build", "estimator", "the estimator FMU is not available in this version")
+    if args.target in ("estimator", "all"):
+        from tirefilter.fmu_export.build import build_estimator_fmus
+
+        for name, path in build_estimator_fmus().items():
+            print(f"built estimator FMU {name} (FMI 2.0, pythonfmu): {path}")
+    if args.target in ("ssp", "all"):
+        from tirefilter.fmu_export.ssp import build_ssp
+
+        from tirefilter.fmu_export.ssp import surface_connected
+        from tirefilter.scenarios import load_scenario
+
+        path = build_ssp(args.scenario, seed=args.seed, particles=args.particles)
+        print(f"built SSP of {args.scenario} (driver -> vehicle -> estimator, seed {args.seed}): {path}")
+        if surface_connected(load_scenario(args.scenario)):
+            print("note: the scenario changes the surface, so the SSP connects it; fmpy's simulate_ssp starts "
+                  "connectors at 0, which the vehicle rejects (README, 'The SSP')")
     return 0
 
 
@@ -236,7 +250,12 @@ def build_parser() -> argparse.ArgumentParser:
     fmu = sub.add_parser("fmu", help="FMU tools")
     fsub = fmu.add_subparsers(dest="fmu_command", required=True)
     build = fsub.add_parser("build", help="build FMUs from source into fmu/build/")
-    build.add_argument("target", nargs="?", default="vehicle", choices=("vehicle", "estimator", "all"))
+    build.add_argument("target", nargs="?", default="vehicle", choices=("vehicle", "estimator", "ssp", "all"),
+                       help="vehicle: the C vehicle FMU (FMI 2.0, 3.0); estimator: the estimator FMU(s) (pythonfmu); "
+                       "ssp: fmu/build/<scenario>.ssp wiring driver -> vehicle -> estimator; all: all of them")
+    build.add_argument("--scenario", default="snow-sine", help="scenario of the SSP (default snow-sine)")
+    build.add_argument("--seed", type=int, default=0, help="seed of the SSP's run (default 0)")
+    build.add_argument("--particles", type=int, help="N of the SSP's estimator (default: the scenario's)")
     build.set_defaults(func=cmd_fmu_build)
 
     bench = sub.add_parser("bench", help="Monte-Carlo studies")

@@ -104,7 +104,12 @@ _POSITIVE = ("mass", "yaw_inertia", "lf", "lr", "wheel_radius", "Cf_y", "Cr_y", 
 
 def load_vehicle(path: str | Path) -> VehicleParams:
     """Read and check a vehicle TOML (DESIGN.md keys, SI units)."""
-    data = read_toml(path)
+    return vehicle_from_dict(read_toml(path), path)
+
+
+def vehicle_from_dict(data: dict, path) -> VehicleParams:
+    """Check the keys of a vehicle TOML given as a dict (`path` names the source in errors:
+    a file, or e.g. the FMU whose parameters they are)."""
     known = {f.name for f in fields(VehicleParams)}
     check_known_keys(data, known, path)
     values = {}

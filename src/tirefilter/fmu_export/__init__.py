@@ -1,0 +1,29 @@
+"""The estimator (and a scenario driver) exported as FMI 2.0 Co-Simulation FMUs with
+pythonfmu, and an SSP that wires driver -> vehicle FMU -> estimator FMU.
+
+- `slaves.py`: the FMU classes (`EstimatorSlave`, `DriverSlave`);
+- `state.py`: the serialised FMU state (restricted unpickling);
+- `build.py`: building the FMUs into `fmu/build/` (`tirefilter fmu build estimator`);
+- `ssp.py`: the SSP of a scenario and running it with `fmpy.ssp.simulation.simulate_ssp`.
+
+The Python FMUs need Python and packages on the target machine: `REQUIREMENTS` says
+which, and the FMUs print it when they cannot load.
+"""
+
+REQUIREMENTS = """\
+The tirefilter Python FMUs run Python code inside the importing tool's process (pythonfmu 0.7).
+The target machine needs:
+  - CPython >= 3.11, 64-bit (Linux x86_64 or Windows x64), the same interpreter for every
+    Python FMU in one process;
+  - the packages numpy (>= 1.26, < 3) and scipy (>= 1.11, < 2) importable by that
+    interpreter; rerun-sdk (>= 0.41, < 0.42) only when the parameter `rrd` is set.
+    The tirefilter package itself ships inside the FMU (resources/tirefilter).
+How to provide them:
+  - from a Python tool (fmpy, ...): run the tool with that interpreter (e.g. the venv with
+    `pip install numpy scipy`);
+  - from a native tool on Linux: the FMU binary does not link libpython; preload it and
+    point Python at the packages, e.g.
+      LD_PRELOAD=/usr/lib/x86_64-linux-gnu/libpython3.11.so.1.0 \\
+      PYTHONHOME=/usr PYTHONPATH=/path/to/venv/lib/python3.11/site-packages  <tool> ...
+  - on Windows: python3X.dll of a matching CPython on PATH and PYTHONPATH as above.
+"""

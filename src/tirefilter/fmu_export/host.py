@@ -1,0 +1,133 @@
+"""A small FMI 2.0 Co-Simulation host for the Python FMUs (through fmpy): set parameters
+by name, step with inputs by name, read outputs, save and restore the FMU state, and
+keep the FMI logger's messages. Tests and benchmarks use it; any FMI tool does the same.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import shutil
+from pathlib import Path
+
+from tirefilter.errors import FMUError
+
+
+class FMUHost:
+    def __init__(self, path: str | Path, instance_name: str = "estimator"):
+        from fmpy import extract, read_model_description
+        from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
+                               fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, calloc, free)
+
+        self.path = Path(path)
+        self.md = read_model_description(str(self.path))
+        self.vars = {v.name: v for v in self.md.modelVariables}
+        self.unzip_dir = extract(str(self.path))
+        self.messages: list[tuple[int, str]] = []
+        self.slave = FMU2Slave(guid=self.md.guid, unzipDirectory=self.unzip_dir,
+                               modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=instance_name)
+        callbacks = fmi2CallbackFunctions()
+        callbacks.logger = fmi2CallbackLoggerTYPE(self._log)
+        callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+        callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+        try:
+            from fmpy.logging import addLoggerProxy
+
+            addLoggerProxy(ctypes.byref(callbacks))
+        except Exception:  # pragma: no cover - proxy missing on exotic platforms
+            pass
+        self._callbacks = callbacks
+        try:
+            self.slave.instantiate(callbacks=callbacks, loggingOn=True)
+        except Exception:
+            shutil.rmtree(self.unzip_dir, ignore_errors=True)
+            raise FMUError(f"{self.path.name}: instantiation failed: " + "; ".join(m for _, m in self.messages)) from None
+        self.time = 0.0
+        self.failed = False  # after fmi2Error/fmi2Fatal the instance gets no further calls
+
+    def _log(self, env, name, status, category, message):
+        text = message.decode("utf-8", "replace") if isinstance(message, bytes) else str(message)
+        self.messages.append((int(status), text))
+
+    def set(self, values: dict) -> None:
+        for name, value in values.items():
+            if name not in self.vars:
+                raise FMUError(f"{self.path.name} has no variable {name!r}")
+            v = self.vars[name]
+            vr = [v.valueReference]
+            if v.type == "Real":
+                self.slave.setReal(vr, [float(value)])
+            elif v.type == "Integer":
+                self.slave.setInteger(vr, [int(value)])
+            elif v.type == "Boolean":
+                self.slave.setBoolean(vr, [bool(value)])
+            else:
+                self.slave.setString(vr, [str(value)])
+
+    def get(self, names) -> dict:
+        out = {}
+        for name in names:
+            v = self.vars[name]
+            vr = [v.valueReference]
+            out[name] = {"Real": self.slave.getReal, "Integer": self.slave.getInteger,
+                         "Boolean": self.slave.getBoolean, "String": self.slave.getString}[v.type](vr)[0]
+        return out
+
+    def initialize(self, parameters: dict, start_time: float = 0.0) -> None:
+        try:
+            self.slave.setupExperiment(startTime=start_time)
+            self.set(parameters)
+            self.slave.enterInitializationMode()
+            self.slave.exitInitializationMode()
+        except Exception:
+            self.failed = True
+            raise
+        self.time = start_time
+
+    def step(self, h: float, inputs: dict | None = None) -> None:
+        try:
+            if inputs:
+                self.set(inputs)
+            self.slave.doStep(currentCommunicationPoint=self.time, communicationStepSize=h)
+        except Exception:
+            self.failed = True
+            raise
+        self.time += h
+
+    def outputs(self) -> dict:
+        return self.get([n for n, v in self.vars.items() if v.causality == "output"])
+
+    def get_state(self):
+        return self.slave.getFMUstate(), self.time
+
+    def set_state(self, state) -> None:
+        self.slave.setFMUstate(state[0])
+        self.time = state[1]
+
+    def serialize(self, state) -> bytes:
+        return bytes(self.slave.serializeFMUstate(state[0]))
+
+    def deserialize(self, data: bytes, time: float):
+        return self.slave.deSerializeFMUstate(data), time
+
+    def errors(self) -> list[str]:
+        return [m for s, m in self.messages if s >= 3]
+
+    def close(self, terminate: bool = True) -> None:
+        if self.slave is None:
+            return
+        try:
+            if not self.failed:  # FMI: no calls after fmi2Fatal (pythonfmu 0.7 has freed it already)
+                if terminate:
+                    self.slave.terminate()
+                self.slave.freeInstance()
+        except Exception:
+            pass
+        finally:
+            self.slave = None
+            shutil.rmtree(self.unzip_dir, ignore_errors=True)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()

@@ -1,0 +1,427 @@
+"""The Python FMUs (FMI 2.0 Co-Simulation, through pythonfmu): the estimator and the driver.
+
+`EstimatorSlave` wraps any estimator that `tirefilter.estimators.build_log_estimator`
+builds by name from a vehicle record plus options; the FMU class of one estimator only
+names it (`estimator_name`, see `build.ESTIMATOR_FMUS`). `DriverSlave` plays a scenario's
+input profile (steer, torques, surface, bank) with its speed-hold driver closed over the
+vehicle's speed.
+
+pythonfmu calls these methods from its C++ layer: parameters and inputs are attributes
+registered as FMI variables; `exit_initialization_mode` validates the parameters and
+builds the estimator; `do_step(t, h)` processes the samples due in [t, t + h);
+`_get_fmu_state`/`_set_fmu_state` copy the whole estimator; `_fmu_state_to_bytes`/
+`_fmu_state_from_bytes` serialise it (`state.py`).
+
+An exception here is fatal for the FMU instance (pythonfmu turns it into fmi2Fatal); it
+is logged first through the FMI logger with a message naming the parameter or input.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import sys
+import tomllib
+from dataclasses import fields
+from pathlib import Path
+from xml.etree.ElementTree import SubElement
+
+import numpy as np
+import scipy.special  # noqa: F401  the estimators need it: a missing scipy fails the load, not later
+from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Boolean, Integer, Real, String
+from pythonfmu.enums import Fmi2Initial, Fmi2Status
+
+from tirefilter.errors import TirefilterError
+from tirefilter.fmu_export import state as fmu_state
+
+# FMI inputs of the estimator FMU (u.: Inputs, y.: Measurement of the Estimator protocol) -> (unit, description)
+ESTIMATOR_INPUTS = {
+    "u.delta": ("rad", "road-wheel steer angle"),
+    "u.omega_f": ("rad/s", "front wheel rotation rate (axle mean)"),
+    "u.omega_r": ("rad/s", "rear wheel rotation rate (axle mean)"),
+    "u.vx": ("m/s", "longitudinal speed from other logic (lateral model)"),
+    "y.ax": ("m/s2", "measured longitudinal acceleration (IMU)"),
+    "y.ay": ("m/s2", "measured lateral acceleration (IMU)"),
+    "y.yaw_rate": ("rad/s", "measured yaw rate (IMU)"),
+}
+# Outputs (unit, description): the estimate columns of the Result CSV (DESIGN.md), the state stds;
+# `active` (Boolean) and `samples` (Integer) are added in EstimatorSlave.__init__
+ESTIMATOR_OUTPUTS = {
+    "t": ("s", "time of the sample the outputs belong to"),
+    "vx": ("m/s", "longitudinal velocity estimate"),
+    "vy": ("m/s", "lateral velocity estimate"),
+    "yaw_rate": ("rad/s", "yaw rate estimate"),
+    "beta": ("rad", "sideslip estimate atan2(vy, vx)"),
+    "Cf_y": ("N/rad", "front cornering stiffness: posterior mean of the mean (eq. (27a) plus nominal)"),
+    "Cr_y": ("N/rad", "rear cornering stiffness: posterior mean of the mean"),
+    "Cx": ("N", "driven axle longitudinal stiffness (NaN when not estimated)"),
+    "Cf_y_std": ("N/rad", "posterior std of the front stiffness mean"),
+    "Cr_y_std": ("N/rad", "posterior std of the rear stiffness mean"),
+    "Cx_std": ("N", "posterior std of the longitudinal stiffness mean"),
+    "Cf_y_sigma": ("N/rad", "estimated spread of the front stiffness deviations (eq. (27b))"),
+    "Cr_y_sigma": ("N/rad", "estimated spread of the rear stiffness deviations"),
+    "Cx_sigma": ("N", "estimated spread of the longitudinal stiffness deviations"),
+    "b_ax": ("m/s2", "accelerometer x bias estimate (measured - true)"),
+    "b_ay": ("m/s2", "accelerometer y bias estimate"),
+    "b_yaw_rate": ("rad/s", "gyro bias estimate"),
+    "ess": ("1", "effective sample size"),
+    "vx_std": ("m/s", "posterior std of vx"),
+    "vy_std": ("m/s", "posterior std of vy"),
+    "yaw_rate_std": ("rad/s", "posterior std of the yaw rate"),
+}
+MODELS = {1: "full", 2: "lateral"}
+DRIVES = {0: "front", 1: "rear", 2: "all"}
+
+
+def _vehicle_parameters():
+    """(name, default, unit) of the vehicle TOML keys exposed as `vehicle.<key>`; optional
+    keys without a default (steering_ratio, Cx_undriven) use 0 for "not given"."""
+    from tirefilter.scenarios import DATA_DIR
+    from tirefilter.vehicle.params import VehicleParams, load_vehicle
+
+    reference = load_vehicle(DATA_DIR / "vehicles" / "midsize-suv.toml")
+    out = []
+    for f in fields(VehicleParams):
+        value = getattr(reference, f.name)
+        if f.name == "drive":
+            out.append((f.name, {v: k for k, v in DRIVES.items()}[value]))
+        else:
+            out.append((f.name, 0.0 if value is None else float(value)))
+    return out
+
+
+# pythonfmu 0.7's loader (findClass in its C++ layer) releases one reference to the entry
+# module's __dict__ that it only borrowed, on every instantiation: the second or third
+# instance in one process then finds the module emptied ("module has no attribute ...") or
+# crashes. Every instance gives that reference back here, so any number of instances works.
+_MODULE_DICT_REFS: list = []
+
+
+class _Slave(Fmi2Slave):
+    """What both FMUs share: explicit getters/setters for dotted names, InitialUnknowns in
+    the model description (fmpy's validation asks for them), logging an error before
+    raising it, and the reference that pythonfmu's loader drops (above)."""
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        module = sys.modules.get(type(self).__module__)
+        if module is not None:
+            _MODULE_DICT_REFS.append(module.__dict__)
+
+    def _add(self, kind, name, causality, value, description, variability=None, initial=None):
+        self._values[name] = value
+        var = kind(name, causality=causality, description=description, variability=variability, initial=initial,
+                   getter=lambda n=name: self._values[n], setter=lambda v, n=name: self._values.__setitem__(n, v))
+        self.register_variable(var, nested=False)
+
+    def _parameter(self, kind, name, value, description):
+        self._add(kind, name, Fmi2Causality.parameter, value, description, Fmi2Variability.fixed, Fmi2Initial.exact)
+
+    def to_xml(self, model_options=dict()):
+        root = super().to_xml(model_options)
+        structure = root.find("ModelStructure")
+        outputs = [i + 1 for i, v in enumerate(self.vars.values()) if v.causality == Fmi2Causality.output]
+        if outputs:
+            unknowns = SubElement(structure, "InitialUnknowns")
+            for index in outputs:
+                SubElement(unknowns, "Unknown", attrib={"index": str(index)})
+        return root
+
+    def _fail(self, message: str):
+        self.log(message, Fmi2Status.error)
+        raise RuntimeError(message)
+
+
+class EstimatorSlave(_Slave):
+    """An online estimator as an FMI 2.0 Co-Simulation FMU (subclasses set `estimator_name`)."""
+
+    estimator_name = "mpf"
+    option_table = "mpf"  # the --config table that `forgetting` goes to
+    description = "tirefilter online estimator (tire stiffness, vehicle state, IMU bias)"
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        from tirefilter import __version__
+
+        self.version = __version__
+        self._values = {}
+        P, I, S = Real, Integer, String
+        for key, default in _vehicle_parameters():
+            kind = Integer if key == "drive" else Real
+            desc = ("drive axle: 0 front, 1 rear, 2 all" if key == "drive" else
+                    "vehicle TOML key (0 = not given)" if key in ("steering_ratio", "Cx_undriven") else
+                    "vehicle TOML key (SI units)")
+            self._parameter(kind, f"vehicle.{key}", default, desc)
+        self._parameter(I, "particles", 500, "number of particles N")
+        self._parameter(P, "forgetting", 0.99, "forgetting factor lambda of eq. (20), in (0, 1]")
+        self._parameter(I, "seed", 0, "seed of the run's SeedSequence (spawns the vehicle's and the estimator's)")
+        self._parameter(P, "estimator_rate", 100.0, "[Hz] samples at n / estimator_rate")
+        self._parameter(I, "model", 1, "estimation model: 1 full (wheel speeds), 2 lateral (u.vx given)")
+        self._parameter(P, "t_first", 0.0, "[s] first sample time processed (masters that start connectors "
+                        "at 0 deliver real inputs one communication step later)")
+        self._parameter(S, "config", self._default_config(), "estimator options: TOML text or a path to a TOML "
+                        "file, as --config ([mpf] table)")
+        self._parameter(S, "rrd", "", "optional Rerun recording (.rrd) to write; empty: none")
+        for name, (unit, desc) in ESTIMATOR_INPUTS.items():
+            self._add(Real, name, Fmi2Causality.input, 0.0, f"[{unit}] {desc}; NaN = missing sample")
+        self._add(Boolean, "active", Fmi2Causality.output, False, "learning gate open at the last sample",
+                  Fmi2Variability.discrete)
+        for name, (unit, desc) in ESTIMATOR_OUTPUTS.items():
+            self._add(Real, name, Fmi2Causality.output, math.nan, f"[{unit}] {desc}", Fmi2Variability.discrete)
+        self._add(Integer, "samples", Fmi2Causality.output, 0, "samples processed so far", Fmi2Variability.discrete)
+        self._est = None
+        self._recorder = None
+        self._start_time = 0.0
+
+    def _default_config(self) -> str:
+        """The `config` start value: resources/estimator_config.toml when the FMU was built
+        with one (an SSP bakes its scenario's options in), else empty."""
+        path = Path(self.resources or ".") / "estimator_config.toml"
+        return path.read_text() if path.is_file() else ""
+
+    # ---- initialisation -------------------------------------------------------------
+    def setup_experiment(self, start_time, stop_time=None, tolerance=None):
+        self._start_time = float(start_time)
+
+    def exit_initialization_mode(self):
+        try:
+            self._initialize()
+        except TirefilterError as exc:
+            self._fail(f"{self.instance_name}: {exc}")
+
+    def _config(self) -> dict:
+        text = str(self._values["config"]).strip()
+        if not text:
+            return {}
+        if "\n" not in text and text.endswith(".toml"):
+            from tirefilter.config import read_toml
+
+            return read_toml(text)
+        try:
+            return tomllib.loads(text)
+        except tomllib.TOMLDecodeError as exc:
+            raise _param_error("config", f"not valid TOML ({exc})") from None
+
+    def _initialize(self) -> None:
+        from tirefilter.errors import ConfigError
+        from tirefilter.estimators import build_log_estimator
+        from tirefilter.runs import spawn_seeds
+        from tirefilter.vehicle.params import vehicle_from_dict
+
+        v = self._values
+        data = {}
+        for key, _ in _vehicle_parameters():
+            value = v[f"vehicle.{key}"]
+            if key == "drive":
+                if value not in DRIVES:
+                    raise _param_error("vehicle.drive", f"{value!r} is out of range: expected 0 (front), 1 (rear) "
+                                       "or 2 (all)")
+                data[key] = DRIVES[value]
+            elif key in ("steering_ratio", "Cx_undriven") and value == 0.0:
+                continue
+            else:
+                data[key] = value
+        try:
+            vehicle = vehicle_from_dict(data, "FMU")
+        except ConfigError as exc:
+            raise _param_error(f"vehicle.{exc.key}", exc.problem) from None
+        particles, forgetting, seed, rate, model = (v["particles"], v["forgetting"], v["seed"], v["estimator_rate"],
+                                                    v["model"])
+        if not particles >= 1:
+            raise _param_error("particles", f"{particles!r} is out of range: expected >= 1")
+        if not 0.0 < forgetting <= 1.0:
+            raise _param_error("forgetting", f"{forgetting!r} is out of range: expected in (0, 1]")
+        if not seed >= 0:
+            raise _param_error("seed", f"{seed!r} is out of range: expected >= 0")
+        if not (math.isfinite(rate) and 0.0 < rate <= 10000.0):
+            raise _param_error("estimator_rate", f"{rate!r} is out of range: expected in (0, 10000] Hz")
+        if model not in MODELS:
+            raise _param_error("model", f"{model!r} is out of range: expected 1 (full) or 2 (lateral)")
+        if not (math.isfinite(v["t_first"]) and v["t_first"] >= 0.0):
+            raise _param_error("t_first", f"{v['t_first']!r} is out of range: expected a finite time >= 0")
+        config = self._config()
+        table = dict(config.get(self.option_table, {}))
+        table["forgetting"] = float(forgetting)
+        table["sample_period"] = 1.0 / rate
+        config[self.option_table] = table
+        self.Ts = 1.0 / rate
+        nan2 = np.full(2, math.nan)
+        signals = {"delta": nan2, "omega_f": nan2, "omega_r": nan2, "vx": nan2, "ax": nan2, "ay": nan2,
+                   "yaw_rate": nan2}
+        try:
+            est = build_log_estimator(self.estimator_name, vehicle, np.array([0.0, self.Ts]), signals,
+                                      model=MODELS[model], particles=int(particles), config=config, source="FMU")
+        except ConfigError as exc:  # the FMU parameters are checked above: what is left is in `config`
+            raise _param_error("config", str(exc)) from None
+        _, rng = spawn_seeds(int(seed))
+        est.reset(rng)
+        self._est = est
+        first = max(self._start_time, float(v["t_first"]))
+        self._n = max(0, math.ceil(first / self.Ts - 1e-9))
+        rrd = str(v["rrd"]).strip()
+        if rrd:
+            from tirefilter.cosim.results import ESTIMATE_COLUMNS
+            from tirefilter.viz.rerun_log import RerunRecorder
+
+            self._recorder = RerunRecorder(rrd, ESTIMATE_COLUMNS, self.estimator_name)
+
+    # ---- stepping -------------------------------------------------------------------
+    def do_step(self, current_time, step_size):
+        from tirefilter.estimators.base import Inputs, Measurement
+
+        if self._est is None:
+            self._fail(f"{self.instance_name}: doStep before initialisation")
+        v = self._values
+        eps = 1e-9 * self.Ts
+        end = current_time + step_size - eps
+        while self._n * self.Ts < end:
+            s = self._n * self.Ts  # the in-process runs' sample time k h (same double for h = Ts)
+            self._n += 1
+            if s < current_time - eps:
+                continue  # an instant the master stepped over (start time inside a period)
+            u = Inputs(delta=v["u.delta"], omega_f=v["u.omega_f"], omega_r=v["u.omega_r"], vx=v["u.vx"])
+            y = Measurement(ax=v["y.ax"], ay=v["y.ay"], yaw_rate=v["y.yaw_rate"])
+            try:
+                est = self._est.step(s, u, y)
+            except Exception as exc:  # logged with the sample time, then fatal for this instance
+                self._fail(f"{self.instance_name}: the estimator failed at t = {s:.6g} s: {type(exc).__name__}: {exc}")
+            self._publish(s, est)
+        return True
+
+    def _publish(self, s, est) -> None:
+        from tirefilter.cosim.results import ESTIMATE_COLUMNS, estimate_values
+
+        row = estimate_values(s, est)
+        v = self._values
+        for name, value in zip(ESTIMATE_COLUMNS, row):
+            if name != "active":
+                v[name] = float(value)
+        v["active"] = bool(est.active)
+        v["vx_std"], v["vy_std"], v["yaw_rate_std"] = (float(x) for x in est.state_std)
+        v["samples"] += 1
+        if self._recorder is not None:
+            self._recorder.log_row(row)
+
+    def terminate(self):
+        if self._recorder is not None:
+            self._recorder.close()
+            self._recorder = None
+
+    # ---- FMU state: the whole particle system ----------------------------------------
+    def _get_fmu_state(self):
+        return {"estimator": copy.deepcopy(self._est), "n": self._n,
+                "values": {k: x for k, x in self._values.items() if not _is_parameter(self, k)}}
+
+    def _set_fmu_state(self, state):
+        self._est = copy.deepcopy(state["estimator"])
+        self._n = state["n"]
+        self._values.update(state["values"])
+
+    @staticmethod
+    def _fmu_state_to_bytes(state):
+        return fmu_state.state_to_bytes(state)
+
+    @staticmethod
+    def _fmu_state_from_bytes(data):
+        return fmu_state.state_from_bytes(data)
+
+
+def _is_parameter(slave, name) -> bool:
+    return name.startswith("vehicle.") or name in ("particles", "forgetting", "seed", "estimator_rate", "model",
+                                                   "t_first", "config", "rrd", "scenario")
+
+
+def _param_error(name: str, problem: str) -> TirefilterError:
+    return TirefilterError(f"parameter {name}: {problem}")
+
+
+class DriverSlave(_Slave):
+    """A scenario's input profile as an FMU: outputs delta, drive_torque, brake_torque,
+    surface, bank at the end of each step (t + h: what the vehicle applies over its next
+    step), the speed-hold PI driver closed over the input `vx`.
+
+    The open-loop part is evaluated on the scenario's communication grid k h exactly as the
+    in-process master does (`InputSchedule.open_loop`), so the values are the same doubles.
+    The PI sees the latest vx it was given: with a master that exchanges values once per
+    step (Jacobi, fmpy's SSP master) that is vx one communication step old; before
+    `t_first` the vx input is not used (speed error 0), because such masters start
+    connectors at 0."""
+
+    description = "tirefilter driver: plays a scenario's input profile (steer, torques, surface, bank)"
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        from tirefilter import __version__
+
+        self.version = __version__
+        self._values = {}
+        path = Path(self.resources or ".") / "driver_scenario.txt"
+        default = path.read_text().strip() if path.is_file() else "paper-sim"
+        self._parameter(String, "scenario", default, "scenario: built-in name or path to a scenario TOML")
+        self._parameter(Real, "t_first", 0.0, "[s] the vx input is used from this time on")
+        self._add(Real, "vx", Fmi2Causality.input, 0.0, "[m/s] vehicle longitudinal speed (for the speed hold)")
+        for name, unit in (("delta", "rad"), ("drive_torque", "N.m"), ("brake_torque", "N.m"), ("surface", "1"),
+                           ("bank", "rad")):
+            self._add(Real, name, Fmi2Causality.output, math.nan, f"[{unit}] vehicle input {name}",
+                      Fmi2Variability.discrete)
+        self._start_time = 0.0
+
+    def setup_experiment(self, start_time, stop_time=None, tolerance=None):
+        self._start_time = float(start_time)
+
+    def exit_initialization_mode(self):
+        from tirefilter.scenarios import load_scenario
+
+        try:
+            self._scenario = load_scenario(str(self._values["scenario"]))
+        except TirefilterError as exc:
+            self._fail(f"{self.instance_name}: parameter scenario: {exc}")
+        if not (math.isfinite(self._values["t_first"]) and self._values["t_first"] >= 0):
+            self._fail(f"{self.instance_name}: parameter t_first: {self._values['t_first']!r} is out of range: "
+                       "expected a finite time >= 0")
+        sc = self._scenario
+        self._h = sc.communication_step
+        self._table = None
+        self._integral = 0.0
+        self._gain = sc.vehicle.mass * sc.vehicle.wheel_radius
+        self._set_outputs(self._start_time, 0.0)
+
+    def _open_loop(self, t: float) -> np.ndarray:
+        k = round(t / self._h)
+        if k >= 0 and abs(k * self._h - t) <= 1e-9 * self._h:
+            if self._table is None or k >= len(self._table):
+                n = max(int(round(self._scenario.duration / self._h)), 2 * k) + 1
+                self._table = self._scenario.inputs.open_loop(np.arange(n) * self._h)
+            return self._table[k].copy()
+        return self._scenario.inputs.open_loop(np.array([t]))[0]
+
+    def _set_outputs(self, t: float, h: float) -> None:
+        u = self._open_loop(t)
+        hold = self._scenario.inputs.speed_hold
+        if hold is not None:
+            use_vx = t - h >= self._values["t_first"] - 1e-9 * max(self._h, 1e-9)
+            err = float(hold.reference(t)) - float(self._values["vx"]) if use_vx else 0.0
+            self._integral += err * (h if h > 0 else self._h)
+            u[1] += self._gain * (hold.kp * err + hold.ki * self._integral)
+        for name, value in zip(("delta", "drive_torque", "brake_torque", "surface", "bank"), u):
+            self._values[name] = float(value)
+
+    def do_step(self, current_time, step_size):
+        self._set_outputs(current_time + step_size, step_size)
+        return True
+
+    def _get_fmu_state(self):
+        return {"integral": self._integral, "values": {k: x for k, x in self._values.items()
+                                                       if not _is_parameter(self, k)}}
+
+    def _set_fmu_state(self, state):
+        self._integral = state["integral"]
+        self._values.update(state["values"])
+
+    @staticmethod
+    def _fmu_state_to_bytes(state):
+        return fmu_state.state_to_bytes(state)
+
+    @staticmethod
+    def _fmu_state_from_bytes(data):
+        return fmu_state.state_from_bytes(data)

@@ -1,0 +1,346 @@
+"""The estimator exported as an FMU (pythonfmu), its driver FMU and the SSP of snow-sine.
+
+Exactness is shown by reduction: the FMU's outputs equal the Python estimator's on the same
+samples (bit for bit, checked to 1e-9), its restored state reproduces the steps after it,
+and the SSP's vehicle truth equals the in-process co-simulation's until the master's
+coupling can make a difference, which is then bounded (module docstring of
+tirefilter.fmu_export.ssp).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+pytest.importorskip("pythonfmu")
+
+from tirefilter.cosim.results import ESTIMATE_COLUMNS, INPUT_TRUTH_COLUMNS, truth_column  # noqa: E402
+from tirefilter.estimators import build_estimator  # noqa: E402
+from tirefilter.estimators.base import Inputs, Measurement  # noqa: E402
+from tirefilter.fmu_export.host import FMUHost  # noqa: E402
+from tirefilter.fmu_export.ssp import scenario_run_parameters  # noqa: E402
+from tirefilter.runs import spawn_seeds  # noqa: E402
+from tirefilter.scenarios import load_scenario  # noqa: E402
+
+SEED = 5
+N = 40
+OUT = ("t", "vx", "vy", "yaw_rate", "Cf_y", "Cr_y", "Cx", "Cf_y_std", "Cr_y_std", "Cx_std", "Cf_y_sigma",
+       "b_ax", "b_ay", "b_yaw_rate", "ess", "vy_std")
+IN_NAMES = ("u.delta", "u.omega_f", "u.omega_r", "u.vx", "y.ax", "y.ay", "y.yaw_rate")
+
+
+@pytest.fixture(scope="module")
+def fmus(tmp_path_factory):
+    from tirefilter.fmu_export.build import build_driver_fmu, build_estimator_fmu
+
+    out = tmp_path_factory.mktemp("fmus")
+    return {"estimator": build_estimator_fmu("mpf", out), "driver": build_driver_fmu("snow-sine", out)}
+
+
+@pytest.fixture(scope="module")
+def snow():
+    """snow-sine: the estimator FMU's parameters and options for one run, and a sample
+    stream (the in-process co-simulation's sensors, 3 s) to drive it with."""
+    from tirefilter.cosim.run import run_scenario
+
+    sc = load_scenario("snow-sine")
+    _, est_p, _, options = scenario_run_parameters(sc, seed=SEED, particles=N)
+    short = dataclasses.replace(sc, duration=3.0)
+    _, rows = run_scenario(short, seed=SEED, keep_rows=True)
+    from tirefilter.cosim.fmu import VehicleFMU
+
+    with VehicleFMU() as fmu:
+        names = list(ESTIMATE_COLUMNS) + [truth_column(n) for n in fmu.output_names] + list(INPUT_TRUTH_COLUMNS)
+    cols = ("meas_delta", "meas_omega_f", "meas_omega_r", "true_vx", "meas_ax", "meas_ay", "meas_yaw_rate")
+    stream = rows[:, [names.index(c) for c in cols]].copy()
+    return sc, dict(est_p, t_first=0.0, config=options), stream
+
+
+def _python_estimator(sc):
+    est = build_estimator("mpf", sc, model="auto", particles=N, config={})
+    est.reset(spawn_seeds(SEED)[1])
+    return est
+
+
+def _step_python(est, k, row, h=0.01):
+    return est.step(k * h, Inputs(*row[:4]), Measurement(*row[4:]))
+
+
+def _run_fmu(host, stream, k0, k1, h=0.01):
+    out = []
+    for k in range(k0, k1):
+        host.step(h, dict(zip(IN_NAMES, stream[k])))
+        out.append([host.get(OUT)[n] for n in OUT])
+    return np.array(out)
+
+
+def test_fmus_validate(fmus):
+    from fmpy.validation import validate_fmu
+
+    for path in fmus.values():
+        assert validate_fmu(str(path)) == []
+
+
+def test_fmu_equals_python_estimator_nan_samples_included(fmus, snow):
+    """Same samples -> same estimates; NaN samples (missing) behave as in Python."""
+    sc, params, stream = snow
+    stream = stream.copy()
+    stream[40:45, 5] = np.nan  # a^Y missing
+    stream[60, 4:] = np.nan  # the whole IMU sample missing
+    stream[80:82, 1] = np.nan  # a wheel speed missing (held)
+    est = _python_estimator(sc)
+    with FMUHost(fmus["estimator"]) as host:
+        host.initialize(params)
+        got = _run_fmu(host, stream, 0, 150)
+    want = []
+    for k in range(150):
+        e = _step_python(est, k, stream[k])
+        row = dict(zip(ESTIMATE_COLUMNS, [k * 0.01, e.active, e.vx, e.vy, e.yaw_rate, e.beta, e.Cf_y, e.Cr_y, e.Cx,
+                                          e.Cf_y_std, e.Cr_y_std, e.Cx_std, e.Cf_y_sigma, e.Cr_y_sigma, e.Cx_sigma,
+                                          e.b_ax, e.b_ay, e.b_yaw_rate, e.ess]))
+        row["vy_std"] = e.state_std[1]
+        want.append([row[n] for n in OUT])
+    want = np.array(want)
+    assert np.all(np.isfinite(got))
+    np.testing.assert_allclose(got, want, rtol=1e-9, atol=0)
+
+
+def test_state_save_step_restore_step_again(fmus, snow):
+    _, params, stream = snow
+    with FMUHost(fmus["estimator"]) as host:
+        host.initialize(params)
+        _run_fmu(host, stream, 0, 100)
+        state = host.get_state()
+        data = host.serialize(state)
+        first = _run_fmu(host, stream, 100, 140)
+        host.set_state(state)
+        again = _run_fmu(host, stream, 100, 140)
+        host.set_state(host.deserialize(data, state[1]))
+        from_bytes = _run_fmu(host, stream, 100, 140)
+    np.testing.assert_array_equal(again, first)
+    np.testing.assert_array_equal(from_bytes, first)
+    # the serialised state restores into a fresh instance too
+    with FMUHost(fmus["estimator"], "other") as other:
+        other.initialize(params)
+        other.set_state(other.deserialize(data, state[1]))
+        np.testing.assert_array_equal(_run_fmu(other, stream, 100, 140), first)
+
+
+def test_state_bytes_refuse_foreign_pickles():
+    import pickle
+
+    from tirefilter.fmu_export.state import MAGIC, StateError, state_from_bytes
+
+    evil = MAGIC + bytes([1]) + pickle.dumps({"x": os.system})
+    with pytest.raises(StateError, match="posix.system|os.system|nt.system"):
+        state_from_bytes(evil)
+    with pytest.raises(StateError, match="header"):
+        state_from_bytes(b"garbage")
+
+
+@pytest.mark.parametrize("name, value, expect", [
+    ("vehicle.mass", -1.0, "parameter vehicle.mass: -1.0 is out of range"),
+    ("vehicle.drive", 7, "parameter vehicle.drive: 7 is out of range"),
+    ("forgetting", 1.5, "parameter forgetting: 1.5 is out of range"),
+    ("particles", 0, "parameter particles: 0 is out of range"),
+    ("estimator_rate", 0.0, "parameter estimator_rate: 0.0 is out of range"),
+    ("model", 3, "parameter model: 3 is out of range"),
+    ("config", "[mpf]\ninit_std = -0.5\n", "init_std"),
+    ("config", "[mpf\n", "parameter config: not valid TOML"),
+])
+def test_bad_parameters_rejected_at_initialisation(fmus, name, value, expect):
+    from fmpy.fmi1 import FMICallException
+
+    with FMUHost(fmus["estimator"]) as host:
+        with pytest.raises(FMICallException):
+            host.initialize({name: value})
+        assert any(expect in m for m in host.errors()), host.messages
+
+
+def test_estimator_failure_is_logged_with_the_sample_time(fmus):
+    """The lateral model without any v^X: the Python estimator's error, through the FMI logger."""
+    from fmpy.fmi1 import FMICallException
+
+    with FMUHost(fmus["estimator"]) as host:
+        host.initialize({"model": 2})
+        with pytest.raises(FMICallException):
+            host.step(0.01, {"u.vx": math.nan, "y.ay": 0.1})
+        assert any("the estimator failed at t = 0 s" in m and "vx" in m for m in host.errors()), host.messages
+
+
+def test_rerun_recording_parameter(fmus, snow, tmp_path):
+    _, params, stream = snow
+    rrd = tmp_path / "est.rrd"
+    with FMUHost(fmus["estimator"]) as host:
+        host.initialize(dict(params, rrd=str(rrd)))
+        got = _run_fmu(host, stream, 0, 30)
+    from test_cosim import _rrd_series
+
+    t, v = _rrd_series(rrd, "/estimator/mpf/stiffness/Cf_y")
+    np.testing.assert_allclose(t, got[:, 0], atol=1e-9)
+    np.testing.assert_allclose(v, got[:, OUT.index("Cf_y")], rtol=1e-12)
+
+
+def test_failed_load_prints_requirements(fmus):
+    """Without scipy the FMU cannot load: the tool's process gets the requirements."""
+    code = textwrap.dedent(f"""
+        import sys
+        from tirefilter.fmu_export.host import FMUHost
+        sys.modules["scipy"] = None  # a package the FMU needs and the tool (fmpy) does not
+        for name in [m for m in sys.modules if m == "tirefilter" or m.startswith("tirefilter.")]:
+            del sys.modules[name]
+        try:
+            FMUHost({str(fmus["estimator"])!r})
+        except Exception as exc:
+            print("load failed:", type(exc).__name__)
+    """)
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in sys.path if p))
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+    assert "load failed: FMUError" in proc.stdout, proc.stderr
+    assert "TirefilterMPF FMU cannot load" in proc.stderr
+    assert "scipy" in proc.stderr.splitlines()[0]  # what is missing, then what is needed
+    assert "CPython >= 3.11" in proc.stderr and "numpy" in proc.stderr and "LD_PRELOAD" in proc.stderr
+
+
+# ---- the SSP: driver -> vehicle FMU -> estimator FMU, run by fmpy's simulate_ssp ------------
+SSP_STOP = 21.5  # s: 20 s straight, then the sine steering starts and the speed hold acts
+
+
+@pytest.fixture(scope="module")
+def ssp_run(fmu_paths, tmp_path_factory):
+    from tirefilter.cosim.run import run_scenario
+    from tirefilter.fmu_export.ssp import build_ssp, run_ssp
+
+    path = build_ssp("snow-sine", tmp_path_factory.mktemp("ssp") / "snow-sine.ssp", seed=SEED, particles=N,
+                     stop_time=SSP_STOP)
+    r = run_ssp(path)
+    sc = load_scenario("snow-sine")
+    _, rows = run_scenario(dataclasses.replace(sc, duration=SSP_STOP), seed=SEED, keep_rows=True)
+    from tirefilter.cosim.fmu import VehicleFMU
+
+    with VehicleFMU() as fmu:
+        names = list(ESTIMATE_COLUMNS) + [truth_column(n) for n in fmu.output_names] + list(INPUT_TRUTH_COLUMNS)
+    return sc, r, rows, names
+
+
+def test_ssp_estimates_equal_python_estimator_on_its_samples(ssp_run):
+    """The estimator FMU inside the SSP is the Python estimator: fed the samples the master
+    delivered (row j-1 holds the inputs of step j), it gives the same estimates to 1e-9."""
+    sc, r, _, _ = ssp_run
+    h = sc.communication_step
+    assert r["estimator.samples"][0] == 0 and math.isnan(r["estimator.Cf_y"][0])  # t_first: step 0 carries zeros
+    est = _python_estimator(sc)
+    got, want = [], []
+    for j in range(1, len(r)):
+        q = r[j - 1]
+        e = _step_python(est, j, [q["estimator." + n] for n in IN_NAMES], h)
+        want.append([j * h, e.Cf_y, e.Cr_y, e.Cx, e.vx, e.vy, e.b_ay, e.ess, e.Cf_y_std])
+        got.append([r[j]["estimator." + n] for n in ("t", "Cf_y", "Cr_y", "Cx", "vx", "vy", "b_ay", "ess",
+                                                       "Cf_y_std")])
+    assert len(got) == round(SSP_STOP / h) - 1
+    np.testing.assert_allclose(np.array(got), np.array(want), rtol=1e-9, atol=0)
+
+
+def test_ssp_driver_plays_the_profile(ssp_run):
+    """Driver outputs after step j are the inputs of t_{j+1}: the open-loop profile on the
+    scenario's grid exactly, plus the speed-hold PI on v^X one step old."""
+    sc, r, _, _ = ssp_run
+    h = sc.communication_step
+    t = (np.arange(len(r)) + 1) * h
+    u = sc.inputs.open_loop(t)
+    np.testing.assert_array_equal(r["driver.delta"], u[:, 0])
+    np.testing.assert_array_equal(r["driver.bank"], u[:, 4])
+    hold = sc.inputs.speed_hold
+    gain = sc.vehicle.mass * sc.vehicle.wheel_radius
+    integral, torque = 0.0, []
+    vx_seen = np.concatenate([[np.nan], r["vehicle.vx"][:-1]])  # what the driver had at step j
+    for j in range(len(r)):
+        err = 0.0 if j == 0 else float(hold.reference(t[j])) - vx_seen[j]
+        integral += err * h
+        torque.append(u[j, 1] + gain * (hold.kp * err + hold.ki * integral))
+    np.testing.assert_allclose(r["driver.drive_torque"], torque, rtol=1e-12, atol=1e-12)
+
+
+def test_ssp_truth_matches_in_process_cosimulation_within_the_coupling_bound(ssp_run):
+    """Row j of the SSP holds the vehicle at t_{j+1}, row k of the in-process run the vehicle
+    at t_k. While the inputs are constant (straight at the set speed, 20 s) the Jacobi
+    coupling changes nothing and truth and sensors are the same bit for bit. Once the steer
+    changes, two coupling effects appear: the sensors with direct feedthrough of the inputs
+    (a^X, a^Y) are read before the master sets the new inputs (in-process: after), and the
+    speed-hold PI sees v^X one step late. Measured over the first 1.5 s of steering:
+    |d a^Y_meas| <= 0.01 m/s^2 (the steer change of one 10 ms step), |dvx| 1e-4 m/s,
+    |d yaw rate| 8e-7 rad/s; the bounds below are 5-13 times those."""
+    sc, r, rows, names = ssp_run
+    n = len(r)
+    col = {c: rows[1:n + 1, names.index(c)] for c in ("true_vx", "true_yaw_rate", "meas_ay", "true_drive_torque")}
+    # the first row where the steer or the drive torque changes
+    start = min(int(np.argmax(np.abs(col["true_drive_torque"]) > 0)), int(np.argmax(r["driver.drive_torque"] != 0)),
+                int(np.argmax(r["driver.delta"] != 0)))
+    assert 19.9 < (start + 1) * sc.communication_step < 20.5
+    for name, c in (("vehicle.vx", "true_vx"), ("vehicle.yaw_rate", "true_yaw_rate"), ("vehicle.ay_meas", "meas_ay")):
+        np.testing.assert_array_equal(r[name][:start], col[c][:start])
+    assert np.max(np.abs(r["vehicle.vx"] - col["true_vx"])) < 1e-3
+    assert np.max(np.abs(r["vehicle.yaw_rate"] - col["true_yaw_rate"])) < 1e-5
+    assert np.max(np.abs(r["vehicle.ay_meas"] - col["meas_ay"])) < 0.05
+
+
+def test_native_host_runs_the_fmu_with_libpython_preloaded(fmus, tmp_path):
+    """A plain C host (no Python) runs the estimator FMU as the README says: libpython
+    preloaded, PYTHONHOME and PYTHONPATH set; its result equals fmpy's. Without the
+    preload the library cannot load (undefined Python symbols)."""
+    import shutil
+    import sysconfig
+    import zipfile
+    from pathlib import Path
+
+    from fmpy import read_model_description
+
+    from tirefilter.cosim.fmu import fmu_build_module
+
+    cc = shutil.which("cc") or shutil.which("gcc")
+    libpython = Path(sysconfig.get_config_var("LIBDIR") or "") / (sysconfig.get_config_var("LDLIBRARY") or "")
+    if not cc or not libpython.is_file() or libpython.suffix != ".so" and ".so." not in libpython.name:
+        pytest.skip("needs a C compiler and a shared libpython")
+    host = tmp_path / "host_python_fmu"
+    src = Path(__file__).resolve().parents[1] / "fmu" / "tests" / "host_python_fmu.c"
+    subprocess.run([cc, "-std=c99", f"-I{fmu_build_module().fmi_headers_dir()}", str(src), "-ldl", "-o", str(host)],
+                   check=True, capture_output=True)
+    unzipped = tmp_path / "fmu"
+    with zipfile.ZipFile(fmus["estimator"]) as zf:
+        zf.extractall(unzipped)
+    md = read_model_description(str(fmus["estimator"]))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    import numpy
+
+    args = [str(host), str(unzipped), "TirefilterMPF", md.guid, str(vr["y.ay"]), "0.3", str(vr["vy"]), "50"]
+    site = str(Path(numpy.__file__).resolve().parents[1])
+    base = {"PATH": os.environ.get("PATH", "/usr/bin:/bin")}
+    bare = subprocess.run(args, capture_output=True, text=True, env=base, timeout=120)
+    assert bare.returncode == 1 and "undefined symbol: _Py" in bare.stderr
+    env = dict(base, LD_PRELOAD=str(libpython), PYTHONHOME=sys.base_prefix, PYTHONPATH=site)
+    proc = subprocess.run(args, capture_output=True, text=True, env=env, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    native = float(proc.stdout.strip().splitlines()[-1].split("=")[1])
+    with FMUHost(fmus["estimator"]) as h:
+        h.initialize({})
+        for _ in range(50):
+            h.step(0.01, {"y.ay": 0.3})
+        assert native == h.get(["vy"])["vy"] and math.isfinite(native)
+
+
+def test_cli_builds_the_estimator_fmu(capsys):
+    from fmpy.validation import validate_fmu
+
+    from tirefilter.cli import main
+    from tirefilter.cosim.fmu import BUILD_DIR
+
+    assert main(["fmu", "build", "estimator"]) == 0
+    assert "built estimator FMU mpf" in capsys.readouterr().out
+    assert validate_fmu(str(BUILD_DIR / "TirefilterMPF.fmu")) == []
