@@ -39,7 +39,7 @@ is unused; no particles (`--particles` is accepted and ignored).
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
@@ -206,6 +206,8 @@ class RLSEstimator:
         predicted one (`regressor_state = "predicted"`, before this sample's update) or the
         filtered one."""
         kf = self.kf
+        if not math.isfinite(u.vx) and kf.u_prev is not None:  # a missing vx sample holds the last one
+            u = replace(u, vx=kf.u_prev[0])
         if self.cfg.regressor_state == "filtered":
             est = kf.step(t, u, y)
             return est, tuple(kf.x)
