@@ -117,7 +117,10 @@ def test_particles_accepted_and_ignored(fmu_paths, tmp_path, name):
     for col in ESTIMATE_COLUMNS:
         np.testing.assert_array_equal(a[col], b[col], err_msg=col)
     out = tmp_path / name
-    assert main(["run", "--scenario", "paper-sim", "--estimator", name, "--particles", "7", "--out", str(out),
+    short = tmp_path / "paper-sim-short.toml"  # the same scenario, 2 s
+    short.write_text(load_scenario("paper-sim").file.read_text().replace("duration = 60.0", "duration = 2.0")
+                     .replace("excitation = [[0.0, 60.0]]", "excitation = [[0.0, 2.0]]"))
+    assert main(["run", "--scenario", str(short), "--estimator", name, "--particles", "7", "--out", str(out),
                  "--quiet"]) == 0
     r = read_results(out / "results.csv")
     assert np.isfinite(r["Cf_y"]).all()
