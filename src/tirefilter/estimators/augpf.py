@@ -61,6 +61,11 @@ class AUGPFConfig:
     model: str = "full"  # "full" (wheel speeds) | "lateral" (vx given)
     integrator: str = "heun"  # "euler" | "heun", the MPF's propagation
     resample_threshold: float = 0.5  # resample when ESS < threshold * N
+    # "bootstrap": w_k ~ N(m_k, s2_k) blindly, weight N(y; h + D w_k + b, R + P_b) (the
+    # paper's standard PF); "conditional": weight with w_k marginalised, N(y; h + D m + b,
+    # D s2 D^T + R + P_b), then draw w_k from its Gaussian conditional given y_k (the
+    # optimal proposal for w_k; same model and artificial dynamics)
+    proposal: str = "bootstrap"
     mean_rw: float = 0.02  # random-walk std of each mean per sample period, relative to C_ref (paper: 2%)
     var_rel_std: float = 0.01  # std of the inverse-gamma variance step, relative to the variance (paper: 1%)
     init_center: tuple[float, ...] | None = None  # absolute, per parameter (default: the reference)
@@ -97,6 +102,8 @@ class AUGPFConfig:
 
         if int(self.particles) != self.particles or self.particles < 1:
             bad("particles", f"N must be an integer >= 1, got {self.particles!r}")
+        if self.proposal not in ("bootstrap", "conditional"):
+            bad("proposal", f"expected bootstrap or conditional, got {self.proposal!r}")
         if self.integrator not in ("euler", "heun"):
             bad("integrator", f"expected euler or heun, got {self.integrator!r}")
         check_common(self, bad)
@@ -120,6 +127,25 @@ def inverse_gamma_step(s2: np.ndarray, rel_std: float, rng: np.random.Generator)
         return s2
     alpha = 2.0 + 1.0 / (rel_std * rel_std)
     return (alpha - 1.0) * s2 / rng.gamma(alpha, size=s2.shape)
+
+
+def conditional_deviation(mu, s2, D, noise, r):
+    """The per-step deviation given the measurement, for y = D w + e' with w ~ N(mu,
+    diag(s2)) and e' ~ N(0, noise) (the bias marginalised into `noise`), r = y - h - b:
+    returns the log marginal likelihood log N(r; D mu, S), S = D diag(s2) D^T + noise, and
+    the conditional mean mu + diag(s2) D^T S^-1 (r - D mu) and covariance
+    diag(s2) - diag(s2) D^T S^-1 D diag(s2).
+
+    mu, s2 (N, n); D (N, m, n); noise (m, m) or (N, m, m); r (N, m)."""
+    DS = D * s2[:, None, :]  # D diag(s2)
+    Lc = chol(DS @ np.swapaxes(D, 1, 2) + noise)
+    e = r - np.einsum("nij,nj->ni", D, mu)
+    v = solve_lower(Lc, e)
+    loglik = -0.5 * np.sum(v * v, axis=1) - 0.5 * logdet_chol(Lc) - 0.5 * D.shape[1] * LOG_2PI
+    Gt = chol_solve(Lc, DS)  # S^-1 D diag(s2): the gain, transposed
+    mean = mu + np.einsum("nki,nk->ni", Gt, e)
+    cov = s2[:, :, None] * np.eye(mu.shape[1]) - np.swapaxes(DS, 1, 2) @ Gt
+    return loglik, mean, cov
 
 
 class AugmentedPF:
@@ -220,36 +246,53 @@ class AugmentedPF:
             self.t_start = t
         self.t_prev, self.u_prev = t, uk
 
-        # 2. the per-step deviation, process noise of the augmented model
-        w = self.mu + np.sqrt(self.s2) * rng.standard_normal(self.mu.shape)
-
-        # 3. weights: N(y; h + D w + b, R + P_b)
+        # 2.-3. the per-step deviation w_k (process noise of the augmented model) and the weights
         yk = np.array([y.ax, y.ay, y.yaw_rate], float)[list(self.channels)]
         a = np.flatnonzero(np.isfinite(yk))
         model_k = self._mdl._model(self.x, uk)
         h, D = self._mdl._measurement(model_k[0], model_k[1], self.x)
-        pred = h + np.einsum("nij,nj->ni", D, w)
-        if a.size:
-            e = yk[a] - pred[:, a] - self.b[:, a]
-            if self.bias_on:
-                Lc = chol(self.P[:, a][:, :, a] + self.R[np.ix_(a, a)])
-                v = solve_lower(Lc, e)
-                loglik = -0.5 * np.sum(v * v, axis=1) - 0.5 * logdet_chol(Lc) - 0.5 * a.size * LOG_2PI
-            else:
-                r = np.diagonal(self.R)[a]
-                loglik = -0.5 * np.sum(e * e / r, axis=1) - 0.5 * float(np.sum(np.log(r))) - 0.5 * a.size * LOG_2PI
-            self.logw = normalize_log_weights(self.logw + loglik)
+        if cfg.proposal == "bootstrap":
+            w = self.mu + np.sqrt(self.s2) * rng.standard_normal(self.mu.shape)  # w_k ~ N(m_k, s2_k)
+            pred = h + np.einsum("nij,nj->ni", D, w)
+            if a.size:  # N(y; h + D w + b, R + P_b)
+                e = yk[a] - pred[:, a] - self.b[:, a]
+                if self.bias_on:
+                    Lc = chol(self.P[:, a][:, :, a] + self.R[np.ix_(a, a)])
+                    v = solve_lower(Lc, e)
+                    loglik = -0.5 * np.sum(v * v, axis=1) - 0.5 * logdet_chol(Lc) - 0.5 * a.size * LOG_2PI
+                else:
+                    r = np.diagonal(self.R)[a]
+                    loglik = -0.5 * np.sum(e * e / r, axis=1) - 0.5 * float(np.sum(np.log(r))) - 0.5 * a.size * LOG_2PI
+                self.logw = normalize_log_weights(self.logw + loglik)
+            w_cond = None
+        else:  # conditional: weight with w_k marginalised, then draw w_k from p(w_k | y_k)
+            w_mean, w_cov = self.mu, self.s2[:, :, None] * np.eye(self.n_w)
+            if a.size:
+                Da = D[:, a]
+                noise = self.R[np.ix_(a, a)] + (self.P[:, a][:, :, a] if self.bias_on else 0.0)
+                r_a = yk[a] - h[:, a] - self.b[:, a]
+                loglik, w_mean, w_cov = conditional_deviation(self.mu, self.s2, Da, noise, r_a)
+                self.logw = normalize_log_weights(self.logw + loglik)
+            w_cond = (w_mean, w_cov)
         if not self._plausible(uk):
             return self._restart(t, uk, y)
         ess = float(effective_sample_size(self.logw))
         if ess < cfg.resample_threshold * cfg.particles:
             idx = systematic_resample(self.logw, rng)
             self.x, self.mu, self.s2, self.b, self.P = self.x[idx], self.mu[idx], self.s2[idx], self.b[idx], self.P[idx]
-            w, h, D, pred = w[idx], h[idx], D[idx], pred[idx]
+            h, D = h[idx], D[idx]
+            if w_cond is None:
+                w, pred = w[idx], pred[idx]
+            else:
+                w_cond = (w_cond[0][idx], w_cond[1][idx])
             a_k, B_k, af, ar, slip_k = model_k
             model_k = (a_k[idx], B_k[idx], af[idx], ar[idx], None if slip_k is None else slip_k[:, idx])
             self.logw = np.full(cfg.particles, -math.log(cfg.particles))
             self.resamples += 1
+        if w_cond is not None:
+            L = chol(0.5 * (w_cond[1] + np.swapaxes(w_cond[1], 1, 2)))
+            w = w_cond[0] + np.einsum("nij,nj->ni", L, rng.standard_normal(self.mu.shape))
+            pred = h + np.einsum("nij,nj->ni", D, w)
 
         # 4. bias, eq. (30) given w_k: S = P + R, K = P S^-1
         if a.size and self.bias_on:
