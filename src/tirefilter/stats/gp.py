@@ -105,42 +105,58 @@ def spectral_density(lam, s_f: float, lengthscale: float, dim: int) -> np.ndarra
 class TensorBasis:
     """The paper's 2-D basis over (alpha_f, alpha_r): phi_{j1 j2} = phi_j1(alpha_f) phi_j2(alpha_r),
     lambda = lambda_j1 + lambda_j2, S from the 2-D SE density (eq. (9)-(10), d = 2).
-    Both axles share one feature vector of m^2 entries (index j1 * m + j2)."""
+    Both axles share one feature vector of m^2 entries (index j1 * m + j2).
+
+    `odd`: only the products that are odd under (alpha_f, alpha_r) -> -(alpha_f, alpha_r),
+    i.e. j1 + j2 odd (phi_j is odd in x for even j, even for odd j): a friction function
+    with mu(-alpha) = -mu(alpha), m^2 / 2 functions (m even)."""
 
     kind = "tensor"
 
-    def __init__(self, b: GPBasis1D):
-        self.b = b
+    def __init__(self, b: GPBasis1D, odd: bool = False):
+        self.b, self.odd = b, odd
         lam = b.eigenvalues()
-        self.lam = (lam[:, None] + lam[None, :]).ravel()
+        j = b.j
+        keep = ((j[:, None] + j[None, :]) % 2 == 1).ravel() if odd else np.ones(b.m * b.m, bool)
+        self.keep = np.flatnonzero(keep)
+        self.lam = (lam[:, None] + lam[None, :]).ravel()[self.keep]
         self.S = spectral_density(self.lam, b.s_f, b.lengthscale, 2)
-        self.size = b.m * b.m
+        self.size = self.keep.size
 
     def features(self, alpha_f, alpha_r) -> np.ndarray:
-        """(...,) slip angles -> (..., m^2)."""
+        """(...,) slip angles -> (..., size)."""
         pf, pr = self.b.phi(alpha_f), self.b.phi(alpha_r)
-        return (pf[..., :, None] * pr[..., None, :]).reshape(pf.shape[:-1] + (self.size,))
+        full = (pf[..., :, None] * pr[..., None, :]).reshape(pf.shape[:-1] + (self.b.m * self.b.m,))
+        return full if not self.odd else full[..., self.keep]
 
 
 class AxleBasis:
-    """One 1-D basis per axle: mu_f depends on alpha_f alone, mu_r on alpha_r (m each)."""
+    """One 1-D basis per axle: mu_f depends on alpha_f alone, mu_r on alpha_r (m each;
+    `odd`: only the odd functions, even j, m / 2 per axle)."""
 
     kind = "axle"
 
-    def __init__(self, b: GPBasis1D):
-        self.b = b
-        self.lam = b.eigenvalues()
-        self.S = b.spectral_density()
-        self.size = b.m
+    def __init__(self, b: GPBasis1D, odd: bool = False):
+        self.b, self.odd = b, odd
+        self.keep = np.flatnonzero(b.j % 2 == 0) if odd else np.arange(b.m)
+        self.lam = b.eigenvalues()[self.keep]
+        self.S = b.spectral_density()[self.keep]
+        self.size = self.keep.size
+
+    def phi(self, x) -> np.ndarray:
+        """The kept 1-D functions at x (...,) -> (..., size)."""
+        return self.b.phi(x)[..., self.keep]
 
     def features(self, alpha_f, alpha_r) -> np.ndarray:
-        """(...,) slip angles -> (..., 2, m): row 0 front, row 1 rear."""
-        return np.stack([self.b.phi(alpha_f), self.b.phi(alpha_r)], axis=-2)
+        """(...,) slip angles -> (..., 2, size): row 0 front, row 1 rear."""
+        return np.stack([self.phi(alpha_f), self.phi(alpha_r)], axis=-2)
 
 
-def make_basis(kind: str, b: GPBasis1D):
+def make_basis(kind: str, b: GPBasis1D, odd: bool = False):
     if kind == "tensor":
-        return TensorBasis(b)
+        return TensorBasis(b, odd)
     if kind == "axle":
-        return AxleBasis(b)
+        if odd and b.m < 2:
+            raise ConfigError(SOURCE, "basis_functions", "the odd per-axle basis needs m >= 2 (it keeps even j)")
+        return AxleBasis(b, odd)
     raise ConfigError(SOURCE, "basis", f"expected tensor or axle, got {kind!r}")

@@ -70,13 +70,15 @@ class _Common:
     def d(self) -> int:
         return self.Lam0.shape[-1]
 
-    def predictive(self, phi):
+    def predictive(self, phi, return_M: bool = False):
         """St of zeta = A phi + w at features phi (..., m): (loc (..., d), scale (..., d, d),
-        dof (...)), eq. (31)-(32) with A and Q integrated out."""
+        dof (...)), eq. (31)-(32) with A and Q integrated out; with `return_M` also the
+        posterior mean M (..., d, m) it was computed from."""
         M, Lam, Sphi = self._solve(phi)
         c = 1.0 + np.einsum("...j,...j->...", phi, Sphi)
         dof = self.nu - self.d + 1.0
-        return np.einsum("...ij,...j->...i", M, phi), (c / dof)[..., None, None] * Lam, dof
+        out = (np.einsum("...ij,...j->...i", M, phi), (c / dof)[..., None, None] * Lam, dof)
+        return out + (M,) if return_M else out
 
     def function_moments(self, phi):
         """Posterior mean and covariance of the function value A phi (no w), per batch
