@@ -26,7 +26,7 @@ def cmd_run(args) -> int:
     out = Path(args.out) if args.out else Path("runs") / scenario.name
     out.mkdir(parents=True, exist_ok=True)
     results = out / "results.csv"
-    model = resolve_model(args.model, scenario.sensors)
+    model = getattr(getattr(estimator, "cfg", None), "model", None) or resolve_model(args.model, scenario.sensors)
     summary = _run_and_record(
         lambda: run_scenario(scenario, estimator=estimator, seed=args.seed, fmi_version=args.fmi, results_csv=results,
                              rrd=args.rrd, progress=_progress(args), friction_csv=_friction_csv(estimator, out / "friction.csv")),

@@ -130,6 +130,10 @@ class GPSSMConfig:
         return self
 
     @property
+    def model(self) -> str:
+        return "lateral"  # state [v^Y, r], v^X given (Sec. 2.1)
+
+    @property
     def m(self):
         if self.basis_functions is None:
             return 10 if self.basis == "tensor" else 20
