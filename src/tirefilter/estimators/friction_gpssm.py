@@ -56,7 +56,7 @@ class GPSSMConfig:
     symmetry: str = "odd"  # "odd": only the basis functions odd in alpha (mu(-a) = -mu(a)) | "none" (the paper)
     s_f: float = 500.0  # SE kernel variance, relative to Q (A | Q ~ MN(0, Q, diag S)); the paper's 500
     stats: str = "exact"  # "exact" (eq. (27)-(29)) | "rank1" (forgetting applied to the prior too)
-    forgetting: float = 0.999  # lambda of eq. (29)
+    forgetting: float = 0.99  # lambda of eq. (29) (about 100 samples of memory: 4 s at 25 Hz)
     q0: float = 0.01  # prior guess of the std of w (friction units): Lambda_0 = q0^2 (nu_0 - d - 1) I
     nu0_margin: float = 2.0  # nu_0 = d + 1 + margin
     prior_peak: float = 0.05  # D of the Pacejka prior (Sec. 4)
@@ -222,6 +222,7 @@ class FrictionGPSSM:
         self.clipped = self.clipped_steps = self.slip_evaluations = self.resamples = 0
         self.visited = [math.inf, -math.inf, math.inf, -math.inf]
         self.last_t = NAN
+        self.prediction = (NAN, NAN)  # one-step-ahead (a^Y, r) before the last measurement
         self._slope = (NAN, NAN, NAN, NAN)
         self._dphi0 = self._slope_features()
 
@@ -340,6 +341,9 @@ class FrictionGPSSM:
         if math.isfinite(y.yaw_rate):
             e_r = y.yaw_rate - self.x[:, 1]
             logl += -0.5 * (e_r * e_r / self.R[1] + math.log(2 * math.pi * self.R[1]))
+        q_prev = np.exp(self.logw)  # one-step-ahead prediction of y_k (before y_k is used)
+        ay_pred = h0 + loc @ c if cfg.measurement_friction == "learned" else h0
+        self.prediction = (float(q_prev @ ay_pred), float(q_prev @ self.x[:, 1]))
         self.logw = normalize_log_weights(self.logw + logl)
         ess = float(effective_sample_size(self.logw))
         if ess < cfg.resample_threshold * N:
