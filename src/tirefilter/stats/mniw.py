@@ -116,40 +116,54 @@ class MNIW(_Common):
         self.Lam0 = np.asarray(Lam0, float).reshape(d, d)
         self.Phi = np.zeros(batch + (d, d))
         self.Psi = np.zeros(batch + (d, m))
-        self.Sigma = np.zeros(batch + (m, m))
+        self.K = np.broadcast_to(np.diag(self.V), batch + (m, m)).copy()  # Sigma + V, kept as such
         self.nu = np.full(batch, float(nu0))
+
+    @property
+    def Sigma(self) -> np.ndarray:
+        """Sigma of eq. (26c)/(27c) (the statistic is kept as Sigma + V)."""
+        return self.K - np.diag(self.V)
 
     def take(self, idx) -> "MNIW":
         """The statistics of batch elements `idx` along the first axis (resampling)."""
         new = MNIW.__new__(MNIW)
         new.V, new.Lam0 = self.V, self.Lam0
-        new.Phi, new.Psi, new.Sigma, new.nu = (_take(a, idx, self.nu) for a in (self.Phi, self.Psi, self.Sigma, self.nu))
+        new.Phi, new.Psi, new.K, new.nu = (_take(a, idx, self.nu) for a in (self.Phi, self.Psi, self.K, self.nu))
         return new
 
     def update(self, zeta, phi, mask=None) -> None:
         """One observation zeta (..., d) at features phi (..., m), eq. (27a)-(27c) / (28b)-(28d),
         (28f). Where `mask` (...) is False the statistics stay."""
-        self.Phi = _mask(mask, self.Phi + _outer(zeta, zeta), self.Phi, 2)  # (27a); (28c) misprints alpha^T
-        self.Psi = _mask(mask, self.Psi + _outer(zeta, phi), self.Psi, 2)  # (27b)
-        self.Sigma = _mask(mask, self.Sigma + _outer(phi, phi), self.Sigma, 2)  # (27c)
-        self.nu = _mask(mask, self.nu + 1.0, self.nu, 0)  # (28f)
+        if mask is None:
+            self.Phi += _outer(zeta, zeta)  # (27a); (28c) misprints alpha^T for zeta^T
+            self.Psi += _outer(zeta, phi)  # (27b)
+            self.K += _outer(phi, phi)  # (27c)
+            self.nu = self.nu + 1.0  # (28f)
+            return
+        self.Phi = _mask(mask, self.Phi + _outer(zeta, zeta), self.Phi, 2)
+        self.Psi = _mask(mask, self.Psi + _outer(zeta, phi), self.Psi, 2)
+        self.K = _mask(mask, self.K + _outer(phi, phi), self.K, 2)
+        self.nu = _mask(mask, self.nu + 1.0, self.nu, 0)
 
     def forget(self, lam: float, mask=None, nu_min: float = 0.0) -> None:
-        """Time update (29a)-(29d): Phi, Psi, Sigma, nu times lambda (only where `mask`).
+        """Time update (29a)-(29d): Phi, Psi, Sigma, nu times lambda (only where `mask`);
+        V is not forgotten: Sigma + V -> lambda (Sigma + V) + (1 - lambda) V.
         With nu_min the factor is max(lambda, nu_min / nu): a statistic never drops below
         the prior's degrees of freedom (as `NiW.forget`)."""
-        f = np.full(self.nu.shape, float(lam))
+        f = np.full(np.shape(self.nu), float(lam))
         if nu_min > 0:
             f = np.maximum(f, np.minimum(1.0, nu_min / self.nu))
         if mask is not None:
             f = np.where(mask, f, 1.0)
         self.Phi = self.Phi * f[..., None, None]
         self.Psi = self.Psi * f[..., None, None]
-        self.Sigma = self.Sigma * f[..., None, None]
+        self.K *= f[..., None, None]
+        diag = np.einsum("...ii->...i", self.K)  # a writable view of the diagonals
+        diag += (1.0 - f)[..., None] * self.V
         self.nu = self.nu * f
 
     def _K(self):
-        return self.Sigma + np.eye(self.V.size) * self.V
+        return self.K
 
     def posterior(self):
         """M = Psi (Sigma + V)^-1 (28a), Lambda = Lambda_0 + Phi - M Psi^T (28e)."""
@@ -201,18 +215,25 @@ class MNIWRank1(_Common):
         c = 1.0 + np.einsum("...j,...j->...", phi, g)
         e = zeta - np.einsum("...ij,...j->...i", self.M, phi)
         ic = (1.0 / c)[..., None, None]
+        if mask is None:
+            gs = g * (1.0 / c)[..., None]
+            self.M += _outer(e, gs)
+            self.P -= _outer(g, gs)
+            self.Lam += _outer(e, e) * ic
+            self.nu = self.nu + 1.0
+            return
         self.M = _mask(mask, self.M + _outer(e, g) * ic, self.M, 2)
         self.P = _mask(mask, self.P - _outer(g, g) * ic, self.P, 2)
         self.Lam = _mask(mask, self.Lam + _outer(e, e) * ic, self.Lam, 2)
         self.nu = _mask(mask, self.nu + 1.0, self.nu, 0)
 
     def forget(self, lam: float, mask=None, nu_min: float = 0.0) -> None:
-        f = np.full(self.nu.shape, float(lam))
+        f = np.full(np.shape(self.nu), float(lam))
         if nu_min > 0:
             f = np.maximum(f, np.minimum(1.0, nu_min / self.nu))
         if mask is not None:
             f = np.where(mask, f, 1.0)
-        self.P = self.P / f[..., None, None]
+        self.P *= (1.0 / f)[..., None, None]
         self.Lam = self.Lam * f[..., None, None]
         self.nu = self.nu * f
 
