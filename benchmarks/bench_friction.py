@@ -11,7 +11,8 @@
    end, and the share of that range where the +-2 std band covers the truth; a plot as the
    paper's Fig. 1 (trial 0). With the basis comparison (part 2): per-step cost side by side.
 2. cost: median step time at N = 200 of tensor / axle with exact and rank-one statistics
-   (one process, one core) and the rank-one variant's accuracy difference.
+   (one process, one core; `--cost-inputs` runs it on saved inputs where there is no FMU)
+   and the rank-one variant's accuracy next to the exact one's.
 3. combined: gpssm vs combined on snow and on dry asphalt (friction-snow with the
    dry-asphalt tire set): RMSE over time and the time from which both axles stay within 5%
    of the peak friction.
@@ -35,6 +36,7 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 SNAPSHOTS = (4.0, 20.0, 40.0, 50.0)
+FIXED_RANGE = 3.0 * math.pi / 180.0  # rad: the window of the "reach" time (combined vs gpssm)
 DEG = math.pi / 180.0
 
 
@@ -82,7 +84,7 @@ def run_trial(job: dict) -> dict:
         blocks = snapshot_blocks(read_friction(path))
     cols = dict(zip(result_columns(VehicleFMU().output_names), rows.T))
     peak = float(np.max(truth_curve(sc, np.linspace(0, 30 * DEG, 601))))
-    out = {"t": [], "rmse_f": [], "rmse_r": [], "cov_f": [], "cov_r": [], "peak": peak,
+    out = {"t": [], "rmse_f": [], "rmse_r": [], "cov_f": [], "cov_r": [], "fix_f": [], "fix_r": [], "peak": peak,
            "median_step_us": summary.median_step_us, "diag": est.diagnostics(), "job": job, "curves": {},
            "vy_rmse": float(np.sqrt(np.mean((cols["vy"] - cols["true_vy"]) ** 2)))}
     for b in blocks:
@@ -96,6 +98,8 @@ def run_trial(job: dict) -> dict:
             err = b[f"mu_{axle}"][m] - b[f"true_mu_{axle}"][m]
             out[f"rmse_{axle}"].append(float(np.sqrt(np.mean(err**2))) if m.any() else math.nan)
             out[f"cov_{axle}"].append(float(np.mean(np.abs(err) <= 2 * b[f"mu_{axle}_std"][m])) if m.any() else math.nan)
+            fix = np.abs(b["alpha"]) <= FIXED_RANGE + 1e-12  # a fixed window, visited or not
+            out[f"fix_{axle}"].append(float(np.sqrt(np.mean((b[f"mu_{axle}"][fix] - b[f"true_mu_{axle}"][fix]) ** 2))))
         if job.get("keep_curves") and (any(abs(t - s) < 1e-6 for s in SNAPSHOTS) or b is blocks[-1]):
             out["curves"][t] = {k: v.copy() for k, v in b.items()} | {
                 "visited": (float(cols["true_alpha_f"][seen].min()), float(cols["true_alpha_f"][seen].max()),
@@ -190,20 +194,21 @@ def fig1(r, path: Path, label: str):
     print(f"figure: {path}")
 
 
-def rmse_over_time(groups: dict, path: Path, peak: float, title: str):
+def rmse_over_time(groups: dict, path: Path, peak: float, title: str, key: str = "rmse"):
     plt = _plt()
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.6), sharey=True)
     for (label, res), color in zip(groups.items(), ("tab:blue", "tab:red", "tab:green", "tab:orange")):
         t = np.asarray(res[0]["t"])
         for ax, axle in zip(axes, ("f", "r")):
-            R = np.array([r[f"rmse_{axle}"] for r in res]) / peak * 100
+            R = np.array([r[f"{key}_{axle}"] for r in res]) / peak * 100
             ax.plot(t, np.median(R, 0), color=color, label=label)
             ax.fill_between(t, np.percentile(R, 10, 0), np.percentile(R, 90, 0), color=color, alpha=0.2)
     for ax, axle in zip(axes, ("front", "rear")):
         ax.axhline(5, color="k", ls=":", lw=0.8)
         ax.set_yscale("log")
         ax.set_xlabel("t [s]")
-        ax.set_title(f"{axle}: RMSE over the visited range, % of peak (median, 10-90%)", fontsize=9)
+        where = "the visited range" if key == "rmse" else "|alpha| <= 3 deg"
+        ax.set_title(f"{axle}: RMSE over {where}, % of peak (median, 10-90%)", fontsize=9)
     axes[0].legend(fontsize=8)
     fig.suptitle(title)
     fig.tight_layout()
@@ -212,9 +217,10 @@ def rmse_over_time(groups: dict, path: Path, peak: float, title: str):
     print(f"figure: {path}")
 
 
-def reach_time(r, peak):
-    """First snapshot time from which both axles stay within 5% of the peak (inf: never)."""
-    ok = (np.asarray(r["rmse_f"]) <= 0.05 * peak) & (np.asarray(r["rmse_r"]) <= 0.05 * peak)
+def reach_time(r, peak, key="rmse"):
+    """First snapshot time from which both axles stay within 5% of the peak (inf: never):
+    key "rmse" over the range visited so far, "fix" over |alpha| <= 3 deg."""
+    ok = (np.asarray(r[f"{key}_f"]) <= 0.05 * peak) & (np.asarray(r[f"{key}_r"]) <= 0.05 * peak)
     t = np.asarray(r["t"])
     for i in range(len(t)):
         if ok[i:].all():
@@ -225,8 +231,10 @@ def reach_time(r, peak):
 def combined(args):
     print(f"\n== 3. gpssm vs combined ({args.combined_trials} trials, N = {args.particles}, "
           f"{args.combined_basis} basis) ==")
-    print(f"{'surface':12s} {'estimator':9s} {'reach 5% [s] median':>20s} {'never':>6s} {'end RMSE f %':>13s} "
-          f"{'end RMSE r %':>13s} {'handover [s]':>13s} {'step us':>8s}")
+    print("reach: first snapshot (every 2 s) from which the RMSE of both axles stays <= 5% of the peak; 'visited' over "
+          "the true slip range seen so far, '|a|<=3' over the fixed window |alpha| <= 3 deg (visited or not)")
+    print(f"{'surface':12s} {'estimator':9s} {'reach visited':>13s} {'reach |a|<=3':>13s} {'never':>6s} "
+          f"{'end RMSE f %':>13s} {'end RMSE r %':>13s} {'handover [s]':>13s} {'step us':>8s}")
     out = {}
     for surface in ("snow", "dry-asphalt"):
         groups = {}
@@ -237,8 +245,10 @@ def combined(args):
             res = _map(jobs, args.workers)
             peak = res[0]["peak"]
             reach = np.array([reach_time(r, peak) for r in res])
+            reach_fix = np.array([reach_time(r, peak, "fix") for r in res])
             hand = [r["diag"]["handover_time"] for r in res if r["diag"]["handover_time"] is not None]
-            print(f"{surface:12s} {name:9s} {np.median(reach):20.1f} {np.sum(~np.isfinite(reach)):6d} "
+            print(f"{surface:12s} {name:9s} {np.median(reach):13.1f} {np.median(reach_fix):13.1f} "
+                  f"{np.sum(~np.isfinite(reach_fix)):6d} "
                   f"{100 * np.mean([r['rmse_f'][-1] for r in res]) / peak:13.2f} "
                   f"{100 * np.mean([r['rmse_r'][-1] for r in res]) / peak:13.2f} "
                   f"{(np.median(hand) if hand else math.nan):13.1f} "
@@ -247,21 +257,72 @@ def combined(args):
         out[surface] = groups
         if not args.no_plots:
             rmse_over_time(groups, args.out / f"friction_combined_{surface}.png", groups["gpssm"][0]["peak"],
-                           f"friction-{surface}: gpssm vs combined ({args.combined_basis} basis)")
+                           f"friction-{surface}: gpssm vs combined ({args.combined_basis} basis)", key="fix")
     return out
 
 
+def record_inputs(duration: float = 20.0) -> dict:
+    """The estimator's inputs and measurements of a friction-snow co-simulation (seed 0)."""
+    from tirefilter.cosim.fmu import VehicleFMU
+    from tirefilter.cosim.results import result_columns
+    from tirefilter.cosim.run import run_scenario
+
+    sc = replace(snow_scenario(), duration=duration)
+    _, rows = run_scenario(sc, seed=0, keep_rows=True)
+    c = dict(zip(result_columns(VehicleFMU().output_names), rows.T))
+    return {"t": c["t"], "delta": c["meas_delta"], "vx": c["true_vx"], "ay": c["meas_ay"], "yaw_rate": c["meas_yaw_rate"]}
+
+
+def time_steps(basis: str, stats: str, particles: int, inputs: dict) -> float:
+    """Median wall time [us] of step() over the inputs after 10 warm-up steps (one process)."""
+    from tirefilter.estimators.base import Inputs, Measurement
+    from tirefilter.estimators.friction_gpssm import FrictionGPSSM, GPSSMConfig
+
+    sc = snow_scenario()
+    p = sc.model.pacejka
+    est = FrictionGPSSM(sc.vehicle, GPSSMConfig(particles=particles, basis=basis, stats=stats, prior_peak=0.05),
+                        tire_shape=(p.B_y, p.C_y, p.E_y))
+    est.reset(np.random.default_rng(0))
+    times = []
+    for k in range(len(inputs["t"])):
+        u = Inputs(delta=float(inputs["delta"][k]), vx=float(inputs["vx"][k]))
+        y = Measurement(ay=float(inputs["ay"][k]), yaw_rate=float(inputs["yaw_rate"][k]))
+        t0 = time.perf_counter()
+        est.step(float(inputs["t"][k]), u, y)
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times[10:]) * 1e6)
+
+
 def cost(args):
-    """Median step time at N = 200 (20 s of friction-snow, one process) per basis and statistics variant."""
-    print(f"\n== 2b. per-step cost at N = {args.particles} (20 s of friction-snow, median of step(), one process) ==")
-    print(f"{'basis':7s} {'stats':6s} {'functions':>9s} {'step us':>8s} {'RMSE f %':>9s} {'RMSE r %':>9s}")
+    """Per-step cost at N (default 200) per basis and statistics variant, and (with the FMU)
+    the rank-one variant's accuracy next to the exact one's."""
+    if args.cost_inputs:
+        inputs = dict(np.load(args.cost_inputs))
+    else:
+        inputs = record_inputs()
+        if args.save_cost_inputs:
+            np.savez(args.save_cost_inputs, **inputs)
+            print(f"inputs for the cost part: {args.save_cost_inputs}")
+    print(f"\n== 2b. per-step cost at N = {args.particles} (20 s of friction-snow inputs, median of step() after "
+          "10 warm-up steps, one process) ==")
+    print(f"{'basis':7s} {'stats':6s} {'functions':>9s} {'step us':>8s}")
     for basis in ("tensor", "axle"):
         for stats in ("exact", "rank1"):
-            r = run_trial(dict(surface="snow", estimator="gpssm", particles=args.particles, seed=0,
-                               gpssm={"basis": basis, "stats": stats}, duration=20.0))
+            us = time_steps(basis, stats, args.particles, inputs)
             size = 50 if basis == "tensor" else 20
-            print(f"{basis:7s} {stats:6s} {size:9d} {r['median_step_us']:8.0f} {100 * r['rmse_f'][-1] / r['peak']:9.2f} "
-                  f"{100 * r['rmse_r'][-1] / r['peak']:9.2f}")
+            print(f"{basis:7s} {stats:6s} {size:9d} {us:8.0f}")
+    if args.cost_inputs:
+        return
+    print(f"\naccuracy of the statistics variants (friction-snow, {args.trials} trials, 80 s, N = {args.particles}):")
+    print(f"{'basis':7s} {'stats':6s} {'end RMSE f %':>13s} {'end RMSE r %':>13s}")
+    for basis in ("tensor", "axle"):
+        for stats in ("exact", "rank1"):
+            jobs = [dict(surface="snow", estimator="gpssm", particles=args.particles, seed=s,
+                         gpssm={"basis": basis, "stats": stats}, duration=args.duration) for s in range(args.variant_trials)]
+            res = _map(jobs, args.workers)
+            peak = res[0]["peak"]
+            print(f"{basis:7s} {stats:6s} {100 * np.mean([r['rmse_f'][-1] for r in res]) / peak:13.2f} "
+                  f"{100 * np.mean([r['rmse_r'][-1] for r in res]) / peak:13.2f}")
 
 
 def real(args):
@@ -364,6 +425,9 @@ def main() -> None:
     ap.add_argument("--particles", type=int, default=200)
     ap.add_argument("--duration", type=float, help="shorten the co-simulations to this many seconds")
     ap.add_argument("--workers", type=int, default=1)
+    ap.add_argument("--variant-trials", type=int, default=5, help="trials per statistics variant (cost part)")
+    ap.add_argument("--cost-inputs", type=Path, help="cost part only, on these saved inputs (no FMU needed)")
+    ap.add_argument("--save-cost-inputs", type=Path, help="save the cost part's inputs (.npz)")
     ap.add_argument("--real-start", type=float)
     ap.add_argument("--real-end", type=float)
     ap.add_argument("--out", type=Path, default=REPO / "benchmarks" / "figures")
