@@ -28,6 +28,7 @@ import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
+from scipy.special import gammaln
 
 from tirefilter.errors import ConfigError
 from tirefilter.estimators.base import Estimate, FrictionCurve, Inputs, Measurement, Posterior
@@ -286,7 +287,8 @@ class FrictionGPSSM:
         if self.u_prev is not None:
             uk = np.where(np.isfinite(uk), uk, self.u_prev)
         if not math.isfinite(uk[1]):
-            raise ConfigError("inputs", "vx", f"the friction GP-SSM (lateral model) needs vx; none given up to t = {t} s")
+            raise ConfigError("inputs", "vx",
+                              f"the friction GP-SSM (lateral model) needs vx; none given up to t = {t} s")
         if not math.isfinite(uk[0]):
             uk[0] = 0.0
         delta, vx = float(uk[0]), float(uk[1])
@@ -465,7 +467,5 @@ class FrictionGPSSM:
 
 def _t1_logpdf(e, s, nu):
     """log of the univariate Student-t St(e; 0, s, nu) (scale s, variance nu s / (nu - 2))."""
-    from scipy.special import gammaln
-
     return (gammaln(0.5 * (nu + 1.0)) - gammaln(0.5 * nu) - 0.5 * np.log(nu * math.pi * s)
             - 0.5 * (nu + 1.0) * np.log1p(e * e / (nu * s)))

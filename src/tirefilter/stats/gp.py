@@ -42,13 +42,16 @@ class GPBasis1D:
         def bad(key, problem):
             raise ConfigError(SOURCE, key, problem)
 
-        if not (isinstance(self.L, (int, float)) and math.isfinite(self.L) and self.L > 0):
+        def positive(v) -> bool:
+            return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0
+
+        if not positive(self.L):
             bad("L", f"the domain half-width must be a finite number > 0, got {self.L!r}")
-        if not (isinstance(self.lengthscale, (int, float)) and math.isfinite(self.lengthscale) and self.lengthscale > 0):
+        if not positive(self.lengthscale):
             bad("lengthscale", f"must be a finite number > 0, got {self.lengthscale!r}")
         if not (isinstance(self.m, (int, np.integer)) and not isinstance(self.m, bool) and self.m >= 1):
             bad("basis_functions", f"need an integer number of basis functions >= 1, got {self.m!r}")
-        if not (isinstance(self.s_f, (int, float)) and math.isfinite(self.s_f) and self.s_f > 0):
+        if not positive(self.s_f):
             bad("s_f", f"the kernel variance must be a finite number > 0, got {self.s_f!r}")
 
     @property
@@ -92,7 +95,8 @@ class GPBasis1D:
         x2 = np.asarray(x2, float)
         out = 0.0
         for n in range(-images, images + 1):
-            out = out + self.kernel(x - x2 + 4 * n * self.L, 0.0) - self.kernel(x + x2 + 2 * self.L + 4 * n * self.L, 0.0)
+            shift = 4 * n * self.L
+            out = out + self.kernel(x - x2 + shift, 0.0) - self.kernel(x + x2 + 2 * self.L + shift, 0.0)
         return out
 
 
