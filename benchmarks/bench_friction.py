@@ -313,7 +313,8 @@ def cost(args):
             print(f"{basis:7s} {stats:6s} {size:9d} {us:8.0f}")
     if args.cost_inputs:
         return
-    print(f"\naccuracy of the statistics variants (friction-snow, {args.trials} trials, 80 s, N = {args.particles}):")
+    print(f"\naccuracy of the statistics variants (friction-snow, {args.variant_trials} trials, 80 s, "
+          f"N = {args.particles}):")
     print(f"{'basis':7s} {'stats':6s} {'end RMSE f %':>13s} {'end RMSE r %':>13s}")
     for basis in ("tensor", "axle"):
         for stats in ("exact", "rank1"):
