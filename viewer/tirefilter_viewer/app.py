@@ -206,8 +206,8 @@ class Dashboard:
         self._path = scene.add_line_segments("/vehicle/path", np.zeros((1, 2, 3)), (40, 40, 40), thickness=0.04,
                                              visible=False)
         self._car = scene.add_box("/vehicle/car", color=(31, 119, 180), dimensions=(0.7, 0.3, 0.2), visible=False)
-        self.server.initial_camera.position = (PATH_CENTRE[0] * 0.55, -2.2 * CLOUD_SCALE, 2.0 * CLOUD_SCALE)
-        self.server.initial_camera.look_at = (PATH_CENTRE[0] * 0.55, 0.8 * CLOUD_SCALE, 0.2 * CLOUD_SCALE)
+        self.server.initial_camera.position = (PATH_CENTRE[0] * 0.8, -4.0 * CLOUD_SCALE, 3.2 * CLOUD_SCALE)
+        self.server.initial_camera.look_at = (PATH_CENTRE[0] * 0.8, 0.8 * CLOUD_SCALE, 0.3 * CLOUD_SCALE)
         self.server.initial_camera.up = (0.0, 0.0, 1.0)
 
     def _settings(self) -> Settings:
@@ -272,10 +272,12 @@ class Dashboard:
     def _new_run(self) -> None:
         self._close_run()
         self._clear_error()
+        self._clear_views()
         self._state = "starting"
         self._run = LiveRun.open(self._settings())
         self._history = History(self._run.columns)
-        self._source_label = f"{self._run.label}, estimator {self._run.name}"
+        n = getattr(getattr(self._run.estimator, "cfg", None), "particles", None)
+        self._source_label = f"{self._run.label}, estimator {self._run.name}" + (f" (N = {n})" if n else "")
         self._state = "paused"
         self._publish_times.clear()
 
@@ -321,6 +323,7 @@ class Dashboard:
         data = open_result(path)
         self._close_run()
         self._clear_error()
+        self._clear_views()
         self._history = History.from_columns(data)
         self._source_label = f"Result CSV {Path(str(path).strip()).name}"
         self._state = "result"
@@ -349,6 +352,20 @@ class Dashboard:
             self._error.content = ""
 
     # -- the views -------------------------------------------------------------------------------
+    def _clear_views(self) -> None:
+        """Empty charts and scene: what a new run (or a run that could not start) begins from."""
+        self._history = None
+        self._source_label = ""
+        with self.server.atomic():
+            for chart, handle in self._charts:
+                if self._ranges.pop(id(handle), None) is not None:
+                    handle.scales = self._scales(chart.uplot_scales())
+                    handle.data = placeholder(len(chart.series))
+            for handle in self._friction.values():
+                handle.visible = False
+            for node in (self._cloud, self._truth, self._path, self._car):
+                node.visible = False
+
     def _publish(self) -> None:
         now = time.perf_counter()
         h = self._history
@@ -428,7 +445,7 @@ class Dashboard:
     def _status_text(self) -> str:
         h = self._history
         if h is None:
-            return f"**{self._state}**: press Start"
+            return f"**{self._state}**" + {"idle": ": press Start", "failed": ": see the error below"}.get(self._state, "")
         parts = [f"**{self._state}**", self._source_label]
         t = h.last("t")
         duration = f" of {self._run.duration:g}" if self._run is not None else ""

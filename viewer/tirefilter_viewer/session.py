@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tirefilter.cosim.results import estimate_values, read_results
+from tirefilter.cosim.results import ESTIMATE_COLUMNS, estimate_values, read_results
 from tirefilter.errors import ConfigError, TirefilterError
 from tirefilter.runs import RunOutputs, spawn_seeds
 
@@ -187,7 +187,7 @@ def _open_log(s: Settings) -> LiveRun:
 
 def open_result(path: str | Path) -> dict[str, np.ndarray]:
     """The columns of a Result CSV (`tirefilter run --out` / `replay --out`), checked
-    for what the dashboard needs (a `t` column, at least one row)."""
+    for what the dashboard needs (the estimate columns of DESIGN.md, at least one row)."""
     path = Path(str(path).strip())
     if not path.is_file():
         raise ConfigError(path, "", "no such Result CSV")
@@ -195,8 +195,10 @@ def open_result(path: str | Path) -> dict[str, np.ndarray]:
         data = read_results(path)
     except (ValueError, UnicodeDecodeError) as exc:
         raise ConfigError(path, "", f"not a Result CSV: {exc}") from None
-    if "t" not in data:
-        raise ConfigError(path, "t", f"not a Result CSV: no `t` column (header: {', '.join(list(data)[:8])} ...)")
+    missing = [c for c in ESTIMATE_COLUMNS if c not in data]
+    if missing:
+        raise ConfigError(path, "", f"not a Result CSV: no column {', '.join(missing[:4])}"
+                          + (f" (and {len(missing) - 4} more)" if len(missing) > 4 else ""))
     if len(data["t"]) == 0:
         raise ConfigError(path, "", "the Result CSV has no rows")
     return data
