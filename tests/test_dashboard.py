@@ -102,13 +102,13 @@ def test_stiffness_chart_band_is_the_90_percent_interval():
     chart = next(c for c in charts() if c.key == "Cf_y")
     h = History.from_columns({"t": np.array([0.0, 1.0]), "Cf_y": np.array([1e5, 2e5]),
                               "Cf_y_std": np.array([1e3, 2e3]), "true_Cf_y_mean": np.array([9e4, 9e4])})
-    t, est, lo, hi, true_mean, true_step = chart.data(h)
+    t, true_step, true_mean, lo, hi, est = chart.data(h)
     np.testing.assert_allclose(est, [100.0, 200.0])  # kN/rad
     np.testing.assert_allclose(lo, [100.0 - Z90, 200.0 - 2 * Z90])
     np.testing.assert_allclose(hi, [100.0 + Z90, 200.0 + 2 * Z90])
     np.testing.assert_allclose(true_mean, [90.0, 90.0])
     assert np.isnan(true_step).all()  # no such column: NaN, no error
-    assert chart.bands == ((3, 2),) and chart.y_series() == (1, 2, 3, 4, 5)
+    assert chart.bands == ((4, 3),) and chart.y_series() == (1, 2, 3, 4, 5)  # upper, lower edge
 
 
 def test_particle_cloud_is_the_posterior_whose_weighted_mean_is_the_estimate(fmu_paths):
@@ -349,7 +349,7 @@ def test_run_pause_step_restart_and_errors_keep_the_server(dashboard, monkeypatc
     wait_for(lambda: d.status()["state"] == "result", what="the Result CSV")
     assert d.status()["error"] is None and d.status()["rows"] == 201 and d._run is None
     cf = next(h for c, h in d._charts if c.key == "Cf_y")
-    np.testing.assert_allclose(cf.data[1], read_results(results)["Cf_y"] * 1e-3)
+    np.testing.assert_allclose(cf.data[5], read_results(results)["Cf_y"] * 1e-3)
     d.command("open_result", str(bad))
     assert "not a Result CSV" in wait_for(lambda: d.status()["error"], what="bad Result CSV")
 

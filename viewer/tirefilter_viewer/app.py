@@ -206,8 +206,8 @@ class Dashboard:
         self._path = scene.add_line_segments("/vehicle/path", np.zeros((1, 2, 3)), (40, 40, 40), thickness=0.04,
                                              visible=False)
         self._car = scene.add_box("/vehicle/car", color=(31, 119, 180), dimensions=(0.7, 0.3, 0.2), visible=False)
-        self.server.initial_camera.position = (PATH_CENTRE[0] * 0.8, -4.0 * CLOUD_SCALE, 3.2 * CLOUD_SCALE)
-        self.server.initial_camera.look_at = (PATH_CENTRE[0] * 0.8, 0.8 * CLOUD_SCALE, 0.3 * CLOUD_SCALE)
+        self.server.initial_camera.position = (PATH_CENTRE[0] * 0.75, -2.8 * CLOUD_SCALE, 2.3 * CLOUD_SCALE)
+        self.server.initial_camera.look_at = (PATH_CENTRE[0] * 0.75, 0.8 * CLOUD_SCALE, 0.2 * CLOUD_SCALE)
         self.server.initial_camera.up = (0.0, 0.0, 1.0)
 
     def _settings(self) -> Settings:
@@ -232,9 +232,11 @@ class Dashboard:
                     next_publish = time.perf_counter()
                 if self._playing:
                     self._advance(next_publish)
-                if time.perf_counter() >= next_publish and (self._playing or cmd is not None):
+                now = time.perf_counter()
+                if now >= next_publish and (self._playing or cmd is not None):
                     self._publish()
-                    next_publish = time.perf_counter() + self.publish_interval
+                    # the cadence counts from the start of a publication, so stepping yields to it
+                    next_publish = max(next_publish + self.publish_interval, now)
             except Exception as exc:  # everything reaches the page; the server keeps running
                 self._fail(exc)
 
@@ -305,6 +307,9 @@ class Dashboard:
     def _advance(self, until: float) -> None:
         """Step until the next publication is due, no faster than the chosen speed."""
         speed = speed_factor(self._speed.value)
+        if not math.isfinite(speed) and self._playing:  # at least one sample per publication
+            if not self._step_once():
+                return
         while time.perf_counter() < until and self._playing:
             if math.isfinite(speed) and self._history.rows:
                 wall0, sim0 = self._pace

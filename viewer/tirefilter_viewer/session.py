@@ -127,6 +127,10 @@ class LiveRun:
         return np.concatenate([estimate_values(t, est), self._make_row(sample)])
 
     def median_step_us(self) -> float | None:
+        """Median wall time of Estimator.step [us]: after warm-up, over the last 2000 steps."""
+        times = self._out.step_times
+        if len(times) > 2000:
+            return float(np.median(times[-2000:]) * 1e6)
         return self._out.median_step_us()
 
     def close(self) -> None:

@@ -129,12 +129,12 @@ def stiffness_chart(p: str) -> Chart:
     k = 1e-3
     return Chart(
         key=p, title=f"{p} [{UNITS[p]}]: estimate, 90% band, truth",
-        series=(Series("estimate", col(p, k)),
+        series=(Series("true per step", col(f"true_{p}", k), stroke="rgba(214,39,40,0.25)", width=1),
+                Series("true surface mean", col(f"true_{p}_mean", k), stroke=TRUTH_COLOR),
                 Series("lower 90%", edge(p, -1, k), stroke="rgba(31,119,180,0.5)", width=1),
                 Series("upper 90%", edge(p, +1, k), stroke="rgba(31,119,180,0.5)", width=1),
-                Series("true surface mean", col(f"true_{p}_mean", k), stroke=TRUTH_COLOR),
-                Series("true per step", col(f"true_{p}", k), stroke="rgba(214,39,40,0.35)", width=1)),
-        bands=((3, 2),), min_span=1.0)
+                Series("estimate", col(p, k))),  # drawn last: on top
+        bands=((4, 3),), min_span=1.0)
 
 
 def charts() -> tuple[Chart, ...]:
