@@ -432,6 +432,8 @@ def test_the_page_in_a_real_browser(fmu_paths, tmp_path):
                                                             args=CHROMIUM_FLAGS, viewport={"width": 1400, "height": 1000})
             try:
                 page = browser.new_page()
+                requests = []
+                page.on("request", lambda r: requests.append(r.url))
                 page.goto(d.url)
                 status = page.locator("p", has_text=re.compile(r"^(idle|running|paused|finished|failed|result)"))
                 page.get_by_role("button", name="Start", exact=True).click()
@@ -471,6 +473,9 @@ def test_the_page_in_a_real_browser(fmu_paths, tmp_path):
                 page.screenshot(path=shots[-1])
                 assert urllib.request.urlopen(d.url, timeout=5).status == 200  # still serving
                 assert status.count() >= 1
+                local = (d.url, d.url.replace("http://", "ws://"), "data:", "blob:")
+                assert requests and all(u.startswith(local) for u in requests), \
+                    f"the page asked for {[u for u in requests if not u.startswith(local)]}"  # nothing from the network
             finally:
                 browser.close()
     finally:
