@@ -303,11 +303,38 @@ def test_cli_dashboard_binds_loopback_unless_told(monkeypatch):
     assert calls == [{"host": "127.0.0.1", "port": 9123}, {"host": "0.0.0.0", "port": 8080}]
 
 
+def test_the_command_serves_on_loopback_and_stops_on_sigterm(fmu_paths):
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen([sys.executable, "-m", "tirefilter.cli", "dashboard", "--port", "0"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=os.environ.copy())
+    try:
+        url = None
+        for line in proc.stdout:
+            if m := re.match(r"tirefilter dashboard: (http://\S+)", line):
+                url = m.group(1)
+                break
+        assert url is not None and url.startswith("http://127.0.0.1:")
+        assert urllib.request.urlopen(url, timeout=5).status == 200
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=15) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
 def test_run_pause_step_restart_and_errors_keep_the_server(dashboard, monkeypatch, tmp_path):
     d = dashboard
     d._speed.value = "1x"  # real time: the run is still going when paused
     d.command("start")
     wait_for(lambda: d.status()["rows"] > 20, what="samples")
+    wall0, t0 = time.perf_counter(), d.status()["t"]
+    time.sleep(0.5)
+    assert d.status()["t"] - t0 <= (time.perf_counter() - wall0) * 1.0 + 0.05  # never ahead of real time
     d.command("pause")
     wait_for(lambda: d.status()["state"] == "paused", what="pause")
     rows = d.status()["rows"]

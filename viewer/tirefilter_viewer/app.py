@@ -464,7 +464,15 @@ class Dashboard:
 
 
 def serve(host: str = DEFAULT_HOST, port: int = DEFAULT_PORT, *, verbose: bool = True) -> None:
-    """`tirefilter dashboard`: serve until interrupted (Ctrl-C)."""
+    """`tirefilter dashboard`: serve until interrupted (Ctrl-C or SIGTERM), then stop cleanly."""
+    import signal
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, interrupt)
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:  # started in the background: Ctrl-C still stops it
+        signal.signal(signal.SIGINT, interrupt)
     dashboard = Dashboard(host=host, port=port, verbose=verbose)
     print(f"tirefilter dashboard: {dashboard.url}" + ("" if host in ("127.0.0.1", "localhost", "::1") else
           f"  (bound to {host}: reachable from other machines)"), flush=True)
