@@ -150,7 +150,7 @@ def charts() -> tuple[Chart, ...]:
                       Series("true b_yaw_rate", col("true_b_yaw_rate"), stroke=TRUTH_COLOR))),
         Chart(key="vy", title="lateral velocity v^Y [m/s]: estimate vs truth", min_span=0.1,
               series=(Series("vy", col("vy")), Series("true vy", col("true_vy"), stroke=TRUTH_COLOR))),
-        Chart(key="ess", title="effective sample size; learning gate (right axis)", min_span=2.0,
+        Chart(key="ess", title="effective sample size; grey: learning gate (top: active)", min_span=2.0,
               series=(Series("ESS", col("ess")),
                       Series("learning active", col("active"), stroke="#7f7f7f", width=1, scale="gate")),
               scales={"gate": {"range": (0.0, 1.05)}}),
