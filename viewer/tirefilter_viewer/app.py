@@ -65,7 +65,7 @@ class Dashboard:
         self._publish_times: deque[float] = deque(maxlen=64)
         self.updates = 0  # views published so far
         self._pace = (time.perf_counter(), 0.0)  # (wall, sim time) the speed is measured from
-        self._scene_ready = False
+        self._finished_unshown = False
         self._build_gui(speed)
         self._build_scene()
         self._quit = threading.Event()
@@ -233,7 +233,7 @@ class Dashboard:
                 if self._playing:
                     self._advance(next_publish)
                 now = time.perf_counter()
-                if now >= next_publish and (self._playing or cmd is not None):
+                if now >= next_publish and (self._playing or cmd is not None or self._finished_unshown):
                     self._publish()
                     # the cadence counts from the start of a publication, so stepping yields to it
                     next_publish = max(next_publish + self.publish_interval, now)
@@ -301,6 +301,7 @@ class Dashboard:
     def _finish(self) -> None:
         self._playing = False
         self._state = "finished"
+        self._finished_unshown = True  # the last samples and the state still go to the page
         if self._run is not None:
             self._run.close()
 
@@ -392,6 +393,7 @@ class Dashboard:
             self._publish_friction(h)
             self._publish_times.append(now)
             self.updates += 1
+            self._finished_unshown = False
             self._status.content = self._status_text()
 
     def _publish_cloud(self, h: History | None) -> None:
