@@ -459,7 +459,7 @@ def _chart_has_line(page, index: int = 0) -> bool:
 @pytest.mark.skipif(not CHROMIUM.is_file(), reason="/usr/bin/chromium is absent (Debian package `chromium`; "
                     ".ci/run installs it)")
 def test_the_page_in_a_real_browser(fmu_paths, tmp_path):
-    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is in the test extra")
+    from playwright import sync_api  # the test extra (pip); its browser download is never used
     bad = tmp_path / "bad_log.csv"
     bad.write_text("t,ax,ay,yaw_rate,vx\n0.0,0.1,0.2,0.0,20.0\n")  # no steering column
     d = Dashboard(port=0, speed="2x", settings=Settings(particles=200, seed=SEED))  # still running when paused
