@@ -35,7 +35,8 @@ from tirefilter_viewer import app as app_module  # noqa: E402
 from tirefilter_viewer import session as session_module  # noqa: E402
 from tirefilter_viewer.app import Dashboard  # noqa: E402
 from tirefilter_viewer.history import MAX_POINTS, History  # noqa: E402
-from tirefilter_viewer.session import EstimatorFailure, LiveRun, Settings, open_result  # noqa: E402
+from tirefilter_viewer.session import (EstimatorFailure, LiveRun, Settings, build_with_forgetting,  # noqa: E402
+                                       open_result)
 from tirefilter_viewer.views import (CLOUD_SCALE, Z90, charts, cloud_positions, friction_data,  # noqa: E402
                                      friction_truth, particle_stiffness, weight_colors, y_range)
 
@@ -228,6 +229,29 @@ def test_settings_reach_the_estimator_and_bad_settings_are_named(fmu_paths):
             LiveRun.open(bad)
     with pytest.raises(ConfigError, match="no such Result CSV"):
         open_result("/nonexistent/results.csv")
+
+
+def test_forgetting_goes_through_the_estimators_own_table():
+    @dataclasses.dataclass(frozen=True)
+    class Cfg:
+        forgetting: float = 0.99
+
+    class Est:
+        def __init__(self, cfg):
+            self.cfg = cfg
+
+    calls = []
+
+    def build(config, table="demo"):
+        calls.append(config)
+        return Est(Cfg(**config.get(table, {})))
+
+    assert build_with_forgetting(build, "demo", 0.97).cfg.forgetting == 0.97
+    assert calls == [{}, {"demo": {"forgetting": 0.97}}]
+    calls.clear()
+    assert build_with_forgetting(build, "demo", 0.99).cfg.forgetting == 0.99 and calls == [{}]  # the default: once
+    with pytest.raises(ConfigError, match=r"did not take the forgetting factor from a \[demo\] table"):
+        build_with_forgetting(lambda config: build(config, table="other"), "demo", 0.97)
 
 
 def test_estimator_failure_names_the_time(fmu_paths, tmp_path, monkeypatch):

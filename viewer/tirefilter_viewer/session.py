@@ -66,6 +66,9 @@ def build_with_forgetting(build, name: str, forgetting: float):
     if (cfg is not None and dataclasses.is_dataclass(cfg)
             and "forgetting" in {f.name for f in dataclasses.fields(cfg)} and cfg.forgetting != forgetting):
         estimator = build({name: {"forgetting": float(forgetting)}})
+        if estimator.cfg.forgetting != float(forgetting):  # its options live in another table: say so
+            raise ConfigError("dashboard", "forgetting", f"the {name} estimator did not take the forgetting factor "
+                              f"from a [{name}] table (it kept {estimator.cfg.forgetting})")
     return estimator
 
 
