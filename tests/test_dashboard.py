@@ -139,7 +139,8 @@ def test_friction_curve_and_its_truth():
     alpha = np.linspace(-0.3, 0.3, 61)
     mu_f, mu_r = friction_truth(scenario, alpha, 0.5)
     p = scenario.model.pacejka
-    expected = 0.5 * p.mu_y * np.sin(p.C_y * np.arctan(p.B_y * alpha - p.E_y * (p.B_y * alpha - np.arctan(p.B_y * alpha))))
+    Ba = p.B_y * alpha
+    expected = 0.5 * p.mu_y * np.sin(p.C_y * np.arctan(Ba - p.E_y * (Ba - np.arctan(Ba))))  # Magic Formula / F_z
     np.testing.assert_allclose(mu_f, expected, rtol=1e-12) and np.testing.assert_allclose(mu_r, expected, rtol=1e-12)
     linear = load_scenario("paper-sim")
     lf, lr = friction_truth(linear, alpha, 1.0)
@@ -475,7 +476,8 @@ def _chart_has_line(page, index: int = 0) -> bool:
         const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
         let n = 0;
         for (let k = 0; k < d.length; k += 4)
-            if (Math.abs(d[k] - 31) < 12 && Math.abs(d[k + 1] - 119) < 12 && Math.abs(d[k + 2] - 180) < 12 && d[k + 3] > 200) n++;
+            if (Math.abs(d[k] - 31) < 12 && Math.abs(d[k + 1] - 119) < 12 && Math.abs(d[k + 2] - 180) < 12
+                && d[k + 3] > 200) n++;
         return n > 30;
     }""", index)
 
@@ -490,8 +492,9 @@ def test_the_page_in_a_real_browser(fmu_paths, tmp_path):
     shots = []
     try:
         with sync_api.sync_playwright() as pw, tempfile.TemporaryDirectory() as profile:
-            browser = pw.chromium.launch_persistent_context(profile, executable_path=str(CHROMIUM), headless=True,
-                                                            args=CHROMIUM_FLAGS, viewport={"width": 1400, "height": 1000})
+            browser = pw.chromium.launch_persistent_context(
+                profile, executable_path=str(CHROMIUM), headless=True, args=CHROMIUM_FLAGS,
+                viewport={"width": 1400, "height": 1000})
             try:
                 page = browser.new_page()
                 requests = []
@@ -524,7 +527,8 @@ def test_the_page_in_a_real_browser(fmu_paths, tmp_path):
 
                 page.get_by_label("Source", exact=True).click()
                 page.get_by_role("option", name="log", exact=True).click()
-                log_box = page.locator("div.mantine-Flex-root", has=page.locator("label", has_text=re.compile("^Log CSV$")))
+                label = page.locator("label", has_text=re.compile("^Log CSV$"))
+                log_box = page.locator("div.mantine-Flex-root", has=label)
                 log_box.locator("input").fill(str(bad))
                 wait_for(lambda: d._log.value == str(bad) and d._source.value == "log", what="the log settings")
                 page.get_by_role("button", name="Restart", exact=True).click()

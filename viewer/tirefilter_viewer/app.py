@@ -452,7 +452,8 @@ class Dashboard:
     def _status_text(self) -> str:
         h = self._history
         if h is None:
-            return f"**{self._state}**" + {"idle": ": press Start", "failed": ": see the error below"}.get(self._state, "")
+            hint = {"idle": ": press Start", "failed": ": see the error below"}.get(self._state, "")
+            return f"**{self._state}**{hint}"
         parts = [f"**{self._state}**", self._source_label]
         t = h.last("t")
         duration = f" of {self._run.duration:g}" if self._run is not None else ""

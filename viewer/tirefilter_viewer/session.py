@@ -49,7 +49,8 @@ class Settings:
         if int(self.particles) < 1:
             raise ConfigError("dashboard", "N", f"the number of particles must be at least 1, got {self.particles}")
         if not (0.0 < float(self.forgetting) <= 1.0):
-            raise ConfigError("dashboard", "forgetting", f"the forgetting factor must be in (0, 1], got {self.forgetting}")
+            raise ConfigError("dashboard", "forgetting",
+                              f"the forgetting factor must be in (0, 1], got {self.forgetting}")
         if self.source == "log":
             for key, value in (("Log CSV", self.log), ("vehicle TOML", self.vehicle)):
                 if not str(value).strip():

@@ -131,7 +131,8 @@ def cosim_samples(scenario: Scenario, fmu: VehicleFMU, params: dict,
         if k % sps == 0:
             y = fmu.outputs()
             yield CosimSample(k, t,
-                              Inputs(delta=sensor("delta", "delta_meas", y), omega_f=sensor("omega_f", "omega_f_meas", y),
+                              Inputs(delta=sensor("delta", "delta_meas", y),
+                                     omega_f=sensor("omega_f", "omega_f_meas", y),
                                      omega_r=sensor("omega_r", "omega_r_meas", y), vx=sensor("vx", "vx", y)),
                               Measurement(ax=sensor("ax", "ax_meas", y), ay=sensor("ay", "ay_meas", y),
                                           yaw_rate=sensor("yaw_rate", "yaw_rate_meas", y)),

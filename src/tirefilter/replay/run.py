@@ -45,7 +45,8 @@ def log_samples(log: Log) -> Iterator[tuple[int, float, Inputs, Measurement]]:
     sample or a signal the log lacks): the samples `replay_log` gives its estimator."""
     sig = {s: log.signal(s).tolist() for s in SIGNALS}  # Python floats, as the co-simulation passes
     for k, t in enumerate(log.t.tolist()):
-        yield (k, t, Inputs(delta=sig["delta"][k], omega_f=sig["omega_f"][k], omega_r=sig["omega_r"][k], vx=sig["vx"][k]),
+        yield (k, t,
+               Inputs(delta=sig["delta"][k], omega_f=sig["omega_f"][k], omega_r=sig["omega_r"][k], vx=sig["vx"][k]),
                Measurement(ax=sig["ax"][k], ay=sig["ay"][k], yaw_rate=sig["yaw_rate"][k]))
 
 
