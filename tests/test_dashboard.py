@@ -100,6 +100,9 @@ def test_y_range_keeps_its_range_until_the_data_leave_it():
 
 
 def test_stiffness_chart_band_is_the_90_percent_interval():
+    from scipy.stats import norm
+
+    assert Z90 == pytest.approx(norm.ppf(0.95), rel=1e-15)
     chart = next(c for c in charts() if c.key == "Cf_y")
     h = History.from_columns({"t": np.array([0.0, 1.0]), "Cf_y": np.array([1e5, 2e5]),
                               "Cf_y_std": np.array([1e3, 2e3]), "true_Cf_y_mean": np.array([9e4, 9e4])})
