@@ -397,6 +397,12 @@ def test_run_pause_step_restart_and_errors_keep_the_server(dashboard, monkeypatc
     d.command("restart")
     error = wait_for(lambda: (d.status()["error"] or "").find("bad.csv") >= 0 and d.status()["error"], what="log error")
     assert "column 'delta'" in error and "'abc'" in error
+    # a good log replays; with no truth in it, the path is dead-reckoned from the estimates
+    d._log.value = str(_log_from_cosim(tmp_path))
+    d.command("restart")
+    wait_for(lambda: "log drive.csv" in d._status.content and d.status()["rows"] > 20 and d._path.visible,
+             what="the replay")
+    assert d.status()["error"] is None and "true_x" not in d._history.columns
     # a Result CSV opens without running; the error goes away
     results = tmp_path / "results.csv"
     scenario = replace(load_scenario("paper-sim"), duration=2.0)
