@@ -426,6 +426,17 @@ def test_run_pause_step_restart_and_errors_keep_the_server(dashboard, monkeypatc
     assert d._status.content.startswith("**finished**") and d.status()["error"] is None
 
 
+def test_real_time_pace_starts_at_the_first_sample_of_a_log(dashboard, tmp_path):
+    d = dashboard
+    log = read_log(_log_from_cosim(tmp_path))
+    late = {n: log.columns[n] for n in ("t", "delta", "ax", "ay", "yaw_rate", "vx", "omega_f", "omega_r")}
+    late["t"] = late["t"] + 1000.0  # a log from the middle of a drive
+    d._source.value, d._log.value, d._speed.value = "log", str(write_log(tmp_path / "late.csv", late)), "1x"
+    d.command("start")
+    wait_for(lambda: d.status()["rows"] > 20, timeout=10, what="samples of a log starting at t = 1000 s")
+    assert d.status()["state"] == "running"  # paced: the 1 s log takes 1 s, not rushed to its end
+
+
 class FrictionFake:
     """An estimator with a friction() of a known curve, wrapping a real one (the friction
     estimators' interface: FrictionCurve)."""
