@@ -62,7 +62,7 @@ def cmd_replay(args) -> int:
     estimator = build_log_estimator(args.estimator, vehicle, log.t, {s: log.signals[s] for s in log.available},
                                     model=args.model, particles=args.particles, config=config, source=log.path)
     _init_state(args, estimator)
-    model = estimator.cfg.model if hasattr(estimator, "cfg") else resolve_model(args.model, log.available)
+    model = getattr(getattr(estimator, "cfg", None), "model", None) or resolve_model(args.model, log.available)
     summary = _run_and_record(
         lambda: replay_log(log, estimator=estimator, seed=args.seed, results_csv=results, rrd=args.rrd,
                            progress=_progress(args), vehicle_file=args.vehicle),
@@ -74,7 +74,8 @@ def cmd_replay(args) -> int:
     rate = (log.rows - 1) / log.duration if log.duration > 0 else float("nan")
     print(f"replay of {log.path}: {log.rows} rows over {log.duration:g} s ({rate:.4g} Hz on average), "
           f"estimator {summary.estimator}" + (f" ({model} model, N = {estimator.cfg.particles})"
-                                              if hasattr(estimator, "cfg") else "") + f", seed {args.seed}")
+                                              if hasattr(getattr(estimator, "cfg", None), "particles") else "")
+          + f", seed {args.seed}")
     _print_timing(summary, log.duration)
     final = summary.final or {}
     estimates = [f"{p} {final[p]:.4g} +- {final[p + '_std']:.2g}" for p in ("Cf_y", "Cr_y", "Cx")
@@ -316,7 +317,7 @@ def _estimator_options(p: argparse.ArgumentParser, *, default: str, particles: s
                    help="estimation model: full (wheel speeds), lateral (vx given), or auto (full with wheel speeds)")
     p.add_argument("--particles", type=int, help=f"number of particles (particle filters; {particles})")
     p.add_argument("--seed", type=int, default=0, help="seed of the run's SeedSequence")
-    p.add_argument("--config", help="estimator configuration TOML (the [mpf] or [kf] table)")
+    p.add_argument("--config", help="estimator configuration TOML (the [mpf], [kf], [augpf], [rls] or [ekf] table)")
     p.add_argument("--init-state", metavar="FILE", help="start from the stiffness posterior saved by --save-state")
     p.add_argument("--save-state", metavar="FILE", help="save the learned stiffness posterior at the end (JSON)")
 

@@ -8,7 +8,10 @@ import math
 
 from tirefilter.errors import ConfigError
 
-ESTIMATORS = ("none", "mpf", "kf")  # kf: linear single-track Kalman filter, fixed stiffness (baseline)
+ESTIMATORS = ("none", "mpf", "kf", "augpf", "rls", "ekf")
+# kf: linear single-track Kalman filter, fixed stiffness (baseline)
+# augpf, rls, ekf: the stiffness paper's baselines (Sec. VI-A, VII), `baselines` below
+BASELINES = ("augpf", "rls", "ekf")
 
 
 def mpf_config_for_scenario(scenario, *, model: str, particles: int | None, overrides: dict):
@@ -125,6 +128,11 @@ def build_estimator(name: str, scenario, *, model: str, particles: int | None, c
         check_model_signals(model, scenario.sensors, scenario.file, "sensors")
         cfg = mpf_config_for_scenario(scenario, model=model, particles=particles, overrides=config.get("mpf", {}))
         return StiffnessMPF(scenario.vehicle, cfg)
+    if name in BASELINES:
+        model = _baseline_model(name, model, scenario.sensors)
+        check_model_signals(model, scenario.sensors, scenario.file, "sensors")
+        cfg = mpf_config_for_scenario(scenario, model=model, particles=particles, overrides={})
+        return _baseline(name, scenario.vehicle, cfg, config)
     if name == "kf":
         check_model_signals(_kf_model(model), scenario.sensors, scenario.file, "sensors")
         s = scenario.sensor_spec
@@ -144,10 +152,39 @@ def build_log_estimator(name: str, vehicle, t, signals: dict, *, model: str, par
         cfg = mpf_config_for_log(vehicle, t, signals, model=model, particles=particles,
                                  overrides=config.get("mpf", {}))
         return StiffnessMPF(vehicle, cfg)
+    if name in BASELINES:
+        model = _baseline_model(name, model, signals)
+        check_model_signals(model, tuple(signals), source, "columns")
+        cfg = mpf_config_for_log(vehicle, t, signals, model=model, particles=particles, overrides={})
+        return _baseline(name, vehicle, cfg, config)
     if name == "kf":
         check_model_signals(_kf_model(model), tuple(signals), source, "columns")
         return _kf(vehicle, config)
     return None
+
+
+def _baseline_model(name: str, model: str, sensors) -> str:
+    """rls has the lateral model only (v^X given, as in the paper's RLS); augpf and ekf
+    resolve `auto` as the MPF does."""
+    if name == "rls":
+        if model == "full":
+            raise ConfigError("--model", "full", "the rls baseline has the lateral model only (v^X given)")
+        return "lateral"
+    return resolve_model(model, sensors)
+
+
+def _baseline(name: str, vehicle, mpf_cfg, config: dict):
+    """A baseline estimator with the MPF's shared options (prior, sensors, gate, bounds;
+    `baseline_common.shared_options`) and the user's `[<name>]` table on top."""
+    from tirefilter.estimators.baseline_common import shared_options
+
+    if name == "augpf":
+        from tirefilter.estimators.augpf import AugmentedPF as cls, AUGPFConfig as config_cls
+    elif name == "rls":
+        from tirefilter.estimators.rls import RLSConfig as config_cls, RLSEstimator as cls
+    else:
+        from tirefilter.estimators.ekf import EKFConfig as config_cls, StiffnessEKF as cls
+    return cls(vehicle, shared_options(config_cls, mpf_cfg, config.get(name, {}), f"--config [{name}]"))
 
 
 def _kf_model(model: str) -> str:
