@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from tirefilter.cosim.fmu import INPUT_NAMES, VehicleFMU
+from tirefilter.cosim.friction import FrictionWriter, friction_truth, is_friction_estimator
 from tirefilter.cosim.results import estimate_values, result_columns
 from tirefilter.estimators.base import Estimator, Inputs, Measurement
 from tirefilter.runs import StepSummary, run_outputs, spawn_seeds, write_summary_json
@@ -42,6 +43,7 @@ def run_scenario(
     progress: bool = False,
     keep_rows: bool = False,
     parameter_overrides: dict | None = None,
+    friction_csv: str | Path | None = None,
 ) -> tuple[RunSummary, np.ndarray | None]:
     """Co-simulate `scenario`; returns the summary and, with keep_rows, the result rows.
 
@@ -49,6 +51,8 @@ def run_scenario(
     reuse one instance. Rows are written incrementally: when the FMU or the estimator
     fails, every row before the failure is in the CSV and the recording, and the error is
     raised after the summary has been filled in (`summary.status = "failed"`).
+    A friction estimator with `friction_csv` also writes its curve snapshots there
+    (`cosim.friction`); those written before a failure stay.
     """
     own_fmu = fmu is None
     fmu = fmu or VehicleFMU(fmi_version)
@@ -61,6 +65,10 @@ def run_scenario(
     summary = RunSummary(scenario=scenario.name, seed=seed, fmu_seed=fmu_seed, estimator=est_name or "none",
                          results=str(results_csv) if results_csv else None)
     n = int(round(scenario.duration / scenario.communication_step))
+    friction = None
+    if friction_csv and is_friction_estimator(estimator):
+        friction = FrictionWriter(friction_csv, estimator, truth=friction_truth(scenario))
+    surface = INPUT_NAMES.index("surface")
 
     def on_step(k: int) -> None:
         summary.communication_steps = k + 1
@@ -73,9 +81,17 @@ def run_scenario(
             if estimator is not None:
                 estimator.reset(rng)
             for s in cosim_samples(scenario, fmu, params, on_step=on_step):
-                est = out.step(estimator, s.t, s.inputs, s.meas) if estimator is not None else None
+                est = None
+                if estimator is not None:
+                    est = out.step(estimator, s.t, s.inputs, s.meas)
+                    if friction is not None:
+                        friction.sample(s.t, float(s.u[surface]))
                 out.write(np.concatenate([estimate_values(s.t, est), s.y, s.u]))
+            if friction is not None:
+                friction.finish()
     finally:
+        if friction is not None:
+            friction.close()
         if own_fmu:
             fmu.close()
     return summary, out.kept_rows()

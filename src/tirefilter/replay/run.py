@@ -12,11 +12,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
+from contextlib import closing, nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from tirefilter.cosim.friction import FrictionWriter, is_friction_estimator
 from tirefilter.cosim.results import ESTIMATE_COLUMNS, estimate_values
 from tirefilter.errors import ReplayError
 from tirefilter.estimators.base import Estimator, Inputs, Measurement
@@ -67,6 +69,7 @@ def replay_log(
     progress: bool = False,
     keep_rows: bool = False,
     vehicle_file: str | Path | None = None,
+    friction_csv: str | Path | None = None,
 ) -> tuple[ReplaySummary, np.ndarray | None]:
     """Run `estimator` (None: the log's signals only) over `log`; returns the summary and,
     with keep_rows, the result rows (n, len(result_columns(log))).
@@ -74,7 +77,8 @@ def replay_log(
     Rows are written incrementally: when the estimator fails, every row before the
     failure is in the CSV and the recording, and a ReplayError naming the row and its time
     is raised after the summary has been filled in (`summary.status = "failed"`, also as
-    `exc.summary`).
+    `exc.summary`). A friction estimator with `friction_csv` also writes its curve
+    snapshots there (`cosim.friction`, no truth columns); those written before a failure stay.
     """
     _, rng = spawn_seeds(seed)  # the same generator a co-simulation with this seed gives its estimator
     est_name = getattr(estimator, "name", None) if estimator is not None else None
@@ -84,8 +88,10 @@ def replay_log(
     summary = ReplaySummary(log=str(log.path), vehicle=str(vehicle_file) if vehicle_file else None, seed=seed,
                             estimator=est_name or "none", rows=log.rows, duration_s=log.duration,
                             results=str(results_csv) if results_csv else None)
-    with run_outputs(summary, columns, results_csv=results_csv, rrd=rrd, estimator=est_name, keep_rows=keep_rows,
-                     total=log.rows, progress=progress) as out:
+    friction = FrictionWriter(friction_csv, estimator) if friction_csv and is_friction_estimator(estimator) else None
+    with closing(friction) if friction is not None else nullcontext(), \
+            run_outputs(summary, columns, results_csv=results_csv, rrd=rrd, estimator=est_name, keep_rows=keep_rows,
+                        total=log.rows, progress=progress) as out:
         if estimator is not None:
             estimator.reset(rng)
         for k, t, u, y in log_samples(log):
@@ -95,9 +101,13 @@ def replay_log(
                     est = out.step(estimator, t, u, y)
                 except Exception as exc:
                     raise replay_error(log, k, t, est_name, exc) from exc
+            if friction is not None:
+                friction.sample(t)
             out.write(np.concatenate([estimate_values(t, est), data[k]]))
             if k % PROGRESS_EVERY == 0:
                 out.progress(k)
+        if friction is not None:
+            friction.finish()
         if out.last is not None and estimator is not None:
             summary.final = {c: (None if math.isnan(v) else float(v))
                              for c, v in zip(ESTIMATE_COLUMNS, out.last[:len(ESTIMATE_COLUMNS)])}
