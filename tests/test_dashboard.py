@@ -38,7 +38,7 @@ from tirefilter_viewer.history import MAX_POINTS, History  # noqa: E402
 from tirefilter_viewer.session import (EstimatorFailure, LiveRun, Settings, build_with_forgetting,  # noqa: E402
                                        open_result)
 from tirefilter_viewer.views import (CLOUD_SCALE, Z90, charts, cloud_positions, friction_data,  # noqa: E402
-                                     friction_truth, particle_stiffness, weight_colors, y_range)
+                                     friction_from_csv, friction_truth, particle_stiffness, weight_colors, y_range)
 
 VEHICLE = DATA_DIR / "vehicles" / "midsize-suv.toml"
 CHROMIUM = Path("/usr/bin/chromium")
@@ -478,6 +478,30 @@ def test_friction_estimators_get_their_curve_against_truth(dashboard, monkeypatc
     monkeypatch.setattr(session_module, "build_with_forgetting", real)
     d.command("restart")
     wait_for(lambda: not d._friction["f"].visible, what="the friction charts to go")
+
+
+def test_the_friction_gpssm_live_and_from_its_friction_csv(dashboard, tmp_path):
+    d = dashboard
+    d._scenario.value, d._estimator.value, d._particles.value = "friction-snow", "gpssm", 20
+    for _ in range(3):
+        d.command("step")
+    wait_for(lambda: d.status()["rows"] == 3 and d._friction["r"].visible, what="the GP-SSM's curves")
+    curve = d._run.estimator.friction()
+    truth = friction_truth(d._run.scenario, curve.alpha, d._history.last("true_surface"))
+    for got, want in zip(d._friction["f"].data, friction_data(curve, truth, "f")):
+        np.testing.assert_allclose(got, want)
+    # the same estimator's run on the command line: its Result CSV opens with the friction CSV beside it
+    scenario = replace(load_scenario("friction-snow"), duration=2.0)
+    est = build_estimator("gpssm", scenario, model="auto", particles=20, config={})
+    run_scenario(scenario, estimator=est, seed=SEED, results_csv=tmp_path / "results.csv",
+                 friction_csv=tmp_path / "friction.csv")
+    d.command("open_result", str(tmp_path / "results.csv"))
+    wait_for(lambda: d._status.content.startswith("**result**") and d._friction["f"].visible, what="the friction CSV")
+    last = friction_from_csv(tmp_path / "friction.csv")
+    assert last[0].t == pytest.approx(2.0) and last[1] is not None  # the end snapshot, with truth
+    for got, want in zip(d._friction["r"].data, friction_data(*last, "r")):
+        np.testing.assert_allclose(got, want)
+    np.testing.assert_allclose(d._friction["r"].data[1], est.friction().mu_r)  # the curve at the run's end
 
 
 # ---- the page in a real browser -------------------------------------------------------------------

@@ -24,8 +24,8 @@ import numpy as np
 from tirefilter_viewer.history import History
 from tirefilter_viewer.session import LiveRun, Settings, open_result
 from tirefilter_viewer.views import (CLOUD_SCALE, FRICTION_BANDS, FRICTION_SERIES, STIFFNESS, Chart, charts,
-                                     cloud_positions, friction_data, friction_truth, particle_stiffness, placeholder,
-                                     truth_position, weight_colors, y_range)
+                                     cloud_positions, friction_data, friction_from_csv, friction_truth,
+                                     particle_stiffness, placeholder, truth_position, weight_colors, y_range)
 
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8080
@@ -33,6 +33,15 @@ PUBLISH_HZ = 30.0  # the most view updates per second
 SPEEDS = ("0.1x", "0.25x", "0.5x", "1x", "2x", "5x", "10x", "max")
 PATH_BOX = 10.0  # scene units the vehicle path is scaled into
 PATH_CENTRE = (3.0 * CLOUD_SCALE, 0.9 * CLOUD_SCALE, 0.0)  # right of the cloud
+
+
+def friction_files(results_csv) -> list[Path]:
+    """Where the friction CSV of a Result CSV is: RESULT.friction.csv (`replay`), or
+    friction.csv next to results.csv (`run --out DIR`)."""
+    from tirefilter.cosim.friction import friction_csv_path
+
+    path = Path(str(results_csv).strip())
+    return [friction_csv_path(path)] + ([path.with_name("friction.csv")] if path.name == "results.csv" else [])
 
 
 def speed_factor(label: str) -> float:
@@ -66,6 +75,7 @@ class Dashboard:
         self.updates = 0  # views published so far
         self._pace = (time.perf_counter(), 0.0)  # (wall, sim time) the speed is measured from
         self._finished_unshown = False
+        self._result_friction = None  # (FrictionCurve, truth) of an opened Result CSV
         self._build_gui(speed)
         self._build_scene()
         self._quit = threading.Event()
@@ -327,11 +337,17 @@ class Dashboard:
 
     def _open_result(self, path: str) -> None:
         data = open_result(path)
+        friction = None
+        for candidate in friction_files(path):
+            if candidate.is_file():
+                friction = friction_from_csv(candidate)
+                break
         self._close_run()
         self._clear_error()
         self._clear_views()
         self._history = History.from_columns(data)
-        self._source_label = f"Result CSV {Path(str(path).strip()).name}"
+        self._result_friction = friction
+        self._source_label = f"Result CSV {Path(str(path).strip()).name}" + (", friction CSV" if friction else "")
         self._state = "result"
         self._publish_times.clear()
 
@@ -361,6 +377,7 @@ class Dashboard:
     def _clear_views(self) -> None:
         """Empty charts and scene: what a new run (or a run that could not start) begins from."""
         self._history = None
+        self._result_friction = None
         self._source_label = ""
         with self.server.atomic():
             for chart, handle in self._charts:
@@ -435,15 +452,18 @@ class Dashboard:
     def _publish_friction(self, h: History | None) -> None:
         est = self._run.estimator if self._run is not None else None
         friction = getattr(est, "friction", None)
-        curve = friction() if callable(friction) and h is not None and h.rows else None
+        curve, truth = None, None
+        if callable(friction) and h is not None and h.rows:
+            curve = friction()
+            if self._run.scenario is not None and h.has_values("true_surface"):
+                truth = friction_truth(self._run.scenario, np.asarray(curve.alpha, float), h.last("true_surface"))
+        elif self._run is None and self._result_friction is not None:  # an opened Result CSV's friction CSV
+            curve, truth = self._result_friction
         for axle, handle in self._friction.items():
             if curve is None:
                 if handle.visible:
                     handle.visible = False
                 continue
-            truth = None
-            if self._run.scenario is not None and h.has_values("true_surface"):
-                truth = friction_truth(self._run.scenario, np.asarray(curve.alpha, float), h.last("true_surface"))
             data = friction_data(curve, truth, axle)
             self._set_data(handle, data, (1, 2, 3, 4), {"x": {"time": False}}, (data[0][0], data[0][-1]), 0.1)
             if not handle.visible:

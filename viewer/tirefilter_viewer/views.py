@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tirefilter.estimators.base import FrictionCurve
 from tirefilter_viewer.history import History
 
 Z90 = 1.6448536269514722  # the 90% interval of a Gaussian: mean +- Z90 std (DESIGN.md, coverage)
@@ -226,18 +227,28 @@ def truth_position(history: History, nominal: dict[str, float]) -> np.ndarray | 
 
 # -- friction ---------------------------------------------------------------------------------
 def friction_truth(scenario, alpha: np.ndarray, surface: float) -> tuple[np.ndarray, np.ndarray]:
-    """The true mu(alpha) of both axles (DESIGN.md, friction truth): the pure-lateral
-    Pacejka curve times the surface scale; for linear tires surface C_y alpha / F_z at
-    static axle load."""
-    model = scenario.model
-    if model.tire_model == "pacejka":
-        from tirefilter.vehicle.tires import pure_lateral_friction
+    """The true mu(alpha) of both axles at a surface scale, as the friction CSV has it
+    (`cosim.friction.friction_truth`: the pure-lateral Pacejka curve times the surface
+    scale; for linear tires C_y alpha / F_z at static axle load times the surface)."""
+    from tirefilter.cosim.friction import friction_truth as truth_of
 
-        mu = pure_lateral_friction(model.pacejka, alpha, surface)
-        return mu, mu.copy()
-    v = model.vehicle
-    Fz_f, Fz_r = v.static_axle_loads()
-    return surface * v.Cf_y * alpha / Fz_f, surface * v.Cr_y * alpha / Fz_r
+    mu_f, mu_r = truth_of(scenario)(np.asarray(alpha, float), surface)
+    return np.asarray(mu_f, float), np.asarray(mu_r, float)
+
+
+def friction_from_csv(path) -> tuple[FrictionCurve, tuple[np.ndarray, np.ndarray] | None] | None:
+    """The newest snapshot of a friction CSV (`cosim.friction`) as a FrictionCurve, with
+    its truth columns when it has them; None when the file holds no snapshot."""
+    from tirefilter.cosim.friction import read_friction, snapshot_blocks
+
+    blocks = snapshot_blocks(read_friction(path))
+    if not blocks:
+        return None
+    b = blocks[-1]
+    curve = FrictionCurve(t=float(b["t"][0]), alpha=b["alpha"], mu_f=b["mu_f"], mu_f_std=b["mu_f_std"],
+                          mu_r=b["mu_r"], mu_r_std=b["mu_r_std"])
+    truth = (b["true_mu_f"], b["true_mu_r"]) if "true_mu_f" in b and "true_mu_r" in b else None
+    return curve, truth
 
 
 def friction_data(curve, truth: tuple[np.ndarray, np.ndarray] | None, axle: str) -> tuple[np.ndarray, ...]:
