@@ -243,6 +243,29 @@ def cmd_bench_stiffness(args) -> int:
     return 0
 
 
+def cmd_dashboard(args) -> int:
+    serve = import_viewer().serve
+    serve(host=args.host, port=args.port)
+    return 0
+
+
+def import_viewer():
+    """The dashboard package (`viewer/tirefilter_viewer`): installed with the project, or
+    else found next to `src/` in a checkout whose install predates it."""
+    try:
+        import tirefilter_viewer
+    except ImportError:
+        from tirefilter.cosim.fmu import REPO_ROOT
+
+        folder = REPO_ROOT / "viewer"
+        if not (folder / "tirefilter_viewer" / "__init__.py").is_file():
+            raise TirefilterError("the dashboard (viewer/tirefilter_viewer) is not installed: it ships with the "
+                                  "repository checkout; install it with `pip install -e .`") from None
+        sys.path.insert(0, str(folder))
+        import tirefilter_viewer
+    return tirefilter_viewer
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="tirefilter", description=__doc__)
     p.add_argument("--version", action="version", version=f"tirefilter {__version__}")
@@ -273,6 +296,12 @@ def build_parser() -> argparse.ArgumentParser:
     sc = sub.add_parser("scenarios", help="list the scenarios with their schedules")
     sc.add_argument("--json", action="store_true", help="machine-readable list")
     sc.set_defaults(func=cmd_scenarios)
+
+    db = sub.add_parser("dashboard", help="the live web dashboard (viser), on 127.0.0.1 unless --host says otherwise")
+    db.add_argument("--port", type=int, default=8080, help="port (default 8080; the next free one if taken)")
+    db.add_argument("--host", default="127.0.0.1",
+                    help="address to bind (default 127.0.0.1: this machine only; 0.0.0.0 exposes it to the network)")
+    db.set_defaults(func=cmd_dashboard)
 
     fmu = sub.add_parser("fmu", help="FMU tools")
     fsub = fmu.add_subparsers(dest="fmu_command", required=True)
