@@ -273,8 +273,10 @@ def record_inputs(duration: float = 20.0) -> dict:
     return {"t": c["t"], "delta": c["meas_delta"], "vx": c["true_vx"], "ay": c["meas_ay"], "yaw_rate": c["meas_yaw_rate"]}
 
 
-def time_steps(basis: str, stats: str, particles: int, inputs: dict) -> float:
-    """Median wall time [us] of step() over the inputs after 10 warm-up steps (one process)."""
+def time_steps(basis: str, stats: str, particles: int, inputs: dict) -> tuple[float, float]:
+    """Median wall time and median CPU time (this process) [us] of step() over the inputs
+    after 10 warm-up steps. On a shared, loaded machine the wall time includes waiting
+    for a core; the CPU time does not."""
     from tirefilter.estimators.base import Inputs, Measurement
     from tirefilter.estimators.friction_gpssm import FrictionGPSSM, GPSSMConfig
 
@@ -283,14 +285,15 @@ def time_steps(basis: str, stats: str, particles: int, inputs: dict) -> float:
     est = FrictionGPSSM(sc.vehicle, GPSSMConfig(particles=particles, basis=basis, stats=stats, prior_peak=0.05),
                         tire_shape=(p.B_y, p.C_y, p.E_y))
     est.reset(np.random.default_rng(0))
-    times = []
+    times, cpu = [], []
     for k in range(len(inputs["t"])):
         u = Inputs(delta=float(inputs["delta"][k]), vx=float(inputs["vx"][k]))
         y = Measurement(ay=float(inputs["ay"][k]), yaw_rate=float(inputs["yaw_rate"][k]))
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         est.step(float(inputs["t"][k]), u, y)
         times.append(time.perf_counter() - t0)
-    return float(np.median(times[10:]) * 1e6)
+        cpu.append(time.process_time() - c0)
+    return float(np.median(times[10:]) * 1e6), float(np.median(cpu[10:]) * 1e6)
 
 
 def cost(args):
@@ -305,12 +308,16 @@ def cost(args):
             print(f"inputs for the cost part: {args.save_cost_inputs}")
     print(f"\n== 2b. per-step cost at N = {args.particles} (20 s of friction-snow inputs, median of step() after "
           "10 warm-up steps, one process) ==")
-    print(f"{'basis':7s} {'stats':6s} {'functions':>9s} {'step us':>8s}")
+    import os
+
+    print(f"load average before: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+    print(f"{'basis':7s} {'stats':6s} {'functions':>9s} {'wall us':>8s} {'CPU us':>8s}")
     for basis in ("tensor", "axle"):
         for stats in ("exact", "rank1"):
-            us = time_steps(basis, stats, args.particles, inputs)
+            us, cpu = time_steps(basis, stats, args.particles, inputs)
             size = 50 if basis == "tensor" else 20
-            print(f"{basis:7s} {stats:6s} {size:9d} {us:8.0f}")
+            print(f"{basis:7s} {stats:6s} {size:9d} {us:8.0f} {cpu:8.0f}")
+    print(f"load average after: {os.getloadavg()[0]:.1f}")
     if args.cost_inputs:
         return
     print(f"\naccuracy of the statistics variants (friction-snow, {args.variant_trials} trials, 80 s, "
