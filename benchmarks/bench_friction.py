@@ -273,7 +273,7 @@ def record_inputs(duration: float = 20.0) -> dict:
     return {"t": c["t"], "delta": c["meas_delta"], "vx": c["true_vx"], "ay": c["meas_ay"], "yaw_rate": c["meas_yaw_rate"]}
 
 
-def time_steps(basis: str, stats: str, particles: int, inputs: dict) -> tuple[float, float]:
+def time_steps(basis: str, stats: str, particles: int, inputs: dict, symmetry: str = "odd") -> tuple[float, float]:
     """Median wall time and median CPU time (this process) [us] of step() over the inputs
     after 10 warm-up steps. On a shared, loaded machine the wall time includes waiting
     for a core; the CPU time does not."""
@@ -282,7 +282,8 @@ def time_steps(basis: str, stats: str, particles: int, inputs: dict) -> tuple[fl
 
     sc = snow_scenario()
     p = sc.model.pacejka
-    est = FrictionGPSSM(sc.vehicle, GPSSMConfig(particles=particles, basis=basis, stats=stats, prior_peak=0.05),
+    est = FrictionGPSSM(sc.vehicle, GPSSMConfig(particles=particles, basis=basis, stats=stats, prior_peak=0.05,
+                                                symmetry=symmetry),
                         tire_shape=(p.B_y, p.C_y, p.E_y))
     est.reset(np.random.default_rng(0))
     times, cpu = [], []
@@ -311,12 +312,11 @@ def cost(args):
     import os
 
     print(f"load average before: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
-    print(f"{'basis':7s} {'stats':6s} {'functions':>9s} {'wall us':>8s} {'CPU us':>8s}")
-    for basis in ("tensor", "axle"):
+    print(f"{'basis':7s} {'stats':6s} {'symmetry':8s} {'functions':>9s} {'wall us':>8s} {'CPU us':>8s}")
+    for basis, symmetry, size in (("tensor", "none", 100), ("tensor", "odd", 50), ("axle", "odd", 20)):
         for stats in ("exact", "rank1"):
-            us, cpu = time_steps(basis, stats, args.particles, inputs)
-            size = 50 if basis == "tensor" else 20
-            print(f"{basis:7s} {stats:6s} {size:9d} {us:8.0f} {cpu:8.0f}")
+            us, cpu = time_steps(basis, stats, args.particles, inputs, symmetry)
+            print(f"{basis:7s} {stats:6s} {symmetry:8s} {size:9d} {us:8.0f} {cpu:8.0f}")
     print(f"load average after: {os.getloadavg()[0]:.1f}")
     if args.cost_inputs:
         return
