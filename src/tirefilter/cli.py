@@ -12,6 +12,7 @@ from tirefilter.config import read_toml
 from tirefilter.errors import ConfigError, TirefilterError
 
 from tirefilter.estimators import ESTIMATORS  # DESIGN.md reserves augpf, rls, ekf, gpssm, combined too
+from tirefilter.viz.options import DEFAULT_LOG_EVERY
 
 
 def cmd_run(args) -> int:
@@ -29,7 +30,7 @@ def cmd_run(args) -> int:
     model = resolve_model(args.model, scenario.sensors)
     summary = _run_and_record(
         lambda: run_scenario(scenario, estimator=estimator, seed=args.seed, fmi_version=args.fmi, results_csv=results,
-                             rrd=args.rrd, progress=_progress(args)),
+                             recording=_recording(args), progress=_progress(args)),
         lambda s: write_run_json(out / "run.json", s, command=sys.argv, model=model, fmi_version=args.fmi,
                                  **_estimator_record(estimator, config, args)),
         results)
@@ -64,7 +65,7 @@ def cmd_replay(args) -> int:
     _init_state(args, estimator)
     model = estimator.cfg.model if hasattr(estimator, "cfg") else resolve_model(args.model, log.available)
     summary = _run_and_record(
-        lambda: replay_log(log, estimator=estimator, seed=args.seed, results_csv=results, rrd=args.rrd,
+        lambda: replay_log(log, estimator=estimator, seed=args.seed, results_csv=results, recording=_recording(args),
                            progress=_progress(args), vehicle_file=args.vehicle),
         lambda s: write_summary_json(summary_json, s, command=sys.argv, model=model,
                                      **_estimator_record(estimator, config, args)),
@@ -106,6 +107,14 @@ def _save_state(args, estimator) -> None:
         from tirefilter.estimators.state_file import save_state
 
         print(f"stiffness posterior: {save_state(estimator, args.save_state)}")
+
+
+def _recording(args):
+    """The Rerun recording of --rrd, --spawn, --connect and --log-every (None: none)."""
+    from tirefilter.viz.options import RecordingOptions, recording_options
+
+    return recording_options(recording=RecordingOptions(rrd=args.rrd, spawn=args.spawn, connect=args.connect,
+                                                        log_every=args.log_every))
 
 
 def _progress(args) -> bool:
@@ -293,7 +302,13 @@ def _estimator_options(p: argparse.ArgumentParser, *, default: str, particles: s
 
 
 def _output_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--rrd", help="write a Rerun recording to this file")
+    p.add_argument("--rrd", help="write a Rerun recording to this file (headless)")
+    p.add_argument("--spawn", action="store_true", help="start a local Rerun viewer and stream the run to it")
+    p.add_argument("--connect", metavar="ADDR", help="stream the run to a running Rerun viewer or gRPC proxy, "
+                   "e.g. rerun+http://127.0.0.1:9876/proxy")
+    p.add_argument("--log-every", type=int, default=DEFAULT_LOG_EVERY, metavar="K",
+                   help="log particle clouds, posterior densities and friction curves every K estimator steps "
+                   f"(series every step; default {DEFAULT_LOG_EVERY})")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 

@@ -41,6 +41,7 @@ def run_scenario(
     progress: bool = False,
     keep_rows: bool = False,
     parameter_overrides: dict | None = None,
+    recording=None,
 ) -> tuple[RunSummary, np.ndarray | None]:
     """Co-simulate `scenario`; returns the summary and, with keep_rows, the result rows.
 
@@ -48,6 +49,8 @@ def run_scenario(
     reuse one instance. Rows are written incrementally: when the FMU or the estimator
     fails, every row before the failure is in the CSV and the recording, and the error is
     raised after the summary has been filled in (`summary.status = "failed"`).
+    `recording` (viz.options.RecordingOptions) streams the run to Rerun (file, viewer,
+    decimation); `rrd` alone is a file-only recording.
     """
     own_fmu = fmu is None
     fmu = fmu or VehicleFMU(fmi_version)
@@ -76,7 +79,7 @@ def run_scenario(
                          results=str(results_csv) if results_csv else None)
     try:
         with run_outputs(summary, columns, results_csv=results_csv, rrd=rrd, estimator=est_name, keep_rows=keep_rows,
-                         total=n, progress=progress) as out:
+                         total=n, progress=progress, recording=recording, context=_recording_context(scenario)) as out:
             fmu.reset(params)
             if estimator is not None:
                 estimator.reset(rng)
@@ -112,6 +115,15 @@ def run_scenario(
         if own_fmu:
             fmu.close()
     return summary, out.kept_rows()
+
+
+def _recording_context(scenario: Scenario):
+    """The truth a recording draws besides the rows: the car's geometry and, with Pacejka
+    tires, the true friction curve."""
+    from tirefilter.viz.options import RecordingContext
+
+    return RecordingContext(vehicle=scenario.vehicle,
+                            pacejka=scenario.model.pacejka if scenario.model.tire_model == "pacejka" else None)
 
 
 def write_run_json(path: str | Path, summary: RunSummary, *, command: list[str], model: str, particles: int | None,

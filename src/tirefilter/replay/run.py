@@ -49,6 +49,7 @@ def replay_log(
     progress: bool = False,
     keep_rows: bool = False,
     vehicle_file: str | Path | None = None,
+    recording=None,
 ) -> tuple[ReplaySummary, np.ndarray | None]:
     """Run `estimator` (None: the log's signals only) over `log`; returns the summary and,
     with keep_rows, the result rows (n, len(result_columns(log))).
@@ -56,7 +57,8 @@ def replay_log(
     Rows are written incrementally: when the estimator fails, every row before the
     failure is in the CSV and the recording, and a ReplayError naming the row and its time
     is raised after the summary has been filled in (`summary.status = "failed"`, also as
-    `exc.summary`).
+    `exc.summary`). `recording` (viz.options.RecordingOptions) streams the replay to Rerun;
+    `rrd` alone is a file-only recording.
     """
     _, rng = spawn_seeds(seed)  # the same generator a co-simulation with this seed gives its estimator
     est_name = getattr(estimator, "name", None) if estimator is not None else None
@@ -68,8 +70,11 @@ def replay_log(
     summary = ReplaySummary(log=str(log.path), vehicle=str(vehicle_file) if vehicle_file else None, seed=seed,
                             estimator=est_name or "none", rows=log.rows, duration_s=log.duration,
                             results=str(results_csv) if results_csv else None)
+    from tirefilter.viz.options import RecordingContext
+
     with run_outputs(summary, columns, results_csv=results_csv, rrd=rrd, estimator=est_name, keep_rows=keep_rows,
-                     total=log.rows, progress=progress) as out:
+                     total=log.rows, progress=progress, recording=recording,
+                     context=RecordingContext(vehicle=getattr(estimator, "vehicle", None))) as out:
         if estimator is not None:
             estimator.reset(rng)
         for k, t in enumerate(t_all):
