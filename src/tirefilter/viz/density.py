@@ -32,7 +32,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import gammaln
+from scipy.special import gammaln, ndtr, stdtr
 
 EPS = 1e-12  # relative component density below which a grid point is skipped
 _LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
@@ -61,6 +61,16 @@ class Mixture:
         """The marginal density of `param` on `grid` (G,), per unit of the parameter."""
         return mixture_pdf(grid, self.weights, self.loc[:, self.index(param)], self.scale[:, self.index(param)],
                            self.df)
+
+    def mass(self, param: str, lo: float, hi: float) -> float:
+        """The exact probability of lo <= param <= hi (the share of the density a grid
+        over [lo, hi] can show), from the components' CDFs."""
+        j = self.index(param)
+        z = (np.array([[lo], [hi]]) - self.loc[:, j]) / self.scale[:, j]  # (2, M)
+        t = np.isfinite(self.df)
+        cdf = np.where(t, stdtr(np.where(t, self.df, 1.0), z), ndtr(z))
+        ok = (self.scale[:, j] > 0) & np.isfinite(self.loc[:, j])
+        return float(self.weights[ok] @ (cdf[1] - cdf[0])[ok])
 
     def mean(self, param: str) -> float:
         return float(self.weights @ self.loc[:, self.index(param)])
@@ -153,9 +163,9 @@ def mixture_pdf(grid, weights, loc, scale, df) -> np.ndarray:
     return out
 
 
-def stiffness_grid(reference, low: float = 0.2, high: float = 3.0, points: int = 2001) -> np.ndarray:
+def stiffness_grid(reference, low: float = 0.0, high: float = 3.6, points: int = 2401) -> np.ndarray:
     """The fixed grid of one parameter for a whole run: `points` values from low to high
-    times the reference stiffness (the MPF's parameter-projection bounds by default)."""
+    times the reference stiffness."""
     if points < 2 or not 0 <= low < high or not reference > 0:
         raise ValueError(f"bad density grid: {points} points over [{low}, {high}] x {reference}")
     return np.linspace(low * reference, high * reference, int(points))

@@ -18,6 +18,7 @@ Entity paths: `viz.paths` and the README table.
 from __future__ import annotations
 
 import math
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -170,14 +171,17 @@ class RerunRecorder:
             for p in layout.densities:
                 grid = self._grid(p, estimator, mixture, post)
                 self.rec.log(paths.density(e, p), rr.BarChart.from_fields(values=mixture.pdf(p, grid).astype(np.float32)))
+                self.rec.log(paths.density(e, p) + "/mass", rr.Scalars(mixture.mass(p, grid[0], grid[-1])))
         if layout.friction:
             self._log_friction(estimator.friction(), row)
         self.snapshots += 1
 
     def _grid(self, param: str, estimator, mixture, post) -> np.ndarray:
         """The fixed density grid of `param` (chosen at the first snapshot, then kept):
-        [bound_low, bound_high] x the reference stiffness of the MPF; for other
-        estimators [0.2, 3] x their nominal (or first) value."""
+        [0, 1.2 bound_high] x the reference stiffness of the MPF (its means stay inside the
+        projection bounds [bound_low, bound_high] x reference; the margin holds the
+        densities of particles at a bound); [0, 3.6] x the nominal (or first) value for
+        other estimators."""
         if param in self._grids:
             return self._grids[param]
         names = tuple(getattr(estimator, "params", ()))
@@ -190,11 +194,12 @@ class RerunRecorder:
             ref = float(np.asarray(stats["C_nominal"])[tuple(stats["params"]).index(param)])
         if ref is None or not ref > 0:
             ref = abs(mixture.mean(param))
-        grid = stiffness_grid(ref, getattr(cfg, "bound_low", 0.2), getattr(cfg, "bound_high", 3.0),
-                              self.options.density_points)
+        grid = stiffness_grid(ref, 0.0, 1.2 * getattr(cfg, "bound_high", 3.0), self.options.density_points)
         self._grids[param] = grid
-        self.rec.log(paths.density(self.estimator, param), self._rr.BarChart.from_fields(abscissa=grid.astype(np.float32)),
-                     static=True)
+        with warnings.catch_warnings():  # rerun-sdk 0.41 warns about the absent `values` of a partial update
+            warnings.simplefilter("ignore")
+            self.rec.log(paths.density(self.estimator, param),
+                         self._rr.BarChart.from_fields(abscissa=grid.astype(np.float32)), static=True)
         return grid
 
     def _log_friction(self, curve, row: np.ndarray) -> None:

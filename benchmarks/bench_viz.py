@@ -1,0 +1,68 @@
+"""Cost of the Rerun recording: a run with N = 500 recorded to an .rrd file against the
+same run without a recording, for several `--log-every` values.
+
+    .venv/bin/python benchmarks/bench_viz.py [--scenario paper-sim] [--particles 500]
+        [--log-every 1 5 10 20 50] [--repeat 3] [--seed 0]
+
+Every case is the full run of `tirefilter run` (vehicle FMU, stiffness MPF, Result CSV):
+only the recording differs. Cases are interleaved per repeat (off, then each K), so a
+machine shared with other work slows them alike; the figure is the median wall time over
+repeats and the ratio of medians, recording on / off. `series only` records the Result-CSV
+series, the bands and the vehicle pose but no posterior snapshot (K larger than the run).
+Also printed: the size of the .rrd and the number of posterior snapshots. The default
+`--log-every` (viz.options.DEFAULT_LOG_EVERY) must keep the ratio at or below 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+from tirefilter.cosim.fmu import VehicleFMU
+from tirefilter.cosim.run import run_scenario
+from tirefilter.estimators import build_estimator
+from tirefilter.scenarios import load_scenario
+from tirefilter.viz.options import DEFAULT_LOG_EVERY, RecordingOptions
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--scenario", default="paper-sim")
+    parser.add_argument("--particles", type=int, default=500)
+    parser.add_argument("--log-every", type=int, nargs="+", default=sorted({1, 5, DEFAULT_LOG_EVERY, 20, 50}))
+    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+    scenario = load_scenario(args.scenario)
+    steps = int(round(scenario.duration * scenario.estimator_rate)) + 1
+    estimator = build_estimator("mpf", scenario, model="auto", particles=args.particles, config={})
+    cases = [("off", None), ("series only", steps + 1)] + [(f"K = {k}", k) for k in args.log_every]
+    times: dict[str, list[float]] = {name: [] for name, _ in cases}
+    sizes: dict[str, int] = {}
+    with tempfile.TemporaryDirectory() as tmp, VehicleFMU("2") as fmu:
+        for _ in range(args.repeat):
+            for name, k in cases:
+                rrd = Path(tmp) / "r.rrd"
+                recording = None if k is None else RecordingOptions(rrd=rrd, log_every=k)
+                t0 = time.perf_counter()
+                run_scenario(scenario, estimator=estimator, fmu=fmu, seed=args.seed, results_csv=Path(tmp) / "r.csv",
+                             recording=recording)
+                times[name].append(time.perf_counter() - t0)
+                if k is not None:
+                    sizes[name] = rrd.stat().st_size
+    off = statistics.median(times["off"])
+    print(f"scenario {scenario.name}: {scenario.duration:g} s, {steps} estimator steps, MPF N = {args.particles}, "
+          f"median of {args.repeat} runs; default --log-every {DEFAULT_LOG_EVERY}")
+    print(f"{'case':>12s} {'wall [s]':>9s} {'ratio on/off':>13s} {'snapshots':>10s} {'rrd [MB]':>9s}")
+    for name, k in cases:
+        wall = statistics.median(times[name])
+        snaps = "-" if k is None else str(0 if k > steps else (steps - 1) // k + 1)
+        size = f"{sizes[name] / 1e6:.1f}" if name in sizes else "-"
+        print(f"{name:>12s} {wall:9.2f} {wall / off:13.2f} {snaps:>10s} {size:>9s}")
+
+
+if __name__ == "__main__":
+    main()
