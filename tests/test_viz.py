@@ -13,6 +13,7 @@ import socket
 import subprocess
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -122,10 +123,12 @@ def read_recording(path) -> dict[str, list[dict]]:
     """entity path -> rows, each {"t": s or None (static), component: value}."""
     from rerun.chunk import RrdReader
 
-    reader = RrdReader(path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # a stream received over gRPC has no footer: "legacy format"
+        reader = RrdReader(path)
     try:
         chunks = reader.store().stream()
-    except RuntimeError:  # a stream received over gRPC has no footer
+    except RuntimeError:  # no footer: read it whole
         chunks = reader.stream().collect().stream()
     out: dict[str, list[dict]] = {}
     for chunk in chunks:
@@ -404,6 +407,45 @@ def test_bad_recording_options_are_refused(capsys):
     assert "--connect" in capsys.readouterr().err
 
 
+def _wait_until_written(path: Path, timeout: float = 20.0) -> None:
+    """Until the receiver's file has stopped growing for a second."""
+    deadline, size, since = time.monotonic() + timeout, -1, time.monotonic()
+    while time.monotonic() < deadline:
+        now = path.stat().st_size if path.is_file() else -1
+        if now != size:
+            size, since = now, time.monotonic()
+        elif size > 0 and time.monotonic() - since > 1.0:
+            return
+        time.sleep(0.1)
+
+
+def _receiver() -> str:
+    """The rerun binary of rerun-sdk (not the rerun_cli wrapper, whose pid is not the server's)."""
+    from tirefilter.viz.rerun_log import _bundled_viewer
+
+    exe = _bundled_viewer()
+    if exe is None:
+        pytest.skip("rerun-sdk ships no rerun binary on this platform")
+    return exe
+
+
+def _stop(pid: int) -> None:
+    """SIGINT (the receiver finishes its file), then SIGKILL after 10 s; reaps it when it
+    is a child of this process."""
+    os.kill(pid, signal.SIGINT)
+    for _ in range(100):
+        try:
+            if os.waitpid(pid, os.WNOHANG)[0] == pid:
+                return
+        except ChildProcessError:  # not our child: poll its existence
+            try:
+                os.kill(pid, 0)
+            except ProcessLookupError:
+                return
+        time.sleep(0.1)
+    os.kill(pid, signal.SIGKILL)
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -416,7 +458,7 @@ def test_connect_streams_to_a_local_grpc_receiver(fmu_paths, tmp_path):
     port, received = _free_port(), tmp_path / "received.rrd"
     env = dict(os.environ, HOME=str(tmp_path), XDG_CONFIG_HOME=str(tmp_path / "config"),
                XDG_DATA_HOME=str(tmp_path / "data"))  # its first-run state stays in the test's folder
-    server = subprocess.Popen([sys.executable, "-m", "rerun_cli", "--bind", "127.0.0.1", "--port", str(port),
+    server = subprocess.Popen([_receiver(), "--bind", "127.0.0.1", "--port", str(port),
                                "--save", str(received)], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         deadline = time.monotonic() + 30
@@ -431,9 +473,7 @@ def test_connect_streams_to_a_local_grpc_receiver(fmu_paths, tmp_path):
         assert main(["run", "--scenario", str(_short_scenario(tmp_path, 3.0)), "--particles", "30", "--out", str(out),
                      "--connect", f"rerun+http://127.0.0.1:{port}/proxy", "--log-every", "50", "--quiet"]) == 0
         r = read_results(out / "results.csv")
-        deadline = time.monotonic() + 20
-        while not (received.is_file() and received.stat().st_size > 100_000) and time.monotonic() < deadline:
-            time.sleep(0.2)
+        _wait_until_written(received)
     finally:
         server.send_signal(signal.SIGINT)
         try:
@@ -445,3 +485,35 @@ def test_connect_streams_to_a_local_grpc_receiver(fmu_paths, tmp_path):
     t, cf = series(rec, "/estimator/mpf/stiffness/Cf_y")
     np.testing.assert_array_equal(cf, r["Cf_y"])
     assert len(temporal(rec, "/estimator/mpf/particles/stiffness", "Points3D:positions")) == (len(r["t"]) - 1) // 50 + 1
+
+
+def test_spawn_starts_a_viewer_process_and_streams_to_it(fmu_paths, tmp_path, monkeypatch):
+    """--spawn with --rrd: rerun-sdk's spawn() runs the viewer executable with its port, then
+    the recording goes to both sinks. The 'viewer' here is the same viewer-less receiver,
+    started through a wrapper that records its pid (no display in the tests)."""
+    import tirefilter.viz.rerun_log as rerun_log
+
+    port, received, pid_file = _free_port(), tmp_path / "spawned.rrd", tmp_path / "viewer.pid"
+    wrapper = tmp_path / "viewer.sh"
+    wrapper.write_text(f"#!/bin/sh\necho $$ > {pid_file}\nexport HOME={tmp_path} XDG_CONFIG_HOME={tmp_path}/config "
+                       f"XDG_DATA_HOME={tmp_path}/data\nexec {_receiver()} --bind 127.0.0.1 "
+                       f"--save {received} \"$@\" >/dev/null 2>&1\n")
+    wrapper.chmod(0o755)
+    monkeypatch.setattr(rerun_log, "_bundled_viewer", lambda: str(wrapper))
+    scenario = load_scenario(_short_scenario(tmp_path, 2.0))
+    from tirefilter.estimators import build_estimator
+
+    est = build_estimator("mpf", scenario, model="auto", particles=20, config={})
+    rrd = tmp_path / "file.rrd"
+    try:
+        _, rows = run_scenario(scenario, estimator=est, seed=1, keep_rows=True,
+                               recording=RecordingOptions(rrd=rrd, spawn=True, spawn_port=port, log_every=20))
+        _wait_until_written(received)
+    finally:
+        deadline = time.monotonic() + 10
+        while not pid_file.is_file() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        _stop(int(pid_file.read_text()))
+    for path in (rrd, received):
+        t, cf = series(read_recording(path), "/estimator/mpf/stiffness/Cf_y")
+        np.testing.assert_array_equal(cf, rows[:, 6])  # ESTIMATE_COLUMNS: t, active, vx, vy, yaw_rate, beta, Cf_y
