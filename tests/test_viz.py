@@ -264,7 +264,7 @@ def test_particles_and_densities_hold_the_expected_points_per_logged_step(cosim_
             d = np.asarray(x["BarChart:values"][0]["buffer"], float)
             assert d.shape == grid.shape
             # eq. (26) on the grid holds the exact probability of the grid's range (from the
-            # components' CDFs, logged beside it); float32 storage, grid spacing 0.15 % of C
+            # components' CDFs, logged beside it); float32 storage, grid spacing 0.225 % of C
             mass = np.trapezoid(d, grid)
             assert abs(mass - inside) < 1e-4, (p, x["t"], mass, inside)
             if inside < 1 - 1e-6:

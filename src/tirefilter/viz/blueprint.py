@@ -121,7 +121,8 @@ def build_blueprint(layout: Layout):
             name="friction"))
     right.append(rrb.Spatial3DView(
         name="top view: path, heading, steer", origin="/vehicle", time_ranges=live,
-        eye_controls=rrb.EyeControls3D(tracking_entity=paths.VEHICLE_BODY)))
+        eye_controls=rrb.EyeControls3D(position=(0.0, 0.0, 80.0), look_target=(0.0, 0.0, 0.0), eye_up=(0.0, 1.0, 0.0),
+                                       tracking_entity=paths.VEHICLE_BODY)))  # from above, following the car
     columns = [rrb.Vertical(*stiffness, name="stiffness")] if stiffness else []
     columns += [rrb.Tabs(*middle), rrb.Tabs(*right)]
     return rrb.Blueprint(rrb.Horizontal(*columns), collapse_panels=False)

@@ -163,7 +163,7 @@ def mixture_pdf(grid, weights, loc, scale, df) -> np.ndarray:
     return out
 
 
-def stiffness_grid(reference, low: float = 0.0, high: float = 3.6, points: int = 2401) -> np.ndarray:
+def stiffness_grid(reference, low: float = 0.0, high: float = 3.6, points: int = 1601) -> np.ndarray:
     """The fixed grid of one parameter for a whole run: `points` values from low to high
     times the reference stiffness."""
     if points < 2 or not 0 <= low < high or not reference > 0:

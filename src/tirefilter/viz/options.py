@@ -31,7 +31,7 @@ class RecordingOptions:
     spawn: bool = False
     connect: str | None = None
     log_every: int = DEFAULT_LOG_EVERY
-    density_points: int = 2401
+    density_points: int = 1601
     spawn_port: int = DEFAULT_SPAWN_PORT
 
     @property
