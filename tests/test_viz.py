@@ -11,7 +11,6 @@ import re
 import signal
 import socket
 import subprocess
-import sys
 import time
 import warnings
 from pathlib import Path
@@ -65,7 +64,8 @@ def test_eq26_density_equals_the_scipy_student_t_mixture_and_integrates_to_one()
         assert abs(np.trapezoid(got, grid) - 1.0) < 1e-6
         # the mixture's variance: per particle gamma Lam_jj / (nu - n - 1), plus the spread of the means
         m = w @ (s["C_nominal"][j] + s["mu"][:, j])
-        var = w @ (s["gamma"] * s["Lam"][:, j, j] / (s["nu"] - n - 1)) + w @ (s["mu"][:, j] + s["C_nominal"][j] - m) ** 2
+        spread = w @ (s["mu"][:, j] + s["C_nominal"][j] - m) ** 2
+        var = w @ (s["gamma"] * s["Lam"][:, j, j] / (s["nu"] - n - 1)) + spread
         assert abs(np.trapezoid(got * grid, grid) - m) < 1e-6 * m
         # heavy tails: the grid's second moment converges slowly, 1e-3 is what [0.5, 1.5] x C holds
         assert np.trapezoid(got * (grid - m) ** 2, grid) == pytest.approx(var, rel=2e-3)

@@ -41,7 +41,8 @@ def cmd_run(args) -> int:
           f"estimator {summary.estimator}, seed {args.seed}")
     _print_timing(summary, scenario.duration)
     _print_truth_summary(results)
-    print(f"results: {results}\nsummary: {out / 'run.json'}" + (f"\nrecording: {args.rrd}" if args.rrd else ""))
+    print(f"results: {results}\nsummary: {out / 'run.json'}" + (f"\nrecording: {args.rrd}" if args.rrd else "")
+          + _streamed(args))
     _save_state(args, estimator)
     return 0
 
@@ -82,7 +83,8 @@ def cmd_replay(args) -> int:
                  if final.get(p) is not None and final.get(p + "_std") is not None]
     if estimates:
         print(f"final stiffness at t = {final['t']:g} s: {', '.join(estimates)} (mean +- posterior std of the mean)")
-    print(f"results: {results}\nsummary: {summary_json}" + (f"\nrecording: {args.rrd}" if args.rrd else ""))
+    print(f"results: {results}\nsummary: {summary_json}" + (f"\nrecording: {args.rrd}" if args.rrd else "")
+          + _streamed(args))
     _save_state(args, estimator)
     return 0
 
@@ -115,6 +117,11 @@ def _recording(args):
 
     return recording_options(recording=RecordingOptions(rrd=args.rrd, spawn=args.spawn, connect=args.connect,
                                                         log_every=args.log_every))
+
+
+def _streamed(args) -> str:
+    return (f"\nstreamed to: {args.connect}" if args.connect else "") + (
+        "\nstreamed to: the spawned Rerun viewer" if args.spawn else "")
 
 
 def _progress(args) -> bool:

@@ -27,7 +27,7 @@ from tirefilter.viz import paths
 from tirefilter.viz.blueprint import ESTIMATE, POSTERIOR_BAND, SPREAD_BAND, TRUTH, TRUTH_STEP, Layout, build_blueprint
 from tirefilter.viz.density import stiffness_grid, stiffness_mixture
 from tirefilter.viz.options import RecordingContext, RecordingOptions
-from tirefilter.viz.paths import TIMELINE, entity_path  # noqa: F401  (entity_path: used by callers)
+from tirefilter.viz.paths import TIMELINE, entity_path
 
 _VIRIDIS = np.array([[68, 1, 84], [59, 82, 139], [33, 145, 140], [94, 201, 98], [253, 231, 37]], float)
 
@@ -48,7 +48,7 @@ class RerunRecorder:
     """Records one run. `target` is a RecordingOptions, or the path of an .rrd file."""
 
     def __init__(self, target, columns: tuple[str, ...], estimator: str | None, *,
-                 application_id: str = "tirefilter", recording_id: str | None = None, chunk: int = 1000,
+                 application_id: str = "tirefilter", recording_id: str | None = None, chunk: int | None = None,
                  context: RecordingContext | None = None):
         import rerun as rr
 
@@ -66,7 +66,8 @@ class RerunRecorder:
         self._t_index = self.columns.index("t")
         self._truth = "true_x" in self._col and "true_y" in self._col
         self._rows: list[np.ndarray] = []
-        self._chunk = chunk
+        # rows per bulk send: large for a file, small when a viewer watches live (0.5 s at 100 Hz)
+        self._chunk = chunk or (50 if opts.spawn or opts.connect else 1000)
         self._xy: list[np.ndarray] = []
         self._pending = None  # (estimator, Estimate) of the step whose row comes next
         self._steps = 0
@@ -170,7 +171,8 @@ class RerunRecorder:
         if mixture is not None:
             for p in layout.densities:
                 grid = self._grid(p, estimator, mixture, post)
-                self.rec.log(paths.density(e, p), rr.BarChart.from_fields(values=mixture.pdf(p, grid).astype(np.float32)))
+                values = mixture.pdf(p, grid).astype(np.float32)
+                self.rec.log(paths.density(e, p), rr.BarChart.from_fields(values=values))
                 self.rec.log(paths.density(e, p) + "/mass", rr.Scalars(mixture.mass(p, grid[0], grid[-1])))
         if layout.friction:
             self._log_friction(estimator.friction(), row)
@@ -211,7 +213,8 @@ class RerunRecorder:
         alpha = np.asarray(curve.alpha, float)
         visited = np.asarray(curve.visited, float).reshape(2, 2)
         z = np.zeros_like(alpha)
-        for k, (axle, mu, std) in enumerate((("front", curve.mu_f, curve.mu_f_std), ("rear", curve.mu_r, curve.mu_r_std))):
+        axles = (("front", curve.mu_f, curve.mu_f_std), ("rear", curve.mu_r, curve.mu_r_std))
+        for k, (axle, mu, std) in enumerate(axles):
             mu, std = np.asarray(mu, float), np.asarray(std, float)
             self.rec.log(paths.friction(e, axle), rr.LineStrips3D([np.stack([alpha, mu, z], 1)], colors=[ESTIMATE],
                                                                   radii=rr.Radius.ui_points(1.5)))
@@ -231,8 +234,8 @@ class RerunRecorder:
                 j = self._col.get("true_surface")
                 surface = float(row[j]) if j is not None and math.isfinite(row[j]) else 1.0
                 true_mu = pure_lateral_friction(self.context.pacejka, alpha, surface)
-                self.rec.log(paths.truth_friction(axle), rr.LineStrips3D([np.stack([alpha, true_mu, z], 1)],
-                                                                         colors=[TRUTH], radii=rr.Radius.ui_points(1.5)))
+                self.rec.log(paths.truth_friction(axle), rr.LineStrips3D(
+                    [np.stack([alpha, true_mu, z], 1)], colors=[TRUTH], radii=rr.Radius.ui_points(1.5)))
 
     # ---- bulk series ---------------------------------------------------------------------
     def flush(self) -> None:
@@ -247,7 +250,8 @@ class RerunRecorder:
                 self._send_scalars(path, t, data[:, j])
         if self.estimator is not None:
             if self._layout is None:  # rows without estimator steps (the estimator FMU): layout from the columns
-                params = tuple(p for p in ("Cx", "Cf_y", "Cr_y") if p in self._col and np.isfinite(data[:, self._col[p]]).any())
+                params = tuple(p for p in ("Cx", "Cf_y", "Cr_y")
+                               if p in self._col and np.isfinite(data[:, self._col[p]]).any())
                 self._send_layout(Layout(self.estimator, params=params, lateral="Cx" not in params, truth=self._truth))
             for p in paths.STIFFNESS:
                 if p not in self._col:
