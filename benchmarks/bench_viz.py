@@ -2,7 +2,7 @@
 same run without a recording, for several `--log-every` values.
 
     .venv/bin/python benchmarks/bench_viz.py [--scenario paper-sim] [--particles 500]
-        [--log-every 1 5 10 20 50] [--repeat 3] [--seed 0]
+        [--log-every 5 10 20 50] [--repeat 3] [--seed 0]
 
 Every case is the full run of `tirefilter run` (vehicle FMU, stiffness MPF, Result CSV):
 only the recording differs. Cases are interleaved per repeat (off, then each K), so a
@@ -36,7 +36,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--scenario", default="paper-sim")
     parser.add_argument("--particles", type=int, default=500)
-    parser.add_argument("--log-every", type=int, nargs="+", default=sorted({1, 5, DEFAULT_LOG_EVERY, 20, 50}))
+    parser.add_argument("--log-every", type=int, nargs="+", default=sorted({5, 10, DEFAULT_LOG_EVERY, 50}))
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()

@@ -8,10 +8,11 @@ from pathlib import Path
 
 from tirefilter.errors import ConfigError
 
-# Clouds, densities and friction curves are logged at every LOG_EVERY-th estimator step
-# (series every step). Chosen with benchmarks/bench_viz.py: paper-sim with N = 500 runs at
-# most 2x slower with `--rrd` than without (benchmarks/README.md, "Rerun recording cost").
-DEFAULT_LOG_EVERY = 10
+# Clouds, densities and friction curves are logged at every DEFAULT_LOG_EVERY-th estimator
+# step (series every step): 5 per second at 100 Hz. Chosen with benchmarks/bench_viz.py:
+# paper-sim with N = 500 costs 1.4 times the CPU time with `--rrd` than without, 1.75 times
+# with K = 10 (benchmarks/README.md, "Cost of the Rerun recording"); the target is <= 2.
+DEFAULT_LOG_EVERY = 20
 DEFAULT_SPAWN_PORT = 9876
 
 
