@@ -407,6 +407,15 @@ def test_bad_recording_options_are_refused(capsys):
     assert "--connect" in capsys.readouterr().err
 
 
+def test_connect_to_nothing_fails_before_the_run(fmu_paths, tmp_path, capsys):
+    url = f"rerun+http://127.0.0.1:{_free_port()}/proxy"
+    t0 = time.monotonic()
+    assert main(["run", "--scenario", "paper-sim", "--out", str(tmp_path / "run"), "--connect", url, "--quiet"]) == 1
+    assert time.monotonic() - t0 < 10
+    err = capsys.readouterr().err
+    assert "--connect" in err and "nothing accepts connections" in err and url in err
+
+
 def _wait_until_written(path: Path, timeout: float = 20.0) -> None:
     """Until the receiver's file has stopped growing for a second."""
     deadline, size, since = time.monotonic() + timeout, -1, time.monotonic()

@@ -83,13 +83,13 @@ class RunOutputs:
         from tirefilter.viz.options import recording_options
 
         self.columns = tuple(columns)
-        self.writer = ResultWriter(results_csv, self.columns) if results_csv else None
         self.recorder = None
         recording = recording_options(rrd, recording)  # viz.options.RecordingOptions: file, viewer, decimation
-        if recording is not None:
+        if recording is not None:  # first: an unreachable viewer stops the run before a file is opened
             from tirefilter.viz.rerun_log import RerunRecorder
 
             self.recorder = RerunRecorder(recording, self.columns, estimator, context=context)
+        self.writer = ResultWriter(results_csv, self.columns) if results_csv else None
         self.kept: list[np.ndarray] | None = [] if keep_rows else None
         self.bar = Progress(total, progress)
         self.step_times: list[float] = []

@@ -18,17 +18,22 @@ Entity paths: `viz.paths` and the README table.
 from __future__ import annotations
 
 import math
+import socket
+import sys
 import warnings
 from pathlib import Path
+from urllib.parse import urlparse
 
 import numpy as np
 
+from tirefilter.errors import ConfigError
 from tirefilter.viz import paths
 from tirefilter.viz.blueprint import ESTIMATE, POSTERIOR_BAND, SPREAD_BAND, TRUTH, TRUTH_STEP, Layout, build_blueprint
 from tirefilter.viz.density import stiffness_grid, stiffness_mixture
 from tirefilter.viz.options import RecordingContext, RecordingOptions
 from tirefilter.viz.paths import TIMELINE, entity_path
 
+LIVE_FLUSH_TIMEOUT = 10.0  # s, the end of a run waits this long for a viewer to take the rest
 _VIRIDIS = np.array([[68, 1, 84], [59, 82, 139], [33, 145, 140], [94, 201, 98], [253, 231, 37]], float)
 
 
@@ -91,6 +96,7 @@ class RerunRecorder:
             sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{opts.spawn_port}/proxy"))
         if opts.connect and not (opts.spawn and opts.connect.rstrip("/") == f"rerun+http://127.0.0.1:{opts.spawn_port}"
                                                                               "/proxy"):
+            _check_listening(str(opts.connect))
             sinks.append(rr.GrpcSink(str(opts.connect)))
         self.rec.set_sinks(*sinks)
 
@@ -333,8 +339,26 @@ class RerunRecorder:
             path = np.vstack(self._xy)
             path = path[np.all(np.isfinite(path), axis=1)]
             self.rec.log(paths.VEHICLE_PATH, self._rr.LineStrips2D([path]), static=True)
-        self.rec.flush()
+        live = self.options.spawn or self.options.connect
+        try:
+            # a viewer that went away must not hang the end of the run (the file sink is flushed too)
+            self.rec.flush(timeout_sec=LIVE_FLUSH_TIMEOUT) if live else self.rec.flush()
+        except RuntimeError as exc:
+            print(f"warning: the Rerun stream did not complete: {exc}", file=sys.stderr)
         self.rec.disconnect()
+
+
+def _check_listening(url: str, timeout: float = 2.0) -> None:
+    """A clear error before the run when nothing listens at a --connect URL (rerun-sdk
+    would buffer the recording in memory and retry in the background)."""
+    parsed = urlparse(url.replace("rerun+", "", 1).replace("rerun://", "https://", 1))
+    if parsed.hostname is None or parsed.port is None:
+        return
+    try:
+        socket.create_connection((parsed.hostname, parsed.port), timeout=timeout).close()
+    except OSError as exc:
+        raise ConfigError("--connect", url, f"nothing accepts connections at {parsed.hostname}:{parsed.port} "
+                          f"({exc.strerror or exc}); start a viewer first (`.venv/bin/rerun`) or use --spawn") from None
 
 
 def _yaw_quaternion(angle: np.ndarray) -> np.ndarray:
