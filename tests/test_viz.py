@@ -343,6 +343,23 @@ class FakeFriction:
                              (-0.05, 0.06, -0.04, 0.05))
 
 
+class Augmented(FakeFriction):
+    """Particles that carry the stiffness as a state (as AUGPF): no NiW statistics."""
+
+    name = "aug"
+    posterior_family = None
+    friction = None
+
+    def reset(self, rng):
+        super().reset(rng)
+        self.rng = rng
+
+    def posterior(self):
+        x = np.column_stack([self.rng.normal(0, 0.1, 40), self.rng.normal(0, 0.01, 40)])  # (vy, r)
+        C = np.column_stack([self.rng.normal(4e4, 2e3, 40), self.rng.normal(5e4, 2e3, 40)])
+        return Posterior(x, self.rng.normal(size=40), {"stiffness": C, "params": ("Cf_y", "Cr_y")})
+
+
 class NoPosterior(FakeFriction):
     """Neither posterior() nor friction(): series only."""
 
@@ -388,6 +405,15 @@ def test_fake_friction_estimator_curves_truth_and_gaussian_density(fmu_paths, tm
     expected = stats.norm.pdf(grid, 4e4 + 10 * k, 2e3 / math.sqrt(k))
     # the abscissa is stored as float32: 1e-4 of the peak covers its rounding on the flanks
     np.testing.assert_allclose(last, expected, rtol=1e-5, atol=1e-4 * expected.max())
+
+    rrd3 = tmp_path / "aug.rrd"
+    run_scenario(scenario, estimator=Augmented(), seed=0, recording=RecordingOptions(rrd=rrd3, log_every=10))
+    rec3 = read_recording(rrd3)
+    for what in ("stiffness", "state"):  # 2-D clouds of the 40 particles
+        rows3 = temporal(rec3, f"/estimator/aug/particles/{what}", "Points2D:positions")
+        assert len(rows3) == (steps - 1) // 10 + 1 and all(len(x["Points2D:positions"]) == 40 for x in rows3)
+    _, mass = series(rec3, "/estimator/aug/density/Cr_y/mass")  # the weighted KDE, within the grid
+    assert len(mass) == len(rows3) and np.all(mass > 1 - 1e-9)
 
     rrd2 = tmp_path / "bare.rrd"
     run_scenario(scenario, estimator=NoPosterior(), seed=0, recording=RecordingOptions(rrd=rrd2, log_every=10))

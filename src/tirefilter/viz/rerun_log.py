@@ -127,7 +127,7 @@ class RerunRecorder:
         order = tuple(p for p in ("Cx", "Cf_y", "Cr_y") if p in params)
         particles = post is not None and len(post.log_weights) > 1
         return Layout(self.estimator, params=order, lateral="Cx" not in order,
-                      clouds=particles and mixture is not None and mixture.kind != "gaussian",
+                      clouds=particles,
                       densities=tuple(p for p in order if mixture is not None and p in mixture.params),
                       friction=callable(getattr(estimator, "friction", None)), truth=self._truth,
                       sensors=tuple(s for s in paths.SENSORS if est is None or math.isfinite(getattr(est, f"b_{s}",
