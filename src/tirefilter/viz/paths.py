@@ -55,6 +55,11 @@ def density(estimator: str, param: str) -> str:
     return f"{estimator_root(estimator)}/density/{param}"
 
 
+def density_mass(estimator: str, param: str) -> str:
+    """The exact probability of the density grid's range (scalar beside the density)."""
+    return f"{density(estimator, param)}/mass"
+
+
 def friction(estimator: str, axle: str, part: str | None = None) -> str:
     """The posterior-mean curve of an axle, or its `band` (+-2 std) / `visited` range."""
     base = f"{estimator_root(estimator)}/friction/{axle}"

@@ -179,7 +179,7 @@ class RerunRecorder:
                 grid = self._grid(p, estimator, mixture, post)
                 values = mixture.pdf(p, grid).astype(np.float32)
                 self.rec.log(paths.density(e, p), rr.BarChart.from_fields(values=values))
-                self.rec.log(paths.density(e, p) + "/mass", rr.Scalars(mixture.mass(p, grid[0], grid[-1])))
+                self.rec.log(paths.density_mass(e, p), rr.Scalars(mixture.mass(p, grid[0], grid[-1])))
         if layout.friction:
             self._log_friction(estimator.friction(), row)
         self.snapshots += 1
