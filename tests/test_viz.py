@@ -27,7 +27,7 @@ from tirefilter.estimators.base import Estimate, FrictionCurve, Posterior
 from tirefilter.replay import write_log
 from tirefilter.scenarios import DATA_DIR, load_scenario
 from tirefilter.vehicle.tires import pure_lateral_friction
-from tirefilter.viz.density import (gaussian_marginals, mixture_pdf, niw_mean_marginals, stiffness_grid,
+from tirefilter.viz.density import (ComponentCache, gaussian_marginals, mixture_pdf, niw_mean_marginals, stiffness_grid,
                                     stiffness_mixture, weighted_kde)
 from tirefilter.viz.options import RecordingOptions
 
@@ -101,6 +101,32 @@ def test_gaussian_and_kde_mixtures_against_direct_sums():
     np.testing.assert_allclose(kde.pdf("a", grid), brute, rtol=1e-9, atol=1e-12 * brute.max())
     assert kde.kind == "kde" and abs(np.trapezoid(kde.pdf("a", grid), grid) - 1) < 1e-6
     assert mixture_pdf(grid, [1.0], [np.nan], [1.0], [5.0]).max() == 0  # nothing finite: zero, no error
+
+
+def test_cached_and_deduplicated_evaluation_equals_the_plain_one():
+    """A sequence as a filter produces it: resampled copies (duplicates), frozen statistics
+    with new weights (cache hits), a narrower window inside the cached one, then new
+    components (misses) with a wider window."""
+    rng = np.random.default_rng(3)
+    grid = np.linspace(0, 3.6e5, 1601)
+    M = 300
+    loc, scale, df = rng.normal(1e5, 1e4, M), rng.uniform(2e3, 8e3, M), np.full(M, 40.0)
+    cache = ComponentCache()
+    idx = rng.integers(0, M, M)
+    order = np.argsort(loc)[M // 2 - 5:M // 2 + 5]  # ten central components: a narrower window
+    steps = [(rng.random(M), loc, scale, df), (rng.random(M), loc[idx], scale[idx], df[idx]),
+             (rng.random(M), loc[idx], scale[idx], df[idx]), (rng.random(10), loc[order], scale[order], df[order]),
+             (rng.random(M), rng.normal(2e5, 3e4, M), rng.uniform(1e3, 2e4, M), np.full(M, 6.0))]
+    for w, l, s_, d in steps:
+        plain = mixture_pdf(grid, w, l, s_, d)
+        # the cache may evaluate a wider window than needed: points below EPS of every peak
+        np.testing.assert_allclose(mixture_pdf(grid, w, l, s_, d, cache), plain, rtol=1e-12,
+                                   atol=1e-12 * plain.max())
+        brute = sum(wi * stats.t.pdf(grid, di, li, si) for wi, li, si, di in zip(w, l, s_, d))
+        np.testing.assert_allclose(plain, brute, rtol=1e-9, atol=1e-12 * brute.max())
+    kept = len(np.unique(idx))  # distinct components after 'resampling'
+    central_kept = int(np.isin(order, idx).sum())  # the cache holds the previous call's components only
+    assert cache.hits == 2 * kept + central_kept and cache.misses == M + (10 - central_kept) + M
 
 
 def test_stiffness_mixture_picks_what_the_posterior_supports():

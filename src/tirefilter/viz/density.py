@@ -57,10 +57,10 @@ class Mixture:
     def index(self, param: str) -> int:
         return self.params.index(param)
 
-    def pdf(self, param: str, grid: np.ndarray) -> np.ndarray:
+    def pdf(self, param: str, grid: np.ndarray, cache: "ComponentCache | None" = None) -> np.ndarray:
         """The marginal density of `param` on `grid` (G,), per unit of the parameter."""
         return mixture_pdf(grid, self.weights, self.loc[:, self.index(param)], self.scale[:, self.index(param)],
-                           self.df)
+                           self.df, cache)
 
     def mass(self, param: str, lo: float, hi: float) -> float:
         """The exact probability of lo <= param <= hi (the share of the density a grid
@@ -133,24 +133,40 @@ def _half_width(df: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(df), z, gauss)
 
 
-def mixture_pdf(grid, weights, loc, scale, df) -> np.ndarray:
+def mixture_pdf(grid, weights, loc, scale, df, cache: "ComponentCache | None" = None) -> np.ndarray:
     """sum_i w_i f_i(x) on `grid` (G,) for location-scale Student-t (df_i finite) or
     Gaussian (df_i = inf) components, vectorised over components; only the window of grid
-    points inside some component's EPS-support is evaluated (module docstring)."""
+    points inside some component's EPS-support is evaluated (module docstring).
+
+    Identical components (resampled copies) are evaluated once, with their weights summed.
+    With a `cache`, the rows of components seen at the previous call on the same grid are
+    reused: while the stiffness MPF's gate is closed its statistics do not change, and a
+    wide prior would otherwise cost a full-grid evaluation per snapshot."""
     grid = np.asarray(grid, float)
     w, loc, scale, df = (np.asarray(a, float).ravel() for a in (weights, loc, scale, df))
     out = np.zeros(grid.shape)
     keep = (w > 0) & (scale > 0) & np.isfinite(loc)
     if not keep.any():
         return out
-    w, loc, scale, df = w[keep], loc[keep], scale[keep], df[keep]
-    reach = _half_width(df) * scale
-    lo, hi = np.searchsorted(grid, [np.min(loc - reach), np.max(loc + reach)], side="left")
+    comps, inverse = np.unique(np.column_stack([loc[keep], scale[keep], df[keep]]), axis=0, return_inverse=True)
+    wu = np.bincount(inverse.ravel(), weights=w[keep], minlength=len(comps))
+    reach = _half_width(comps[:, 2]) * comps[:, 1]
+    lo, hi = np.searchsorted(grid, [np.min(comps[:, 0] - reach), np.max(comps[:, 0] + reach)], side="left")
     hi = min(hi + 1, grid.size)
     if hi <= lo:
         return out
-    x = grid[lo:hi]
-    z = (x[None, :] - loc[:, None]) / scale[:, None]  # (M, W)
+    if cache is None:
+        out[lo:hi] = wu @ _component_rows(grid[lo:hi], comps)
+        return out
+    lo, hi, rows = cache.rows(grid, lo, hi, comps)
+    out[lo:hi] = wu @ rows
+    return out
+
+
+def _component_rows(x: np.ndarray, comps: np.ndarray) -> np.ndarray:
+    """(M, W) densities of the components (loc, scale, df) rows of `comps` at `x`."""
+    loc, scale, df = comps[:, 0], comps[:, 1], comps[:, 2]
+    z = (x[None, :] - loc[:, None]) / scale[:, None]
     t = np.isfinite(df)
     logf = np.empty_like(z)
     if t.any():
@@ -159,8 +175,34 @@ def mixture_pdf(grid, weights, loc, scale, df) -> np.ndarray:
         logf[t] = const[:, None] - (0.5 * (d + 1.0))[:, None] * np.log1p(z[t] ** 2 / d[:, None])
     if (~t).any():
         logf[~t] = (-_LOG_SQRT_2PI - np.log(scale[~t]))[:, None] - 0.5 * z[~t] ** 2
-    out[lo:hi] = w @ np.exp(logf)
-    return out
+    return np.exp(logf)
+
+
+class ComponentCache:
+    """The component rows of the last `mixture_pdf` call of one parameter: components
+    are keyed by their exact (loc, scale, df); a row is reused when the new window lies
+    inside the cached one, and the cache holds only the last call's components."""
+
+    def __init__(self):
+        self.grid_id, self.lo, self.hi, self.keys = None, 0, 0, {}
+        self.table = np.empty((0, 0))
+        self.hits = self.misses = 0
+
+    def rows(self, grid, lo, hi, comps):
+        gid = (grid.size, float(grid[0]), float(grid[-1]))
+        if gid != self.grid_id or lo < self.lo or hi > self.hi:
+            self.grid_id, self.lo, self.hi, self.keys, self.table = gid, lo, hi, {}, np.empty((0, hi - lo))
+        keys = [c.tobytes() for c in comps]
+        have = np.array([self.keys.get(k, -1) for k in keys], dtype=np.intp)
+        rows = np.empty((len(comps), self.hi - self.lo))
+        hit = have >= 0
+        rows[hit] = self.table[have[hit]]
+        if (~hit).any():
+            rows[~hit] = _component_rows(grid[self.lo:self.hi], comps[~hit])
+        self.hits += int(hit.sum())
+        self.misses += int((~hit).sum())
+        self.keys, self.table = {k: i for i, k in enumerate(keys)}, rows
+        return self.lo, self.hi, rows
 
 
 def stiffness_grid(reference, low: float = 0.0, high: float = 3.6, points: int = 1601) -> np.ndarray:

@@ -29,7 +29,7 @@ import numpy as np
 from tirefilter.errors import ConfigError
 from tirefilter.viz import paths
 from tirefilter.viz.blueprint import ESTIMATE, POSTERIOR_BAND, SPREAD_BAND, TRUTH, TRUTH_STEP, Layout, build_blueprint
-from tirefilter.viz.density import stiffness_grid, stiffness_mixture
+from tirefilter.viz.density import ComponentCache, stiffness_grid, stiffness_mixture
 from tirefilter.viz.options import RecordingContext, RecordingOptions
 from tirefilter.viz.paths import TIMELINE, entity_path
 
@@ -78,6 +78,7 @@ class RerunRecorder:
         self._steps = 0
         self._layout: Layout | None = None
         self._grids: dict[str, np.ndarray] = {}
+        self._caches: dict[str, ComponentCache] = {}  # per parameter: density rows of unchanged components
         self._dead_reckoning = (0.0, 0.0, 0.0, None)  # x, y, psi, t of the last row (replay)
         self._lf = None
         self.snapshots = 0
@@ -177,7 +178,7 @@ class RerunRecorder:
         if mixture is not None:
             for p in layout.densities:
                 grid = self._grid(p, estimator, mixture, post)
-                values = mixture.pdf(p, grid).astype(np.float32)
+                values = mixture.pdf(p, grid, self._caches.setdefault(p, ComponentCache())).astype(np.float32)
                 self.rec.log(paths.density(e, p), rr.BarChart.from_fields(values=values))
                 self.rec.log(paths.density_mass(e, p), rr.Scalars(mixture.mass(p, grid[0], grid[-1])))
         if layout.friction:
