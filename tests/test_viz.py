@@ -138,9 +138,14 @@ def test_stiffness_mixture_picks_what_the_posterior_supports():
     assert stiffness_mixture(augmented).kind == "kde"
     est = Estimate(active=True, vx=10, vy=0, yaw_rate=0, Cf_y=1e5, Cr_y=1.2e5, Cf_y_std=1e3, Cr_y_std=2e3)
     kf = Posterior(np.zeros((1, 2)), np.zeros(1), {"cov": np.eye(2)[None]})
-    assert stiffness_mixture(kf, est) is None  # no stiffness posterior, nor a declared Gaussian
-    gauss = stiffness_mixture(kf, est, gaussian=True)
+    gauss = stiffness_mixture(kf, est)  # one 'particle': a Gaussian filter, its estimate and std
     assert gauss.kind == "gaussian" and gauss.params == ("Cf_y", "Cr_y") and gauss.scale[0, 1] == 2e3
+    fixed = Estimate(active=True, vx=10, vy=0, yaw_rate=0, Cf_y=1e5, Cr_y=1.2e5, Cf_y_std=0.0, Cr_y_std=0.0)
+    assert stiffness_mixture(kf, fixed) is None  # fixed stiffness (kf): nothing to draw
+    augpf = Posterior(np.zeros((5, 7)), np.zeros(5), {"mu": np.ones((5, 2)), "var": np.ones((5, 2)),
+                                                      "C_nominal": np.array([1e5, 1e5]), "params": ("Cf_y", "Cr_y")})
+    kde = stiffness_mixture(augpf)
+    assert kde.kind == "kde" and np.all(kde.loc == 1e5 + 1)
     assert stiffness_mixture(None, None) is None
 
 

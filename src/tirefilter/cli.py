@@ -27,10 +27,11 @@ def cmd_run(args) -> int:
     out = Path(args.out) if args.out else Path("runs") / scenario.name
     out.mkdir(parents=True, exist_ok=True)
     results = out / "results.csv"
-    model = resolve_model(args.model, scenario.sensors)
+    model = getattr(getattr(estimator, "cfg", None), "model", None) or resolve_model(args.model, scenario.sensors)
     summary = _run_and_record(
         lambda: run_scenario(scenario, estimator=estimator, seed=args.seed, fmi_version=args.fmi, results_csv=results,
-                             recording=_recording(args), progress=_progress(args)),
+                             recording=_recording(args), progress=_progress(args),
+                             friction_csv=_friction_csv(estimator, out / "friction.csv")),
         lambda s: write_run_json(out / "run.json", s, command=sys.argv, model=model, fmi_version=args.fmi,
                                  **_estimator_record(estimator, config, args)),
         results)
@@ -43,6 +44,7 @@ def cmd_run(args) -> int:
     _print_truth_summary(results)
     print(f"results: {results}\nsummary: {out / 'run.json'}" + (f"\nrecording: {args.rrd}" if args.rrd else "")
           + _streamed(args))
+    _print_friction(estimator, out / "friction.csv")
     _save_state(args, estimator)
     return 0
 
@@ -64,10 +66,11 @@ def cmd_replay(args) -> int:
     estimator = build_log_estimator(args.estimator, vehicle, log.t, {s: log.signals[s] for s in log.available},
                                     model=args.model, particles=args.particles, config=config, source=log.path)
     _init_state(args, estimator)
-    model = estimator.cfg.model if hasattr(estimator, "cfg") else resolve_model(args.model, log.available)
+    model = getattr(getattr(estimator, "cfg", None), "model", None) or resolve_model(args.model, log.available)
     summary = _run_and_record(
         lambda: replay_log(log, estimator=estimator, seed=args.seed, results_csv=results, recording=_recording(args),
-                           progress=_progress(args), vehicle_file=args.vehicle),
+                           progress=_progress(args), vehicle_file=args.vehicle,
+                           friction_csv=_friction_csv(estimator, _friction_name(results))),
         lambda s: write_summary_json(summary_json, s, command=sys.argv, model=model,
                                      **_estimator_record(estimator, config, args)),
         results)
@@ -76,7 +79,8 @@ def cmd_replay(args) -> int:
     rate = (log.rows - 1) / log.duration if log.duration > 0 else float("nan")
     print(f"replay of {log.path}: {log.rows} rows over {log.duration:g} s ({rate:.4g} Hz on average), "
           f"estimator {summary.estimator}" + (f" ({model} model, N = {estimator.cfg.particles})"
-                                              if hasattr(estimator, "cfg") else "") + f", seed {args.seed}")
+                                              if hasattr(getattr(estimator, "cfg", None), "particles") else "")
+          + f", seed {args.seed}")
     _print_timing(summary, log.duration)
     final = summary.final or {}
     estimates = [f"{p} {final[p]:.4g} +- {final[p + '_std']:.2g}" for p in ("Cf_y", "Cr_y", "Cx")
@@ -85,6 +89,7 @@ def cmd_replay(args) -> int:
         print(f"final stiffness at t = {final['t']:g} s: {', '.join(estimates)} (mean +- posterior std of the mean)")
     print(f"results: {results}\nsummary: {summary_json}" + (f"\nrecording: {args.rrd}" if args.rrd else "")
           + _streamed(args))
+    _print_friction(estimator, _friction_name(results))
     _save_state(args, estimator)
     return 0
 
@@ -122,6 +127,29 @@ def _recording(args):
 def _streamed(args) -> str:
     return (f"\nstreamed to: {args.connect}" if args.connect else "") + (
         "\nstreamed to: the spawned Rerun viewer" if args.spawn else "")
+
+
+def _friction_name(results: Path) -> Path:
+    from tirefilter.cosim.friction import friction_csv_path
+
+    return friction_csv_path(results)
+
+
+def _friction_csv(estimator, path: Path) -> Path | None:
+    """Where a friction estimator's curve snapshots go (None for the others)."""
+    return path if callable(getattr(estimator, "friction", None)) else None
+
+
+def _print_friction(estimator, path: Path) -> None:
+    """The friction CSV and the slip-clipping count of a friction estimator."""
+    if not callable(getattr(estimator, "diagnostics", None)):
+        return
+    d = estimator.diagnostics()
+    print(f"friction curves: {path}")
+    print(f"slip angles outside [-L, L] (clipped): {d['slip_clipped_samples']} of {d['particle_slip_evaluations']} "
+          f"particle evaluations, at {d['slip_clipped_steps']} steps"
+          + (f"; prior handed over from the MPF at t = {d['handover_time']:g} s" if d.get("handover_time") is not None
+             else ""))
 
 
 def _progress(args) -> bool:
@@ -303,7 +331,8 @@ def _estimator_options(p: argparse.ArgumentParser, *, default: str, particles: s
                    help="estimation model: full (wheel speeds), lateral (vx given), or auto (full with wheel speeds)")
     p.add_argument("--particles", type=int, help=f"number of particles (particle filters; {particles})")
     p.add_argument("--seed", type=int, default=0, help="seed of the run's SeedSequence")
-    p.add_argument("--config", help="estimator configuration TOML (the [mpf] or [kf] table)")
+    p.add_argument("--config", help="estimator configuration TOML (the [mpf], [kf], [augpf], [rls], [ekf] or "
+                   "[gpssm] table; combined: [gpssm] and [mpf])")
     p.add_argument("--init-state", metavar="FILE", help="start from the stiffness posterior saved by --save-state")
     p.add_argument("--save-state", metavar="FILE", help="save the learned stiffness posterior at the end (JSON)")
 

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from tirefilter.cosim.fmu import INPUT_NAMES, VehicleFMU
+from tirefilter.cosim.friction import FrictionWriter, friction_truth, is_friction_estimator
 from tirefilter.cosim.results import estimate_values, result_columns
 from tirefilter.estimators.base import Estimator, Inputs, Measurement
 from tirefilter.runs import StepSummary, run_outputs, spawn_seeds, write_summary_json
@@ -41,6 +42,7 @@ def run_scenario(
     progress: bool = False,
     keep_rows: bool = False,
     parameter_overrides: dict | None = None,
+    friction_csv: str | Path | None = None,
     recording=None,
 ) -> tuple[RunSummary, np.ndarray | None]:
     """Co-simulate `scenario`; returns the summary and, with keep_rows, the result rows.
@@ -49,6 +51,8 @@ def run_scenario(
     reuse one instance. Rows are written incrementally: when the FMU or the estimator
     fails, every row before the failure is in the CSV and the recording, and the error is
     raised after the summary has been filled in (`summary.status = "failed"`).
+    A friction estimator with `friction_csv` also writes its curve snapshots there
+    (`cosim.friction`); those written before a failure stay.
     `recording` (viz.options.RecordingOptions) streams the run to Rerun (file, viewer,
     decimation); `rrd` alone is a file-only recording.
     """
@@ -77,6 +81,10 @@ def run_scenario(
 
     summary = RunSummary(scenario=scenario.name, seed=seed, fmu_seed=fmu_seed, estimator=est_name or "none",
                          results=str(results_csv) if results_csv else None)
+    friction = None
+    if friction_csv and is_friction_estimator(estimator):
+        friction = FrictionWriter(friction_csv, estimator, truth=friction_truth(scenario))
+    surface = INPUT_NAMES.index("surface")
     try:
         with run_outputs(summary, columns, results_csv=results_csv, rrd=rrd, estimator=est_name, keep_rows=keep_rows,
                          total=n, progress=progress, recording=recording, context=_recording_context(scenario)) as out:
@@ -104,6 +112,8 @@ def run_scenario(
                         meas = Measurement(ax=sensor("ax", "ax_meas", y), ay=sensor("ay", "ay_meas", y),
                                            yaw_rate=sensor("yaw_rate", "yaw_rate_meas", y))
                         est = out.step(estimator, t, inputs, meas)
+                        if friction is not None:
+                            friction.sample(t, float(u[surface]))
                     out.write(np.concatenate([estimate_values(t, est), y, u]))
                 if k == n:
                     break
@@ -111,19 +121,22 @@ def run_scenario(
                 summary.communication_steps += 1
                 if k % 256 == 0:
                     out.progress(k)
+            if friction is not None:
+                friction.finish()
     finally:
+        if friction is not None:
+            friction.close()
         if own_fmu:
             fmu.close()
     return summary, out.kept_rows()
 
 
 def _recording_context(scenario: Scenario):
-    """The truth a recording draws besides the rows: the car's geometry and, with Pacejka
-    tires, the true friction curve."""
+    """The truth a recording draws besides the rows: the car's geometry and the true
+    friction curves (those of the friction CSV)."""
     from tirefilter.viz.options import RecordingContext
 
-    return RecordingContext(vehicle=scenario.vehicle,
-                            pacejka=scenario.model.pacejka if scenario.model.tire_model == "pacejka" else None)
+    return RecordingContext(vehicle=scenario.vehicle, friction_truth=friction_truth(scenario))
 
 
 def write_run_json(path: str | Path, summary: RunSummary, *, command: list[str], model: str, particles: int | None,

@@ -11,11 +11,13 @@ log's signals as `meas_<name>`.
 from __future__ import annotations
 
 import math
+from contextlib import closing, nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from tirefilter.cosim.friction import FrictionWriter, is_friction_estimator
 from tirefilter.cosim.results import ESTIMATE_COLUMNS, estimate_values
 from tirefilter.errors import ReplayError
 from tirefilter.estimators.base import Estimator, Inputs, Measurement
@@ -49,6 +51,7 @@ def replay_log(
     progress: bool = False,
     keep_rows: bool = False,
     vehicle_file: str | Path | None = None,
+    friction_csv: str | Path | None = None,
     recording=None,
 ) -> tuple[ReplaySummary, np.ndarray | None]:
     """Run `estimator` (None: the log's signals only) over `log`; returns the summary and,
@@ -57,8 +60,10 @@ def replay_log(
     Rows are written incrementally: when the estimator fails, every row before the
     failure is in the CSV and the recording, and a ReplayError naming the row and its time
     is raised after the summary has been filled in (`summary.status = "failed"`, also as
-    `exc.summary`). `recording` (viz.options.RecordingOptions) streams the replay to Rerun;
-    `rrd` alone is a file-only recording.
+    `exc.summary`). A friction estimator with `friction_csv` also writes its curve
+    snapshots there (`cosim.friction`, no truth columns); those written before a failure stay.
+    `recording` (viz.options.RecordingOptions) streams the replay to Rerun; `rrd` alone is a
+    file-only recording.
     """
     _, rng = spawn_seeds(seed)  # the same generator a co-simulation with this seed gives its estimator
     est_name = getattr(estimator, "name", None) if estimator is not None else None
@@ -72,9 +77,11 @@ def replay_log(
                             results=str(results_csv) if results_csv else None)
     from tirefilter.viz.options import RecordingContext
 
-    with run_outputs(summary, columns, results_csv=results_csv, rrd=rrd, estimator=est_name, keep_rows=keep_rows,
-                     total=log.rows, progress=progress, recording=recording,
-                     context=RecordingContext(vehicle=getattr(estimator, "vehicle", None))) as out:
+    friction = FrictionWriter(friction_csv, estimator) if friction_csv and is_friction_estimator(estimator) else None
+    with closing(friction) if friction is not None else nullcontext(), \
+            run_outputs(summary, columns, results_csv=results_csv, rrd=rrd, estimator=est_name, keep_rows=keep_rows,
+                        total=log.rows, progress=progress, recording=recording,
+                        context=RecordingContext(vehicle=getattr(estimator, "vehicle", None))) as out:
         if estimator is not None:
             estimator.reset(rng)
         for k, t in enumerate(t_all):
@@ -89,9 +96,13 @@ def replay_log(
                     where = log.where(k)
                     raise ReplayError(f"{log.path}: data row {where['row']} (file line {where['line']}, t = {t!r} s): "
                                       f"{est_name} failed: {exc}") from exc
+            if friction is not None:
+                friction.sample(t)
             out.write(np.concatenate([estimate_values(t, est), data[k]]))
             if k % PROGRESS_EVERY == 0:
                 out.progress(k)
+        if friction is not None:
+            friction.finish()
         if out.last is not None and estimator is not None:
             summary.final = {c: (None if math.isnan(v) else float(v))
                              for c, v in zip(ESTIMATE_COLUMNS, out.last[:len(ESTIMATE_COLUMNS)])}

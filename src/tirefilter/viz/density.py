@@ -6,7 +6,7 @@ The stiffness MPF's parameter posterior is eq. (26) of the stiffness paper,
 
 a weighted mixture over particles of the NiW posterior (25) of each particle. Its marginal
 for the mean of parameter j is a mixture of univariate Student-t densities, one per
-particle (docs/derivations.md, Sec. 12): under mu | Sigma ~ N(mu_hat, gamma Sigma),
+particle (docs/derivations.md, Sec. 13): under mu | Sigma ~ N(mu_hat, gamma Sigma),
 Sigma ~ iW(nu, Lambda) of dimension n,
 
     mu ~ St(mu_hat, gamma Lambda / (nu - n + 1), nu - n + 1)       (scale matrix, dof)
@@ -219,9 +219,11 @@ def stiffness_mixture(posterior, estimate=None, *, params=None, gaussian: bool =
     - NiW statistics (`gamma, mu, Lam, nu` and `C_nominal` in `posterior.stats`): eq. (26).
     - `stiffness_mean`, `stiffness_std` (M, n) in the stats: a Gaussian mixture with the
       posterior's log-weights (M = 1: one Gaussian).
-    - `stiffness` (N, n) in the stats (particles carrying the stiffness): weighted KDE.
-    - `gaussian=True` (the estimator declares `posterior_family = "gaussian"`) and an
-      Estimate with finite `<param>` and `<param>_std`: that Gaussian.
+    - `stiffness` (N, n) in the stats (particles carrying the stiffness), or `mu` (N, n)
+      deviations with `C_nominal` and no NiW statistics (AUGPF): weighted KDE.
+    - `gaussian=True` (the estimator declares `posterior_family = "gaussian"`), or a
+      posterior of one 'particle' (the Gaussian filters KF, RLS, EKF), and an Estimate
+      with finite `<param>` and `<param>_std` > 0: that Gaussian per parameter.
     `params` names the columns where the stats do not (`stats["params"]`).
     """
     stats = getattr(posterior, "stats", None) or {}
@@ -236,7 +238,11 @@ def stiffness_mixture(posterior, estimate=None, *, params=None, gaussian: bool =
                                   mean, stats["stiffness_std"], names)
     if names and "stiffness" in stats and logw is not None:
         return weighted_kde(logw, stats["stiffness"], names)
-    if gaussian and estimate is not None:
+    if (names and logw is not None and len(logw) > 1 and "mu" in stats and "C_nominal" in stats
+            and np.shape(stats["mu"]) == (len(logw), len(names))):  # AUGPF: sampled means, no statistics
+        return weighted_kde(logw, np.asarray(stats["C_nominal"], float) + np.asarray(stats["mu"], float), names)
+    single = logw is not None and len(logw) == 1  # a Gaussian filter's posterior as one 'particle' (KF, RLS, EKF)
+    if (gaussian or single) and estimate is not None:
         names = tuple(p for p in (params or ("Cx", "Cf_y", "Cr_y"))
                       if math.isfinite(getattr(estimate, p, math.nan)) and getattr(estimate, p + "_std", math.nan) > 0)
         if names:

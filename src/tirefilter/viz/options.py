@@ -59,12 +59,13 @@ class RecordingContext:
     """What the recorder knows about the simulated world besides the rows.
 
     vehicle: VehicleParams (lf, lr for the drawing of the car; None: the estimator's
-    vehicle or a 4.5 m car); pacejka: the truth's PacejkaParams, for the true friction
-    curve (co-simulation with Pacejka tires only).
+    vehicle or a 4.5 m car); friction_truth: (alpha (G,), surface) -> (true mu_f, true
+    mu_r), the true friction curves of the friction CSV (`cosim.friction.friction_truth`;
+    co-simulation only).
     """
 
     vehicle: object | None = None
-    pacejka: object | None = None
+    friction_truth: object | None = None
 
 
 def recording_options(rrd=None, recording: RecordingOptions | None = None) -> RecordingOptions | None:

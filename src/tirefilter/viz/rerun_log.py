@@ -171,6 +171,9 @@ class RerunRecorder:
                 self.rec.log(paths.particles(e, "stiffness"), arch(pts, colors=colors, radii=rr.Radius.ui_points(2.5)))
         if post is not None and len(post.log_weights) > 1:
             x = np.asarray(post.particles, float)
+            stats = post.stats or {}
+            if "mu" in stats and "var" in stats and "gamma" not in stats and x.ndim == 2:  # AUGPF: [x, m, s2]
+                x = x[:, :x.shape[1] - np.shape(stats["mu"])[-1] - np.shape(stats["var"])[-1]]
             if x.ndim == 2 and x.shape[1] in (2, 3):
                 arch = rr.Points2D if x.shape[1] == 2 else rr.Points3D
                 self.rec.log(paths.particles(e, "state"),
@@ -213,7 +216,7 @@ class RerunRecorder:
 
     def _log_friction(self, curve, row: np.ndarray) -> None:
         """Per axle: the posterior mean mu(alpha), the +-2 std band, the visited slip range,
-        and the true curve at the current surface (co-simulation with Pacejka tires)."""
+        and the true curve at the current surface (co-simulation)."""
         if curve is None:
             return
         rr, e = self._rr, self.estimator
@@ -235,12 +238,10 @@ class RerunRecorder:
                 self.rec.log(paths.friction(e, axle, "visited"),
                              rr.LineStrips3D([[[lo, -top, 0], [lo, top, 0]], [[hi, -top, 0], [hi, top, 0]]],
                                              colors=[SPREAD_BAND], radii=rr.Radius.ui_points(1.0)))
-            if self.context.pacejka is not None:
-                from tirefilter.vehicle.tires import pure_lateral_friction
-
+            if self.context.friction_truth is not None:
                 j = self._col.get("true_surface")
                 surface = float(row[j]) if j is not None and math.isfinite(row[j]) else 1.0
-                true_mu = pure_lateral_friction(self.context.pacejka, alpha, surface)
+                true_mu = np.asarray(self.context.friction_truth(alpha, surface)[k], float)
                 self.rec.log(paths.truth_friction(axle), rr.LineStrips3D(
                     [np.stack([alpha, true_mu, z], 1)], colors=[TRUTH], radii=rr.Radius.ui_points(1.5)))
 

@@ -1,0 +1,371 @@
+"""Extended Kalman filter (EKF) on the state augmented with random-walk stiffness and IMU
+bias: the baseline of the stiffness paper (papers/000) Sec. VII-B ("EKF"), "tuned carefully".
+
+State z = [x, c, b]: the vehicle state x (full model [vx, vy, r], lateral [vy, r] with v^X
+given), the stiffness deviations from nominal c (full [dC_x, dCf_y, dCr_y], lateral [dCf_y,
+dCr_y]; C_x is the driven axle's) and the biases b of the model's IMU channels (full
+[ax, ay, yaw rate], lateral [ay, yaw rate]): 9 states (full), 6 (lateral).
+
+Model (`dynamics`, `measurement`): the MPF's accelerations, eq. (1), (2), (4) and (3) with
+the traction-positive slip sign (DESIGN.md) and the axle stiffness C_nom + c:
+  vx' = vy r + a^X,  vy' = a^Y - vx r,  r' = (lf F_yf,body - lr F_yr) / I,  c' = 0 + w_c,
+  b' = 0 + w_b,  y = [a^X, (1 + k g) a^Y, r] + b + e,
+with slip angles alpha_f = delta - (vy + lf r)/v, alpha_r = (lr r - vy)/v, v = max(vx, 1)
+and wheel slip (R_w omega - vx) / max(|vx|, |R_w omega|, 1). Jacobians are analytic
+(`dynamics`, `measurement` return them; tested against finite differences).
+
+Prediction over dt (inputs of the previous sample held): local linearisation, the exact
+solution of the model linearised at the current estimate z0, z' ~ f(z0) + A (z - z0):
+  z <- z0 + int_0^dt e^{A s} ds f(z0),  P <- e^{A dt} P e^{A dt}^T + Qd,
+both from one matrix exponential (`linear_kf.discretize_zoh`, Van Loan). For the lateral
+model with fixed stiffness the model is affine in x and this is the exact discretisation:
+the EKF then reduces to `linear_kf.LinearKF` (tested).
+
+Tuning (each value an option of the `[ekf]` table; the reasoning):
+- `stiffness_rw` = 0.05: random-walk std of each stiffness per sqrt(s), relative to the
+  reference: 5% in 1 s, 16% in 10 s, enough to follow paper-sim's 50% drop in a few seconds
+  of excitation without chasing the 5% per-step deviations. Zero while the MPF's learning
+  gate is closed, and then the stiffness gain rows are zeroed as well (Schmidt "consider"
+  states with the Joseph-form covariance update): stiffness frozen, still reported.
+- `dev_sigma` = 0.05: the per-step deviations (the MPF's w, 5% std in paper-sim) are white
+  noise held over a sample period Ts: they add Ts G Sigma G^T to the state's noise intensity
+  (G = d x' / d c, Sigma = diag((dev_sigma C_ref)^2)) and H_c Sigma H_c^T to the measurement
+  covariance (their correlation with the process noise is neglected).
+- `q_state` = (0.01, 0.01, 0.001): white-noise intensity on vx', vy', r' (m^2/s^3,
+  rad^2/s^3) for the rest of the model error (Pacejka curvature, load transfer, bank).
+- Initial covariance: x from `x0_std`, c from the MPF's initial stiffness distribution
+  (`init_std` or the uniform's std, times the reference), b from `bias0_std`; the bias
+  random walk is `bias_rw` (the scenario's sensor spec). Missing bias (both zero): the bias
+  states stay exactly 0.
+Parameter projection (Sec. V): after each update the stiffness is clipped to
+[bound_low, bound_high] times the reference. Reported `*_std` = sqrt(P_cc); `*_sigma` NaN
+(the EKF has no model of the deviations' spread beyond the fixed `dev_sigma`); ESS NaN.
+Deterministic: the rng is unused; `--particles` is accepted and ignored.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from tirefilter.errors import ConfigError
+from tirefilter.estimators.base import Estimate, Inputs, Measurement, Posterior
+from tirefilter.estimators.baseline_common import check_common, gate_open, stiffness_prior
+from tirefilter.estimators.linear_kf import discretize_zoh
+from tirefilter.vehicle.params import VehicleParams
+from tirefilter.vehicle.single_track import GRAVITY
+
+NAN = math.nan
+
+
+@dataclass(frozen=True)
+class EKFConfig:
+    """Options of the EKF (the `[ekf]` table of --config); tuning in the module docstring.
+    Fields named as in MPFConfig mean the same and are taken from the scenario or log the
+    same way."""
+
+    model: str = "full"  # "full" (wheel speeds) | "lateral" (vx given)
+    stiffness_rw: float = 0.05  # relative random-walk std per sqrt(s) of each stiffness
+    dev_sigma: float = 0.05  # relative std of the per-step stiffness deviations (0: none)
+    q_state: tuple[float, ...] = (0.01, 0.01, 0.001)  # white-noise intensity on vx', vy', r' (lateral: last 2)
+    init_center: tuple[float, ...] | None = None  # absolute, per parameter (default: the reference)
+    init_distribution: str = "normal"
+    init_std: float = 0.3
+    init_half_width: float = 0.1
+    init_reference: tuple[float, ...] | None = None
+    x0_mean: tuple[float, ...] | None = None  # full: vx, vy, r (lateral: the last 2)
+    x0_std: tuple[float, ...] = (1.0, 0.5, 0.0175)
+    x0_vx_from_wheels: bool = True  # full model: vx_0 = R_w omega of the undriven axle
+    x0_vx_wheel_std: float = 0.1  # m/s, its std
+    gate_speed: float = 5.0  # the MPF's learning gate
+    gate_steer: float = 0.0035
+    gate_ay_max: float = 4.0
+    gate_alpha_max: float = 0.08
+    gate_vy_std: float = 0.15
+    gate_warmup: float = 1.0
+    bound_low: float = 0.2  # parameter projection (Sec. V), relative to the reference
+    bound_high: float = 3.0
+    sigma: tuple[float, float, float] = (0.05, 0.05, 0.0035)  # ax, ay, yaw-rate white noise
+    bias_rw: tuple[float, float, float] = (0.0, 0.0, 0.0)  # per sqrt(s)
+    bias0_std: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    sample_period: float = 0.01  # s: Ts of the per-step deviations
+    vx_min: float = 1.0  # m/s, speed floor of the slip angles
+
+    def validated(self) -> "EKFConfig":
+        def bad(key, problem):
+            raise ConfigError("ekf configuration", key, problem)
+
+        check_common(self, bad)
+        for key in ("stiffness_rw", "dev_sigma"):
+            if not (getattr(self, key) >= 0 and math.isfinite(getattr(self, key))):
+                bad(key, f"must be finite and >= 0, got {getattr(self, key)!r}")
+        if len(self.q_state) != 3 or any(not (v >= 0 and math.isfinite(v)) for v in self.q_state):
+            bad("q_state", f"needs 3 finite values >= 0 (vx, vy, r), got {self.q_state!r}")
+        if not self.vx_min > 0:
+            bad("vx_min", f"must be > 0, got {self.vx_min!r}")
+        return self
+
+
+class SingleTrackEKFModel:
+    """The EKF's model maths (module docstring) for one vehicle and model choice: pure
+    functions of (z, u) with analytic Jacobians. u = [delta, omega_f, omega_r, vx]."""
+
+    def __init__(self, vehicle: VehicleParams, full: bool, vx_min: float = 1.0):
+        v = vehicle
+        self.v, self.full, self.vx_min = v, full, vx_min
+        other = v.Cx if v.Cx_undriven is None else v.Cx_undriven
+        self.rear_drive = v.drive == "rear"
+        self.C_nom_fx = other if self.rear_drive else v.Cx
+        self.C_nom_rx = v.Cx if self.rear_drive else other
+        self.nx = 3 if full else 2
+        self.params = ("Cx", "Cf_y", "Cr_y") if full else ("Cf_y", "Cr_y")
+        self.n_w = len(self.params)
+        self.C_nom = np.array([v.Cx, v.Cf_y, v.Cr_y] if full else [v.Cf_y, v.Cr_y], float)
+        self.m = 3 if full else 2  # IMU channels (bias states)
+        self.nz = self.nx + self.n_w + self.m
+        self.roll_gain = 1.0 + v.roll_gradient * GRAVITY
+
+    def _forces(self, z, u):
+        """Accelerations (a^X, a^Y, r') and their gradients over z (3, nz)."""
+        v, nz, nx = self.v, self.nz, self.nx
+        delta = u[0]
+        cd, sd = math.cos(delta), math.sin(delta)
+        if self.full:
+            vx, vy, r = z[0], z[1], z[2]
+        else:
+            vx, vy, r = u[3], z[0], z[1]
+        iv = (0, 1, 2) if self.full else (None, 0, 1)  # indices of vx, vy, r in z
+
+        def grad(**parts):
+            g = np.zeros(nz)
+            for name, val in parts.items():
+                i = {"vx": iv[0], "vy": iv[1], "r": iv[2]}[name]
+                if i is not None:
+                    g[i] += val
+            return g
+
+        s = max(vx, self.vx_min)
+        ds = 1.0 if vx > self.vx_min else 0.0  # d s / d vx
+        af = delta - (vy + v.lf * r) / s
+        ar = (v.lr * r - vy) / s
+        g_af = grad(vx=ds * (vy + v.lf * r) / (s * s), vy=-1.0 / s, r=-v.lf / s)
+        g_ar = grad(vx=-ds * (v.lr * r - vy) / (s * s), vy=-1.0 / s, r=v.lr / s)
+        c = z[nx:nx + self.n_w]
+        j = 1 if self.full else 0  # index of dCf_y within c
+        Cf, Cr = v.Cf_y + c[j], v.Cr_y + c[j + 1]
+        e_cf, e_cr = np.zeros(nz), np.zeros(nz)
+        e_cf[nx + j], e_cr[nx + j + 1] = 1.0, 1.0
+        Ffy, g_Ffy = Cf * af, Cf * g_af + af * e_cf
+        Fry, g_Fry = Cr * ar, Cr * g_ar + ar * e_cr
+        if self.full:
+            lam, g_lam = [], []
+            for omega in (u[1], u[2]):
+                if not math.isfinite(omega):  # no wheel-speed sample yet: no slip
+                    lam.append(0.0), g_lam.append(np.zeros(nz))
+                    continue
+                wr = v.wheel_radius * omega
+                den = max(abs(vx), abs(wr), 1.0)
+                lam.append((wr - vx) / den)
+                if den == abs(vx) and abs(vx) > 1.0 and abs(vx) >= abs(wr):
+                    d = -wr / (vx * abs(vx))  # d/dvx of (wr - vx)/|vx|
+                else:
+                    d = -1.0 / den
+                g_lam.append(grad(vx=d))
+            e_cx = np.zeros(nz)
+            e_cx[nx] = 1.0
+            if self.rear_drive:
+                Cfx, g_Cfx, Crx, g_Crx = self.C_nom_fx, np.zeros(nz), self.C_nom_rx + c[0], e_cx
+            else:
+                Cfx, g_Cfx, Crx, g_Crx = self.C_nom_fx + c[0], e_cx, self.C_nom_rx, np.zeros(nz)
+            Ffx, g_Ffx = Cfx * lam[0], Cfx * g_lam[0] + lam[0] * g_Cfx
+            Frx, g_Frx = Crx * lam[1], Crx * g_lam[1] + lam[1] * g_Crx
+            Fyf, g_Fyf = Ffy * cd + Ffx * sd, g_Ffy * cd + g_Ffx * sd
+            aX, g_aX = (Ffx * cd - Ffy * sd + Frx) / v.mass, (g_Ffx * cd - g_Ffy * sd + g_Frx) / v.mass
+        else:
+            Fyf, g_Fyf = Ffy * cd, g_Ffy * cd
+            aX, g_aX = 0.0, np.zeros(nz)
+        aY, g_aY = (Fyf + Fry) / v.mass, (g_Fyf + g_Fry) / v.mass
+        rd, g_rd = (v.lf * Fyf - v.lr * Fry) / v.yaw_inertia, (v.lf * g_Fyf - v.lr * g_Fry) / v.yaw_inertia
+        return np.array([aX, aY, rd]), np.array([g_aX, g_aY, g_rd]), (af, ar)
+
+    def dynamics(self, z, u):
+        """f(z, u) = dz/dt (nz,) and its Jacobian A = df/dz (nz, nz); also the slip angles."""
+        acc, g, slip = self._forces(z, u)
+        f = np.zeros(self.nz)
+        A = np.zeros((self.nz, self.nz))
+        if self.full:
+            vx, vy, r = z[0], z[1], z[2]
+            f[:3] = (vy * r + acc[0], acc[1] - vx * r, acc[2])
+            A[:3] = g
+            A[0, 1] += r
+            A[0, 2] += vy
+            A[1, 0] -= r
+            A[1, 2] -= vx
+        else:
+            vx = u[3]
+            f[:2] = (acc[1] - vx * z[1], acc[2])
+            A[:2] = g[1:]
+            A[0, 1] -= vx
+        return f, A, slip
+
+    def measurement(self, z, u):
+        """h(z, u) (m,) of the model's IMU channels and H = dh/dz (m, nz)."""
+        acc, g, _ = self._forces(z, u)
+        b = z[self.nx + self.n_w:]
+        H = np.zeros((self.m, self.nz))
+        H[:, self.nx + self.n_w:] = np.eye(self.m)
+        if self.full:
+            h = np.array([acc[0], self.roll_gain * acc[1], z[2]]) + b
+            H[0] += g[0]
+            H[1] += self.roll_gain * g[1]
+            H[2, 2] += 1.0
+        else:
+            h = np.array([self.roll_gain * acc[1], z[1]]) + b
+            H[0] += self.roll_gain * g[1]
+            H[1, 1] += 1.0
+        return h, H
+
+
+class StiffnessEKF:
+    """EKF on [vehicle state, stiffness deviations, IMU biases] (module docstring)."""
+
+    name = "ekf"
+
+    def __init__(self, vehicle: VehicleParams, config: EKFConfig = EKFConfig()):
+        self.vehicle = vehicle
+        self.cfg = cfg = config.validated()
+        self.full = cfg.model == "full"
+        self.mdl = mdl = SingleTrackEKFModel(vehicle, self.full, cfg.vx_min)
+        self.params, self.C_nom, self.n_w, self.nx, self.nz = mdl.params, mdl.C_nom, mdl.n_w, mdl.nx, mdl.nz
+        self.channels = (0, 1, 2) if self.full else (1, 2)
+        self.C_ref, self.C_center, C_std = stiffness_prior(cfg, self.C_nom, self.params, "ekf configuration")
+        self.ic = slice(self.nx, self.nx + self.n_w)
+        self.ib = slice(self.nx + self.n_w, self.nz)
+        ch = list(self.channels)
+        self.R = np.diag(np.asarray(cfg.sigma, float)[ch] ** 2)
+        self.Sigma_dev = np.diag((cfg.dev_sigma * self.C_ref) ** 2)
+        q = np.zeros(self.nz)
+        q[:self.nx] = np.asarray(cfg.q_state, float)[-self.nx:]
+        q[self.ib] = np.asarray(cfg.bias_rw, float)[ch] ** 2
+        self.q_closed = q.copy()
+        q[self.ic] = (cfg.stiffness_rw * self.C_ref) ** 2
+        self.q_open = q
+        x0_std = np.asarray(cfg.x0_std, float)[-self.nx:]
+        self.P0 = np.diag(np.concatenate([x0_std**2, C_std**2, np.asarray(cfg.bias0_std, float)[ch] ** 2]))
+        self.lo = cfg.bound_low * self.C_ref - self.C_nom
+        self.hi = cfg.bound_high * self.C_ref - self.C_nom
+
+    def config_dict(self) -> dict:
+        d = asdict(self.cfg)
+        d.update(params=list(self.params), C_nominal=self.C_nom.tolist(), P0_diag=np.diagonal(self.P0).tolist())
+        return d
+
+    def reset(self, rng: np.random.Generator | None = None) -> None:
+        """Back to the prior. Deterministic: rng is accepted and unused."""
+        cfg = self.cfg
+        x0 = cfg.x0_mean if cfg.x0_mean is not None else ((20.0, 0.0, 0.0) if self.full else (0.0, 0.0))
+        self.z = np.concatenate([np.asarray(x0, float)[-self.nx:], self.C_center - self.C_nom, np.zeros(len(self.channels))])
+        self.P = self.P0.copy()
+        self.t_prev = None
+        self.t_start = None
+        self.u_prev = None
+        self.active = False
+
+    def _process_noise(self, A) -> np.ndarray:
+        """Continuous noise intensity Qc (module docstring, tuning)."""
+        Qc = np.diag(self.q_open if self.active else self.q_closed)
+        if self.cfg.dev_sigma > 0:
+            G = A[:self.nx, self.ic]
+            Qc[:self.nx, :self.nx] += self.cfg.sample_period * (G @ self.Sigma_dev @ G.T)
+        return Qc
+
+    def predict(self, u, dt: float) -> None:
+        """Local-linearisation prediction over dt with u held (module docstring)."""
+        f, A, _ = self.mdl.dynamics(self.z, u)
+        Ad, bd, Qd = discretize_zoh(A, f, self._process_noise(A), dt)
+        self.z = self.z + bd
+        P = Ad @ self.P @ Ad.T + Qd
+        self.P = 0.5 * (P + P.T)
+
+    def update(self, u, yk: np.ndarray) -> None:
+        """Update with the finite components of yk (the model's channels). Joseph form
+        P = (I - K H) P (I - K H)^T + K R K^T, valid for the Schmidt gain (stiffness rows
+        of K zeroed while the gate is closed)."""
+        a = np.flatnonzero(np.isfinite(yk))
+        if not a.size:
+            return
+        h, H = self.mdl.measurement(self.z, u)
+        H, Ra = H[a], self.R[np.ix_(a, a)]
+        if self.cfg.dev_sigma > 0:
+            Hc = H[:, self.ic]
+            Ra = Ra + Hc @ self.Sigma_dev @ Hc.T
+        PHt = self.P @ H.T
+        S = H @ PHt + Ra
+        K = np.linalg.solve(S, PHt.T).T
+        if not self.active:
+            K[self.ic] = 0.0  # consider states: frozen stiffness
+        self.z = self.z + K @ (yk[a] - h[a])
+        IKH = np.eye(self.nz) - K @ H
+        P = IKH @ self.P @ IKH.T + K @ Ra @ K.T
+        self.P = 0.5 * (P + P.T)
+        self.z[self.ic] = np.clip(self.z[self.ic], self.lo, self.hi)  # parameter projection (Sec. V)
+
+    def step(self, t: float, u: Inputs, y: Measurement) -> Estimate:
+        cfg = self.cfg
+        t = float(t)
+        if not math.isfinite(t):
+            raise ConfigError("inputs", "t", f"time must be finite, got {t!r}")
+        uk = np.array([u.delta, u.omega_f, u.omega_r, u.vx], float)
+        if self.u_prev is not None:
+            uk = np.where(np.isfinite(uk), uk, self.u_prev)  # hold the last finite input
+        if not self.full and not math.isfinite(uk[3]):
+            raise ConfigError("inputs", "vx", f"the lateral model needs vx; none given up to t = {t} s")
+        if not math.isfinite(uk[0]):
+            uk[0] = 0.0
+        if self.t_prev is None:
+            self.t_start = t
+            if self.full and cfg.x0_vx_from_wheels:
+                omega = uk[1] if self.mdl.rear_drive else uk[2]  # the undriven axle hardly slips
+                if math.isfinite(omega):
+                    self.z[0] = self.vehicle.wheel_radius * omega
+                    self.P[0, :], self.P[:, 0] = 0.0, 0.0
+                    self.P[0, 0] = cfg.x0_vx_wheel_std**2
+        else:
+            dt = t - self.t_prev
+            if not dt > 0:
+                raise ConfigError("inputs", "t", f"time must increase: {t} after {self.t_prev}")
+            self.predict(self.u_prev, dt)
+        yk = np.array([y.ax, y.ay, y.yaw_rate], float)[list(self.channels)]
+        self.update(uk, yk)
+        self.t_prev, self.u_prev = t, uk
+        _, _, (af, ar) = self.mdl.dynamics(self.z, uk)
+        vx = self.z[0] if self.full else uk[3]
+        self.active = gate_open(cfg, t=t, t_start=self.t_start, vx=vx, delta=uk[0], ay_meas=y.ay,
+                                alpha=max(abs(af), abs(ar)), vy_std=math.sqrt(max(self.P[self.nx - 2, self.nx - 2], 0.0)))
+        return self._estimate(vx)
+
+    def _estimate(self, vx) -> Estimate:
+        std = np.sqrt(np.maximum(np.diagonal(self.P), 0.0))
+        C = self.C_nom + self.z[self.ic]
+        vals = dict(zip(self.params, zip(C, std[self.ic])))
+        bias = dict(zip(("ax", "ay", "yaw_rate")[-len(self.channels):], self.z[self.ib]))
+        x = self.z[:self.nx]
+        vy, r = x[-2], x[-1]
+        sstd = tuple(std[:3]) if self.full else (0.0, std[0], std[1])
+        cx = vals.get("Cx", (NAN, NAN))
+        return Estimate(
+            active=self.active, vx=float(vx), vy=float(vy), yaw_rate=float(r),
+            Cf_y=float(vals["Cf_y"][0]), Cr_y=float(vals["Cr_y"][0]), Cx=float(cx[0]),
+            Cf_y_std=float(vals["Cf_y"][1]), Cr_y_std=float(vals["Cr_y"][1]), Cx_std=float(cx[1]),
+            Cf_y_sigma=NAN, Cr_y_sigma=NAN, Cx_sigma=NAN,
+            b_ax=float(bias.get("ax", NAN)), b_ay=float(bias["ay"]), b_yaw_rate=float(bias["yaw_rate"]),
+            ess=NAN, state_std=tuple(float(s) for s in sstd),
+        )
+
+    def posterior(self) -> Posterior:
+        """The Gaussian posterior as one 'particle' z (1, nz) with log-weight 0 and its
+        covariance in stats["cov"] (1, nz, nz)."""
+        return Posterior(self.z[None].copy(), np.zeros(1),
+                         {"cov": self.P[None].copy(), "C_nominal": self.C_nom.copy(), "params": self.params})
