@@ -12,6 +12,7 @@ from tirefilter.config import read_toml
 from tirefilter.errors import ConfigError, TirefilterError
 
 from tirefilter.estimators import ESTIMATORS  # DESIGN.md reserves augpf, rls, ekf, gpssm, combined too
+from tirefilter.viz.options import DEFAULT_LOG_EVERY
 
 
 def cmd_run(args) -> int:
@@ -29,7 +30,8 @@ def cmd_run(args) -> int:
     model = getattr(getattr(estimator, "cfg", None), "model", None) or resolve_model(args.model, scenario.sensors)
     summary = _run_and_record(
         lambda: run_scenario(scenario, estimator=estimator, seed=args.seed, fmi_version=args.fmi, results_csv=results,
-                             rrd=args.rrd, progress=_progress(args), friction_csv=_friction_csv(estimator, out / "friction.csv")),
+                             recording=_recording(args), progress=_progress(args),
+                             friction_csv=_friction_csv(estimator, out / "friction.csv")),
         lambda s: write_run_json(out / "run.json", s, command=sys.argv, model=model, fmi_version=args.fmi,
                                  **_estimator_record(estimator, config, args)),
         results)
@@ -40,7 +42,8 @@ def cmd_run(args) -> int:
           f"estimator {summary.estimator}, seed {args.seed}")
     _print_timing(summary, scenario.duration)
     _print_truth_summary(results)
-    print(f"results: {results}\nsummary: {out / 'run.json'}" + (f"\nrecording: {args.rrd}" if args.rrd else ""))
+    print(f"results: {results}\nsummary: {out / 'run.json'}" + (f"\nrecording: {args.rrd}" if args.rrd else "")
+          + _streamed(args))
     _print_friction(estimator, out / "friction.csv")
     _save_state(args, estimator)
     return 0
@@ -65,7 +68,7 @@ def cmd_replay(args) -> int:
     _init_state(args, estimator)
     model = getattr(getattr(estimator, "cfg", None), "model", None) or resolve_model(args.model, log.available)
     summary = _run_and_record(
-        lambda: replay_log(log, estimator=estimator, seed=args.seed, results_csv=results, rrd=args.rrd,
+        lambda: replay_log(log, estimator=estimator, seed=args.seed, results_csv=results, recording=_recording(args),
                            progress=_progress(args), vehicle_file=args.vehicle,
                            friction_csv=_friction_csv(estimator, _friction_name(results))),
         lambda s: write_summary_json(summary_json, s, command=sys.argv, model=model,
@@ -84,7 +87,8 @@ def cmd_replay(args) -> int:
                  if final.get(p) is not None and final.get(p + "_std") is not None]
     if estimates:
         print(f"final stiffness at t = {final['t']:g} s: {', '.join(estimates)} (mean +- posterior std of the mean)")
-    print(f"results: {results}\nsummary: {summary_json}" + (f"\nrecording: {args.rrd}" if args.rrd else ""))
+    print(f"results: {results}\nsummary: {summary_json}" + (f"\nrecording: {args.rrd}" if args.rrd else "")
+          + _streamed(args))
     _print_friction(estimator, _friction_name(results))
     _save_state(args, estimator)
     return 0
@@ -110,6 +114,19 @@ def _save_state(args, estimator) -> None:
         from tirefilter.estimators.state_file import save_state
 
         print(f"stiffness posterior: {save_state(estimator, args.save_state)}")
+
+
+def _recording(args):
+    """The Rerun recording of --rrd, --spawn, --connect and --log-every (None: none)."""
+    from tirefilter.viz.options import RecordingOptions, recording_options
+
+    return recording_options(recording=RecordingOptions(rrd=args.rrd, spawn=args.spawn, connect=args.connect,
+                                                        log_every=args.log_every))
+
+
+def _streamed(args) -> str:
+    return (f"\nstreamed to: {args.connect}" if args.connect else "") + (
+        "\nstreamed to: the spawned Rerun viewer" if args.spawn else "")
 
 
 def _friction_name(results: Path) -> Path:
@@ -350,7 +367,13 @@ def _estimator_options(p: argparse.ArgumentParser, *, default: str, particles: s
 
 
 def _output_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--rrd", help="write a Rerun recording to this file")
+    p.add_argument("--rrd", help="write a Rerun recording to this file (headless)")
+    p.add_argument("--spawn", action="store_true", help="start a local Rerun viewer and stream the run to it")
+    p.add_argument("--connect", metavar="ADDR", help="stream the run to a running Rerun viewer or gRPC proxy, "
+                   "e.g. rerun+http://127.0.0.1:9876/proxy")
+    p.add_argument("--log-every", type=int, default=DEFAULT_LOG_EVERY, metavar="K",
+                   help="log particle clouds, posterior densities and friction curves every K estimator steps "
+                   f"(series every step; default {DEFAULT_LOG_EVERY})")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 

@@ -77,16 +77,19 @@ class RunOutputs:
     """
 
     def __init__(self, columns: tuple[str, ...], *, results_csv: str | Path | None = None, rrd: str | Path | None = None,
-                 estimator: str | None = None, keep_rows: bool = False, total: int = 0, progress: bool = False):
+                 estimator: str | None = None, keep_rows: bool = False, total: int = 0, progress: bool = False,
+                 recording=None, context=None):
         from tirefilter.cosim.results import ResultWriter
+        from tirefilter.viz.options import recording_options
 
         self.columns = tuple(columns)
-        self.writer = ResultWriter(results_csv, self.columns) if results_csv else None
         self.recorder = None
-        if rrd:
+        recording = recording_options(rrd, recording)  # viz.options.RecordingOptions: file, viewer, decimation
+        if recording is not None:  # first: an unreachable viewer stops the run before a file is opened
             from tirefilter.viz.rerun_log import RerunRecorder
 
-            self.recorder = RerunRecorder(rrd, self.columns, estimator)
+            self.recorder = RerunRecorder(recording, self.columns, estimator, context=context)
+        self.writer = ResultWriter(results_csv, self.columns) if results_csv else None
         self.kept: list[np.ndarray] | None = [] if keep_rows else None
         self.bar = Progress(total, progress)
         self.step_times: list[float] = []
@@ -98,6 +101,8 @@ class RunOutputs:
         ts = time.perf_counter()
         est = estimator.step(t, u, y)
         self.step_times.append(time.perf_counter() - ts)
+        if self.recorder:
+            self.recorder.note_step(estimator, est)  # its posterior is logged with the row that follows
         return est
 
     def write(self, row) -> None:

@@ -44,6 +44,7 @@ def run_scenario(
     keep_rows: bool = False,
     parameter_overrides: dict | None = None,
     friction_csv: str | Path | None = None,
+    recording=None,
 ) -> tuple[RunSummary, np.ndarray | None]:
     """Co-simulate `scenario`; returns the summary and, with keep_rows, the result rows.
 
@@ -53,6 +54,8 @@ def run_scenario(
     raised after the summary has been filled in (`summary.status = "failed"`).
     A friction estimator with `friction_csv` also writes its curve snapshots there
     (`cosim.friction`); those written before a failure stay.
+    `recording` (viz.options.RecordingOptions) streams the run to Rerun (file, viewer,
+    decimation); `rrd` alone is a file-only recording.
     """
     own_fmu = fmu is None
     fmu = fmu or VehicleFMU(fmi_version)
@@ -77,7 +80,7 @@ def run_scenario(
 
     try:
         with run_outputs(summary, columns, results_csv=results_csv, rrd=rrd, estimator=est_name, keep_rows=keep_rows,
-                         total=n, progress=progress) as out:
+                         total=n, progress=progress, recording=recording, context=_recording_context(scenario)) as out:
             if estimator is not None:
                 estimator.reset(rng)
             for s in cosim_samples(scenario, fmu, params, on_step=on_step):
@@ -158,6 +161,14 @@ def cosim_samples(scenario: Scenario, fmu: VehicleFMU, params: dict,
         y = fmu.do_step(t, h)
         if on_step is not None:
             on_step(k)
+
+
+def _recording_context(scenario: Scenario):
+    """The truth a recording draws besides the rows: the car's geometry and the true
+    friction curves (those of the friction CSV)."""
+    from tirefilter.viz.options import RecordingContext
+
+    return RecordingContext(vehicle=scenario.vehicle, friction_truth=friction_truth(scenario))
 
 
 def write_run_json(path: str | Path, summary: RunSummary, *, command: list[str], model: str, particles: int | None,

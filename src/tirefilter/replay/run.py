@@ -70,6 +70,7 @@ def replay_log(
     keep_rows: bool = False,
     vehicle_file: str | Path | None = None,
     friction_csv: str | Path | None = None,
+    recording=None,
 ) -> tuple[ReplaySummary, np.ndarray | None]:
     """Run `estimator` (None: the log's signals only) over `log`; returns the summary and,
     with keep_rows, the result rows (n, len(result_columns(log))).
@@ -79,6 +80,8 @@ def replay_log(
     is raised after the summary has been filled in (`summary.status = "failed"`, also as
     `exc.summary`). A friction estimator with `friction_csv` also writes its curve
     snapshots there (`cosim.friction`, no truth columns); those written before a failure stay.
+    `recording` (viz.options.RecordingOptions) streams the replay to Rerun; `rrd` alone is a
+    file-only recording.
     """
     _, rng = spawn_seeds(seed)  # the same generator a co-simulation with this seed gives its estimator
     est_name = getattr(estimator, "name", None) if estimator is not None else None
@@ -88,10 +91,13 @@ def replay_log(
     summary = ReplaySummary(log=str(log.path), vehicle=str(vehicle_file) if vehicle_file else None, seed=seed,
                             estimator=est_name or "none", rows=log.rows, duration_s=log.duration,
                             results=str(results_csv) if results_csv else None)
+    from tirefilter.viz.options import RecordingContext
+
     friction = FrictionWriter(friction_csv, estimator) if friction_csv and is_friction_estimator(estimator) else None
     with closing(friction) if friction is not None else nullcontext(), \
             run_outputs(summary, columns, results_csv=results_csv, rrd=rrd, estimator=est_name, keep_rows=keep_rows,
-                        total=log.rows, progress=progress) as out:
+                        total=log.rows, progress=progress, recording=recording,
+                        context=RecordingContext(vehicle=getattr(estimator, "vehicle", None))) as out:
         if estimator is not None:
             estimator.reset(rng)
         for k, t, u, y in log_samples(log):

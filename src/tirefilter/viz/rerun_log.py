@@ -1,101 +1,395 @@
-"""Rerun recordings of a run: truth, sensors, vehicle pose and estimate series.
+"""Rerun recordings of a run: truth, sensors, vehicle pose, estimate series, and the
+estimator's posterior (particle clouds, stiffness densities, friction curves).
 
-Rows are buffered and sent in bulk with `send_columns` every `chunk` rows and at close,
-so a recording costs little per step and a run that fails keeps what was sent.
-Entity paths (README, DESIGN.md):
-  /truth/<name>                     ground truth (Result CSV `true_<name>`)
-  /sensors/<name>                   measured signals (Result CSV `meas_<name>`)
-  /vehicle/x, /vehicle/y, /vehicle/psi, /vehicle/path
-  /estimator/<est>/state/<vx|vy|yaw_rate|beta>
-  /estimator/<est>/stiffness/<Cf_y|Cr_y|Cx>[_std|_sigma]
-  /estimator/<est>/bias/<ax|ay|yaw_rate>
-  /estimator/<est>/ess, /estimator/<est>/active
+Result-CSV rows are buffered and sent in bulk with `send_columns` every `chunk` rows and
+at close, so the series cost little per step and a run that fails keeps what was sent.
+At every `log_every`-th estimator step the posterior is logged as well (`_snapshot`):
+per-particle stiffness means and state particles coloured by weight, the posterior
+density of each stiffness parameter on a fixed grid (eq. (26), `viz.density`), and the
+friction curves of estimators that have `friction()`.
+
+The recording goes to any of: an .rrd file, a viewer spawned here, a viewer or gRPC proxy
+at a URL (`RecordingOptions`). The layout (`viz.blueprint`) is sent with it once the
+recorder knows what the estimator provides (its first step).
+
+Entity paths: `viz.paths` and the README table.
 """
 
 from __future__ import annotations
 
+import math
+import socket
+import sys
+import warnings
 from pathlib import Path
+from urllib.parse import urlparse
 
 import numpy as np
 
-TIMELINE = "sim_time"
+from tirefilter.errors import ConfigError
+from tirefilter.viz import paths
+from tirefilter.viz.blueprint import ESTIMATE, POSTERIOR_BAND, SPREAD_BAND, TRUTH, TRUTH_STEP, Layout, build_blueprint
+from tirefilter.viz.density import ComponentCache, stiffness_grid, stiffness_mixture
+from tirefilter.viz.options import RecordingContext, RecordingOptions
+from tirefilter.viz.paths import TIMELINE, entity_path
+
+LIVE_FLUSH_TIMEOUT = 10.0  # s, the end of a run waits this long for a viewer to take the rest
+_VIRIDIS = np.array([[68, 1, 84], [59, 82, 139], [33, 145, 140], [94, 201, 98], [253, 231, 37]], float)
 
 
-def entity_path(column: str, estimator: str | None) -> str | None:
-    """Entity path of a Result-CSV column (None for `t`)."""
-    if column == "t":
-        return None
-    if column.startswith("true_"):
-        name = column[len("true_"):]
-        if name in ("x", "y", "psi"):
-            return f"/vehicle/{name}"
-        return f"/truth/{name}"
-    if column.startswith("meas_"):
-        return f"/sensors/{column[len('meas_'):]}"
-    if estimator is None:
-        return None
-    base = f"/estimator/{estimator}"
-    if column in ("vx", "vy", "yaw_rate", "beta"):
-        return f"{base}/state/{column}"
-    if column.startswith(("Cf_y", "Cr_y", "Cx")):
-        return f"{base}/stiffness/{column}"
-    if column.startswith("b_"):
-        return f"{base}/bias/{column[2:]}"
-    return f"{base}/{column}"  # ess, active
+def weight_colors(log_weights) -> np.ndarray:
+    """(N, 3) uint8 colours of particles by normalised weight q / max q (viridis-like:
+    dark purple = lightest, yellow = heaviest)."""
+    lw = np.asarray(log_weights, float)
+    lw = np.where(np.isnan(lw), -np.inf, lw)
+    m = np.max(lw) if lw.size else 0.0
+    s = np.exp(lw - m) if np.isfinite(m) else np.ones_like(lw)
+    x = s * (len(_VIRIDIS) - 1)
+    anchors = np.arange(len(_VIRIDIS))
+    return np.stack([np.interp(x, anchors, _VIRIDIS[:, c]) for c in range(3)], axis=-1).astype(np.uint8)
 
 
 class RerunRecorder:
-    """Writes one run to an .rrd file (headless)."""
+    """Records one run. `target` is a RecordingOptions, or the path of an .rrd file."""
 
-    def __init__(self, path: str | Path, columns: tuple[str, ...], estimator: str | None, *,
-                 application_id: str = "tirefilter", recording_id: str | None = None, chunk: int = 1000):
+    def __init__(self, target, columns: tuple[str, ...], estimator: str | None, *,
+                 application_id: str = "tirefilter", recording_id: str | None = None, chunk: int | None = None,
+                 context: RecordingContext | None = None):
         import rerun as rr
 
         self._rr = rr
-        self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        opts = target if isinstance(target, RecordingOptions) else RecordingOptions(rrd=target)
+        self.options = opts.validated()
+        self.path = Path(opts.rrd) if opts.rrd else None
         self.rec = rr.RecordingStream(application_id, recording_id=recording_id)
-        self.rec.save(str(self.path))
+        self._open_sinks()
+        self.estimator = estimator
+        self.context = context or RecordingContext()
         self.columns = tuple(columns)
+        self._col = {c: j for j, c in enumerate(self.columns)}
         self._paths = [entity_path(c, estimator) for c in self.columns]
         self._t_index = self.columns.index("t")
+        self._truth = "true_x" in self._col and "true_y" in self._col
         self._rows: list[np.ndarray] = []
-        self._chunk = chunk
+        # rows per bulk send: large for a file, small when a viewer watches live (0.5 s at 100 Hz)
+        self._chunk = chunk or (50 if opts.spawn or opts.connect else 1000)
         self._xy: list[np.ndarray] = []
-        self._ix = self.columns.index("true_x") if "true_x" in self.columns else None
-        self._iy = self.columns.index("true_y") if "true_y" in self.columns else None
+        self._pending = None  # (estimator, Estimate) of the step whose row comes next
+        self._steps = 0
+        self._layout: Layout | None = None
+        self._grids: dict[str, np.ndarray] = {}
+        self._caches: dict[str, ComponentCache] = {}  # per parameter: density rows of unchanged components
+        self._dead_reckoning = (0.0, 0.0, 0.0, None)  # x, y, psi, t of the last row (replay)
+        self._lf = None
+        self.snapshots = 0
+        if estimator is None:
+            self._send_layout(Layout(None, truth=self._truth))
+
+    # ---- sinks and layout ---------------------------------------------------------------
+    def _open_sinks(self) -> None:
+        rr, opts = self._rr, self.options
+        sinks = []
+        if self.path is not None:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            sinks.append(rr.FileSink(str(self.path)))
+        if opts.spawn:
+            rr.spawn(port=opts.spawn_port, connect=False, executable_path=_bundled_viewer(), recording=self.rec)
+            sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{opts.spawn_port}/proxy"))
+        if opts.connect and not (opts.spawn and opts.connect.rstrip("/") == f"rerun+http://127.0.0.1:{opts.spawn_port}"
+                                                                              "/proxy"):
+            _check_listening(str(opts.connect))
+            sinks.append(rr.GrpcSink(str(opts.connect)))
+        self.rec.set_sinks(*sinks)
+
+    def _send_layout(self, layout: Layout) -> None:
+        self._layout = layout
+        self._log_vehicle_drawing()
+        self.rec.send_blueprint(build_blueprint(layout), make_active=True, make_default=True)
+
+    def _log_vehicle_drawing(self) -> None:
+        """The car in its body frame (static): outline, heading arrow, front wheel."""
+        rr, log = self._rr, self.rec.log
+        v = self.context.vehicle
+        lf, lr = (float(v.lf), float(v.lr)) if v is not None else (1.2, 1.6)
+        self._lf = lf
+        half_w = 0.9
+        front, rear = lf + 0.8, -(lr + 0.9)
+        outline = [[front, half_w, 0], [rear, half_w, 0], [rear, -half_w, 0], [front, -half_w, 0], [front, half_w, 0]]
+        log("/vehicle", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        log(paths.VEHICLE_OUTLINE, rr.LineStrips3D([outline], colors=[ESTIMATE]), static=True)
+        log(paths.VEHICLE_HEADING, rr.Arrows3D(vectors=[[front + 1.5, 0, 0]], colors=[TRUTH]), static=True)
+        log(paths.VEHICLE_STEER, rr.Arrows3D(origins=[[-0.35, 0, 0]], vectors=[[0.7, 0, 0]], colors=[TRUTH_STEP],
+                                             radii=[0.08]), static=True)
+
+    def _layout_for(self, estimator, est, mixture, post) -> Layout:
+        params = tuple(getattr(estimator, "params", ())) or (mixture.params if mixture is not None else ())
+        if not params and est is not None:
+            params = tuple(p for p in ("Cx", "Cf_y", "Cr_y") if math.isfinite(getattr(est, p, math.nan)))
+        order = tuple(p for p in ("Cx", "Cf_y", "Cr_y") if p in params)
+        particles = post is not None and len(post.log_weights) > 1
+        return Layout(self.estimator, params=order, lateral="Cx" not in order,
+                      clouds=particles,
+                      densities=tuple(p for p in order if mixture is not None and p in mixture.params),
+                      friction=callable(getattr(estimator, "friction", None)), truth=self._truth,
+                      sensors=tuple(s for s in paths.SENSORS if est is None or math.isfinite(getattr(est, f"b_{s}",
+                                                                                                     math.nan))))
+
+    # ---- per step -------------------------------------------------------------------------
+    def note_step(self, estimator, est) -> None:
+        """The estimator has just stepped; its row follows (`log_row`)."""
+        self._pending = (estimator, est)
 
     def log_row(self, values) -> None:
-        self._rows.append(np.asarray(values, dtype=float))
+        row = np.asarray(values, dtype=float)
+        self._rows.append(row)
+        if self._pending is not None:
+            estimator, est = self._pending
+            self._pending = None
+            if self._steps % self.options.log_every == 0:
+                self._snapshot(row, estimator, est)
+            self._steps += 1
         if len(self._rows) >= self._chunk:
             self.flush()
 
+    def _snapshot(self, row: np.ndarray, estimator, est) -> None:
+        rr = self._rr
+        post = _posterior(estimator)
+        mixture = stiffness_mixture(post, est, params=getattr(estimator, "params", None),
+                                    gaussian=getattr(estimator, "posterior_family", None) == "gaussian")
+        if self._layout is None:
+            self._send_layout(self._layout_for(estimator, est, mixture, post))
+        layout = self._layout
+        e = self.estimator
+        self.rec.set_time(TIMELINE, duration=float(row[self._t_index]))
+        if layout.clouds and mixture is not None:
+            cols = [mixture.index(p) for p in layout.params if p in mixture.params]
+            with np.errstate(divide="ignore"):
+                colors = weight_colors(np.log(mixture.weights))
+            pts = mixture.loc[:, cols]
+            arch = rr.Points2D if pts.shape[1] == 2 else rr.Points3D
+            if pts.shape[1] in (2, 3):
+                self.rec.log(paths.particles(e, "stiffness"), arch(pts, colors=colors, radii=rr.Radius.ui_points(2.5)))
+        if post is not None and len(post.log_weights) > 1:
+            x = np.asarray(post.particles, float)
+            stats = post.stats or {}
+            if "mu" in stats and "var" in stats and "gamma" not in stats and x.ndim == 2:  # AUGPF: [x, m, s2]
+                x = x[:, :x.shape[1] - np.shape(stats["mu"])[-1] - np.shape(stats["var"])[-1]]
+            if x.ndim == 2 and x.shape[1] in (2, 3):
+                arch = rr.Points2D if x.shape[1] == 2 else rr.Points3D
+                self.rec.log(paths.particles(e, "state"),
+                             arch(x, colors=weight_colors(post.log_weights), radii=rr.Radius.ui_points(2.5)))
+        if mixture is not None:
+            for p in layout.densities:
+                grid = self._grid(p, estimator, mixture, post)
+                values = mixture.pdf(p, grid, self._caches.setdefault(p, ComponentCache())).astype(np.float32)
+                self.rec.log(paths.density(e, p), rr.BarChart.from_fields(values=values))
+                self.rec.log(paths.density_mass(e, p), rr.Scalars(mixture.mass(p, grid[0], grid[-1])))
+        if layout.friction:
+            self._log_friction(estimator.friction(), row)
+        self.snapshots += 1
+
+    def _grid(self, param: str, estimator, mixture, post) -> np.ndarray:
+        """The fixed density grid of `param` (chosen at the first snapshot, then kept):
+        [0, 1.2 bound_high] x the reference stiffness of the MPF (its means stay inside the
+        projection bounds [bound_low, bound_high] x reference; the margin holds the
+        densities of particles at a bound); [0, 3.6] x the nominal (or first) value for
+        other estimators."""
+        if param in self._grids:
+            return self._grids[param]
+        names = tuple(getattr(estimator, "params", ()))
+        cfg = getattr(estimator, "cfg", None)
+        ref = None
+        if param in names and getattr(estimator, "C_ref", None) is not None:
+            ref = float(np.asarray(estimator.C_ref)[names.index(param)])
+        stats = getattr(post, "stats", None) or {}
+        if ref is None and "C_nominal" in stats and param in tuple(stats.get("params", ())):
+            ref = float(np.asarray(stats["C_nominal"])[tuple(stats["params"]).index(param)])
+        if ref is None or not ref > 0:
+            ref = abs(mixture.mean(param))
+        grid = stiffness_grid(ref, 0.0, 1.2 * getattr(cfg, "bound_high", 3.0), self.options.density_points)
+        self._grids[param] = grid
+        with warnings.catch_warnings():  # rerun-sdk 0.41 warns about the absent `values` of a partial update
+            warnings.simplefilter("ignore")
+            self.rec.log(paths.density(self.estimator, param),
+                         self._rr.BarChart.from_fields(abscissa=grid.astype(np.float32)), static=True)
+        return grid
+
+    def _log_friction(self, curve, row: np.ndarray) -> None:
+        """Per axle: the posterior mean mu(alpha), the +-2 std band, the visited slip range,
+        and the true curve at the current surface (co-simulation)."""
+        if curve is None:
+            return
+        rr, e = self._rr, self.estimator
+        alpha = np.asarray(curve.alpha, float)
+        visited = np.asarray(curve.visited, float).reshape(2, 2)
+        z = np.zeros_like(alpha)
+        axles = (("front", curve.mu_f, curve.mu_f_std), ("rear", curve.mu_r, curve.mu_r_std))
+        for k, (axle, mu, std) in enumerate(axles):
+            mu, std = np.asarray(mu, float), np.asarray(std, float)
+            self.rec.log(paths.friction(e, axle), rr.LineStrips3D([np.stack([alpha, mu, z], 1)], colors=[ESTIMATE],
+                                                                  radii=rr.Radius.ui_points(1.5)))
+            self.rec.log(paths.friction(e, axle, "band"),
+                         rr.LineStrips3D([np.stack([alpha, mu - 2 * std, z], 1), np.stack([alpha, mu + 2 * std, z], 1)],
+                                         colors=[POSTERIOR_BAND], radii=rr.Radius.ui_points(1.0)))
+            lo, hi = visited[k]
+            if math.isfinite(lo) and math.isfinite(hi):
+                finite = np.isfinite(mu)
+                top = float(np.max(np.abs(mu[finite]) + 2 * np.nan_to_num(std[finite]))) if finite.any() else 1.0
+                self.rec.log(paths.friction(e, axle, "visited"),
+                             rr.LineStrips3D([[[lo, -top, 0], [lo, top, 0]], [[hi, -top, 0], [hi, top, 0]]],
+                                             colors=[SPREAD_BAND], radii=rr.Radius.ui_points(1.0)))
+            if self.context.friction_truth is not None:
+                j = self._col.get("true_surface")
+                surface = float(row[j]) if j is not None and math.isfinite(row[j]) else 1.0
+                true_mu = np.asarray(self.context.friction_truth(alpha, surface)[k], float)
+                self.rec.log(paths.truth_friction(axle), rr.LineStrips3D(
+                    [np.stack([alpha, true_mu, z], 1)], colors=[TRUTH], radii=rr.Radius.ui_points(1.5)))
+
+    # ---- bulk series ---------------------------------------------------------------------
     def flush(self) -> None:
         if not self._rows:
             return
         rr = self._rr
         data = np.vstack(self._rows)
         self._rows.clear()
-        times = rr.TimeColumn(TIMELINE, duration=data[:, self._t_index])
+        t = data[:, self._t_index]
         for j, path in enumerate(self._paths):
-            if path is None:
-                continue
-            column = data[:, j]
-            keep = ~np.isnan(column)
-            if not keep.any():
-                continue
-            if keep.all():
-                rr.send_columns(path, indexes=[times], columns=rr.Scalars.columns(scalars=column), recording=self.rec)
-            else:
-                rr.send_columns(path, indexes=[rr.TimeColumn(TIMELINE, duration=data[keep, self._t_index])],
-                                columns=rr.Scalars.columns(scalars=column[keep]), recording=self.rec)
-        if self._ix is not None and self._iy is not None:
-            self._xy.append(data[:, [self._ix, self._iy]])
+            if path is not None:
+                self._send_scalars(path, t, data[:, j])
+        if self.estimator is not None:
+            if self._layout is None:  # rows without estimator steps (the estimator FMU): layout from the columns
+                params = tuple(p for p in ("Cx", "Cf_y", "Cr_y")
+                               if p in self._col and np.isfinite(data[:, self._col[p]]).any())
+                self._send_layout(Layout(self.estimator, params=params, lateral="Cx" not in params, truth=self._truth))
+            for p in paths.STIFFNESS:
+                if p not in self._col:
+                    continue
+                c = data[:, self._col[p]]
+                for which, col in (("posterior", f"{p}_std"), ("spread", f"{p}_sigma")):
+                    if col in self._col:
+                        s = data[:, self._col[col]]
+                        self._send_scalars(paths.stiffness_band(self.estimator, p, f"{which}_lower"), t, c - 2 * s)
+                        self._send_scalars(paths.stiffness_band(self.estimator, p, f"{which}_upper"), t, c + 2 * s)
+        self._send_pose(data, t)
+
+    def _send_scalars(self, path: str, t: np.ndarray, column: np.ndarray) -> None:
+        rr = self._rr
+        keep = ~np.isnan(column)
+        if not keep.any():
+            return
+        if not keep.all():
+            t, column = t[keep], column[keep]
+        self.rec.send_columns(path, indexes=[rr.TimeColumn(TIMELINE, duration=t)],
+                              columns=rr.Scalars.columns(scalars=column))
+
+    def _send_pose(self, data: np.ndarray, t: np.ndarray) -> None:
+        """Vehicle pose per row (transform of /vehicle/body, steer angle of the front wheel,
+        trail point): the true pose in co-simulation, dead reckoning of the estimated (else
+        measured) speed and yaw rate in replay."""
+        rr = self._rr
+        col = self._col
+        if self._truth:
+            x, y = data[:, col["true_x"]], data[:, col["true_y"]]
+            psi = data[:, col["true_psi"]] if "true_psi" in col else np.zeros_like(x)
+        else:
+            x, y, psi = self._dead_reckon(data, t)
+            if x is None:
+                return
+        self._xy.append(np.stack([x, y], 1))
+        steer = next((data[:, col[c]] for c in ("true_delta", "meas_delta") if c in col), np.zeros_like(x))
+        steer = np.nan_to_num(steer)
+        ok = np.isfinite(x) & np.isfinite(y) & np.isfinite(psi)
+        if not ok.any():
+            return
+        x, y, psi, steer, tt = x[ok], y[ok], psi[ok], steer[ok], t[ok]
+        times = [rr.TimeColumn(TIMELINE, duration=tt)]
+        pos = np.stack([x, y, np.zeros_like(x)], 1)
+        self.rec.send_columns(paths.VEHICLE_BODY, indexes=times,
+                              columns=rr.Transform3D.columns(translation=pos, quaternion=_yaw_quaternion(psi)))
+        lf = np.broadcast_to([self._lf or 1.2, 0.0, 0.0], pos.shape)
+        self.rec.send_columns(paths.VEHICLE_STEER, indexes=times,
+                              columns=rr.Transform3D.columns(translation=lf, quaternion=_yaw_quaternion(steer)))
+        self.rec.send_columns(paths.VEHICLE_TRAIL, indexes=times, columns=rr.Points3D.columns(positions=pos))
+
+    def _dead_reckon(self, data: np.ndarray, t: np.ndarray):
+        col = self._col
+
+        def first(*names):
+            for n in names:
+                if n in col and np.isfinite(data[:, col[n]]).any():
+                    return np.nan_to_num(data[:, col[n]])
+            return None
+
+        vx, r = first("vx", "meas_vx"), first("yaw_rate", "meas_yaw_rate")
+        if vx is None or r is None:
+            return None, None, None
+        vy = first("vy")
+        vy = np.zeros_like(vx) if vy is None else vy
+        x0, y0, psi0, t0 = self._dead_reckoning
+        dt = np.diff(np.concatenate([[t[0] if t0 is None else t0], t]))
+        psi = psi0 + np.cumsum(r * dt)  # Euler, rate held over the interval before each sample
+        x = x0 + np.cumsum((vx * np.cos(psi) - vy * np.sin(psi)) * dt)
+        y = y0 + np.cumsum((vx * np.sin(psi) + vy * np.cos(psi)) * dt)
+        self._dead_reckoning = (float(x[-1]), float(y[-1]), float(psi[-1]), float(t[-1]))
+        return x, y, psi
 
     def close(self) -> None:
         self.flush()
+        if self._layout is None:
+            self._send_layout(Layout(self.estimator, truth=self._truth))
         if self._xy:
             path = np.vstack(self._xy)
-            self.rec.log("/vehicle/path", self._rr.LineStrips2D([path]), static=True)
-        self.rec.flush()
+            path = path[np.all(np.isfinite(path), axis=1)]
+            self.rec.log(paths.VEHICLE_PATH, self._rr.LineStrips2D([path]), static=True)
+        live = self.options.spawn or self.options.connect
+        try:
+            # a viewer that went away must not hang the end of the run (the file sink is flushed too)
+            self.rec.flush(timeout_sec=LIVE_FLUSH_TIMEOUT) if live else self.rec.flush()
+        except RuntimeError as exc:
+            print(f"warning: the Rerun stream did not complete: {exc}", file=sys.stderr)
         self.rec.disconnect()
+
+
+def _check_listening(url: str, timeout: float = 2.0) -> None:
+    """A clear error before the run when nothing listens at a --connect URL (rerun-sdk
+    would buffer the recording in memory and retry in the background)."""
+    parsed = urlparse(url.replace("rerun+", "", 1).replace("rerun://", "https://", 1))
+    if parsed.hostname is None or parsed.port is None:
+        return
+    try:
+        socket.create_connection((parsed.hostname, parsed.port), timeout=timeout).close()
+    except OSError as exc:
+        raise ConfigError("--connect", url, f"nothing accepts connections at {parsed.hostname}:{parsed.port} "
+                          f"({exc.strerror or exc}); start a viewer first (`.venv/bin/rerun`) or use --spawn") from None
+
+
+def _yaw_quaternion(angle: np.ndarray) -> np.ndarray:
+    """(n, 4) quaternions xyzw of rotations by `angle` about +z."""
+    q = np.zeros((len(angle), 4))
+    q[:, 2], q[:, 3] = np.sin(0.5 * angle), np.cos(0.5 * angle)
+    return q
+
+
+def _posterior(estimator):
+    """estimator.posterior(), or None where the estimator has none (or no particles)."""
+    get = getattr(estimator, "posterior", None)
+    if not callable(get):
+        return None
+    try:
+        post = get()
+    except NotImplementedError:
+        return None
+    if post is None or getattr(post, "log_weights", None) is None or len(post.log_weights) == 0:
+        return None
+    return post
+
+
+def _bundled_viewer() -> str | None:
+    """The viewer binary shipped with rerun-sdk (rerun_cli), so --spawn works without the
+    venv's bin/ on PATH."""
+    try:
+        import rerun_cli
+    except ImportError:
+        return None
+    exe = Path(rerun_cli.__file__).with_name("rerun")
+    return str(exe) if exe.is_file() else None
