@@ -344,3 +344,110 @@ def test_cli_builds_the_estimator_fmu(capsys):
     assert main(["fmu", "build", "estimator"]) == 0
     assert "built estimator FMU mpf" in capsys.readouterr().out
     assert validate_fmu(str(BUILD_DIR / "TirefilterMPF.fmu")) == []
+
+
+FRICTION_H = 0.04  # s: friction-snow's estimator sample period (the friction paper's Ts)
+
+
+@pytest.fixture(scope="module")
+def friction_fmu(tmp_path_factory):
+    from tirefilter.fmu_export.build import build_estimator_fmu
+
+    return build_estimator_fmu("combined", tmp_path_factory.mktemp("friction_fmu"))
+
+
+@pytest.fixture(scope="module")
+def friction_snow():
+    """friction-snow: the friction FMU's parameters and a 6 s sample stream of the
+    in-process co-simulation's sensors (v^X from the truth: the lateral model's input)."""
+    from tirefilter.cosim.fmu import VehicleFMU
+    from tirefilter.cosim.run import run_scenario
+
+    sc = load_scenario("friction-snow")
+    assert sc.sample_period == FRICTION_H
+    vehicle, est_p, _, _ = scenario_run_parameters(sc, seed=SEED, particles=N, model="lateral")
+    _, rows = run_scenario(dataclasses.replace(sc, duration=6.0), seed=SEED, keep_rows=True)
+    with VehicleFMU() as fmu:
+        names = list(ESTIMATE_COLUMNS) + [truth_column(n) for n in fmu.output_names] + list(INPUT_TRUTH_COLUMNS)
+    cols = ("meas_delta", "meas_omega_f", "meas_omega_r", "true_vx", "meas_ax", "meas_ay", "meas_yaw_rate")
+    stream = rows[:, [names.index(c) for c in cols]].copy()
+    params = dict(est_p, t_first=0.0, particles=N, friction_period=1.0, config="[gpssm]\nbasis = \"axle\"\n")
+    return sc, params, stream
+
+
+def _python_friction_estimator(sc, params):
+    """The estimator the FMU builds, built the same way in this process: from the vehicle
+    and the options (no scenario), with the FMU parameters in the [gpssm] table."""
+    from tirefilter.estimators import build_log_estimator
+
+    Ts = 1.0 / params["estimator_rate"]
+    config = {"gpssm": {"basis": "axle", "forgetting": params["forgetting"], "sample_period": Ts}}
+    nan2 = np.full(2, math.nan)
+    est = build_log_estimator("combined", sc.vehicle, np.array([0.0, Ts]), dict.fromkeys(
+        ("delta", "omega_f", "omega_r", "vx", "ax", "ay", "yaw_rate"), nan2), model="lateral", particles=N,
+        config=config)
+    est.reset(spawn_seeds(SEED)[1])
+    return est
+
+
+def test_friction_fmu_validates_and_equals_python_estimator(friction_fmu, friction_snow):
+    """The combined friction estimator as an FMU: validates; its estimates and its friction
+    outputs (refreshed every friction_period) equal the Python estimator's on the same
+    samples; a NaN a^Y sample behaves as in Python."""
+    from fmpy.validation import validate_fmu
+    from tirefilter.fmu_export.slaves import FRICTION_ALPHA_DEG, friction_output
+
+    assert validate_fmu(str(friction_fmu)) == []
+    sc, params, stream = friction_snow
+    stream = stream.copy()
+    stream[30, 5] = np.nan
+    names = ["t", "vy", "yaw_rate", "Cf_y", "Cr_y", "ess", "friction_t"]
+    names += [friction_output(f"mu_{a}{s}", k) for a in "fr" for s in ("", "_std") for k in FRICTION_ALPHA_DEG]
+    est = _python_friction_estimator(sc, params)
+    alpha = np.deg2rad(np.array(FRICTION_ALPHA_DEG, float))
+    got, want = [], []
+    with FMUHost(friction_fmu) as host:
+        host.initialize(params)
+        for k in range(len(stream)):
+            host.step(FRICTION_H, dict(zip(IN_NAMES, stream[k])))
+            got.append([host.get(names)[n] for n in names])
+            e = est.step(k * FRICTION_H, Inputs(*stream[k, :4]), Measurement(*stream[k, 4:]))
+            if k % 25 == 0:  # friction_period 1 s = 25 samples
+                c = est.friction()
+                curves = [np.interp(alpha, c.alpha, getattr(c, f)) for f in ("mu_f", "mu_f_std", "mu_r", "mu_r_std")]
+                t_curve = k * FRICTION_H
+            want.append([k * FRICTION_H, e.vy, e.yaw_rate, e.Cf_y, e.Cr_y, e.ess, t_curve, *np.concatenate(curves)])
+    got, want = np.array(got), np.array(want)
+    assert np.all(np.isfinite(got[:, :7]))
+    np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12)
+    assert len(np.unique(got[:, 6])) == len(range(0, len(stream), 25))  # refreshed once per friction_period
+
+
+def test_friction_fmu_state_restores(friction_fmu, friction_snow):
+    _, params, stream = friction_snow
+    names = ["vy", "Cf_y", "friction_t", "mu_f[26]", "mu_r[26]", "mu_f_std[26]"]  # 5 deg
+
+    def run(host, k0, k1):
+        out = []
+        for k in range(k0, k1):
+            host.step(FRICTION_H, dict(zip(IN_NAMES, stream[k])))
+            out.append([host.get(names)[n] for n in names])
+        return np.array(out)
+
+    with FMUHost(friction_fmu) as host:
+        host.initialize(params)
+        run(host, 0, 60)
+        state = host.get_state()
+        first = run(host, 60, 110)
+        host.set_state(state)
+        np.testing.assert_array_equal(run(host, 60, 110), first)
+
+
+def test_friction_fmu_rejects_bad_friction_period(friction_fmu, friction_snow):
+    _, params, _ = friction_snow
+    from fmpy.fmi1 import FMICallException
+
+    with FMUHost(friction_fmu) as host:
+        with pytest.raises(FMICallException):
+            host.initialize(dict(params, friction_period=-1.0))
+        assert any("parameter friction_period: -1.0 is out of range" in m for m in host.errors()), host.messages

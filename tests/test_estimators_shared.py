@@ -14,7 +14,7 @@ from tirefilter.cli import main
 from tirefilter.cosim.fmu import VehicleFMU
 from tirefilter.cosim.results import ESTIMATE_COLUMNS, INPUT_TRUTH_COLUMNS, read_results, truth_column
 from tirefilter.cosim.run import run_scenario
-from tirefilter.estimators import ESTIMATORS, build_estimator, build_log_estimator
+from tirefilter.estimators import ESTIMATORS, FRICTION_ESTIMATORS, build_estimator, build_log_estimator
 from tirefilter.replay import read_log, replay_log, result_columns, write_log
 from tirefilter.scenarios import list_scenarios, load_scenario
 from tirefilter.vehicle.params import load_vehicle
@@ -38,7 +38,12 @@ def _run(name: str, scenario, seed: int = 0, particles=N):
 
 
 def _assert_finite(r: dict, est, where: str) -> None:
+    # the friction estimators' stiffness is the slope of the learned curve, with a std only
+    # once the first snapshot has solved for the curve (friction_gpssm._curve_slope)
+    friction = getattr(est, "name", "") in FRICTION_ESTIMATORS
     for col in ALWAYS_FINITE:
+        if friction and col.endswith("_std"):
+            continue
         assert np.isfinite(r[col]).all(), (where, col)
     if "Cx" in getattr(est, "params", ()):
         assert np.isfinite(r["Cx"]).all() and np.isfinite(r["Cx_std"]).all(), (where, "Cx")

@@ -26,10 +26,10 @@ def cmd_run(args) -> int:
     out = Path(args.out) if args.out else Path("runs") / scenario.name
     out.mkdir(parents=True, exist_ok=True)
     results = out / "results.csv"
-    model = resolve_model(args.model, scenario.sensors)
+    model = getattr(getattr(estimator, "cfg", None), "model", None) or resolve_model(args.model, scenario.sensors)
     summary = _run_and_record(
         lambda: run_scenario(scenario, estimator=estimator, seed=args.seed, fmi_version=args.fmi, results_csv=results,
-                             rrd=args.rrd, progress=_progress(args)),
+                             rrd=args.rrd, progress=_progress(args), friction_csv=_friction_csv(estimator, out / "friction.csv")),
         lambda s: write_run_json(out / "run.json", s, command=sys.argv, model=model, fmi_version=args.fmi,
                                  **_estimator_record(estimator, config, args)),
         results)
@@ -41,6 +41,7 @@ def cmd_run(args) -> int:
     _print_timing(summary, scenario.duration)
     _print_truth_summary(results)
     print(f"results: {results}\nsummary: {out / 'run.json'}" + (f"\nrecording: {args.rrd}" if args.rrd else ""))
+    _print_friction(estimator, out / "friction.csv")
     _save_state(args, estimator)
     return 0
 
@@ -65,7 +66,8 @@ def cmd_replay(args) -> int:
     model = getattr(getattr(estimator, "cfg", None), "model", None) or resolve_model(args.model, log.available)
     summary = _run_and_record(
         lambda: replay_log(log, estimator=estimator, seed=args.seed, results_csv=results, rrd=args.rrd,
-                           progress=_progress(args), vehicle_file=args.vehicle),
+                           progress=_progress(args), vehicle_file=args.vehicle,
+                           friction_csv=_friction_csv(estimator, _friction_name(results))),
         lambda s: write_summary_json(summary_json, s, command=sys.argv, model=model,
                                      **_estimator_record(estimator, config, args)),
         results)
@@ -83,6 +85,7 @@ def cmd_replay(args) -> int:
     if estimates:
         print(f"final stiffness at t = {final['t']:g} s: {', '.join(estimates)} (mean +- posterior std of the mean)")
     print(f"results: {results}\nsummary: {summary_json}" + (f"\nrecording: {args.rrd}" if args.rrd else ""))
+    _print_friction(estimator, _friction_name(results))
     _save_state(args, estimator)
     return 0
 
@@ -107,6 +110,29 @@ def _save_state(args, estimator) -> None:
         from tirefilter.estimators.state_file import save_state
 
         print(f"stiffness posterior: {save_state(estimator, args.save_state)}")
+
+
+def _friction_name(results: Path) -> Path:
+    from tirefilter.cosim.friction import friction_csv_path
+
+    return friction_csv_path(results)
+
+
+def _friction_csv(estimator, path: Path) -> Path | None:
+    """Where a friction estimator's curve snapshots go (None for the others)."""
+    return path if callable(getattr(estimator, "friction", None)) else None
+
+
+def _print_friction(estimator, path: Path) -> None:
+    """The friction CSV and the slip-clipping count of a friction estimator."""
+    if not callable(getattr(estimator, "diagnostics", None)):
+        return
+    d = estimator.diagnostics()
+    print(f"friction curves: {path}")
+    print(f"slip angles outside [-L, L] (clipped): {d['slip_clipped_samples']} of {d['particle_slip_evaluations']} "
+          f"particle evaluations, at {d['slip_clipped_steps']} steps"
+          + (f"; prior handed over from the MPF at t = {d['handover_time']:g} s" if d.get("handover_time") is not None
+             else ""))
 
 
 def _progress(args) -> bool:
@@ -222,6 +248,29 @@ def cmd_bench_stiffness(args) -> int:
     return 0
 
 
+def cmd_dashboard(args) -> int:
+    serve = import_viewer().serve
+    serve(host=args.host, port=args.port)
+    return 0
+
+
+def import_viewer():
+    """The dashboard package (`viewer/tirefilter_viewer`): installed with the project, or
+    else found next to `src/` in a checkout whose install predates it."""
+    try:
+        import tirefilter_viewer
+    except ImportError:
+        from tirefilter.cosim.fmu import REPO_ROOT
+
+        folder = REPO_ROOT / "viewer"
+        if not (folder / "tirefilter_viewer" / "__init__.py").is_file():
+            raise TirefilterError("the dashboard (viewer/tirefilter_viewer) is not installed: it ships with the "
+                                  "repository checkout; install it with `pip install -e .`") from None
+        sys.path.insert(0, str(folder))
+        import tirefilter_viewer
+    return tirefilter_viewer
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="tirefilter", description=__doc__)
     p.add_argument("--version", action="version", version=f"tirefilter {__version__}")
@@ -252,6 +301,12 @@ def build_parser() -> argparse.ArgumentParser:
     sc = sub.add_parser("scenarios", help="list the scenarios with their schedules")
     sc.add_argument("--json", action="store_true", help="machine-readable list")
     sc.set_defaults(func=cmd_scenarios)
+
+    db = sub.add_parser("dashboard", help="the live web dashboard (viser), on 127.0.0.1 unless --host says otherwise")
+    db.add_argument("--port", type=int, default=8080, help="port (default 8080; the next free one if taken)")
+    db.add_argument("--host", default="127.0.0.1",
+                    help="address to bind (default 127.0.0.1: this machine only; 0.0.0.0 exposes it to the network)")
+    db.set_defaults(func=cmd_dashboard)
 
     fmu = sub.add_parser("fmu", help="FMU tools")
     fsub = fmu.add_subparsers(dest="fmu_command", required=True)
@@ -293,7 +348,8 @@ def _estimator_options(p: argparse.ArgumentParser, *, default: str, particles: s
                    help="estimation model: full (wheel speeds), lateral (vx given), or auto (full with wheel speeds)")
     p.add_argument("--particles", type=int, help=f"number of particles (particle filters; {particles})")
     p.add_argument("--seed", type=int, default=0, help="seed of the run's SeedSequence")
-    p.add_argument("--config", help="estimator configuration TOML (the [mpf], [kf], [augpf], [rls] or [ekf] table)")
+    p.add_argument("--config", help="estimator configuration TOML (the [mpf], [kf], [augpf], [rls], [ekf] or "
+                   "[gpssm] table; combined: [gpssm] and [mpf])")
     p.add_argument("--init-state", metavar="FILE", help="start from the stiffness posterior saved by --save-state")
     p.add_argument("--save-state", metavar="FILE", help="save the learned stiffness posterior at the end (JSON)")
 

@@ -8,10 +8,12 @@ import math
 
 from tirefilter.errors import ConfigError
 
-ESTIMATORS = ("none", "mpf", "kf", "augpf", "rls", "ekf")
+ESTIMATORS = ("none", "mpf", "kf", "augpf", "rls", "ekf", "gpssm", "combined")
 # kf: linear single-track Kalman filter, fixed stiffness (baseline)
-# augpf, rls, ekf: the stiffness paper's baselines (Sec. VI-A, VII), `baselines` below
+# augpf, rls, ekf: the stiffness paper's baselines (Sec. VI-A, VII), `_baseline` below
+# gpssm: friction GP-SSM (friction paper); combined: gpssm with its prior slope from the MPF
 BASELINES = ("augpf", "rls", "ekf")
+FRICTION_ESTIMATORS = ("gpssm", "combined")
 
 
 def mpf_config_for_scenario(scenario, *, model: str, particles: int | None, overrides: dict):
@@ -133,6 +135,23 @@ def build_estimator(name: str, scenario, *, model: str, particles: int | None, c
         check_model_signals(model, scenario.sensors, scenario.file, "sensors")
         cfg = mpf_config_for_scenario(scenario, model=model, particles=particles, overrides={})
         return _baseline(name, scenario.vehicle, cfg, config)
+    if name in FRICTION_ESTIMATORS:
+        check_model_signals(_friction_model(model), scenario.sensors, scenario.file, "sensors")
+        s = scenario.sensor_spec
+        x0 = (scenario.truth.get("vy0", 0.0), scenario.truth.get("yaw_rate0", 0.0))
+        p = scenario.model.pacejka
+        mpf = None
+        if name == "combined":
+            from tirefilter.estimators.stiffness_mpf import StiffnessMPF
+
+            mpf = StiffnessMPF(scenario.vehicle, mpf_config_for_scenario(scenario, model="lateral", particles=None,
+                                                                         overrides=config.get("mpf", {})))
+        extra = {}
+        if "prior_peak_friction" in scenario.estimator:
+            extra["prior_peak"] = scenario.estimator["prior_peak_friction"]
+        return _gpssm(scenario.vehicle, config, particles or scenario.estimator.get("particles"),
+                      sample_period=scenario.sample_period, sigma=(s.sigma_ay, s.sigma_yaw_rate), x0_mean=x0,
+                      tire_shape=None if p is None else (p.B_y, p.C_y, p.E_y), mpf=mpf, **extra)
     if name == "kf":
         check_model_signals(_kf_model(model), scenario.sensors, scenario.file, "sensors")
         s = scenario.sensor_spec
@@ -157,6 +176,19 @@ def build_log_estimator(name: str, vehicle, t, signals: dict, *, model: str, par
         check_model_signals(model, tuple(signals), source, "columns")
         cfg = mpf_config_for_log(vehicle, t, signals, model=model, particles=particles, overrides={})
         return _baseline(name, vehicle, cfg, config)
+    if name in FRICTION_ESTIMATORS:
+        import numpy as np
+
+        check_model_signals(_friction_model(model), tuple(signals), source, "columns")
+        mpf = None
+        if name == "combined":
+            from tirefilter.estimators.stiffness_mpf import StiffnessMPF
+
+            mpf = StiffnessMPF(vehicle, mpf_config_for_log(vehicle, t, signals, model="lateral", particles=None,
+                                                           overrides=config.get("mpf", {})))
+        dt = np.diff(np.asarray(t, float))
+        return _gpssm(vehicle, config, particles, sample_period=float(np.median(dt)) if dt.size else None,
+                      sigma=(vehicle.sigma_ay, vehicle.sigma_yaw_rate), x0_mean=(0.0, 0.0), tire_shape=None, mpf=mpf)
     if name == "kf":
         check_model_signals(_kf_model(model), tuple(signals), source, "columns")
         return _kf(vehicle, config)
@@ -185,6 +217,25 @@ def _baseline(name: str, vehicle, mpf_cfg, config: dict):
     else:
         from tirefilter.estimators.ekf import EKFConfig as config_cls, StiffnessEKF as cls
     return cls(vehicle, shared_options(config_cls, mpf_cfg, config.get(name, {}), f"--config [{name}]"))
+
+
+def _friction_model(model: str) -> str:
+    if model == "full":
+        raise ConfigError("--model", "full", "the friction GP-SSM has the lateral model only (v^X given, "
+                          "state [v^Y, r], friction paper Sec. 2.1)")
+    return "lateral"
+
+
+def _gpssm(vehicle, config: dict, particles, *, sample_period, sigma, x0_mean, tire_shape, mpf, **kw):
+    """The friction GP-SSM (combined with `mpf`): what the scenario or log sets, then the
+    user's `[gpssm]` table; settings that cannot work are rejected here, before the run."""
+    from tirefilter.estimators.friction_gpssm import FrictionGPSSM, GPSSMConfig
+
+    base = GPSSMConfig(particles=particles or GPSSMConfig.particles,
+                       sample_period=sample_period or GPSSMConfig.sample_period, sigma=tuple(sigma),
+                       x0_mean=tuple(x0_mean), **kw)
+    cfg = apply_overrides(base, config.get("gpssm", {}), "--config [gpssm]")
+    return FrictionGPSSM(vehicle, cfg, tire_shape=tire_shape, mpf=mpf)
 
 
 def _kf_model(model: str) -> str:

@@ -31,11 +31,15 @@ class EstimatorFMU:
     model_identifier: str  # FMU model name and file stem
     option_table: str  # the --config table the FMU parameters forgetting/estimator_rate go to
     description: str
+    base: str = "EstimatorSlave"  # the slave class in `slaves.py`
 
 
 ESTIMATOR_FMUS = {
     "mpf": EstimatorFMU("mpf", "TirefilterMPF", "mpf",
                         "tirefilter stiffness MPF (Berntorp & Di Cairano 2018): tire stiffness, vehicle state, IMU bias"),
+    "combined": EstimatorFMU("combined", "TirefilterFriction", "gpssm",
+                             "tirefilter friction GP-SSM (Berntorp 2020) with its prior slope from the stiffness "
+                             "MPF: tire-friction curves mu(alpha), lateral state", "FrictionEstimatorSlave"),
 }
 DRIVER_IDENTIFIER = "TirefilterDriver"
 
@@ -118,7 +122,7 @@ def build_estimator_fmu(name: str = "mpf", dest: Path | None = None, *, config_t
     body = (f"    estimator_name = {spec.estimator!r}\n    option_table = {spec.option_table!r}\n"
             f"    description = {spec.description!r}\n")
     resources = {"estimator_config.toml": config_toml} if config_toml else {}
-    return _build(identifier or spec.model_identifier, "EstimatorSlave", body, dest or BUILD_DIR, resources)
+    return _build(identifier or spec.model_identifier, spec.base, body, dest or BUILD_DIR, resources)
 
 
 def build_estimator_fmus(dest: Path | None = None) -> dict[str, Path]:

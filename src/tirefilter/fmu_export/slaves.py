@@ -137,6 +137,9 @@ class EstimatorSlave(_Slave):
 
     estimator_name = "mpf"
     option_table = "mpf"  # the --config table that `forgetting` goes to
+    default_model = 1  # start values of the `model` (1 full, 2 lateral), `particles` and `estimator_rate` parameters
+    default_particles = 500
+    default_rate = 100.0
     description = "tirefilter online estimator (tire stiffness, vehicle state, IMU bias)"
 
     def __init__(self, **kwargs):
@@ -152,11 +155,11 @@ class EstimatorSlave(_Slave):
                     "vehicle TOML key (0 = not given)" if key in ("steering_ratio", "Cx_undriven") else
                     "vehicle TOML key (SI units)")
             self._parameter(kind, f"vehicle.{key}", default, desc)
-        self._parameter(I, "particles", 500, "number of particles N")
+        self._parameter(I, "particles", self.default_particles, "number of particles N")
         self._parameter(P, "forgetting", 0.99, "forgetting factor lambda of eq. (20), in (0, 1]")
         self._parameter(I, "seed", 0, "seed of the run's SeedSequence (spawns the vehicle's and the estimator's)")
-        self._parameter(P, "estimator_rate", 100.0, "[Hz] samples at n / estimator_rate")
-        self._parameter(I, "model", 1, "estimation model: 1 full (wheel speeds), 2 lateral (u.vx given)")
+        self._parameter(P, "estimator_rate", self.default_rate, "[Hz] samples at n / estimator_rate")
+        self._parameter(I, "model", self.default_model, "estimation model: 1 full (wheel speeds), 2 lateral (u.vx given)")
         self._parameter(P, "t_first", 0.0, "[s] first sample time processed (masters that start connectors "
                         "at 0 deliver real inputs one communication step later)")
         self._parameter(S, "config", self._default_config(), "estimator options: TOML text or a path to a TOML "
@@ -326,9 +329,88 @@ class EstimatorSlave(_Slave):
         return fmu_state.state_from_bytes(data)
 
 
+FRICTION_ALPHA_DEG = tuple(range(-20, 21))  # deg: the slip angles of the friction outputs
+
+
+def friction_output(field: str, k: int) -> str:
+    """The FMU variable of `field` (mu_f, mu_f_std, mu_r, mu_r_std) at alpha = k deg: an
+    array element, 1-based over FRICTION_ALPHA_DEG (structured naming: mu_f[1] is -20 deg)."""
+    return f"{field}[{FRICTION_ALPHA_DEG.index(k) + 1}]"
+
+
+FRICTION_VISITED = ("alpha_f_min", "alpha_f_max", "alpha_r_min", "alpha_r_max")
+
+
+class FrictionEstimatorSlave(EstimatorSlave):
+    """A friction estimator (`gpssm`, `combined`) as an FMU: the outputs of every
+    estimator FMU plus the learned curves on a fixed slip grid (FMI 2.0 has scalars only):
+    `mu_f[i]`, `mu_f_std[i]`, `mu_r[i]`, `mu_r_std[i]` at alpha = the i-th of
+    FRICTION_ALPHA_DEG deg (`friction_output`) (linear interpolation of the estimator's finer `friction()`
+    grid), and the visited slip range. Evaluating the curves solves each particle's
+    statistics, so they are refreshed every `friction_period` seconds of samples (and at
+    the first sample); `friction_t` says when."""
+
+    estimator_name = "combined"
+    option_table = "gpssm"
+    default_model = 2  # the friction GP-SSM has the lateral model only (u.vx given)
+    default_particles = 200  # the friction paper's N and Ts = 40 ms
+    default_rate = 25.0
+    description = "tirefilter friction GP-SSM: tire-friction curves mu(alpha), lateral state"
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self._parameter(Real, "friction_period", 1.0, "[s] time between updates of the friction outputs "
+                        "(0: every sample)")
+        self._add(Real, "friction_t", Fmi2Causality.output, math.nan, "[s] sample time of the friction outputs",
+                  Fmi2Variability.discrete)
+        for k in FRICTION_ALPHA_DEG:
+            for axle, what in (("f", "front"), ("r", "rear")):
+                self._add(Real, friction_output(f"mu_{axle}", k), Fmi2Causality.output, math.nan,
+                          f"[1] {what} axle friction (lateral force / normal load) at alpha = {k} deg",
+                          Fmi2Variability.discrete)
+                self._add(Real, friction_output(f"mu_{axle}_std", k), Fmi2Causality.output, math.nan,
+                          f"[1] posterior std of mu_{axle} at alpha = {k} deg", Fmi2Variability.discrete)
+        for name in FRICTION_VISITED:
+            self._add(Real, name, Fmi2Causality.output, math.nan, f"[rad] visited slip range while learning: {name}",
+                      Fmi2Variability.discrete)
+
+    def _initialize(self) -> None:
+        period = self._values["friction_period"]
+        if not (math.isfinite(period) and period >= 0.0):
+            raise _param_error("friction_period", f"{period!r} is out of range: expected a finite time >= 0")
+        super()._initialize()
+        self._friction_due = -math.inf
+
+    def _publish(self, s, est) -> None:
+        super()._publish(s, est)
+        if s + 1e-9 * self.Ts < self._friction_due:
+            return
+        self._friction_due = s + self._values["friction_period"]
+        curve = self._est.friction()
+        alpha = np.deg2rad(np.array(FRICTION_ALPHA_DEG, float))
+        v = self._values
+        for axle in ("f", "r"):
+            for field in (f"mu_{axle}", f"mu_{axle}_std"):
+                values = np.interp(alpha, curve.alpha, getattr(curve, field), left=math.nan, right=math.nan)
+                for k, value in zip(FRICTION_ALPHA_DEG, values):
+                    v[friction_output(field, k)] = float(value)
+        for name, value in zip(FRICTION_VISITED, curve.visited):
+            v[name] = float(value)
+        v["friction_t"] = float(s)
+
+    def _get_fmu_state(self):
+        state = super()._get_fmu_state()
+        state["friction_due"] = self._friction_due
+        return state
+
+    def _set_fmu_state(self, state):
+        super()._set_fmu_state(state)
+        self._friction_due = state["friction_due"]
+
+
 def _is_parameter(slave, name) -> bool:
     return name.startswith("vehicle.") or name in ("particles", "forgetting", "seed", "estimator_rate", "model",
-                                                   "t_first", "config", "rrd", "scenario")
+                                                   "t_first", "config", "rrd", "scenario", "friction_period")
 
 
 def _param_error(name: str, problem: str) -> TirefilterError:

@@ -11,11 +11,14 @@ log's signals as `meas_<name>`.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
+from contextlib import closing, nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from tirefilter.cosim.friction import FrictionWriter, is_friction_estimator
 from tirefilter.cosim.results import ESTIMATE_COLUMNS, estimate_values
 from tirefilter.errors import ReplayError
 from tirefilter.estimators.base import Estimator, Inputs, Measurement
@@ -39,6 +42,23 @@ def result_columns(log: Log) -> tuple[str, ...]:
     return ESTIMATE_COLUMNS + tuple(f"meas_{s}" for s in SIGNALS if s in log.signals)
 
 
+def log_samples(log: Log) -> Iterator[tuple[int, float, Inputs, Measurement]]:
+    """(k, t, Inputs, Measurement) for every row of `log` (0-based k; NaN for a missing
+    sample or a signal the log lacks): the samples `replay_log` gives its estimator."""
+    sig = {s: log.signal(s).tolist() for s in SIGNALS}  # Python floats, as the co-simulation passes
+    for k, t in enumerate(log.t.tolist()):
+        yield (k, t,
+               Inputs(delta=sig["delta"][k], omega_f=sig["omega_f"][k], omega_r=sig["omega_r"][k], vx=sig["vx"][k]),
+               Measurement(ax=sig["ax"][k], ay=sig["ay"][k], yaw_rate=sig["yaw_rate"][k]))
+
+
+def replay_error(log: Log, k: int, t: float, estimator: str | None, exc: Exception) -> ReplayError:
+    """The error of an estimator failing on row k of `log`: names the file, row, line and time."""
+    where = log.where(k)
+    return ReplayError(f"{log.path}: data row {where['row']} (file line {where['line']}, t = {t!r} s): "
+                       f"{estimator} failed: {exc}")
+
+
 def replay_log(
     log: Log,
     *,
@@ -49,6 +69,7 @@ def replay_log(
     progress: bool = False,
     keep_rows: bool = False,
     vehicle_file: str | Path | None = None,
+    friction_csv: str | Path | None = None,
 ) -> tuple[ReplaySummary, np.ndarray | None]:
     """Run `estimator` (None: the log's signals only) over `log`; returns the summary and,
     with keep_rows, the result rows (n, len(result_columns(log))).
@@ -56,37 +77,37 @@ def replay_log(
     Rows are written incrementally: when the estimator fails, every row before the
     failure is in the CSV and the recording, and a ReplayError naming the row and its time
     is raised after the summary has been filled in (`summary.status = "failed"`, also as
-    `exc.summary`).
+    `exc.summary`). A friction estimator with `friction_csv` also writes its curve
+    snapshots there (`cosim.friction`, no truth columns); those written before a failure stay.
     """
     _, rng = spawn_seeds(seed)  # the same generator a co-simulation with this seed gives its estimator
     est_name = getattr(estimator, "name", None) if estimator is not None else None
     columns = result_columns(log)
     present = [s for s in SIGNALS if s in log.signals]
     data = np.column_stack([log.signals[s] for s in present])
-    t_all = log.t.tolist()
-    sig = {s: log.signal(s).tolist() for s in SIGNALS}  # Python floats, as the co-simulation passes
     summary = ReplaySummary(log=str(log.path), vehicle=str(vehicle_file) if vehicle_file else None, seed=seed,
                             estimator=est_name or "none", rows=log.rows, duration_s=log.duration,
                             results=str(results_csv) if results_csv else None)
-    with run_outputs(summary, columns, results_csv=results_csv, rrd=rrd, estimator=est_name, keep_rows=keep_rows,
-                     total=log.rows, progress=progress) as out:
+    friction = FrictionWriter(friction_csv, estimator) if friction_csv and is_friction_estimator(estimator) else None
+    with closing(friction) if friction is not None else nullcontext(), \
+            run_outputs(summary, columns, results_csv=results_csv, rrd=rrd, estimator=est_name, keep_rows=keep_rows,
+                        total=log.rows, progress=progress) as out:
         if estimator is not None:
             estimator.reset(rng)
-        for k, t in enumerate(t_all):
+        for k, t, u, y in log_samples(log):
             est = None
             if estimator is not None:
-                u = Inputs(delta=sig["delta"][k], omega_f=sig["omega_f"][k], omega_r=sig["omega_r"][k],
-                           vx=sig["vx"][k])
-                y = Measurement(ax=sig["ax"][k], ay=sig["ay"][k], yaw_rate=sig["yaw_rate"][k])
                 try:
                     est = out.step(estimator, t, u, y)
                 except Exception as exc:
-                    where = log.where(k)
-                    raise ReplayError(f"{log.path}: data row {where['row']} (file line {where['line']}, t = {t!r} s): "
-                                      f"{est_name} failed: {exc}") from exc
+                    raise replay_error(log, k, t, est_name, exc) from exc
+            if friction is not None:
+                friction.sample(t)
             out.write(np.concatenate([estimate_values(t, est), data[k]]))
             if k % PROGRESS_EVERY == 0:
                 out.progress(k)
+        if friction is not None:
+            friction.finish()
         if out.last is not None and estimator is not None:
             summary.final = {c: (None if math.isnan(v) else float(v))
                              for c, v in zip(ESTIMATE_COLUMNS, out.last[:len(ESTIMATE_COLUMNS)])}
