@@ -246,13 +246,18 @@ def cmd_fmu_build(args) -> int:
     return 0
 
 
+def _names(values):
+    """A list option given space- or comma-separated ("augpf,rls ekf"), None when unset."""
+    return tuple(e for v in values for e in v.split(",") if e) if values else None
+
+
 def cmd_bench_stiffness(args) -> int:
     from tirefilter.study.stiffness import PARTS, StudyOptions, run_stiffness_study
 
     opts = StudyOptions(out=Path(args.out), parts=tuple(args.part or PARTS), trials=args.trials,
                         particles=tuple(args.particles) if args.particles else None,
                         scenarios=tuple(args.scenario) if args.scenario else None,
-                        estimators=tuple(args.estimators) if args.estimators else None, workers=args.workers,
+                        estimators=_names(args.estimators), workers=args.workers,
                         seed=args.seed, duration=args.duration, plots=not args.no_plots,
                         progress=sys.stderr.isatty() and not args.quiet)
     run_stiffness_study(opts)
@@ -342,7 +347,7 @@ def build_parser() -> argparse.ArgumentParser:
     st.add_argument("--trials", type=int, help="trials per configuration (default: 100, 20, 50 by part)")
     st.add_argument("--particles", type=int, nargs="+", help="N (default: 500; 50 100 200 500 1000 for particles)")
     st.add_argument("--scenario", nargs="+", help="scenarios (default: by part)")
-    st.add_argument("--estimators", nargs="+", help="estimators (default: by part)")
+    st.add_argument("--estimators", nargs="+", help="estimators, space- or comma-separated (default: by part)")
     st.add_argument("--workers", type=int, help="worker processes (default: one per CPU)")
     st.add_argument("--seed", type=int, default=0, help="seed of the study's SeedSequence")
     st.add_argument("--duration", type=float, help="shorten every trial to this many seconds")
