@@ -52,7 +52,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from tirefilter.errors import ConfigError
-from tirefilter.estimators.base import Estimate, Inputs, Measurement, Posterior
+from tirefilter.estimators.base import Estimate, Inputs, Measurement, Posterior, particle_estimate
 from tirefilter.estimators.baseline_common import check_common, gate_open, stiffness_prior
 from tirefilter.stats import effective_sample_size, normalize_log_weights, systematic_resample
 from tirefilter.stats.linalg import chol, chol_solve, logdet_chol, solve_lower
@@ -363,21 +363,8 @@ class AugmentedPF:
         sigma = q @ np.sqrt(self.s2)  # weighted mean of the deviation std
         vals = dict(zip(self.params, zip(self.C_nom + mbar, std, sigma)))
         bias = dict(zip(("ax", "ay", "yaw_rate")[-len(self.channels):], q @ self.b))
-        if self.full:
-            vx, vy, r = x_mean
-            sstd = tuple(x_std)
-        else:
-            vx, (vy, r) = self.u_prev[3], x_mean
-            sstd = (0.0, x_std[0], x_std[1])
-        cx = vals.get("Cx", (NAN, NAN, NAN))
-        return Estimate(
-            active=self.active, vx=float(vx), vy=float(vy), yaw_rate=float(r),
-            Cf_y=float(vals["Cf_y"][0]), Cr_y=float(vals["Cr_y"][0]), Cx=float(cx[0]),
-            Cf_y_std=float(vals["Cf_y"][1]), Cr_y_std=float(vals["Cr_y"][1]), Cx_std=float(cx[1]),
-            Cf_y_sigma=float(vals["Cf_y"][2]), Cr_y_sigma=float(vals["Cr_y"][2]), Cx_sigma=float(cx[2]),
-            b_ax=float(bias.get("ax", NAN)), b_ay=float(bias["ay"]), b_yaw_rate=float(bias["yaw_rate"]),
-            ess=ess, state_std=tuple(float(s) for s in sstd),
-        )
+        return particle_estimate(active=self.active, ess=ess, x_mean=x_mean, x_std=x_std, stiffness=vals, bias=bias,
+                                 vx_input=NAN if self.u_prev is None else self.u_prev[3])
 
     def posterior(self) -> Posterior:
         """Particles [x, m, s2] (N, nx + 2 n_w) with their log-weights; stats: the means `mu`
