@@ -29,7 +29,8 @@ def cmd_run(args) -> int:
     model = getattr(getattr(estimator, "cfg", None), "model", None) or resolve_model(args.model, scenario.sensors)
     summary = _run_and_record(
         lambda: run_scenario(scenario, estimator=estimator, seed=args.seed, fmi_version=args.fmi, results_csv=results,
-                             rrd=args.rrd, progress=_progress(args), friction_csv=_friction_csv(estimator, out / "friction.csv")),
+                             rrd=args.rrd, progress=_progress(args),
+                             friction_csv=_friction_csv(estimator, out / "friction.csv")),
         lambda s: write_run_json(out / "run.json", s, command=sys.argv, model=model, fmi_version=args.fmi,
                                  **_estimator_record(estimator, config, args)),
         results)
@@ -313,7 +314,8 @@ def _estimator_options(p: argparse.ArgumentParser, *, default: str, particles: s
                    help="estimation model: full (wheel speeds), lateral (vx given), or auto (full with wheel speeds)")
     p.add_argument("--particles", type=int, help=f"number of particles (particle filters; {particles})")
     p.add_argument("--seed", type=int, default=0, help="seed of the run's SeedSequence")
-    p.add_argument("--config", help="estimator configuration TOML (the [mpf], [kf] or [gpssm] table; combined: [gpssm] and [mpf])")
+    p.add_argument("--config", help="estimator configuration TOML (the [mpf], [kf] or [gpssm] table; "
+                   "combined: [gpssm] and [mpf])")
     p.add_argument("--init-state", metavar="FILE", help="start from the stiffness posterior saved by --save-state")
     p.add_argument("--save-state", metavar="FILE", help="save the learned stiffness posterior at the end (JSON)")
 
