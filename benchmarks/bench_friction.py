@@ -97,7 +97,8 @@ def run_trial(job: dict) -> dict:
             m = (b["alpha"] >= lo) & (b["alpha"] <= hi)
             err = b[f"mu_{axle}"][m] - b[f"true_mu_{axle}"][m]
             out[f"rmse_{axle}"].append(float(np.sqrt(np.mean(err**2))) if m.any() else math.nan)
-            out[f"cov_{axle}"].append(float(np.mean(np.abs(err) <= 2 * b[f"mu_{axle}_std"][m])) if m.any() else math.nan)
+            inside = np.abs(err) <= 2 * b[f"mu_{axle}_std"][m]
+            out[f"cov_{axle}"].append(float(np.mean(inside)) if m.any() else math.nan)
             fix = np.abs(b["alpha"]) <= FIXED_RANGE + 1e-12  # a fixed window, visited or not
             out[f"fix_{axle}"].append(float(np.sqrt(np.mean((b[f"mu_{axle}"][fix] - b[f"true_mu_{axle}"][fix]) ** 2))))
         if job.get("keep_curves") and (any(abs(t - s) < 1e-6 for s in SNAPSHOTS) or b is blocks[-1]):
@@ -271,7 +272,8 @@ def record_inputs(duration: float = 20.0) -> dict:
     sc = replace(snow_scenario(), duration=duration)
     _, rows = run_scenario(sc, seed=0, keep_rows=True)
     c = dict(zip(result_columns(VehicleFMU().output_names), rows.T))
-    return {"t": c["t"], "delta": c["meas_delta"], "vx": c["true_vx"], "ay": c["meas_ay"], "yaw_rate": c["meas_yaw_rate"]}
+    return {"t": c["t"], "delta": c["meas_delta"], "vx": c["true_vx"], "ay": c["meas_ay"],
+            "yaw_rate": c["meas_yaw_rate"]}
 
 
 def time_steps(basis: str, stats: str, particles: int, inputs: dict, symmetry: str = "odd") -> tuple[float, float]:
@@ -327,7 +329,8 @@ def cost(args):
     for basis in ("tensor", "axle"):
         for stats in ("exact", "rank1"):
             jobs = [dict(surface="snow", estimator="gpssm", particles=args.particles, seed=s,
-                         gpssm={"basis": basis, "stats": stats}, duration=args.duration) for s in range(args.variant_trials)]
+                         gpssm={"basis": basis, "stats": stats}, duration=args.duration)
+                    for s in range(args.variant_trials)]
             res = _map(jobs, args.workers)
             peak = res[0]["peak"]
             print(f"{basis:7s} {stats:6s} {100 * np.mean([r['rmse_f'][-1] for r in res]) / peak:13.2f} "
@@ -373,7 +376,8 @@ def real(args):
         summary, _ = replay_log(log, estimator=est, seed=0)
         curves[name] = est.friction()
         rows.append((name, pred, summary.median_step_us, est.diagnostics()))
-    for label, (cf, cr) in (("kf, publishers' stiffness", (7.0e4, 1.2e5)), ("kf, least-squares stiffness", (5.5e4, 7.1e4))):
+    for label, (cf, cr) in (("kf, publishers' stiffness", (7.0e4, 1.2e5)),
+                            ("kf, least-squares stiffness", (5.5e4, 7.1e4))):
         kf = LinearKF(vehicle, KFConfig(Cf_y=cf, Cr_y=cr))
         pred = np.full((log.rows, 2), np.nan)
         t0 = time.perf_counter()

@@ -21,8 +21,9 @@ makes each update a rank-one (recursive least-squares) step, O(m^2) instead of O
 With lambda = 1 both are the same posterior. Forgetting the prior lets P grow as
 lambda^-k in directions that get no data (RLS wind-up; with the tensor basis most of the
 (alpha_f, alpha_r) plane is never visited and P overflows within a run at lambda = 0.99),
-so by default the forgetting factor of a batch element is raised to keep trace(P) at most
-the prior's trace(diag S) (bounded-trace forgetting; `bounded=False`: plain RLS).
+so by default the forgetting factor applied to P is raised to keep trace(P) at most the
+prior's trace(diag S) (bounded-trace forgetting; Lambda and nu are forgotten with lambda;
+`bounded=False`: plain RLS).
 """
 
 from __future__ import annotations
@@ -237,12 +238,13 @@ class MNIWRank1(_Common):
         f = np.full(np.shape(self.nu), float(lam))
         if nu_min > 0:
             f = np.maximum(f, np.minimum(1.0, nu_min / self.nu))
-        if self.bounded:  # bounded trace: P / lambda never beyond the prior's total variance
-            tr = np.einsum("...ii->...", self.P)
-            f = np.minimum(1.0, np.maximum(f, tr / self.trace0))
         if mask is not None:
             f = np.where(mask, f, 1.0)
-        self.P *= (1.0 / f)[..., None, None]
+        fP = f
+        if self.bounded:  # bounded trace: P / lambda never beyond the prior's total variance
+            tr = np.einsum("...ii->...", self.P)
+            fP = np.minimum(1.0, np.maximum(f, tr / self.trace0))
+        self.P *= (1.0 / fP)[..., None, None]
         self.Lam = self.Lam * f[..., None, None]
         self.nu = self.nu * f
 

@@ -71,7 +71,7 @@ class Report:
 
 
 def run_stiffness_study(opts: StudyOptions) -> Report:
-    from tirefilter.estimators import ESTIMATORS
+    from tirefilter.estimators import ESTIMATORS, FRICTION_ESTIMATORS
 
     for part in opts.parts:
         if part not in PARTS:
@@ -85,7 +85,8 @@ def run_stiffness_study(opts: StudyOptions) -> Report:
         for part in opts.parts:
             scenarios, estimators, trials, particles = DEFAULTS[part]
             scenarios = opts.scenarios or scenarios
-            estimators = [e for e in (opts.estimators or estimators or ESTIMATORS[1:]) if e in ESTIMATORS]
+            stiffness = [e for e in ESTIMATORS[1:] if e not in FRICTION_ESTIMATORS]  # not the friction learners
+            estimators = [e for e in (opts.estimators or estimators or stiffness) if e in ESTIMATORS]
             particles = opts.particles or particles
             trials = opts.trials or trials
             report(f"\n## {part}: scenarios {', '.join(scenarios)}; estimators {', '.join(estimators)}; "
