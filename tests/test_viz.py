@@ -583,3 +583,42 @@ def test_spawn_starts_a_viewer_process_and_streams_to_it(fmu_paths, tmp_path, mo
     for path in (rrd, received):
         t, cf = series(read_recording(path), "/estimator/mpf/stiffness/Cf_y")
         np.testing.assert_array_equal(cf, rows[:, 6])  # ESTIMATE_COLUMNS: t, active, vx, vy, yaw_rate, beta, Cf_y
+
+
+# ---- every registered estimator records --------------------------------------------------------
+KINDS = {"mpf": "eq26", "augpf": "kde", "rls": "gaussian", "ekf": "gaussian", "kf": None, "gpssm": None,
+         "combined": None}
+
+
+@pytest.mark.parametrize("name", [e for e in __import__("tirefilter.estimators", fromlist=["ESTIMATORS"]).ESTIMATORS
+                                  if e != "none"])
+def test_every_estimator_records_its_series_and_what_its_posterior_supports(fmu_paths, tmp_path, name):
+    from tirefilter.estimators import build_estimator
+
+    scenario = load_scenario(_short_scenario(tmp_path, 2.0))
+    model = "lateral" if name in ("kf", "rls", "gpssm", "combined") else "auto"
+    est = build_estimator(name, scenario, model=model, particles=30, config={})
+    rrd = tmp_path / "e.rrd"
+    _, rows = run_scenario(scenario, estimator=est, seed=2, keep_rows=True,
+                           recording=RecordingOptions(rrd=rrd, log_every=50))
+    rec = read_recording(rrd)
+    e, logged = est.name, (len(rows) - 1) // 50 + 1
+    t, cf = series(rec, f"/estimator/{e}/stiffness/Cf_y")
+    np.testing.assert_array_equal(cf, rows[:, 6][~np.isnan(rows[:, 6])])
+    density = [p for p in rec if p.startswith(f"/estimator/{e}/density/") and not p.endswith("/mass")]
+    if KINDS[name] is None:
+        assert not density
+    else:
+        assert density and all(len(temporal(rec, p, "BarChart:values")) == logged for p in density)
+        for p in density:
+            _, mass = series(rec, p + "/mass")
+            grid = np.asarray([x for x in rec[p] if x["t"] is None][0]["BarChart:abscissa"][0]["buffer"], float)
+            for x, m in zip(temporal(rec, p, "BarChart:values"), mass):
+                assert abs(np.trapezoid(np.asarray(x["BarChart:values"][0]["buffer"], float), grid) - m) < 1e-3
+    clouds = KINDS[name] in ("eq26", "kde") or name in ("gpssm", "combined")
+    state = [r for r in rec.get(f"/estimator/{e}/particles/state", []) if r["t"] is not None]
+    assert (len(state) == logged) if clouds else not state
+    friction = f"/estimator/{e}/friction/front" in rec
+    assert friction == (name in ("gpssm", "combined"))
+    if friction:
+        assert len(temporal(rec, "/truth/friction/rear", "LineStrips3D:strips")) == logged

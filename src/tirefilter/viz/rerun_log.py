@@ -17,6 +17,7 @@ Entity paths: `viz.paths` and the README table.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import socket
 import sys
@@ -179,8 +180,11 @@ class RerunRecorder:
                 self.rec.log(paths.particles(e, "state"),
                              arch(x, colors=weight_colors(post.log_weights), radii=rr.Radius.ui_points(2.5)))
         if mixture is not None:
-            for p in layout.densities:
-                grid = self._grid(p, estimator, mixture, post)
+            grids = {p: self._grid(p, estimator, mixture, post) for p in layout.densities}
+            if mixture.kind == "kde" and grids:  # a kernel narrower than the grid spacing would fall between points
+                spacing = np.array([grids[p][1] - grids[p][0] if p in grids else 0.0 for p in mixture.params])
+                mixture = dataclasses.replace(mixture, scale=np.maximum(mixture.scale, spacing))
+            for p, grid in grids.items():
                 values = mixture.pdf(p, grid, self._caches.setdefault(p, ComponentCache())).astype(np.float32)
                 self.rec.log(paths.density(e, p), rr.BarChart.from_fields(values=values))
                 self.rec.log(paths.density_mass(e, p), rr.Scalars(mixture.mass(p, grid[0], grid[-1])))
