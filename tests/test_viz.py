@@ -127,6 +127,9 @@ def test_cached_and_deduplicated_evaluation_equals_the_plain_one():
     kept = len(np.unique(idx))  # distinct components after 'resampling'
     central_kept = int(np.isin(order, idx).sum())  # the cache holds the previous call's components only
     assert cache.hits == 2 * kept + central_kept and cache.misses == M + (10 - central_kept) + M
+    # after the wide last step, a narrow posterior gets a narrow window again (not the full grid)
+    mixture_pdf(grid, np.ones(5), np.full(5, 1e5), np.full(5, 500.0), np.full(5, 100.0), cache)
+    assert cache.hi - cache.lo < 100
 
 
 def test_stiffness_mixture_picks_what_the_posterior_supports():
