@@ -467,6 +467,14 @@ def test_bad_recording_options_are_refused(capsys):
     assert "--connect" in capsys.readouterr().err
 
 
+def test_a_viewer_that_cannot_start_is_a_clear_error(monkeypatch, tmp_path):
+    import tirefilter.viz.rerun_log as rerun_log
+
+    monkeypatch.setattr(rerun_log, "_bundled_viewer", lambda: "/bin/false")
+    with pytest.raises(ConfigError, match="--spawn.*exited with status 1"):
+        rerun_log.RerunRecorder(RecordingOptions(spawn=True, spawn_port=_free_port()), ("t",), None)
+
+
 def test_connect_to_nothing_fails_before_the_run(fmu_paths, tmp_path, capsys):
     url = f"rerun+http://127.0.0.1:{_free_port()}/proxy"
     t0 = time.monotonic()
@@ -557,16 +565,16 @@ def test_connect_streams_to_a_local_grpc_receiver(fmu_paths, tmp_path):
 
 
 def test_spawn_starts_a_viewer_process_and_streams_to_it(fmu_paths, tmp_path, monkeypatch):
-    """--spawn with --rrd: rerun-sdk's spawn() runs the viewer executable with its port, then
+    """--spawn with --rrd: the viewer executable is started on 127.0.0.1 and the port, then
     the recording goes to both sinks. The 'viewer' here is the same viewer-less receiver,
-    started through a wrapper that records its pid (no display in the tests)."""
+    started through a wrapper that records its pid and arguments (no display in the tests)."""
     import tirefilter.viz.rerun_log as rerun_log
 
     port, received, pid_file = _free_port(), tmp_path / "spawned.rrd", tmp_path / "viewer.pid"
     wrapper = tmp_path / "viewer.sh"
-    wrapper.write_text(f"#!/bin/sh\necho $$ > {pid_file}\nexport HOME={tmp_path} XDG_CONFIG_HOME={tmp_path}/config "
-                       f"XDG_DATA_HOME={tmp_path}/data\nexec {_receiver()} --bind 127.0.0.1 "
-                       f"--save {received} \"$@\" >/dev/null 2>&1\n")
+    wrapper.write_text(f"#!/bin/sh\necho $$ > {pid_file}\necho \"$@\" > {tmp_path}/args\n"
+                       f"export HOME={tmp_path} XDG_CONFIG_HOME={tmp_path}/config XDG_DATA_HOME={tmp_path}/data\n"
+                       f"exec {_receiver()} --save {received} \"$@\" >/dev/null 2>&1\n")
     wrapper.chmod(0o755)
     monkeypatch.setattr(rerun_log, "_bundled_viewer", lambda: str(wrapper))
     scenario = load_scenario(_short_scenario(tmp_path, 2.0))
@@ -583,6 +591,7 @@ def test_spawn_starts_a_viewer_process_and_streams_to_it(fmu_paths, tmp_path, mo
         while not pid_file.is_file() and time.monotonic() < deadline:
             time.sleep(0.1)
         _stop(int(pid_file.read_text()))
+    assert f"--bind 127.0.0.1 --port {port}" in (tmp_path / "args").read_text()  # the viewer listens on loopback
     for path in (rrd, received):
         t, cf = series(read_recording(path), "/estimator/mpf/stiffness/Cf_y")
         np.testing.assert_array_equal(cf, rows[:, 6])  # ESTIMATE_COLUMNS: t, active, vx, vy, yaw_rate, beta, Cf_y
