@@ -4,12 +4,14 @@ cost and accuracy per seed.
     .venv/bin/python benchmarks/bench_baselines.py [--estimators mpf augpf rls ekf]
                                                    [--particles 500] [--seeds 1 2 3]
                                                    [--duration 60] [--model auto]
+                                                   [--config FILE.toml] [--label NAME]
 
 For each estimator and seed: the median wall time of `step()` (`median_step_us` of the run
 summary, after warm-up, inside this process), the mean and the time-averaged absolute
 steady-state error of Cf_y and Cr_y (DESIGN.md metrics, against the surface mean), and the
 v^Y RMSE after 5 s. Then the median over seeds. Particle filters run at `--particles`; rls
-and ekf ignore it.
+and ekf ignore it. `--config` is an estimator configuration TOML as for `tirefilter run`
+(e.g. `[augpf] proposal = "bootstrap"`), `--label` names its rows.
 """
 
 from __future__ import annotations
@@ -35,7 +37,15 @@ def main() -> None:
     p.add_argument("--duration", type=float, default=60.0)
     p.add_argument("--model", default="auto")
     p.add_argument("--scenario", default="paper-sim")
+    p.add_argument("--config", help="estimator configuration TOML ([augpf], [rls], [ekf], [mpf] tables)")
+    p.add_argument("--label", default="", help="suffix of the estimator names in the table")
     args = p.parse_args()
+    config = {}
+    if args.config:
+        import tomllib
+
+        with open(args.config, "rb") as f:
+            config = tomllib.load(f)
 
     s = load_scenario(args.scenario)
     scenario = replace(s, duration=args.duration, surface_changes=tuple(t for t in s.surface_changes
@@ -48,8 +58,9 @@ def main() -> None:
           f"{'Cr_y mean%':>10s} {'Cr_y |e|%':>9s} {'vy RMSE':>8s}")
     for name in args.estimators:
         table = []
+        label = f"{name}{args.label}"
         for seed in args.seeds:
-            est = build_estimator(name, scenario, model=args.model, particles=args.particles, config={})
+            est = build_estimator(name, scenario, model=args.model, particles=args.particles, config=config)
             summary, rows = run_scenario(scenario, estimator=est, seed=seed, keep_rows=True)
             r = {c: rows[:, j] for j, c in enumerate(names)}
             ef, er = stiffness_errors(r, scenario, "Cf_y"), stiffness_errors(r, scenario, "Cr_y")
@@ -57,10 +68,10 @@ def main() -> None:
             vy = float(np.sqrt(np.mean((r["vy"] - r["true_vy"])[late] ** 2)))
             row = (summary.median_step_us, ef["mean"], ef["mean_abs"], er["mean"], er["mean_abs"], vy)
             table.append(row)
-            print(f"{name:10s} {seed:4d} {row[0]:10.1f} {row[1]:+10.2f} {row[2]:9.2f} {row[3]:+10.2f} "
+            print(f"{label:10s} {seed:4d} {row[0]:10.1f} {row[1]:+10.2f} {row[2]:9.2f} {row[3]:+10.2f} "
                   f"{row[4]:9.2f} {row[5]:8.3f}")
         med = np.median(np.array(table), axis=0)
-        print(f"{name:10s} {'med':>4s} {med[0]:10.1f} {med[1]:+10.2f} {med[2]:9.2f} {med[3]:+10.2f} "
+        print(f"{label:10s} {'med':>4s} {med[0]:10.1f} {med[1]:+10.2f} {med[2]:9.2f} {med[3]:+10.2f} "
               f"{med[4]:9.2f} {med[5]:8.3f}")
 
 

@@ -126,17 +126,18 @@ def accuracy(args):
     print(f"\n== 1-2. friction-snow accuracy, {args.trials} trials, N = {args.particles}, Ts = 40 ms, "
           "L = 30 deg, l = 2 deg, s_f = 500 ==")
     results = {}
-    for basis in ("tensor", "axle"):
+    for basis in args.bases:
         jobs = [dict(surface="snow", estimator="gpssm", particles=args.particles, seed=s, gpssm={"basis": basis},
                      keep_curves=(s == 0), duration=args.duration) for s in range(args.trials)]
         t0 = time.perf_counter()
         results[basis] = _map(jobs, args.workers)
         print(f"[{basis}: {time.perf_counter() - t0:.0f} s wall]")
-    peak = results["tensor"][0]["peak"]
+    first = results[args.bases[0]]
+    peak = first[0]["peak"]
     print(f"peak friction of the truth over [0, 30 deg]: {peak:.4f}; target RMSE <= 5% = {0.05 * peak:.4f}")
     print(f"{'basis':7s} {'t [s]':>6s} {'RMSE mu_f':>10s} {'RMSE mu_r':>10s} {'% peak f':>9s} {'% peak r':>9s} "
           f"{'cov f':>6s} {'cov r':>6s} {'met (trials)':>12s}")
-    end = results["tensor"][0]["t"][-1]
+    end = first[0]["t"][-1]
     for basis, res in results.items():
         for t in SNAPSHOTS + (end,):
             rf = np.array([r["rmse_f"][_at(r, t)] for r in res])
@@ -273,24 +274,28 @@ def record_inputs(duration: float = 20.0) -> dict:
     return {"t": c["t"], "delta": c["meas_delta"], "vx": c["true_vx"], "ay": c["meas_ay"], "yaw_rate": c["meas_yaw_rate"]}
 
 
-def time_steps(basis: str, stats: str, particles: int, inputs: dict) -> float:
-    """Median wall time [us] of step() over the inputs after 10 warm-up steps (one process)."""
+def time_steps(basis: str, stats: str, particles: int, inputs: dict, symmetry: str = "odd") -> tuple[float, float]:
+    """Median wall time and median CPU time (this process) [us] of step() over the inputs
+    after 10 warm-up steps. On a shared, loaded machine the wall time includes waiting
+    for a core; the CPU time does not."""
     from tirefilter.estimators.base import Inputs, Measurement
     from tirefilter.estimators.friction_gpssm import FrictionGPSSM, GPSSMConfig
 
     sc = snow_scenario()
     p = sc.model.pacejka
-    est = FrictionGPSSM(sc.vehicle, GPSSMConfig(particles=particles, basis=basis, stats=stats, prior_peak=0.05),
+    est = FrictionGPSSM(sc.vehicle, GPSSMConfig(particles=particles, basis=basis, stats=stats, prior_peak=0.05,
+                                                symmetry=symmetry),
                         tire_shape=(p.B_y, p.C_y, p.E_y))
     est.reset(np.random.default_rng(0))
-    times = []
+    times, cpu = [], []
     for k in range(len(inputs["t"])):
         u = Inputs(delta=float(inputs["delta"][k]), vx=float(inputs["vx"][k]))
         y = Measurement(ay=float(inputs["ay"][k]), yaw_rate=float(inputs["yaw_rate"][k]))
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         est.step(float(inputs["t"][k]), u, y)
         times.append(time.perf_counter() - t0)
-    return float(np.median(times[10:]) * 1e6)
+        cpu.append(time.process_time() - c0)
+    return float(np.median(times[10:]) * 1e6), float(np.median(cpu[10:]) * 1e6)
 
 
 def cost(args):
@@ -305,12 +310,15 @@ def cost(args):
             print(f"inputs for the cost part: {args.save_cost_inputs}")
     print(f"\n== 2b. per-step cost at N = {args.particles} (20 s of friction-snow inputs, median of step() after "
           "10 warm-up steps, one process) ==")
-    print(f"{'basis':7s} {'stats':6s} {'functions':>9s} {'step us':>8s}")
-    for basis in ("tensor", "axle"):
+    import os
+
+    print(f"load average before: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+    print(f"{'basis':7s} {'stats':6s} {'symmetry':8s} {'functions':>9s} {'wall us':>8s} {'CPU us':>8s}")
+    for basis, symmetry, size in (("tensor", "none", 100), ("tensor", "odd", 50), ("axle", "odd", 20)):
         for stats in ("exact", "rank1"):
-            us = time_steps(basis, stats, args.particles, inputs)
-            size = 50 if basis == "tensor" else 20
-            print(f"{basis:7s} {stats:6s} {size:9d} {us:8.0f}")
+            us, cpu = time_steps(basis, stats, args.particles, inputs, symmetry)
+            print(f"{basis:7s} {stats:6s} {symmetry:8s} {size:9d} {us:8.0f} {cpu:8.0f}")
+    print(f"load average after: {os.getloadavg()[0]:.1f}")
     if args.cost_inputs:
         return
     print(f"\naccuracy of the statistics variants (friction-snow, {args.variant_trials} trials, 80 s, "
@@ -421,6 +429,8 @@ def main() -> None:
     ap.add_argument("--parts", nargs="+", default=["accuracy", "cost", "combined", "real"],
                     choices=("accuracy", "cost", "combined", "real"))
     ap.add_argument("--trials", type=int, default=20)
+    ap.add_argument("--bases", nargs="+", default=["tensor", "axle"], choices=("tensor", "axle"),
+                    help="bases of the accuracy part")
     ap.add_argument("--combined-trials", type=int, default=10)
     ap.add_argument("--combined-basis", default="axle", choices=("tensor", "axle"))
     ap.add_argument("--particles", type=int, default=200)

@@ -43,6 +43,25 @@ def _samples(r):
                Measurement(ax=r["meas_ax"][k], ay=r["meas_ay"][k], yaw_rate=r["meas_yaw_rate"][k]))
 
 
+# ---- shared maths ---------------------------------------------------------------------------
+def test_small_expm_and_discretisation_match_scipy():
+    from scipy.linalg import expm
+
+    from tirefilter.estimators import linear_kf
+    from tirefilter.estimators.baseline_common import discretize_zoh, expm_small, small_solve
+
+    rng = np.random.default_rng(5)
+    for scale in (0.0, 0.01, 0.3, 3.0):
+        M = rng.normal(size=(12, 12)) * scale
+        np.testing.assert_allclose(expm_small(M), expm(M), rtol=1e-12, atol=1e-13 * max(1.0, np.abs(expm(M)).max()))
+    A, b, Q = rng.normal(size=(5, 5)), rng.normal(size=5), np.diag(rng.uniform(0, 1, 5))
+    for mine, ref in zip(discretize_zoh(A, b, Q, 0.01), linear_kf.discretize_zoh(A, b, Q, 0.01)):
+        np.testing.assert_allclose(mine, ref, rtol=1e-12, atol=1e-16)
+    X = rng.normal(size=(3, 3))
+    S, B = X @ X.T + np.eye(3), rng.normal(size=(3, 4))
+    np.testing.assert_allclose(small_solve(S, B), np.linalg.solve(S, B), rtol=1e-12)
+
+
 # ---- EKF ------------------------------------------------------------------------------------
 @pytest.mark.parametrize("full", [True, False])
 @pytest.mark.parametrize("drive", ["front", "rear"])

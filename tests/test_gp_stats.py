@@ -146,7 +146,7 @@ def test_rank1_forgetting_equals_batch_with_forgotten_prior():
     rng = np.random.default_rng(3)
     X, Z, S, Lam0 = _data(rng, T=40)
     lam = 0.95
-    st = MNIWRank1((), 2, S, Lam0, nu0=6.0)
+    st = MNIWRank1((), 2, S, Lam0, nu0=6.0, bounded=False)
     for x, z in zip(X, Z):
         st.forget(lam)
         st.update(z, x)
@@ -154,6 +154,32 @@ def test_rank1_forgetting_equals_batch_with_forgotten_prior():
     Mb, Lb = _batch_posterior(X, Z, S, Lam0, 6.0, w=w, prior_scale=lam ** len(X))
     M, Lam = st.posterior()
     assert np.allclose(M, Mb, atol=1e-10) and np.allclose(Lam, Lb, atol=1e-10)
+
+
+def test_rank1_bounded_trace_stops_windup():
+    """Data in one direction only, lambda = 0.9, 200 steps: plain RLS lets P grow as
+    0.9^-200 in the other directions; bounded, trace(P) stays <= trace(diag S) and the
+    data direction is still learned; while the trace is below the bound both agree."""
+    rng = np.random.default_rng(8)
+    S = np.array([1.0, 2.0, 0.5])
+    plain = MNIWRank1((), 1, S, np.eye(1), nu0=4.0, bounded=False)
+    bounded = MNIWRank1((), 1, S, np.eye(1), nu0=4.0)
+    x = np.array([1.0, 0.0, 0.0])
+    for k in range(200):
+        z = np.array([0.7 + 0.1 * rng.standard_normal()])
+        for st in (plain, bounded):
+            st.forget(0.9)
+            st.update(z, x)
+    assert np.trace(plain.P) > 1e8
+    assert np.trace(bounded.P) <= S.sum() * (1 + 1e-12)
+    assert abs(bounded.M[0, 0] - 0.7) < 0.05
+    # below the bound the forgetting is plain: P / lambda
+    st = MNIWRank1((), 1, S, np.eye(1), nu0=4.0)
+    for x in np.eye(3):
+        st.update(np.array([0.1]), x)
+    P = st.P.copy()
+    st.forget(0.9)
+    assert np.allclose(st.P, P / 0.9) and np.trace(st.P) < S.sum()
 
 
 @pytest.mark.parametrize("cls", VARIANTS)

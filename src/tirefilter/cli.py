@@ -246,18 +246,46 @@ def cmd_fmu_build(args) -> int:
     return 0
 
 
+def _names(values):
+    """A list option given space- or comma-separated ("augpf,rls ekf"), None when unset."""
+    return tuple(e for v in values for e in v.split(",") if e) if values else None
+
+
 def cmd_bench_stiffness(args) -> int:
     from tirefilter.study.stiffness import PARTS, StudyOptions, run_stiffness_study
 
     opts = StudyOptions(out=Path(args.out), parts=tuple(args.part or PARTS), trials=args.trials,
                         particles=tuple(args.particles) if args.particles else None,
                         scenarios=tuple(args.scenario) if args.scenario else None,
-                        estimators=tuple(args.estimators) if args.estimators else None, workers=args.workers,
+                        estimators=_names(args.estimators), workers=args.workers,
                         seed=args.seed, duration=args.duration, plots=not args.no_plots,
                         progress=sys.stderr.isatty() and not args.quiet)
     run_stiffness_study(opts)
     print(f"report: {opts.out / 'report.md'}")
     return 0
+
+
+def cmd_dashboard(args) -> int:
+    serve = import_viewer().serve
+    serve(host=args.host, port=args.port)
+    return 0
+
+
+def import_viewer():
+    """The dashboard package (`viewer/tirefilter_viewer`): installed with the project, or
+    else found next to `src/` in a checkout whose install predates it."""
+    try:
+        import tirefilter_viewer
+    except ImportError:
+        from tirefilter.cosim.fmu import REPO_ROOT
+
+        folder = REPO_ROOT / "viewer"
+        if not (folder / "tirefilter_viewer" / "__init__.py").is_file():
+            raise TirefilterError("the dashboard (viewer/tirefilter_viewer) is not installed: it ships with the "
+                                  "repository checkout; install it with `pip install -e .`") from None
+        sys.path.insert(0, str(folder))
+        import tirefilter_viewer
+    return tirefilter_viewer
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -291,6 +319,12 @@ def build_parser() -> argparse.ArgumentParser:
     sc.add_argument("--json", action="store_true", help="machine-readable list")
     sc.set_defaults(func=cmd_scenarios)
 
+    db = sub.add_parser("dashboard", help="the live web dashboard (viser), on 127.0.0.1 unless --host says otherwise")
+    db.add_argument("--port", type=int, default=8080, help="port (default 8080; the next free one if taken)")
+    db.add_argument("--host", default="127.0.0.1",
+                    help="address to bind (default 127.0.0.1: this machine only; 0.0.0.0 exposes it to the network)")
+    db.set_defaults(func=cmd_dashboard)
+
     fmu = sub.add_parser("fmu", help="FMU tools")
     fsub = fmu.add_subparsers(dest="fmu_command", required=True)
     build = fsub.add_parser("build", help="build FMUs from source into fmu/build/")
@@ -313,7 +347,7 @@ def build_parser() -> argparse.ArgumentParser:
     st.add_argument("--trials", type=int, help="trials per configuration (default: 100, 20, 50 by part)")
     st.add_argument("--particles", type=int, nargs="+", help="N (default: 500; 50 100 200 500 1000 for particles)")
     st.add_argument("--scenario", nargs="+", help="scenarios (default: by part)")
-    st.add_argument("--estimators", nargs="+", help="estimators (default: by part)")
+    st.add_argument("--estimators", nargs="+", help="estimators, space- or comma-separated (default: by part)")
     st.add_argument("--workers", type=int, help="worker processes (default: one per CPU)")
     st.add_argument("--seed", type=int, default=0, help="seed of the study's SeedSequence")
     st.add_argument("--duration", type=float, help="shorten every trial to this many seconds")

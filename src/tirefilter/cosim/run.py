@@ -8,6 +8,7 @@ the estimator, write a Result-CSV row (and a Rerun row), and step the FMU.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -20,7 +21,7 @@ from tirefilter.estimators.base import Estimator, Inputs, Measurement
 from tirefilter.runs import StepSummary, run_outputs, spawn_seeds, write_summary_json
 from tirefilter.scenarios import Scenario
 
-__all__ = ["RunSummary", "run_scenario", "spawn_seeds", "write_run_json"]
+__all__ = ["CosimSample", "RunSummary", "cosim_samples", "run_scenario", "spawn_seeds", "write_run_json"]
 
 
 @dataclass(kw_only=True)
@@ -62,65 +63,33 @@ def run_scenario(
     params = scenario.fmu_parameters(fmu_seed)
     params.update(parameter_overrides or {})
 
-    h = scenario.communication_step
-    n = int(round(scenario.duration / h))
-    sps = scenario.steps_per_sample
-    t_grid = np.arange(n + 1) * h
-    U = scenario.inputs.open_loop(t_grid)
-    hold = scenario.inputs.speed_hold
-    gain = scenario.vehicle.mass * scenario.vehicle.wheel_radius
-
-    out_names = fmu.output_names
-    idx = {name: j for j, name in enumerate(out_names)}
-    sensors = set(scenario.sensors)
     est_name = getattr(estimator, "name", None) if estimator is not None else None
-    columns = result_columns(out_names)
-
-    def sensor(name: str, output: str, y) -> float:
-        return float(y[idx[output]]) if name in sensors else math.nan
-
+    columns = result_columns(fmu.output_names)
     summary = RunSummary(scenario=scenario.name, seed=seed, fmu_seed=fmu_seed, estimator=est_name or "none",
                          results=str(results_csv) if results_csv else None)
+    n = int(round(scenario.duration / scenario.communication_step))
     friction = None
     if friction_csv and is_friction_estimator(estimator):
         friction = FrictionWriter(friction_csv, estimator, truth=friction_truth(scenario))
     surface = INPUT_NAMES.index("surface")
+
+    def on_step(k: int) -> None:
+        summary.communication_steps = k + 1
+        if k % 256 == 0:
+            out.progress(k)
+
     try:
         with run_outputs(summary, columns, results_csv=results_csv, rrd=rrd, estimator=est_name, keep_rows=keep_rows,
                          total=n, progress=progress, recording=recording, context=_recording_context(scenario)) as out:
-            fmu.reset(params)
             if estimator is not None:
                 estimator.reset(rng)
-            y = fmu.outputs()
-            integral = 0.0
-            u = np.empty(len(INPUT_NAMES))
-            for k in range(n + 1):
-                t = k * h
-                u[:] = U[k]
-                if hold is not None:
-                    err = float(hold.reference(t)) - float(y[idx["vx"]])
-                    integral += err * h
-                    u[1] += gain * (hold.kp * err + hold.ki * integral)
-                fmu.set_inputs(u)
-                if k % sps == 0:
-                    y = fmu.outputs()
-                    est = None
-                    if estimator is not None:
-                        inputs = Inputs(delta=sensor("delta", "delta_meas", y),
-                                        omega_f=sensor("omega_f", "omega_f_meas", y),
-                                        omega_r=sensor("omega_r", "omega_r_meas", y), vx=sensor("vx", "vx", y))
-                        meas = Measurement(ax=sensor("ax", "ax_meas", y), ay=sensor("ay", "ay_meas", y),
-                                           yaw_rate=sensor("yaw_rate", "yaw_rate_meas", y))
-                        est = out.step(estimator, t, inputs, meas)
-                        if friction is not None:
-                            friction.sample(t, float(u[surface]))
-                    out.write(np.concatenate([estimate_values(t, est), y, u]))
-                if k == n:
-                    break
-                y = fmu.do_step(t, h)
-                summary.communication_steps += 1
-                if k % 256 == 0:
-                    out.progress(k)
+            for s in cosim_samples(scenario, fmu, params, on_step=on_step):
+                est = None
+                if estimator is not None:
+                    est = out.step(estimator, s.t, s.inputs, s.meas)
+                    if friction is not None:
+                        friction.sample(s.t, float(s.u[surface]))
+                out.write(np.concatenate([estimate_values(s.t, est), s.y, s.u]))
             if friction is not None:
                 friction.finish()
     finally:
@@ -129,6 +98,69 @@ def run_scenario(
         if own_fmu:
             fmu.close()
     return summary, out.kept_rows()
+
+
+@dataclass(frozen=True)
+class CosimSample:
+    """The co-simulation at one estimator sample instant (see `cosim_samples`)."""
+
+    k: int  # communication step index (t = k h)
+    t: float  # s
+    inputs: Inputs  # what the estimator is given (NaN for sensors the scenario lacks)
+    meas: Measurement
+    y: np.ndarray  # FMU outputs, ordered as fmu.output_names (a view: valid until the next sample)
+    u: np.ndarray  # FMU inputs held over the coming step, ordered as INPUT_NAMES (a view, idem)
+
+
+def cosim_samples(scenario: Scenario, fmu: VehicleFMU, params: dict,
+                  on_step: Callable[[int], None] | None = None) -> Iterator[CosimSample]:
+    """Reset `fmu` with `params`, then co-simulate `scenario` one communication step at a
+    time, yielding the sensors and outputs at every estimator sample instant.
+
+    The scenario's open-loop inputs plus its speed hold (a PI loop on the FMU's v^X) are
+    set before the outputs are read; the caller runs its estimator on each sample before
+    asking for the next one (the loop of `run_scenario`, and the dashboard's stepping).
+    `on_step(k)` is called after communication step k (0-based) has been taken.
+    """
+    h = scenario.communication_step
+    n = int(round(scenario.duration / h))
+    sps = scenario.steps_per_sample
+    t_grid = np.arange(n + 1) * h
+    U = scenario.inputs.open_loop(t_grid)
+    hold = scenario.inputs.speed_hold
+    gain = scenario.vehicle.mass * scenario.vehicle.wheel_radius
+    idx = {name: j for j, name in enumerate(fmu.output_names)}
+    sensors = set(scenario.sensors)
+
+    def sensor(name: str, output: str, y) -> float:
+        return float(y[idx[output]]) if name in sensors else math.nan
+
+    fmu.reset(params)
+    y = fmu.outputs()
+    integral = 0.0
+    u = np.empty(len(INPUT_NAMES))
+    for k in range(n + 1):
+        t = k * h
+        u[:] = U[k]
+        if hold is not None:
+            err = float(hold.reference(t)) - float(y[idx["vx"]])
+            integral += err * h
+            u[1] += gain * (hold.kp * err + hold.ki * integral)
+        fmu.set_inputs(u)
+        if k % sps == 0:
+            y = fmu.outputs()
+            yield CosimSample(k, t,
+                              Inputs(delta=sensor("delta", "delta_meas", y),
+                                     omega_f=sensor("omega_f", "omega_f_meas", y),
+                                     omega_r=sensor("omega_r", "omega_r_meas", y), vx=sensor("vx", "vx", y)),
+                              Measurement(ax=sensor("ax", "ax_meas", y), ay=sensor("ay", "ay_meas", y),
+                                          yaw_rate=sensor("yaw_rate", "yaw_rate_meas", y)),
+                              y, u)
+        if k == n:
+            break
+        y = fmu.do_step(t, h)
+        if on_step is not None:
+            on_step(k)
 
 
 def _recording_context(scenario: Scenario):

@@ -62,6 +62,28 @@ class Estimate:
         return math.atan2(self.vy, self.vx)
 
 
+def particle_estimate(*, active: bool, ess: float, x_mean, x_std, vx_input: float, stiffness: dict,
+                      bias: dict) -> Estimate:
+    """The Estimate of a particle filter over the full state (vx, vy, r) or the lateral one
+    (vy, r; v^X is the input `vx_input`): weighted state mean and std, `stiffness` maps
+    each estimated parameter (Cx, Cf_y, Cr_y) to (value, *_std, *_sigma), `bias` each IMU
+    channel (ax, ay, yaw_rate) to its estimate; what is not estimated is NaN."""
+    if len(x_mean) == 3:
+        (vx, vy, r), std = x_mean, tuple(x_std)
+    else:
+        (vy, r), vx, std = x_mean, vx_input, (0.0, x_std[0], x_std[1])
+    none = (NAN, NAN, NAN)
+    cx, cf, cr = (stiffness.get(p, none) for p in ("Cx", "Cf_y", "Cr_y"))
+    return Estimate(
+        active=bool(active), vx=float(vx), vy=float(vy), yaw_rate=float(r),
+        Cf_y=float(cf[0]), Cr_y=float(cr[0]), Cx=float(cx[0]),
+        Cf_y_std=float(cf[1]), Cr_y_std=float(cr[1]), Cx_std=float(cx[1]),
+        Cf_y_sigma=float(cf[2]), Cr_y_sigma=float(cr[2]), Cx_sigma=float(cx[2]),
+        b_ax=float(bias.get("ax", NAN)), b_ay=float(bias.get("ay", NAN)), b_yaw_rate=float(bias.get("yaw_rate", NAN)),
+        ess=float(ess), state_std=tuple(float(s) for s in std),
+    )
+
+
 @dataclass
 class Posterior:
     """A snapshot of a particle posterior: particles, log-weights, per-particle stats."""

@@ -2,8 +2,9 @@
 bias: the baseline of the stiffness paper (papers/000) Sec. VII-B ("EKF"), "tuned carefully".
 
 State z = [x, c, b]: the vehicle state x (full model [vx, vy, r], lateral [vy, r] with v^X
-given), the stiffness deviations from nominal c (full [dC_x, dCf_y, dCr_y], lateral [dCf_y,
-dCr_y]; C_x is the driven axle's) and the biases b of the model's IMU channels (full
+given), the stiffness deviations from nominal c in units of the reference stiffness (full
+[dC_x, dCf_y, dCr_y] / C_ref, lateral [dCf_y, dCr_y] / C_ref; C_x is the driven axle's;
+relative units keep the covariance well conditioned) and the biases b of the model's IMU channels (full
 [ax, ay, yaw rate], lateral [ay, yaw rate]): 9 states (full), 6 (lateral).
 
 Model (`dynamics`, `measurement`): the MPF's accelerations, eq. (1), (2), (4) and (3) with
@@ -17,7 +18,7 @@ and wheel slip (R_w omega - vx) / max(|vx|, |R_w omega|, 1). Jacobians are analy
 Prediction over dt (inputs of the previous sample held): local linearisation, the exact
 solution of the model linearised at the current estimate z0, z' ~ f(z0) + A (z - z0):
   z <- z0 + int_0^dt e^{A s} ds f(z0),  P <- e^{A dt} P e^{A dt}^T + Qd,
-both from one matrix exponential (`linear_kf.discretize_zoh`, Van Loan). For the lateral
+both from one matrix exponential (Van Loan, `baseline_common.discretize_zoh`). For the lateral
 model with fixed stiffness the model is affine in x and this is the exact discretisation:
 the EKF then reduces to `linear_kf.LinearKF` (tested).
 
@@ -52,8 +53,7 @@ import numpy as np
 
 from tirefilter.errors import ConfigError
 from tirefilter.estimators.base import Estimate, Inputs, Measurement, Posterior
-from tirefilter.estimators.baseline_common import check_common, gate_open, stiffness_prior
-from tirefilter.estimators.linear_kf import discretize_zoh
+from tirefilter.estimators.baseline_common import check_common, discretize_zoh, gate_open, small_solve, stiffness_prior
 from tirefilter.vehicle.params import VehicleParams
 from tirefilter.vehicle.single_track import GRAVITY
 
@@ -112,7 +112,7 @@ class SingleTrackEKFModel:
     """The EKF's model maths (module docstring) for one vehicle and model choice: pure
     functions of (z, u) with analytic Jacobians. u = [delta, omega_f, omega_r, vx]."""
 
-    def __init__(self, vehicle: VehicleParams, full: bool, vx_min: float = 1.0):
+    def __init__(self, vehicle: VehicleParams, full: bool, vx_min: float = 1.0, C_scale=None):
         v = vehicle
         self.v, self.full, self.vx_min = v, full, vx_min
         other = v.Cx if v.Cx_undriven is None else v.Cx_undriven
@@ -123,6 +123,9 @@ class SingleTrackEKFModel:
         self.params = ("Cx", "Cf_y", "Cr_y") if full else ("Cf_y", "Cr_y")
         self.n_w = len(self.params)
         self.C_nom = np.array([v.Cx, v.Cf_y, v.Cr_y] if full else [v.Cf_y, v.Cr_y], float)
+        # the stiffness states are deviations in units of C_scale (default nominal): O(0.1)
+        # numbers, like the other states, for a well-conditioned covariance
+        self.C_scale = self.C_nom.copy() if C_scale is None else np.asarray(C_scale, float)
         self.m = 3 if full else 2  # IMU channels (bias states)
         self.nz = self.nx + self.n_w + self.m
         self.roll_gain = 1.0 + v.roll_gradient * GRAVITY
@@ -152,11 +155,12 @@ class SingleTrackEKFModel:
         ar = (v.lr * r - vy) / s
         g_af = grad(vx=ds * (vy + v.lf * r) / (s * s), vy=-1.0 / s, r=-v.lf / s)
         g_ar = grad(vx=-ds * (v.lr * r - vy) / (s * s), vy=-1.0 / s, r=v.lr / s)
-        c = z[nx:nx + self.n_w]
+        cs = self.C_scale
+        c = z[nx:nx + self.n_w] * cs  # absolute deviations, N/rad (N)
         j = 1 if self.full else 0  # index of dCf_y within c
         Cf, Cr = v.Cf_y + c[j], v.Cr_y + c[j + 1]
-        e_cf, e_cr = np.zeros(nz), np.zeros(nz)
-        e_cf[nx + j], e_cr[nx + j + 1] = 1.0, 1.0
+        e_cf, e_cr = np.zeros(nz), np.zeros(nz)  # d C / d z
+        e_cf[nx + j], e_cr[nx + j + 1] = cs[j], cs[j + 1]
         Ffy, g_Ffy = Cf * af, Cf * g_af + af * e_cf
         Fry, g_Fry = Cr * ar, Cr * g_ar + ar * e_cr
         if self.full:
@@ -174,7 +178,7 @@ class SingleTrackEKFModel:
                     d = -1.0 / den
                 g_lam.append(grad(vx=d))
             e_cx = np.zeros(nz)
-            e_cx[nx] = 1.0
+            e_cx[nx] = cs[0]
             if self.rear_drive:
                 Cfx, g_Cfx, Crx, g_Crx = self.C_nom_fx, np.zeros(nz), self.C_nom_rx + c[0], e_cx
             else:
@@ -237,25 +241,28 @@ class StiffnessEKF:
         self.vehicle = vehicle
         self.cfg = cfg = config.validated()
         self.full = cfg.model == "full"
-        self.mdl = mdl = SingleTrackEKFModel(vehicle, self.full, cfg.vx_min)
-        self.params, self.C_nom, self.n_w, self.nx, self.nz = mdl.params, mdl.C_nom, mdl.n_w, mdl.nx, mdl.nz
-        self.channels = (0, 1, 2) if self.full else (1, 2)
+        mdl = SingleTrackEKFModel(vehicle, self.full, cfg.vx_min)
+        self.params, self.C_nom, self.n_w = mdl.params, mdl.C_nom, mdl.n_w
         self.C_ref, self.C_center, C_std = stiffness_prior(cfg, self.C_nom, self.params, "ekf configuration")
+        self.mdl = mdl = SingleTrackEKFModel(vehicle, self.full, cfg.vx_min, C_scale=self.C_ref)  # c in units of C_ref
+        self.nx, self.nz = mdl.nx, mdl.nz
+        self.channels = (0, 1, 2) if self.full else (1, 2)
         self.ic = slice(self.nx, self.nx + self.n_w)
         self.ib = slice(self.nx + self.n_w, self.nz)
         ch = list(self.channels)
         self.R = np.diag(np.asarray(cfg.sigma, float)[ch] ** 2)
-        self.Sigma_dev = np.diag((cfg.dev_sigma * self.C_ref) ** 2)
+        self.Sigma_dev = np.eye(self.n_w) * cfg.dev_sigma**2  # relative units
         q = np.zeros(self.nz)
         q[:self.nx] = np.asarray(cfg.q_state, float)[-self.nx:]
         q[self.ib] = np.asarray(cfg.bias_rw, float)[ch] ** 2
         self.q_closed = q.copy()
-        q[self.ic] = (cfg.stiffness_rw * self.C_ref) ** 2
+        q[self.ic] = cfg.stiffness_rw**2
         self.q_open = q
         x0_std = np.asarray(cfg.x0_std, float)[-self.nx:]
-        self.P0 = np.diag(np.concatenate([x0_std**2, C_std**2, np.asarray(cfg.bias0_std, float)[ch] ** 2]))
-        self.lo = cfg.bound_low * self.C_ref - self.C_nom
-        self.hi = cfg.bound_high * self.C_ref - self.C_nom
+        self.P0 = np.diag(np.concatenate([x0_std**2, (C_std / self.C_ref) ** 2,
+                                          np.asarray(cfg.bias0_std, float)[ch] ** 2]))
+        self.lo = cfg.bound_low - self.C_nom / self.C_ref  # projection bounds, relative units
+        self.hi = cfg.bound_high - self.C_nom / self.C_ref
 
     def config_dict(self) -> dict:
         d = asdict(self.cfg)
@@ -266,7 +273,7 @@ class StiffnessEKF:
         """Back to the prior. Deterministic: rng is accepted and unused."""
         cfg = self.cfg
         x0 = cfg.x0_mean if cfg.x0_mean is not None else ((20.0, 0.0, 0.0) if self.full else (0.0, 0.0))
-        self.z = np.concatenate([np.asarray(x0, float)[-self.nx:], self.C_center - self.C_nom, np.zeros(len(self.channels))])
+        self.z = np.concatenate([np.asarray(x0, float)[-self.nx:], (self.C_center - self.C_nom) / self.C_ref, np.zeros(len(self.channels))])
         self.P = self.P0.copy()
         self.t_prev = None
         self.t_start = None
@@ -303,7 +310,7 @@ class StiffnessEKF:
             Ra = Ra + Hc @ self.Sigma_dev @ Hc.T
         PHt = self.P @ H.T
         S = H @ PHt + Ra
-        K = np.linalg.solve(S, PHt.T).T
+        K = small_solve(S, PHt.T).T
         if not self.active:
             K[self.ic] = 0.0  # consider states: frozen stiffness
         self.z = self.z + K @ (yk[a] - h[a])
@@ -348,8 +355,8 @@ class StiffnessEKF:
 
     def _estimate(self, vx) -> Estimate:
         std = np.sqrt(np.maximum(np.diagonal(self.P), 0.0))
-        C = self.C_nom + self.z[self.ic]
-        vals = dict(zip(self.params, zip(C, std[self.ic])))
+        C = self.C_nom + self.C_ref * self.z[self.ic]
+        vals = dict(zip(self.params, zip(C, self.C_ref * std[self.ic])))
         bias = dict(zip(("ax", "ay", "yaw_rate")[-len(self.channels):], self.z[self.ib]))
         x = self.z[:self.nx]
         vy, r = x[-2], x[-1]

@@ -224,6 +224,7 @@ class FrictionGPSSM:
         self.visited = [math.inf, -math.inf, math.inf, -math.inf]
         self.last_t = NAN
         self.prediction = (NAN, NAN)  # one-step-ahead (a^Y, r) before the last measurement
+        self._path = np.zeros((2, len(self.grid), 2))  # (axle, grid bin, [count, sum of the other slip])
         self._slope = (NAN, NAN, NAN, NAN)
         self._dphi0 = self._slope_features()
 
@@ -371,6 +372,10 @@ class FrictionGPSSM:
             mf, mr = float(q @ af), float(q @ ar)
             self.visited = [min(self.visited[0], mf), max(self.visited[1], mf),
                             min(self.visited[2], mr), max(self.visited[3], mr)]
+            if self.d == 2:  # the visited path: mean alpha_r per alpha_f bin and vice versa
+                jf, jr = self._bin(mf), self._bin(mr)
+                self._path[0, jf] += (1.0, mr)
+                self._path[1, jr] += (1.0, mf)
         self.mu = np.stack([pf, pr], axis=1) + zeta
         self.t_prev, self.u_prev, self.last_t = t, uk, t
         return self._estimate(ess, vx)
@@ -431,19 +436,37 @@ class FrictionGPSSM:
         self._slope = (C[0], self.Fz[0] * std[0], C[1], self.Fz[1] * std[1])
         return dict(Cf_y=C[0], Cf_y_std=self.Fz[0] * std[0], Cr_y=C[1], Cr_y_std=self.Fz[1] * std[1])
 
+    def _bin(self, a: float) -> int:
+        return int(np.clip(np.searchsorted(self.grid, a), 0, len(self.grid) - 1))
+
+    def path(self) -> tuple[np.ndarray, np.ndarray]:
+        """Tensor basis: the other axle's slip along which each axle's curve is evaluated,
+        on the grid: the mean alpha_r seen with alpha_f in each grid bin (front curve) and the
+        mean alpha_f seen with alpha_r (rear curve), while learning; alpha itself where a
+        bin has no data (steady cornering with equal tires: alpha_f = alpha_r)."""
+        out = []
+        for axle in range(2):
+            n, total = self._path[axle, :, 0], self._path[axle, :, 1]
+            out.append(np.where(n > 0, total / np.maximum(n, 1.0), self.grid))
+        return out[0], out[1]
+
     # ---- the friction estimate ---------------------------------------------------------
     def friction(self) -> FrictionCurve:
         """mu(alpha) = mu~(alpha) + sum_i q^i M^i phi(alpha) on the fixed grid with its posterior
         std (Algorithm 1, line 12, and eq. (30): the mixture over particles of the MNIW
         posterior of A phi, E[Q] phi^T Sigma* phi within each particle plus the spread of the
-        particle means). Tensor basis: each axle's curve along alpha_f = alpha_r = alpha (the
-        steady-state path when both axles have the same tire curve: mu_f = mu_r there)."""
+        particle means). Tensor basis: mu_f(alpha_f, alpha_r) is a function of both slips;
+        each axle's curve is taken along the visited path (`path()`), and along
+        alpha_f = alpha_r = alpha where nothing was visited."""
         q = np.exp(self.logw)
         g = self.grid
-        if self.d == 2:
-            phi = self.basis.features(g, g)  # (G, m^2)
-            mean, cov = self.stats.function_moments(phi[None])  # (N, G, 2), (N, G, 2, 2)
-            var = np.diagonal(cov, axis1=-2, axis2=-1)
+        if self.d == 2:  # front row along (alpha, path_f(alpha)), rear row along (path_r(alpha), alpha)
+            other_f, other_r = self.path()
+            phi = np.concatenate([self.basis.features(g, other_f), self.basis.features(other_r, g)])  # (2G, size)
+            mean2, cov2 = self.stats.function_moments(phi[None])  # (N, 2G, 2), (N, 2G, 2, 2)
+            G = len(g)
+            mean = np.stack([mean2[:, :G, 0], mean2[:, G:, 1]], axis=-1)
+            var = np.stack([cov2[:, :G, 0, 0], cov2[:, G:, 1, 1]], axis=-1)
         else:
             phi = self.basis.phi(g)[None, None]  # (1, 1, G, m)
             mean, cov = self.stats.function_moments(phi)  # (N, 2, G, 1), (N, 2, G, 1, 1)

@@ -45,7 +45,7 @@ import numpy as np
 
 from tirefilter.errors import ConfigError
 from tirefilter.estimators.base import Estimate, Inputs, Measurement, Posterior
-from tirefilter.estimators.baseline_common import check_common, gate_open, stiffness_prior
+from tirefilter.estimators.baseline_common import check_common, discretize_zoh, gate_open, small_solve, stiffness_prior
 from tirefilter.estimators.linear_kf import KFConfig, LinearKF
 from tirefilter.vehicle.params import VehicleParams
 from tirefilter.vehicle.single_track import GRAVITY
@@ -112,10 +112,21 @@ def rls_update(theta: np.ndarray, P: np.ndarray, Phi: np.ndarray, y: np.ndarray,
     e = y - Phi @ theta
     PPt = P @ Phi.T
     S = lam * np.diag(1.0 / w) + Phi @ PPt
-    K = np.linalg.solve(S, PPt.T).T  # P Phi^T S^-1 (S symmetric)
+    K = small_solve(S, PPt.T).T  # P Phi^T S^-1 (S symmetric)
     theta = theta + K @ e
     P = (P - K @ PPt.T) / lam
     return theta, 0.5 * (P + P.T), e
+
+
+class _KF(LinearKF):
+    """`LinearKF` with the LAPACK-free discretisation of `baseline_common` (the same maths)."""
+
+    def predict(self, vx: float, delta: float, dt: float) -> None:
+        A, b, _, _ = self._model(vx, delta)
+        Ad, bd, Qd = discretize_zoh(A, b, self.Qc, dt)
+        self.x = Ad @ self.x + bd
+        P = Ad @ self.P @ Ad.T + Qd
+        self.P = 0.5 * (P + P.T)
 
 
 class RLSEstimator:
@@ -151,7 +162,7 @@ class RLSEstimator:
         """Back to theta_0, P_0 and the Kalman filter's prior. Deterministic: rng unused."""
         self.theta = self.theta0.copy()
         self.P = self.P0.copy()
-        self.kf = LinearKF(self.vehicle, self.kf_config)
+        self.kf = _KF(self.vehicle, self.kf_config)
         self.s_res, self.n_res = 0.0, 0.0
         self.t_prev = None
         self.t_start = None

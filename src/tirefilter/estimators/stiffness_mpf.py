@@ -26,7 +26,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from tirefilter.errors import ConfigError
-from tirefilter.estimators.base import Estimate, Inputs, Measurement, Posterior
+from tirefilter.estimators.base import Estimate, Inputs, Measurement, Posterior, particle_estimate
 from tirefilter.stats import NiW, effective_sample_size, normalize_log_weights, systematic_resample
 from tirefilter.stats.linalg import chol, chol_solve, logdet_chol, solve_lower
 from tirefilter.stats.student_t import t_conditional, t_logpdf_whitened, t_sample
@@ -529,23 +529,9 @@ class StiffnessMPF:
         sigma2 = q @ Esig + spread  # eq. (27b), diagonal, with nu - n_w - 1
         C = self.C_nom + mbar
         vals = dict(zip(self.params, zip(C, np.sqrt(var_mean), np.sqrt(sigma2))))
-        b = q @ self.b
-        bias = dict(zip(("ax", "ay", "yaw_rate") if self.full else ("ay", "yaw_rate"), b))
-        if self.full:
-            vx, vy, r = x_mean
-            std = tuple(x_std)
-        else:
-            vx, (vy, r) = (NAN if self.u_prev is None else self.u_prev[3]), x_mean
-            std = (0.0, x_std[0], x_std[1])
-        cx = vals.get("Cx", (NAN, NAN, NAN))
-        return Estimate(
-            active=self.active, vx=float(vx), vy=float(vy), yaw_rate=float(r),
-            Cf_y=float(vals["Cf_y"][0]), Cr_y=float(vals["Cr_y"][0]), Cx=float(cx[0]),
-            Cf_y_std=float(vals["Cf_y"][1]), Cr_y_std=float(vals["Cr_y"][1]), Cx_std=float(cx[1]),
-            Cf_y_sigma=float(vals["Cf_y"][2]), Cr_y_sigma=float(vals["Cr_y"][2]), Cx_sigma=float(cx[2]),
-            b_ax=float(bias.get("ax", NAN)), b_ay=float(bias["ay"]), b_yaw_rate=float(bias["yaw_rate"]),
-            ess=ess, state_std=tuple(float(s) for s in std),
-        )
+        bias = dict(zip(("ax", "ay", "yaw_rate") if self.full else ("ay", "yaw_rate"), q @ self.b))
+        return particle_estimate(active=self.active, ess=ess, x_mean=x_mean, x_std=x_std, stiffness=vals, bias=bias,
+                                 vx_input=NAN if self.u_prev is None else self.u_prev[3])
 
     # ---- carrying the learned stiffness from one drive to the next ----------------------
     def learned_state(self) -> dict:

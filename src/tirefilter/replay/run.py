@@ -11,6 +11,7 @@ log's signals as `meas_<name>`.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from contextlib import closing, nullcontext
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,6 +40,23 @@ class ReplaySummary(StepSummary):
 def result_columns(log: Log) -> tuple[str, ...]:
     """ESTIMATE_COLUMNS, then `meas_<name>` for each signal of the log."""
     return ESTIMATE_COLUMNS + tuple(f"meas_{s}" for s in SIGNALS if s in log.signals)
+
+
+def log_samples(log: Log) -> Iterator[tuple[int, float, Inputs, Measurement]]:
+    """(k, t, Inputs, Measurement) for every row of `log` (0-based k; NaN for a missing
+    sample or a signal the log lacks): the samples `replay_log` gives its estimator."""
+    sig = {s: log.signal(s).tolist() for s in SIGNALS}  # Python floats, as the co-simulation passes
+    for k, t in enumerate(log.t.tolist()):
+        yield (k, t,
+               Inputs(delta=sig["delta"][k], omega_f=sig["omega_f"][k], omega_r=sig["omega_r"][k], vx=sig["vx"][k]),
+               Measurement(ax=sig["ax"][k], ay=sig["ay"][k], yaw_rate=sig["yaw_rate"][k]))
+
+
+def replay_error(log: Log, k: int, t: float, estimator: str | None, exc: Exception) -> ReplayError:
+    """The error of an estimator failing on row k of `log`: names the file, row, line and time."""
+    where = log.where(k)
+    return ReplayError(f"{log.path}: data row {where['row']} (file line {where['line']}, t = {t!r} s): "
+                       f"{estimator} failed: {exc}")
 
 
 def replay_log(
@@ -70,8 +88,6 @@ def replay_log(
     columns = result_columns(log)
     present = [s for s in SIGNALS if s in log.signals]
     data = np.column_stack([log.signals[s] for s in present])
-    t_all = log.t.tolist()
-    sig = {s: log.signal(s).tolist() for s in SIGNALS}  # Python floats, as the co-simulation passes
     summary = ReplaySummary(log=str(log.path), vehicle=str(vehicle_file) if vehicle_file else None, seed=seed,
                             estimator=est_name or "none", rows=log.rows, duration_s=log.duration,
                             results=str(results_csv) if results_csv else None)
@@ -84,18 +100,13 @@ def replay_log(
                         context=RecordingContext(vehicle=getattr(estimator, "vehicle", None))) as out:
         if estimator is not None:
             estimator.reset(rng)
-        for k, t in enumerate(t_all):
+        for k, t, u, y in log_samples(log):
             est = None
             if estimator is not None:
-                u = Inputs(delta=sig["delta"][k], omega_f=sig["omega_f"][k], omega_r=sig["omega_r"][k],
-                           vx=sig["vx"][k])
-                y = Measurement(ax=sig["ax"][k], ay=sig["ay"][k], yaw_rate=sig["yaw_rate"][k])
                 try:
                     est = out.step(estimator, t, u, y)
                 except Exception as exc:
-                    where = log.where(k)
-                    raise ReplayError(f"{log.path}: data row {where['row']} (file line {where['line']}, t = {t!r} s): "
-                                      f"{est_name} failed: {exc}") from exc
+                    raise replay_error(log, k, t, est_name, exc) from exc
             if friction is not None:
                 friction.sample(t)
             out.write(np.concatenate([estimate_values(t, est), data[k]]))

@@ -18,7 +18,11 @@ marginal is the multivariate t St(M phi, c Lambda / (nu - d + 1), nu - d + 1).
 `MNIWRank1` is the faster variant: it keeps M, P = (Sigma + V)^-1 and Lambda and applies
 the forgetting to the prior too (V and Lambda_0 are scaled by lambda with the data), which
 makes each update a rank-one (recursive least-squares) step, O(m^2) instead of O(m^3).
-With lambda = 1 both are the same posterior.
+With lambda = 1 both are the same posterior. Forgetting the prior lets P grow as
+lambda^-k in directions that get no data (RLS wind-up; with the tensor basis most of the
+(alpha_f, alpha_r) plane is never visited and P overflows within a run at lambda = 0.99),
+so by default the forgetting factor of a batch element is raised to keep trace(P) at most
+the prior's trace(diag S) (bounded-trace forgetting; `bounded=False`: plain RLS).
 """
 
 from __future__ import annotations
@@ -194,10 +198,12 @@ class MNIWRank1(_Common):
     forget: P / lambda, Lambda lambda, nu lambda; update with e = zeta - M phi,
     g = P phi, c = 1 + phi^T g: M += e g^T / c, P -= g g^T / c, Lambda += e e^T / c."""
 
-    def __init__(self, batch: tuple[int, ...], d: int, S, Lam0, nu0: float):
+    def __init__(self, batch: tuple[int, ...], d: int, S, Lam0, nu0: float, bounded: bool = True):
         S = np.asarray(S, float)
         m = S.shape[-1]
         self.V = 1.0 / S
+        self.bounded = bounded
+        self.trace0 = float(S.sum())
         self.Lam0 = np.asarray(Lam0, float).reshape(d, d)
         self.M = np.zeros(batch + (d, m))
         self.P = np.broadcast_to(np.diag(S), batch + (m, m)).copy()
@@ -206,7 +212,7 @@ class MNIWRank1(_Common):
 
     def take(self, idx) -> "MNIWRank1":
         new = MNIWRank1.__new__(MNIWRank1)
-        new.V, new.Lam0 = self.V, self.Lam0
+        new.V, new.Lam0, new.bounded, new.trace0 = self.V, self.Lam0, self.bounded, self.trace0
         new.M, new.P, new.Lam, new.nu = (_take(a, idx, self.nu) for a in (self.M, self.P, self.Lam, self.nu))
         return new
 
@@ -231,6 +237,9 @@ class MNIWRank1(_Common):
         f = np.full(np.shape(self.nu), float(lam))
         if nu_min > 0:
             f = np.maximum(f, np.minimum(1.0, nu_min / self.nu))
+        if self.bounded:  # bounded trace: P / lambda never beyond the prior's total variance
+            tr = np.einsum("...ii->...", self.P)
+            f = np.minimum(1.0, np.maximum(f, tr / self.trace0))
         if mask is not None:
             f = np.where(mask, f, 1.0)
         self.P *= (1.0 / f)[..., None, None]
@@ -252,4 +261,6 @@ class MNIWRank1(_Common):
 
 
 def make_mniw(kind: str, batch, d: int, S, Lam0, nu0: float):
-    return (MNIWRank1 if kind == "rank1" else MNIW)(tuple(batch), d, S, Lam0, nu0)
+    if kind == "rank1":
+        return MNIWRank1(tuple(batch), d, S, Lam0, nu0)
+    return MNIW(tuple(batch), d, S, Lam0, nu0)

@@ -1,0 +1,508 @@
+"""The viser dashboard: controls, a background run loop, and the live views.
+
+One worker thread owns the run: the page's controls only queue commands (start, pause,
+step, restart, open a Result CSV), and the worker carries them out between samples, so a
+run is never touched from two threads. It steps the run at the chosen speed (a multiple of
+real time, or as fast as it goes) and publishes the views at most PUBLISH_HZ times per
+second: the charts, the particle cloud, the vehicle pose and path, the friction curves,
+the status line. Any error (a bad file, an estimator exception) ends up in the page's
+error box and the server keeps running.
+"""
+
+from __future__ import annotations
+
+import math
+import queue
+import threading
+import time
+import traceback
+from collections import deque
+from pathlib import Path
+
+import numpy as np
+
+from tirefilter_viewer.history import History
+from tirefilter_viewer.session import LiveRun, Settings, open_result
+from tirefilter_viewer.views import (CLOUD_SCALE, FRICTION_BANDS, FRICTION_SERIES, STIFFNESS, Chart, charts,
+                                     cloud_positions, friction_data, friction_from_csv, friction_truth,
+                                     particle_stiffness, placeholder, truth_position, weight_colors, y_range)
+
+DEFAULT_HOST = "127.0.0.1"
+DEFAULT_PORT = 8080
+PUBLISH_HZ = 30.0  # the most view updates per second
+SPEEDS = ("0.1x", "0.25x", "0.5x", "1x", "2x", "5x", "10x", "max")
+PATH_BOX = 10.0  # scene units the vehicle path is scaled into
+PATH_CENTRE = (3.0 * CLOUD_SCALE, 0.9 * CLOUD_SCALE, 0.0)  # right of the cloud
+
+
+def friction_files(results_csv) -> list[Path]:
+    """Where the friction CSV of a Result CSV is: RESULT.friction.csv (`replay`), or
+    friction.csv next to results.csv (`run --out DIR`)."""
+    from tirefilter.cosim.friction import friction_csv_path
+
+    path = Path(str(results_csv).strip())
+    return [friction_csv_path(path)] + ([path.with_name("friction.csv")] if path.name == "results.csv" else [])
+
+
+def speed_factor(label: str) -> float:
+    """'2x' -> 2.0 (times real time); 'max' -> inf."""
+    return math.inf if label == "max" else float(label.rstrip("x"))
+
+
+class Dashboard:
+    """The dashboard server; `Dashboard(port=0)` picks a free port (see `url`).
+
+    Binds to 127.0.0.1 unless another `host` is given explicitly.
+    """
+
+    def __init__(self, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT, *, settings: Settings | None = None,
+                 speed: str = "1x", publish_hz: float = PUBLISH_HZ, verbose: bool = False):
+        import viser
+
+        if speed not in SPEEDS:
+            raise ValueError(f"speed {speed!r} is not one of {', '.join(SPEEDS)}")
+        self.server = viser.ViserServer(host=host, port=port, verbose=verbose)
+        self.host = host
+        self.publish_interval = 1.0 / publish_hz
+        self.settings = settings or Settings()
+        self._commands: queue.Queue = queue.Queue()
+        self._run: LiveRun | None = None
+        self._history: History | None = None
+        self._source_label = ""
+        self._playing = False
+        self._state = "idle"
+        self._publish_times: deque[float] = deque(maxlen=64)
+        self.updates = 0  # views published so far
+        self._pace = (time.perf_counter(), 0.0)  # (wall, sim time) the speed is measured from
+        self._finished_unshown = False
+        self._result_friction = None  # (FrictionCurve, truth) of an opened Result CSV
+        self._build_gui(speed)
+        self._build_scene()
+        self._quit = threading.Event()
+        self._worker = threading.Thread(target=self._work, name="tirefilter-dashboard", daemon=True)
+        self._worker.start()
+
+    # -- public ----------------------------------------------------------------------------------
+    @property
+    def port(self) -> int:
+        return self.server.get_port()
+
+    @property
+    def url(self) -> str:
+        host = self.host if ":" not in self.host else f"[{self.host}]"
+        return f"http://{host}:{self.port}"
+
+    def command(self, name: str, *args) -> None:
+        """Queue a command for the worker: start, pause, step, restart, open_result PATH."""
+        self._commands.put((name, *args))
+
+    def status(self) -> dict:
+        """What the page shows in its status line, as numbers (for tests and benchmarks)."""
+        h = self._history
+        return {"state": self._state, "rows": h.rows if h is not None else 0, "updates": self.updates,
+                "update_rate": self.update_rate(), "t": h.last("t") if h is not None else math.nan,
+                "error": self._error.content if self._error.visible else None}
+
+    def update_rate(self) -> float:
+        """View updates per second over the last (up to) 64 updates."""
+        ts = self._publish_times
+        if len(ts) < 2 or ts[-1] <= ts[0]:
+            return 0.0
+        return (len(ts) - 1) / (ts[-1] - ts[0])
+
+    def stop(self) -> None:
+        self._quit.set()
+        self._commands.put(("quit",))
+        self._worker.join(timeout=5)
+        if self._run is not None:
+            self._run.close()
+        self.server.stop()
+
+    # -- the page --------------------------------------------------------------------------------
+    def _build_gui(self, speed: str) -> None:
+        from tirefilter.estimators import ESTIMATORS
+        from tirefilter.scenarios import DATA_DIR, scenario_files
+
+        gui = self.server.gui
+        gui.configure_theme(control_width="large", show_share_button=False)
+        s = self.settings
+        gui.add_markdown("**tirefilter** — tire stiffness and friction estimation, live")
+        with gui.add_folder("Run"):
+            self._start = gui.add_button("Start", hint="start a new run, or resume a paused one")
+            self._pause = gui.add_button("Pause")
+            self._step = gui.add_button("Step", hint="advance one sample")
+            self._restart = gui.add_button("Restart", hint="a new run with the settings below")
+            self._speed = gui.add_dropdown("Speed", SPEEDS, initial_value=speed, hint="times real time")
+        self._status = gui.add_markdown("**idle**: press Start")
+        self._error = gui.add_markdown("", visible=False)
+        with gui.add_folder("Source"):
+            self._source = gui.add_dropdown("Source", ("scenario", "log"), initial_value=s.source,
+                                            hint="co-simulate a scenario against the vehicle FMU, or replay a Log CSV")
+            names = tuple(scenario_files())
+            self._scenario = gui.add_dropdown("Scenario", names, initial_value=s.scenario if s.scenario in names
+                                              else names[0])
+            self._log = gui.add_text("Log CSV", s.log, hint="path of the Log CSV to replay (source: log)")
+            self._vehicle = gui.add_text("Vehicle TOML", s.vehicle or str(DATA_DIR / "vehicles" / "midsize-suv.toml"),
+                                         hint="vehicle TOML of the log (source: log)")
+        with gui.add_folder("Estimator"):
+            self._estimator = gui.add_dropdown("Estimator", ESTIMATORS, initial_value=s.estimator)
+            self._model = gui.add_dropdown("Model", ("auto", "full", "lateral"), initial_value=s.model)
+            self._particles = gui.add_number("Particles N", int(s.particles), min=1, max=100000, step=1)
+            self._forgetting = gui.add_number("Forgetting factor", float(s.forgetting), min=0.5, max=1.0, step=0.001)
+            self._seed = gui.add_number("Seed", int(s.seed), min=0, step=1)
+        with gui.add_folder("Result CSV"):
+            self._result_path = gui.add_text("Result CSV", "", hint="a Result CSV written by `tirefilter run` or "
+                                             "`tirefilter replay`, shown without re-running")
+            self._open = gui.add_button("Open Result CSV")
+
+        self._start.on_click(lambda _: self.command("start"))
+        self._pause.on_click(lambda _: self.command("pause"))
+        self._step.on_click(lambda _: self.command("step"))
+        self._restart.on_click(lambda _: self.command("restart"))
+        self._open.on_click(lambda _: self.command("open_result", self._result_path.value))
+        self._speed.on_update(lambda _: self.command("speed"))
+
+        self._charts: list[tuple[Chart, object]] = []
+        self._ranges: dict[int, tuple[float, float]] = {}  # id(handle) -> the y range it shows
+        for chart in charts():
+            handle = gui.add_uplot(placeholder(len(chart.series)), chart.uplot_series(), title=chart.title,
+                                   bands=chart.uplot_bands() or None, scales=self._scales(chart.uplot_scales()),
+                                   aspect=2.0)
+            self._charts.append((chart, handle))
+        self._friction = {}
+        for axle, name in (("f", "front"), ("r", "rear")):
+            self._friction[axle] = gui.add_uplot(placeholder(len(FRICTION_SERIES) - 1), FRICTION_SERIES,
+                                                 title=f"friction mu(alpha), {name} axle: estimate, 90% band, truth",
+                                                 bands=FRICTION_BANDS, scales=self._scales({"x": {"time": False}}),
+                                                 aspect=2.0, visible=False)
+
+    @staticmethod
+    def _scales(base: dict, y: tuple[float, float] = (0.0, 1.0), x: tuple[float, float] = (0.0, 1.0)) -> dict:
+        """uPlot scales with fixed ranges: uPlot neither re-ranges x on new data nor ranges
+        y over a NaN, so the dashboard sets both (x: the run's time span)."""
+        scales = {**base, "y": {"auto": False, "range": (float(y[0]), float(y[1]))}}
+        scales["x"] = {**base.get("x", {}), "auto": False, "range": (float(x[0]), float(x[1]))}
+        return scales
+
+    def _set_data(self, handle, data: tuple[np.ndarray, ...], y_series, base_scales: dict, x_range,
+                  min_span: float = 1e-9) -> None:
+        """New data for a chart, and new ranges when x changes or the data leave the y range."""
+        current = self._ranges.get(id(handle))
+        rng = (tuple(x_range), y_range([data[j] for j in y_series], current[1] if current else None, min_span))
+        if rng != current:
+            self._ranges[id(handle)] = rng
+            handle.scales = self._scales(base_scales, rng[1], rng[0])
+        handle.data = data
+
+    def _build_scene(self) -> None:
+        scene = self.server.scene
+        top = 1.6 * CLOUD_SCALE
+        axes = np.array([[[0, 0, 0], [top, 0, 0]], [[0, 0, 0], [0, top, 0]], [[0, 0, 0], [0, 0, top]]], float)
+        colors = np.array([[[200, 60, 60]] * 2, [[60, 160, 60]] * 2, [[60, 60, 200]] * 2], np.uint8)
+        scene.add_line_segments("/cloud/axes", axes, colors, thickness=0.03)
+        for p, end in zip(STIFFNESS, axes[:, 1]):
+            scene.add_label(f"/cloud/label_{p}", f"{p} / nominal", position=tuple(end))
+        ticks = np.array([[[CLOUD_SCALE * v, 0, 0], [CLOUD_SCALE * v, -0.15, 0]] for v in (0.5, 1.0, 1.5)]
+                         + [[[0, CLOUD_SCALE * v, 0], [-0.15, CLOUD_SCALE * v, 0]] for v in (0.5, 1.0, 1.5)], float)
+        scene.add_grid("/cloud/grid", width=1.6 * CLOUD_SCALE, height=1.6 * CLOUD_SCALE, cell_size=0.1 * CLOUD_SCALE,
+                       section_size=0.5 * CLOUD_SCALE, position=(0.8 * CLOUD_SCALE, 0.8 * CLOUD_SCALE, 0.0))
+        scene.add_line_segments("/cloud/ticks", ticks, (90, 90, 90), thickness=0.02)
+        scene.add_label("/cloud/label_one", "1.0", position=(CLOUD_SCALE, -0.3, 0))
+        self._cloud = scene.add_point_cloud("/cloud/particles", np.zeros((1, 3)), np.zeros((1, 3), np.uint8),
+                                            point_size=0.12, point_shape="circle", visible=False)
+        self._truth = scene.add_box("/cloud/truth", color=(214, 39, 40), dimensions=(0.3, 0.3, 0.3), visible=False)
+        scene.add_label("/vehicle/label", "vehicle path (top view)",
+                        position=(PATH_CENTRE[0] - PATH_BOX / 2, PATH_CENTRE[1] - PATH_BOX / 2 - 0.5, 0))
+        self._path = scene.add_line_segments("/vehicle/path", np.zeros((1, 2, 3)), (40, 40, 40), thickness=0.04,
+                                             visible=False)
+        self._car = scene.add_box("/vehicle/car", color=(31, 119, 180), dimensions=(0.7, 0.3, 0.2), visible=False)
+        self.server.initial_camera.position = (PATH_CENTRE[0] * 0.75, -2.8 * CLOUD_SCALE, 2.3 * CLOUD_SCALE)
+        self.server.initial_camera.look_at = (PATH_CENTRE[0] * 0.75, 0.8 * CLOUD_SCALE, 0.2 * CLOUD_SCALE)
+        self.server.initial_camera.up = (0.0, 0.0, 1.0)
+
+    def _settings(self) -> Settings:
+        return Settings(source=self._source.value, scenario=self._scenario.value, log=self._log.value.strip(),
+                        vehicle=self._vehicle.value.strip(), estimator=self._estimator.value, model=self._model.value,
+                        particles=int(self._particles.value), forgetting=float(self._forgetting.value),
+                        seed=int(self._seed.value))
+
+    # -- the worker ------------------------------------------------------------------------------
+    def _work(self) -> None:
+        next_publish = time.perf_counter()
+        while not self._quit.is_set():
+            try:
+                cmd = self._commands.get(timeout=0.0 if self._playing else 0.05)
+            except queue.Empty:
+                cmd = None
+            try:
+                if cmd is not None:
+                    if cmd[0] == "quit":
+                        return
+                    self._handle(cmd)
+                    next_publish = time.perf_counter()
+                if self._playing:
+                    self._advance(next_publish)
+                now = time.perf_counter()
+                if now >= next_publish and (self._playing or cmd is not None or self._finished_unshown):
+                    self._publish()
+                    # the cadence counts from the start of a publication, so stepping yields to it
+                    next_publish = max(next_publish + self.publish_interval, now)
+            except Exception as exc:  # everything reaches the page; the server keeps running
+                self._fail(exc)
+
+    def _handle(self, cmd: tuple) -> None:
+        name = cmd[0]
+        if name == "start":
+            if self._run is None or self._run.finished:
+                self._new_run()
+            self._set_playing(True)
+        elif name == "restart":
+            self._new_run()
+            self._set_playing(True)
+        elif name == "pause":
+            self._set_playing(False)
+        elif name == "step":
+            if self._run is None or self._run.finished:
+                self._new_run()
+            self._set_playing(False)
+            self._step_once()
+        elif name == "speed":
+            self._reset_pace()
+        elif name == "open_result":
+            self._open_result(cmd[1])
+
+    def _set_playing(self, playing: bool) -> None:
+        self._playing = playing and self._run is not None and not self._run.finished
+        self._state = "running" if self._playing else ("paused" if self._run is not None and not self._run.finished
+                                                        else self._state)
+        self._reset_pace()
+
+    def _reset_pace(self) -> None:
+        t = self._history.last("t") if self._history is not None and self._history.rows else None
+        self._pace = (time.perf_counter(), t)  # t None: from the first sample on
+
+    def _new_run(self) -> None:
+        self._close_run()
+        self._clear_error()
+        self._clear_views()
+        self._state = "starting"
+        self._run = LiveRun.open(self._settings())
+        self._history = History(self._run.columns)
+        n = getattr(getattr(self._run.estimator, "cfg", None), "particles", None)
+        self._source_label = f"{self._run.label}, estimator {self._run.name}" + (f" (N = {n})" if n else "")
+        self._state = "paused"
+        self._publish_times.clear()
+
+    def _close_run(self) -> None:
+        self._playing = False
+        if self._run is not None:
+            self._run.close()
+            self._run = None
+
+    def _step_once(self) -> bool:
+        """One sample; False when the run is over."""
+        row = self._run.step()
+        if row is None:
+            self._finish()
+            return False
+        self._history.append(row)
+        return True
+
+    def _finish(self) -> None:
+        self._playing = False
+        self._state = "finished"
+        self._finished_unshown = True  # the last samples and the state still go to the page
+        if self._run is not None:
+            self._run.close()
+
+    def _advance(self, until: float) -> None:
+        """Step until the next publication is due, no faster than the chosen speed."""
+        speed = speed_factor(self._speed.value)
+        if not math.isfinite(speed) and self._playing:  # at least one sample per publication
+            if not self._step_once():
+                return
+        while time.perf_counter() < until and self._playing:
+            if math.isfinite(speed) and self._history.rows:
+                wall0, sim0 = self._pace
+                if sim0 is None:
+                    wall0, sim0 = self._pace = (time.perf_counter(), self._history.last("t"))
+                target = sim0 + speed * (time.perf_counter() - wall0)
+                if self._history.last("t") >= target:
+                    time.sleep(min(0.002, max(0.0, until - time.perf_counter())))
+                    continue
+            if not self._step_once():
+                return
+            if not self._commands.empty():
+                return
+
+    def _open_result(self, path: str) -> None:
+        data = open_result(path)
+        friction = None
+        for candidate in friction_files(path):
+            if candidate.is_file():
+                friction = friction_from_csv(candidate)
+                break
+        self._close_run()
+        self._clear_error()
+        self._clear_views()
+        self._history = History.from_columns(data)
+        self._result_friction = friction
+        self._source_label = f"Result CSV {Path(str(path).strip()).name}" + (", friction CSV" if friction else "")
+        self._state = "result"
+        self._publish_times.clear()
+
+    def _fail(self, exc: Exception) -> None:
+        from tirefilter.errors import TirefilterError
+
+        self._playing = False
+        if self._run is not None:
+            self._run.close()
+        self._state = "failed"
+        text = str(exc) if isinstance(exc, TirefilterError) else f"{type(exc).__name__}: {exc}"
+        if not isinstance(exc, TirefilterError):
+            traceback.print_exc()
+        self._error.content = f"**Error:** {text}"
+        self._error.visible = True
+        try:
+            self._publish()
+        except Exception:  # the views may be what failed: the message is out already
+            traceback.print_exc()
+
+    def _clear_error(self) -> None:
+        if self._error.visible:
+            self._error.visible = False
+            self._error.content = ""
+
+    # -- the views -------------------------------------------------------------------------------
+    def _clear_views(self) -> None:
+        """Empty charts and scene: what a new run (or a run that could not start) begins from."""
+        self._history = None
+        self._result_friction = None
+        self._source_label = ""
+        with self.server.atomic():
+            for chart, handle in self._charts:
+                if self._ranges.pop(id(handle), None) is not None:
+                    handle.scales = self._scales(chart.uplot_scales())
+                    handle.data = placeholder(len(chart.series))
+            for handle in self._friction.values():
+                handle.visible = False
+            for node in (self._cloud, self._truth, self._path, self._car):
+                node.visible = False
+
+    def _publish(self) -> None:
+        now = time.perf_counter()
+        h = self._history
+        with self.server.atomic():
+            if h is not None and h.rows:
+                idx = h.decimation()
+                t = h.column("t")
+                t_end = t[0] + self._run.duration if self._run is not None else t[-1]
+                x_range = (float(t[0]), float(max(t_end, t[-1], t[0] + 1e-3)))
+                for chart, handle in self._charts:
+                    visible = chart.key != "Cx" or h.has_values("Cx") or h.has_values("true_Cx_mean")
+                    if handle.visible != visible:
+                        handle.visible = visible
+                    if visible:
+                        self._set_data(handle, chart.data(h, idx), chart.y_series(), chart.uplot_scales(), x_range,
+                                       chart.min_span)
+                self._publish_pose(h, idx)
+            self._publish_cloud(h)
+            self._publish_friction(h)
+            self._publish_times.append(now)
+            self.updates += 1
+            self._finished_unshown = False
+            self._status.content = self._status_text()
+
+    def _publish_cloud(self, h: History | None) -> None:
+        cloud = None
+        if self._run is not None and self._run.estimator is not None and h is not None and h.rows:
+            cloud = particle_stiffness(self._run.estimator.posterior())
+        if cloud is None:
+            self._cloud.visible = self._truth.visible = False
+            return
+        names, values, w, nominal = cloud
+        points, colors = cloud_positions(names, values, nominal).astype(np.float16), weight_colors(w)
+        if self._cloud.points.shape == points.shape and self._cloud.visible:
+            self._cloud.points = points
+            self._cloud.colors = colors
+        else:  # a new N: a new cloud (points and colours must change together)
+            self._cloud = self.server.scene.add_point_cloud("/cloud/particles", points, colors, point_size=0.12,
+                                                            point_shape="circle")
+        truth = truth_position(h, dict(zip(names, nominal)))
+        if truth is not None:
+            self._truth.position = tuple(truth)
+        self._truth.visible = truth is not None
+
+    def _publish_pose(self, h: History, idx: np.ndarray) -> None:
+        x, y, psi = h.pose()
+        if len(idx) < 2 or not (np.isfinite(x[idx]).all() and np.isfinite(y[idx]).all()):
+            return
+        px, py = x[idx], y[idx]
+        cx, cy = (px.min() + px.max()) / 2, (py.min() + py.max()) / 2
+        scale = PATH_BOX / max(px.max() - px.min(), py.max() - py.min(), 50.0)
+        pts = np.column_stack([(px - cx) * scale + PATH_CENTRE[0], (py - cy) * scale + PATH_CENTRE[1],
+                               np.zeros(len(px))])
+        self._path.points = np.stack([pts[:-1], pts[1:]], axis=1).astype(np.float32)
+        self._path.visible = True
+        yaw = float(psi[-1]) if np.isfinite(psi[-1]) else 0.0
+        self._car.position = (float(pts[-1, 0]), float(pts[-1, 1]), 0.1)
+        self._car.wxyz = (math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2))
+        self._car.visible = True
+
+    def _publish_friction(self, h: History | None) -> None:
+        est = self._run.estimator if self._run is not None else None
+        friction = getattr(est, "friction", None)
+        curve, truth = None, None
+        if callable(friction) and h is not None and h.rows:
+            curve = friction()
+            if self._run.scenario is not None and h.has_values("true_surface"):
+                truth = friction_truth(self._run.scenario, np.asarray(curve.alpha, float), h.last("true_surface"))
+        elif self._run is None and self._result_friction is not None:  # an opened Result CSV's friction CSV
+            curve, truth = self._result_friction
+        for axle, handle in self._friction.items():
+            if curve is None:
+                if handle.visible:
+                    handle.visible = False
+                continue
+            data = friction_data(curve, truth, axle)
+            self._set_data(handle, data, (1, 2, 3, 4), {"x": {"time": False}}, (data[0][0], data[0][-1]), 0.1)
+            if not handle.visible:
+                handle.visible = True
+
+    def _status_text(self) -> str:
+        h = self._history
+        if h is None:
+            hint = {"idle": ": press Start", "failed": ": see the error below"}.get(self._state, "")
+            return f"**{self._state}**{hint}"
+        parts = [f"**{self._state}**", self._source_label]
+        t = h.last("t")
+        duration = f" of {self._run.duration:g}" if self._run is not None else ""
+        parts.append(f"t = {t:.2f}{duration} s" if math.isfinite(t) else "t = -")
+        parts.append(f"{h.rows} samples")
+        if self._state == "running":
+            parts.append(f"{self.update_rate():.0f} updates/s")
+        if self._run is not None and self._run.median_step_us():
+            parts.append(f"step {self._run.median_step_us():.0f} us (median)")
+        return " · ".join(parts)
+
+
+def serve(host: str = DEFAULT_HOST, port: int = DEFAULT_PORT, *, verbose: bool = True) -> None:
+    """`tirefilter dashboard`: serve until interrupted (Ctrl-C or SIGTERM), then stop cleanly."""
+    import signal
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, interrupt)
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:  # started in the background: Ctrl-C still stops it
+        signal.signal(signal.SIGINT, interrupt)
+    dashboard = Dashboard(host=host, port=port, verbose=verbose)
+    print(f"tirefilter dashboard: {dashboard.url}" + ("" if host in ("127.0.0.1", "localhost", "::1") else
+          f"  (bound to {host}: reachable from other machines)"), flush=True)
+    try:
+        while True:
+            time.sleep(3600)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        dashboard.stop()
