@@ -127,6 +127,9 @@ def test_cached_and_deduplicated_evaluation_equals_the_plain_one():
     kept = len(np.unique(idx))  # distinct components after 'resampling'
     central_kept = int(np.isin(order, idx).sum())  # the cache holds the previous call's components only
     assert cache.hits == 2 * kept + central_kept and cache.misses == M + (10 - central_kept) + M
+    # after the wide last step, a narrow posterior gets a narrow window again (not the full grid)
+    mixture_pdf(grid, np.ones(5), np.full(5, 1e5), np.full(5, 500.0), np.full(5, 100.0), cache)
+    assert cache.hi - cache.lo < 100
 
 
 def test_stiffness_mixture_picks_what_the_posterior_supports():
@@ -464,6 +467,14 @@ def test_bad_recording_options_are_refused(capsys):
     assert "--connect" in capsys.readouterr().err
 
 
+def test_a_viewer_that_cannot_start_is_a_clear_error(monkeypatch, tmp_path):
+    import tirefilter.viz.rerun_log as rerun_log
+
+    monkeypatch.setattr(rerun_log, "_bundled_viewer", lambda: "/bin/false")
+    with pytest.raises(ConfigError, match="--spawn.*exited with status 1"):
+        rerun_log.RerunRecorder(RecordingOptions(spawn=True, spawn_port=_free_port()), ("t",), None)
+
+
 def test_connect_to_nothing_fails_before_the_run(fmu_paths, tmp_path, capsys):
     url = f"rerun+http://127.0.0.1:{_free_port()}/proxy"
     t0 = time.monotonic()
@@ -554,16 +565,16 @@ def test_connect_streams_to_a_local_grpc_receiver(fmu_paths, tmp_path):
 
 
 def test_spawn_starts_a_viewer_process_and_streams_to_it(fmu_paths, tmp_path, monkeypatch):
-    """--spawn with --rrd: rerun-sdk's spawn() runs the viewer executable with its port, then
+    """--spawn with --rrd: the viewer executable is started on 127.0.0.1 and the port, then
     the recording goes to both sinks. The 'viewer' here is the same viewer-less receiver,
-    started through a wrapper that records its pid (no display in the tests)."""
+    started through a wrapper that records its pid and arguments (no display in the tests)."""
     import tirefilter.viz.rerun_log as rerun_log
 
     port, received, pid_file = _free_port(), tmp_path / "spawned.rrd", tmp_path / "viewer.pid"
     wrapper = tmp_path / "viewer.sh"
-    wrapper.write_text(f"#!/bin/sh\necho $$ > {pid_file}\nexport HOME={tmp_path} XDG_CONFIG_HOME={tmp_path}/config "
-                       f"XDG_DATA_HOME={tmp_path}/data\nexec {_receiver()} --bind 127.0.0.1 "
-                       f"--save {received} \"$@\" >/dev/null 2>&1\n")
+    wrapper.write_text(f"#!/bin/sh\necho $$ > {pid_file}\necho \"$@\" > {tmp_path}/args\n"
+                       f"export HOME={tmp_path} XDG_CONFIG_HOME={tmp_path}/config XDG_DATA_HOME={tmp_path}/data\n"
+                       f"exec {_receiver()} --save {received} \"$@\" >/dev/null 2>&1\n")
     wrapper.chmod(0o755)
     monkeypatch.setattr(rerun_log, "_bundled_viewer", lambda: str(wrapper))
     scenario = load_scenario(_short_scenario(tmp_path, 2.0))
@@ -580,6 +591,46 @@ def test_spawn_starts_a_viewer_process_and_streams_to_it(fmu_paths, tmp_path, mo
         while not pid_file.is_file() and time.monotonic() < deadline:
             time.sleep(0.1)
         _stop(int(pid_file.read_text()))
+    assert f"--bind 127.0.0.1 --port {port}" in (tmp_path / "args").read_text()  # the viewer listens on loopback
     for path in (rrd, received):
         t, cf = series(read_recording(path), "/estimator/mpf/stiffness/Cf_y")
         np.testing.assert_array_equal(cf, rows[:, 6])  # ESTIMATE_COLUMNS: t, active, vx, vy, yaw_rate, beta, Cf_y
+
+
+# ---- every registered estimator records --------------------------------------------------------
+KINDS = {"mpf": "eq26", "augpf": "kde", "rls": "gaussian", "ekf": "gaussian", "kf": None, "gpssm": None,
+         "combined": None}
+
+
+@pytest.mark.parametrize("name", [e for e in __import__("tirefilter.estimators", fromlist=["ESTIMATORS"]).ESTIMATORS
+                                  if e != "none"])
+def test_every_estimator_records_its_series_and_what_its_posterior_supports(fmu_paths, tmp_path, name):
+    from tirefilter.estimators import build_estimator
+
+    scenario = load_scenario(_short_scenario(tmp_path, 2.0))
+    model = "lateral" if name in ("kf", "rls", "gpssm", "combined") else "auto"
+    est = build_estimator(name, scenario, model=model, particles=30, config={})
+    rrd = tmp_path / "e.rrd"
+    _, rows = run_scenario(scenario, estimator=est, seed=2, keep_rows=True,
+                           recording=RecordingOptions(rrd=rrd, log_every=50))
+    rec = read_recording(rrd)
+    e, logged = est.name, (len(rows) - 1) // 50 + 1
+    t, cf = series(rec, f"/estimator/{e}/stiffness/Cf_y")
+    np.testing.assert_array_equal(cf, rows[:, 6][~np.isnan(rows[:, 6])])
+    density = [p for p in rec if p.startswith(f"/estimator/{e}/density/") and not p.endswith("/mass")]
+    if KINDS[name] is None:
+        assert not density
+    else:
+        assert density and all(len(temporal(rec, p, "BarChart:values")) == logged for p in density)
+        for p in density:
+            _, mass = series(rec, p + "/mass")
+            grid = np.asarray([x for x in rec[p] if x["t"] is None][0]["BarChart:abscissa"][0]["buffer"], float)
+            for x, m in zip(temporal(rec, p, "BarChart:values"), mass):
+                assert abs(np.trapezoid(np.asarray(x["BarChart:values"][0]["buffer"], float), grid) - m) < 1e-3
+    clouds = KINDS[name] in ("eq26", "kde") or name in ("gpssm", "combined")
+    state = [r for r in rec.get(f"/estimator/{e}/particles/state", []) if r["t"] is not None]
+    assert (len(state) == logged) if clouds else not state
+    friction = f"/estimator/{e}/friction/front" in rec
+    assert friction == (name in ("gpssm", "combined"))
+    if friction:
+        assert len(temporal(rec, "/truth/friction/rear", "LineStrips3D:strips")) == logged

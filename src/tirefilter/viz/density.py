@@ -181,7 +181,8 @@ def _component_rows(x: np.ndarray, comps: np.ndarray) -> np.ndarray:
 class ComponentCache:
     """The component rows of the last `mixture_pdf` call of one parameter: components
     are keyed by their exact (loc, scale, df); a row is reused when the new window lies
-    inside the cached one, and the cache holds only the last call's components."""
+    inside the cached one and the cached one is at most about twice as wide; the cache holds
+    only the last call's components."""
 
     def __init__(self):
         self.grid_id, self.lo, self.hi, self.keys = None, 0, 0, {}
@@ -190,7 +191,9 @@ class ComponentCache:
 
     def rows(self, grid, lo, hi, comps):
         gid = (grid.size, float(grid[0]), float(grid[-1]))
-        if gid != self.grid_id or lo < self.lo or hi > self.hi:
+        # the cached window is kept while it holds the new one and is not much wider (once the
+        # posterior narrows, new components must not be evaluated over the prior's window)
+        if gid != self.grid_id or lo < self.lo or hi > self.hi or (self.hi - self.lo) > 2 * (hi - lo) + 16:
             self.grid_id, self.lo, self.hi, self.keys, self.table = gid, lo, hi, {}, np.empty((0, hi - lo))
         keys = [c.tobytes() for c in comps]
         have = np.array([self.keys.get(k, -1) for k in keys], dtype=np.intp)

@@ -17,7 +17,9 @@ Entity paths: `viz.paths` and the README table.
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import shutil
 import socket
 import sys
 import warnings
@@ -93,7 +95,7 @@ class RerunRecorder:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             sinks.append(rr.FileSink(str(self.path)))
         if opts.spawn:
-            rr.spawn(port=opts.spawn_port, connect=False, executable_path=_bundled_viewer(), recording=self.rec)
+            _spawn_viewer(opts.spawn_port)
             sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{opts.spawn_port}/proxy"))
         if opts.connect and not (opts.spawn and opts.connect.rstrip("/") == f"rerun+http://127.0.0.1:{opts.spawn_port}"
                                                                               "/proxy"):
@@ -179,8 +181,11 @@ class RerunRecorder:
                 self.rec.log(paths.particles(e, "state"),
                              arch(x, colors=weight_colors(post.log_weights), radii=rr.Radius.ui_points(2.5)))
         if mixture is not None:
-            for p in layout.densities:
-                grid = self._grid(p, estimator, mixture, post)
+            grids = {p: self._grid(p, estimator, mixture, post) for p in layout.densities}
+            if mixture.kind == "kde" and grids:  # a kernel narrower than the grid spacing would fall between points
+                spacing = np.array([grids[p][1] - grids[p][0] if p in grids else 0.0 for p in mixture.params])
+                mixture = dataclasses.replace(mixture, scale=np.maximum(mixture.scale, spacing))
+            for p, grid in grids.items():
                 values = mixture.pdf(p, grid, self._caches.setdefault(p, ComponentCache())).astype(np.float32)
                 self.rec.log(paths.density(e, p), rr.BarChart.from_fields(values=values))
                 self.rec.log(paths.density_mass(e, p), rr.Scalars(mixture.mass(p, grid[0], grid[-1])))
@@ -348,6 +353,40 @@ class RerunRecorder:
         except RuntimeError as exc:
             print(f"warning: the Rerun stream did not complete: {exc}", file=sys.stderr)
         self.rec.disconnect()
+
+
+def _listening(host: str, port: int, timeout: float = 0.5) -> bool:
+    try:
+        socket.create_connection((host, port), timeout=timeout).close()
+        return True
+    except OSError:
+        return False
+
+
+def _spawn_viewer(port: int, wait: float = 20.0) -> None:
+    """Start the Rerun viewer of rerun-sdk listening on 127.0.0.1:`port` (detached: it
+    outlives the run), unless one already listens there; wait until it accepts
+    connections. (rerun.spawn would let its gRPC server listen on every interface.)"""
+    import subprocess
+    import time
+
+    if _listening("127.0.0.1", port):
+        return
+    exe = _bundled_viewer() or shutil.which("rerun")
+    if exe is None:
+        raise ConfigError("--spawn", "", "no Rerun viewer found (rerun-sdk's rerun_cli, or `rerun` on PATH)")
+    viewer = subprocess.Popen([exe, "--bind", "127.0.0.1", "--port", str(port), "--expect-data-soon"],
+                              stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                              start_new_session=True)
+    deadline = time.monotonic() + wait
+    while not _listening("127.0.0.1", port):
+        if viewer.poll() is not None:
+            raise ConfigError("--spawn", "", f"the Rerun viewer ({exe}) exited with status {viewer.returncode} "
+                              "before it listened (no display? use --rrd and open the file later)")
+        if time.monotonic() > deadline:
+            raise ConfigError("--spawn", "", f"the Rerun viewer ({exe}) did not listen on 127.0.0.1:{port} "
+                              f"within {wait:g} s")
+        time.sleep(0.1)
 
 
 def _check_listening(url: str, timeout: float = 2.0) -> None:
