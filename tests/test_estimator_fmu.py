@@ -186,6 +186,15 @@ def test_rerun_recording_parameter(fmus, snow, tmp_path):
     t, v = _rrd_series(rrd, "/estimator/mpf/stiffness/Cf_y")
     np.testing.assert_allclose(t, got[:, 0], atol=1e-9)
     np.testing.assert_allclose(v, got[:, OUT.index("Cf_y")], rtol=1e-12)
+    # the posterior snapshots too, every log_every-th sample as in `tirefilter run`
+    from test_viz import read_recording
+    from tirefilter.viz.options import RecordingOptions
+
+    rec = read_recording(rrd)
+    every = RecordingOptions().log_every
+    for entity in ("/estimator/mpf/density/Cf_y", "/estimator/mpf/particles/stiffness"):
+        assert entity in rec, sorted(rec)
+        assert len([r for r in rec[entity] if r["t"] is not None]) == len(range(0, 30, every)), entity
 
 
 def test_failed_load_prints_requirements(fmus):

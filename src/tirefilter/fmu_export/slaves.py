@@ -303,6 +303,7 @@ class EstimatorSlave(_Slave):
         v["vx_std"], v["vy_std"], v["yaw_rate_std"] = (float(x) for x in est.state_std)
         v["samples"] += 1
         if self._recorder is not None:
+            self._recorder.note_step(self._est, est)  # clouds and densities every `log_every` rows, as in `run`
             self._recorder.log_row(row)
 
     def terminate(self):
