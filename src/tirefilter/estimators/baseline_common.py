@@ -113,20 +113,11 @@ def expm_small(M: np.ndarray, terms: int = 16) -> np.ndarray:
 
 
 def discretize_zoh(A: np.ndarray, b: np.ndarray, Qc: np.ndarray, dt: float):
-    """`linear_kf.discretize_zoh` (Van Loan, the same block matrix) with `expm_small`:
+    """`linear_kf.discretize_zoh` (Van Loan's block matrix) with `expm_small`:
     Ad = e^{A dt}, bd = int_0^dt e^{A s} ds b, Qd = int_0^dt e^{A s} Qc e^{A^T s} ds."""
-    n = A.shape[0]
-    M = np.zeros((2 * n + 2, 2 * n + 2))
-    M[:n, :n] = -dt * A
-    M[:n, n] = -dt * b
-    M[:n, n + 1: 2 * n + 1] = dt * Qc
-    M[n + 1: 2 * n + 1, n + 1: 2 * n + 1] = dt * A.T
-    M[2 * n + 1, n + 1: 2 * n + 1] = dt * b
-    G = expm_small(M)
-    Phi = G[n + 1:, n + 1:].T
-    Ad, bd = Phi[:n, :n], Phi[:n, n]
-    Qd = Ad @ G[:n, n + 1: 2 * n + 1]
-    return Ad, bd, 0.5 * (Qd + Qd.T)
+    from tirefilter.estimators.linear_kf import discretize_zoh as van_loan
+
+    return van_loan(A, b, Qc, dt, expm=expm_small)
 
 
 def small_solve(S: np.ndarray, B: np.ndarray) -> np.ndarray:

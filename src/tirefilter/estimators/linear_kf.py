@@ -130,13 +130,14 @@ def lateral_model(vx: float, delta: float, Cf: float, Cr: float, vehicle: Vehicl
     return A, b, C, d
 
 
-def discretize_zoh(A: np.ndarray, b: np.ndarray, Qc: np.ndarray, dt: float):
+def discretize_zoh(A: np.ndarray, b: np.ndarray, Qc: np.ndarray, dt: float, expm=expm):
     """Exact discretisation over dt of x' = A x + b + w (b held, w white with intensity
     Qc): Ad = e^{A dt}, bd = int_0^dt e^{A s} ds b, Qd = int_0^dt e^{A s} Qc e^{A^T s} ds,
     from one matrix exponential of Van Loan's block matrix built on the augmented
     F = [[A, b], [0, 0]] (module docstring).
 
-    A (n, n), b (n,), Qc (n, n); returns Ad (n, n), bd (n,), Qd (n, n)."""
+    A (n, n), b (n,), Qc (n, n); returns Ad (n, n), bd (n,), Qd (n, n). `expm` is the
+    matrix exponential (scipy's; the baselines pass `baseline_common.expm_small`)."""
     n = A.shape[0]
     M = np.zeros((2 * n + 2, 2 * n + 2))  # dt [[-F, Qf], [0, F^T]], F = [[A, b], [0, 0]]
     M[:n, :n] = -dt * A
@@ -155,6 +156,7 @@ class LinearKF:
     """Kalman filter of the linear single-track model with fixed axle stiffness."""
 
     name = "kf"
+    _discretize = staticmethod(discretize_zoh)  # exact ZOH discretisation; rls swaps in a LAPACK-free expm
 
     def __init__(self, vehicle: VehicleParams, config: KFConfig = KFConfig()):
         self.vehicle = vehicle
@@ -193,7 +195,7 @@ class LinearKF:
     def predict(self, vx: float, delta: float, dt: float) -> None:
         """Time update over dt with (vx, delta) held: x <- Ad x + bd, P <- Ad P Ad^T + Qd."""
         A, b, _, _ = self._model(vx, delta)
-        Ad, bd, Qd = discretize_zoh(A, b, self.Qc, dt)
+        Ad, bd, Qd = self._discretize(A, b, self.Qc, dt)
         self.x = Ad @ self.x + bd
         P = Ad @ self.P @ Ad.T + Qd
         self.P = 0.5 * (P + P.T)

@@ -121,12 +121,7 @@ def rls_update(theta: np.ndarray, P: np.ndarray, Phi: np.ndarray, y: np.ndarray,
 class _KF(LinearKF):
     """`LinearKF` with the LAPACK-free discretisation of `baseline_common` (the same maths)."""
 
-    def predict(self, vx: float, delta: float, dt: float) -> None:
-        A, b, _, _ = self._model(vx, delta)
-        Ad, bd, Qd = discretize_zoh(A, b, self.Qc, dt)
-        self.x = Ad @ self.x + bd
-        P = Ad @ self.P @ Ad.T + Qd
-        self.P = 0.5 * (P + P.T)
+    _discretize = staticmethod(discretize_zoh)
 
 
 class RLSEstimator:
