@@ -53,7 +53,7 @@ import numpy as np
 
 from tirefilter.errors import ConfigError
 from tirefilter.estimators.base import Estimate, Inputs, Measurement, Posterior, particle_estimate
-from tirefilter.estimators.baseline_common import check_common, gate_open, stiffness_prior
+from tirefilter.estimators.baseline_common import GateOptions, check_common, gate_open, stiffness_prior
 from tirefilter.stats import effective_sample_size, normalize_log_weights, systematic_resample
 from tirefilter.stats.linalg import chol, chol_solve, logdet_chol, solve_lower
 from tirefilter.vehicle.params import VehicleParams
@@ -63,7 +63,7 @@ LOG_2PI = math.log(2.0 * math.pi)
 
 
 @dataclass(frozen=True)
-class AUGPFConfig:
+class AUGPFConfig(GateOptions):
     """Options of the AUGPF (the `[augpf]` table of --config). Fields named as in
     MPFConfig mean the same and are taken from the scenario or log the same way."""
 
@@ -90,16 +90,8 @@ class AUGPFConfig:
     state_noise: tuple[float, ...] = (0.0, 0.0, 0.0)  # additive process noise per sqrt(s), full: vx, vy, r
     x0_vx_from_wheels: bool = True  # full model: centre vx on R_w omega of the undriven axle
     x0_vx_wheel_std: float = 0.1  # m/s
-    gate_speed: float = 5.0  # the MPF's learning gate (baseline_common.gate_open)
-    gate_steer: float = 0.0035
-    gate_ay_max: float = 4.0
-    gate_alpha_max: float = 0.08
-    gate_vy_std: float = 0.15
-    gate_warmup: float = 1.0
     plausible_beta: float = 0.35  # rad: the MPF's plausibility region (sideslip, yaw rate); a particle
     plausible_yaw_rate: float = 2.0  # rad/s  outside it gets weight zero, all outside: restart
-    bound_low: float = 0.2  # parameter projection (Sec. V), relative to C_ref
-    bound_high: float = 3.0
     sigma: tuple[float, float, float] = (0.05, 0.05, 0.0035)  # ax, ay, yaw-rate white noise
     bias_rw: tuple[float, float, float] = (0.0, 0.0, 0.0)  # per sqrt(s)
     bias0_std: tuple[float, float, float] = (0.0, 0.0, 0.0)

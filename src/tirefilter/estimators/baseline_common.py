@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -28,6 +29,21 @@ SHARED_FIELDS = (
 GATE_FIELDS = ("gate_speed", "gate_steer", "gate_ay_max", "gate_alpha_max", "gate_vy_std", "gate_warmup")
 
 
+@dataclass(frozen=True)
+class GateOptions:
+    """The MPF's learning gate (Sec. V; `gate_open`) and parameter projection, with the
+    MPF's defaults: what every baseline configuration has (they subclass this)."""
+
+    gate_speed: float = 5.0  # m/s
+    gate_steer: float = 0.0035  # rad
+    gate_ay_max: float = 4.0  # m/s^2
+    gate_alpha_max: float = 0.08  # rad
+    gate_vy_std: float = 0.15  # m/s
+    gate_warmup: float = 1.0  # s
+    bound_low: float = 0.2  # parameter projection (Sec. V), relative to the reference stiffness
+    bound_high: float = 3.0
+
+
 def shared_options(config_cls, mpf_config, overrides: dict, source: str):
     """A `config_cls` instance with the MPF configuration's shared fields, then the user's
     `overrides` (the baseline's own table of --config, named `source` in errors)."""
@@ -40,7 +56,7 @@ def shared_options(config_cls, mpf_config, overrides: dict, source: str):
 
 def gate_open(cfg, *, t: float, t_start: float, vx: float, delta: float, ay_meas: float, alpha: float,
               vy_std: float) -> bool:
-    """The MPF's learning gate (`StiffnessMPF.step`, observability and linear tire region,
+    """The learning gate of the MPF and the baselines (observability and linear tire region,
     Sec. V of the stiffness paper): speed above `gate_speed`, |steer| above `gate_steer`,
     |measured a^Y| below `gate_ay_max` (a missing sample counts as 0), the larger |slip
     angle| estimate below `gate_alpha_max`, the lateral velocity known to `gate_vy_std`,

@@ -53,7 +53,8 @@ import numpy as np
 
 from tirefilter.errors import ConfigError
 from tirefilter.estimators.base import Estimate, Inputs, Measurement, Posterior
-from tirefilter.estimators.baseline_common import check_common, discretize_zoh, gate_open, small_solve, stiffness_prior
+from tirefilter.estimators.baseline_common import (GateOptions, check_common, discretize_zoh, gate_open, small_solve,
+                                                    stiffness_prior)
 from tirefilter.vehicle.params import VehicleParams
 from tirefilter.vehicle.single_track import GRAVITY
 
@@ -61,7 +62,7 @@ NAN = math.nan
 
 
 @dataclass(frozen=True)
-class EKFConfig:
+class EKFConfig(GateOptions):
     """Options of the EKF (the `[ekf]` table of --config); tuning in the module docstring.
     Fields named as in MPFConfig mean the same and are taken from the scenario or log the
     same way."""
@@ -79,14 +80,6 @@ class EKFConfig:
     x0_std: tuple[float, ...] = (1.0, 0.5, 0.0175)
     x0_vx_from_wheels: bool = True  # full model: vx_0 = R_w omega of the undriven axle
     x0_vx_wheel_std: float = 0.1  # m/s, its std
-    gate_speed: float = 5.0  # the MPF's learning gate
-    gate_steer: float = 0.0035
-    gate_ay_max: float = 4.0
-    gate_alpha_max: float = 0.08
-    gate_vy_std: float = 0.15
-    gate_warmup: float = 1.0
-    bound_low: float = 0.2  # parameter projection (Sec. V), relative to the reference
-    bound_high: float = 3.0
     sigma: tuple[float, float, float] = (0.05, 0.05, 0.0035)  # ax, ay, yaw-rate white noise
     bias_rw: tuple[float, float, float] = (0.0, 0.0, 0.0)  # per sqrt(s)
     bias0_std: tuple[float, float, float] = (0.0, 0.0, 0.0)

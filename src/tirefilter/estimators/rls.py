@@ -45,7 +45,8 @@ import numpy as np
 
 from tirefilter.errors import ConfigError
 from tirefilter.estimators.base import Estimate, Inputs, Measurement, Posterior
-from tirefilter.estimators.baseline_common import check_common, discretize_zoh, gate_open, small_solve, stiffness_prior
+from tirefilter.estimators.baseline_common import (GateOptions, check_common, discretize_zoh, gate_open, small_solve,
+                                                    stiffness_prior)
 from tirefilter.estimators.linear_kf import KFConfig, LinearKF
 from tirefilter.vehicle.params import VehicleParams
 from tirefilter.vehicle.single_track import GRAVITY
@@ -54,7 +55,7 @@ NAN = math.nan
 
 
 @dataclass(frozen=True)
-class RLSConfig:
+class RLSConfig(GateOptions):
     """Options of the KF + RLS baseline (the `[rls]` table of --config). Fields named as in
     MPFConfig mean the same and are taken from the scenario or log the same way."""
 
@@ -73,14 +74,6 @@ class RLSConfig:
     x0_mean: tuple[float, ...] | None = None  # [vy, r] (a 3-tuple's last two values)
     x0_std: tuple[float, ...] = (1.0, 0.5, 0.0175)  # its last two values: vy, r
     vx_min: float = 1.0  # m/s, speed floor of the slip angles
-    gate_speed: float = 5.0  # the MPF's learning gate
-    gate_steer: float = 0.0035
-    gate_ay_max: float = 4.0
-    gate_alpha_max: float = 0.08
-    gate_vy_std: float = 0.15
-    gate_warmup: float = 1.0
-    bound_low: float = 0.2  # parameter projection (Sec. V), relative to the reference
-    bound_high: float = 3.0
     sigma: tuple[float, float, float] = (0.05, 0.05, 0.0035)  # ax, ay, yaw-rate white noise
 
     def validated(self) -> "RLSConfig":

@@ -27,6 +27,7 @@ import numpy as np
 
 from tirefilter.errors import ConfigError
 from tirefilter.estimators.base import Estimate, Inputs, Measurement, Posterior, particle_estimate
+from tirefilter.estimators.baseline_common import gate_open
 from tirefilter.stats import NiW, effective_sample_size, normalize_log_weights, systematic_resample
 from tirefilter.stats.linalg import chol, chol_solve, logdet_chol, solve_lower
 from tirefilter.stats.student_t import t_conditional, t_logpdf_whitened, t_sample
@@ -392,10 +393,8 @@ class StiffnessMPF:
         vy_std = math.sqrt(max(float(q @ (vy - q @ vy) ** 2), 0.0))
         ay_m = y.ay if math.isfinite(y.ay) else 0.0
         alpha = max(abs(float(q @ af)), abs(float(q @ ar)))
-        self.active = bool(
-            vx_est > cfg.gate_speed and abs(uk[0]) > cfg.gate_steer and abs(ay_m) < cfg.gate_ay_max
-            and alpha < cfg.gate_alpha_max and vy_std < cfg.gate_vy_std and t - self.t_start >= cfg.gate_warmup
-        )
+        self.active = gate_open(cfg, t=t, t_start=self.t_start, vx=vx_est, delta=uk[0], ay_meas=y.ay, alpha=alpha,
+                                vy_std=vy_std)
         # a large slip angle with a small measured a^Y contradicts any tire: the state has
         # locked onto a wrong sideslip (the sampled w explains the accelerations regardless)
         contradiction = cfg.restart_alpha > 0 and alpha > cfg.restart_alpha and abs(ay_m) < cfg.gate_ay_max
