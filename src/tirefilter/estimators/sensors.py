@@ -47,6 +47,7 @@ class SensorModel:
     bias_rw: tuple[float, float, float] = MEMS_BIAS_RW
     bias_source: str = "defaults (automotive MEMS)"
     held: tuple[float, float, float] = (math.nan,) * 3  # share of held (repeated) samples per channel
+    disturbance_rw: tuple[float, float, float] = (0.0, 0.0, 0.0)  # wandering offsets (road bank, roll), per sqrt(s)
     warnings: tuple[str, ...] = field(default=())
 
     @property
@@ -68,6 +69,7 @@ class SensorModel:
             "bias_rw": dict(zip(CHANNELS, self.bias_rw)),
             "bias_source": self.bias_source,
             "held_share": dict(zip(CHANNELS, map(num, self.held))),
+            "disturbance_rw": dict(zip(CHANNELS, self.disturbance_rw)),
             "warnings": list(self.warnings),
         }
 
@@ -83,6 +85,9 @@ class SensorModel:
                 f"{_fmt(q)}" for q in self.bias_rw) + f" per sqrt(s) ({self.bias_source})")
         else:
             lines.append(f"IMU bias: not estimated ({self.bias_source})")
+        if any(q > 0 for q in self.disturbance_rw):
+            lines.append("wandering offsets (road bank and crown, body roll): random walk " + ", ".join(
+                f"{c} {_fmt(q)}" for c, q in zip(CHANNELS, self.disturbance_rw) if q > 0) + " per sqrt(s)")
         return lines + [f"warning: {w}" for w in self.warnings]
 
     def with_config(self, sigma, bias0_std, bias_rw, channels=CHANNELS) -> "SensorModel":

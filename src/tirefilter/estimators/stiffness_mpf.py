@@ -43,7 +43,14 @@ class MPFConfig:
     """Options of the stiffness MPF (all settable from the `[mpf]` table of --config)."""
 
     particles: int = 500
-    forgetting: float = 0.99  # lambda of eq. (20)
+    forgetting: float = 0.99  # lambda of eq. (20); with adaptive forgetting its value when the data fit
+    # adaptive forgetting (derivations, Sec. 17): lambda_k = clip(1 - (1 - forgetting) z_k, forgetting_min,
+    # forgetting_max), z_k the smoothed normalised innovation of the accelerometers (1 when the data fit the
+    # predictive): a surface change forgets fast, a drive that fits keeps a long memory. "fixed": the paper's
+    forgetting_mode: str = "adaptive"  # "adaptive" | "fixed"
+    forgetting_min: float = 0.95
+    forgetting_max: float = 0.999
+    surprise_time: float = 0.3  # s, time constant of the smoothing of z_k
     model: str = "full"  # "full" (wheel speeds) | "lateral" (vx given)
     integrator: str = "heun"  # "euler" (the paper) | "heun" (same w, wheel slip held)
     resample_threshold: float = 0.5  # resample when ESS < threshold * N
@@ -103,6 +110,12 @@ class MPFConfig:
             bad("particles", f"N must be an integer >= 1, got {self.particles!r}")
         if not 0.0 < self.forgetting <= 1.0:
             bad("forgetting", f"lambda must be in (0, 1], got {self.forgetting!r}")
+        if self.forgetting_mode not in ("adaptive", "fixed"):
+            bad("forgetting_mode", f"expected adaptive or fixed, got {self.forgetting_mode!r}")
+        if not 0.0 < self.forgetting_min <= self.forgetting_max <= 1.0:
+            bad("forgetting_min", "need 0 < forgetting_min <= forgetting_max <= 1")
+        if not self.surprise_time > 0:
+            bad("surprise_time", f"must be > 0, got {self.surprise_time!r}")
         if self.model not in ("full", "lateral"):
             bad("model", f"expected full or lateral, got {self.model!r}")
         if self.integrator not in ("euler", "heun"):
@@ -193,6 +206,8 @@ class StiffnessMPF:
         self.resamples = 0
         self.restarts = 0
         self._contradiction_since = None
+        self.surprise = 1.0  # z_k of the adaptive forgetting: 1 while the data fit the predictive
+        self.lam = self.cfg.forgetting  # the forgetting factor applied at the next propagation
 
     def _draw_prior(self, x0_mean) -> None:
         """Particles from the initial distribution: stiffness statistics (or the carried
@@ -335,8 +350,8 @@ class StiffnessMPF:
             uk[0] = 0.0
 
         # 1. propagate from the previous sample
+        dt = t - self.t_prev if self.t_prev is not None else cfg.sample_period
         if self.t_prev is not None:
-            dt = t - self.t_prev
             if dt <= 0:
                 raise ConfigError("inputs", "t", f"time must increase: {t} after {self.t_prev}")
             self.x = self._propagate(self.x, self.u_prev, self.w_prev, dt, self._at_x)
@@ -345,7 +360,7 @@ class StiffnessMPF:
             if self.bias_on:
                 self.P = self.P + np.diag(self.q_bias * dt)
             if self.active:
-                self.stats.forget(cfg.forgetting, nu_min=self.nu0)
+                self.stats.forget(self.lam, nu_min=self.nu0)
         yk = np.array([y.ax, y.ay, y.yaw_rate], float)[list(self.channels)]
         start_logw = None
         if self.t_prev is None:
@@ -374,6 +389,8 @@ class StiffnessMPF:
             Lc = chol(S)
             e = yk[a] - (h + self.b if every else h[:, a] + self.b[:, a]) - np.einsum("nij,nj->ni", Da, mu_w)
             v = solve_lower(Lc, e)
+            if nc and start_logw is None:
+                self._adapt_forgetting(v[:, :nc], nu_w, dt)
             if start_logw is None:
                 self.logw = normalize_log_weights(self.logw + t_logpdf_whitened(v, logdet_chol(Lc), nu_w))
         if start_logw is not None:
@@ -437,6 +454,24 @@ class StiffnessMPF:
         self.w_prev = w
         self._at_x = model_k  # the first stage of the next propagation, at this x and u
         return self._estimate(ess)
+
+    def _adapt_forgetting(self, v: np.ndarray, nu: np.ndarray, dt: float) -> None:
+        """The forgetting factor of the next propagation from how well the accelerometers
+        fit the predictive (derivations, Sec. 17). `v` (N, nc) are the whitened residuals of
+        the weighting, Student-t with nu (N,) dof: E[v^T v] = nc nu / (nu - 2). Their
+        normalised square, averaged with the predictive weights (before this sample's
+        likelihood), is smoothed over `surprise_time` into z_k; lambda_k = 1 - (1 - lambda) z_k,
+        clipped: z = 1 gives the configured lambda, a surface change (z >> 1) forgets fast,
+        a drive that fits better than its noise figures (z < 1) forgets slowly."""
+        cfg = self.cfg
+        if cfg.forgetting_mode == "fixed":
+            return
+        nis = np.sum(v * v, axis=1) * (nu - 2.0) / (nu * v.shape[1])
+        s_k = float(np.exp(self.logw) @ nis)
+        if not math.isfinite(s_k):
+            return
+        self.surprise += -math.expm1(-dt / cfg.surprise_time) * (s_k - self.surprise)
+        self.lam = min(max(1.0 - (1.0 - cfg.forgetting) * self.surprise, cfg.forgetting_min), cfg.forgetting_max)
 
     def _informed_start(self, uk, yk) -> np.ndarray:
         """Draw each particle's initial (r, vy) from its prior conditioned on the first yaw
