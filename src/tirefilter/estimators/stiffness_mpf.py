@@ -50,7 +50,7 @@ class MPFConfig:
     forgetting_mode: str = "adaptive"  # "adaptive" | "fixed"
     forgetting_min: float = 0.95
     forgetting_max: float = 0.999
-    surprise_time: float = 0.3  # s, time constant of the smoothing of z_k
+    surprise_time: float = 0.15  # s, time constant of the smoothing of z_k
     model: str = "full"  # "full" (wheel speeds) | "lateral" (vx given)
     integrator: str = "heun"  # "euler" (the paper) | "heun" (same w, wheel slip held)
     resample_threshold: float = 0.5  # resample when ESS < threshold * N
