@@ -87,7 +87,8 @@ class SensorModel:
             lines.append(f"IMU bias: not estimated ({self.bias_source})")
         if any(q > 0 for q in self.disturbance_rw):
             lines.append("wandering offsets (road bank and crown, body roll): random walk " + ", ".join(
-                f"{c} {_fmt(q)}" for c, q in zip(CHANNELS, self.disturbance_rw) if q > 0) + " per sqrt(s)")
+                f"{c} {_fmt(q)}" for c, q in zip(CHANNELS, self.disturbance_rw) if q > 0)
+                + " per sqrt(s), in the linear tire region")
         return lines + [f"warning: {w}" for w in self.warnings]
 
     def with_config(self, sigma, bias0_std, bias_rw, channels=CHANNELS) -> "SensorModel":

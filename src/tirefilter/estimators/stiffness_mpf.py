@@ -169,9 +169,12 @@ class StiffnessMPF:
         self.roll_gain = 1.0 + v.roll_gradient * GRAVITY  # measured a^Y ~ (1 + k g) a^Y
         sig = np.asarray(self.cfg.sigma)[list(self.channels)]
         self.R = np.diag(sig**2)
-        rw2 = np.square(self.cfg.bias_rw) + np.square(self.cfg.disturbance_rw)  # per s
-        self.bias_on = bool(np.any(rw2 > 0) or np.any(np.asarray(self.cfg.bias0_std) > 0))
-        self.q_bias = rw2[list(self.channels)]
+        ch = list(self.channels)
+        q_sensor, q_road = np.square(self.cfg.bias_rw)[ch], np.square(self.cfg.disturbance_rw)[ch]  # per s
+        self.bias_on = bool(np.any(q_sensor + q_road > 0) or np.any(np.asarray(self.cfg.bias0_std) > 0))
+        # the road offsets wander only where the linear tire model holds: beyond it the
+        # residual is the model's error, not the road's (derivations, Sec. 16)
+        self.q_bias, self.q_bias_nonlinear = q_sensor + q_road, q_sensor
         q = np.asarray(self.cfg.state_noise, float)[-(3 if self.full else 2):]
         self.state_noise = q if np.any(q > 0) else None
         ref = np.asarray(self.cfg.init_reference if self.cfg.init_reference is not None else self.C_nom, float)
@@ -207,6 +210,7 @@ class StiffnessMPF:
         self.restarts = 0
         self._contradiction_since = None
         self.surprise = 1.0  # z_k of the adaptive forgetting: 1 while the data fit the predictive
+        self.linear_region = True  # |a^Y| below the gate's linear-region bound at the last sample
         self.lam = self.cfg.forgetting  # the forgetting factor applied at the next propagation
 
     def _draw_prior(self, x0_mean) -> None:
@@ -358,7 +362,8 @@ class StiffnessMPF:
             if self.state_noise is not None:  # optional regularisation against sample impoverishment
                 self.x = self.x + math.sqrt(dt) * self.state_noise * self.rng.standard_normal(self.x.shape)
             if self.bias_on:
-                self.P = self.P + np.diag(self.q_bias * dt)
+                q = self.q_bias if self.linear_region else self.q_bias_nonlinear
+                self.P = self.P + np.diag(q * dt)
             if self.active:
                 self.stats.forget(self.lam, nu_min=self.nu0)
         yk = np.array([y.ax, y.ay, y.yaw_rate], float)[list(self.channels)]
@@ -417,6 +422,7 @@ class StiffnessMPF:
         vy = self.x[:, 1 if self.full else 0]
         vy_std = math.sqrt(max(float(q @ (vy - q @ vy) ** 2), 0.0))
         ay_m = y.ay if math.isfinite(y.ay) else 0.0
+        self.linear_region = abs(ay_m) < cfg.gate_ay_max
         alpha = max(abs(float(q @ af)), abs(float(q @ ar)))
         self.active = gate_open(cfg, t=t, t_start=self.t_start, vx=vx_est, delta=uk[0], ay_meas=y.ay, alpha=alpha,
                                 vy_std=vy_std)
