@@ -153,3 +153,35 @@ def test_adaptive_forgetting_follows_the_normalised_innovation():
     fixed.reset(np.random.default_rng(0))
     fixed._adapt_forgetting(10 * fit, nu, 0.01)
     assert fixed.lam == 0.99
+
+
+def test_drift_statistic_forgets_fast_when_the_sampled_deviations_lean_one_way():
+    """z'_k = |d_k|^2 (2 - a) / (a n_w) of the smoothed whitened w_k - mu (derivations,
+    Sec. 17): checked against the formula; a persistent lean drives lambda to its minimum,
+    zero-mean draws leave it near the configured value."""
+    cfg = MPFConfig(model="lateral", particles=3, forgetting=0.99, bias0_std=(0, 0, 0), bias_rw=(0, 0, 0),
+                    disturbance_rw=(0, 0, 0))
+    mpf = StiffnessMPF(VEHICLE, cfg)
+    mpf.reset(np.random.default_rng(0))
+    L11 = np.broadcast_to(np.diag([4.0, 9.0]), (3, 2, 2))  # predictive scale: std 2 and 3
+    a = -math.expm1(-0.01 / cfg.surprise_time)
+    d = np.zeros(2)
+    for k in range(3):
+        dw = np.tile([2.0 * 0.5, -3.0 * 0.5], (3, 1))  # whitened: (0.5, -0.5) in every particle
+        mpf.lam = cfg.forgetting
+        mpf._track_drift(dw, L11, 0.01)
+        d += a * (np.array([0.5, -0.5]) - d)
+        z = d @ d * (2 - a) / (a * 2)
+        assert mpf.drift == pytest.approx(d, rel=1e-12)
+        assert mpf.lam == pytest.approx(max(min(0.99, 1 - 0.01 * z), cfg.forgetting_min), rel=1e-12)
+    for _ in range(100):
+        mpf._track_drift(np.tile([2.0, -3.0], (3, 1)), L11, 0.01)
+    assert mpf.lam == cfg.forgetting_min
+    rng = np.random.default_rng(1)
+    mpf.drift[:] = 0.0
+    zs = []
+    for _ in range(4000):  # zero-mean unit draws: z' averages 1
+        mpf.lam = 1.0
+        mpf._track_drift(np.tile(rng.standard_normal(2) * [2.0, 3.0], (3, 1)), L11, 0.01)
+        zs.append(float(mpf.drift @ mpf.drift) * (2 - a) / (a * 2))
+    assert np.mean(zs[200:]) == pytest.approx(1.0, abs=0.15)

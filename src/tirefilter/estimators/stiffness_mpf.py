@@ -212,6 +212,7 @@ class StiffnessMPF:
         self.surprise = 1.0  # z_k of the adaptive forgetting: 1 while the data fit the predictive
         self.linear_region = True  # |a^Y| below the gate's linear-region bound at the last sample
         self.lam = self.cfg.forgetting  # the forgetting factor applied at the next propagation
+        self.drift = np.zeros(self.n_w)  # smoothed whitened w_k - mu_{k|k-1} (adaptive forgetting)
 
     def _draw_prior(self, x0_mean) -> None:
         """Particles from the initial distribution: stiffness statistics (or the carried
@@ -453,6 +454,8 @@ class StiffnessMPF:
         if a.size and self.bias_on:
             self._bias_update(yk, h, D, a)
         if self.active:
+            if nc:
+                self._track_drift(w - mu_w, L11, dt)
             self.stats.update(w, learn)  # eq. (19) with the same w_k that drives the state
             lo = cfg.bound_low * self.C_ref - self.C_nom
             hi = cfg.bound_high * self.C_ref - self.C_nom
@@ -478,6 +481,26 @@ class StiffnessMPF:
             return
         self.surprise += -math.expm1(-dt / cfg.surprise_time) * (s_k - self.surprise)
         self.lam = min(max(1.0 - (1.0 - cfg.forgetting) * self.surprise, cfg.forgetting_min), cfg.forgetting_max)
+
+    def _track_drift(self, dw: np.ndarray, L11: np.ndarray, dt: float) -> None:
+        """The second surprise statistic of the adaptive forgetting (derivations, Sec. 17):
+        w_k - mu_{k|k-1} (N, n_w), whitened by the predictive scale L11 (N, n_w, n_w), has
+        mean zero while the statistics' mean is right, whatever the deviation spread; a
+        stale mean makes it lean one way sample after sample. Its weighted mean over the
+        particles is smoothed into `drift` (n_w,), whose square, scaled by (2 - a) / a for
+        the smoothing a = 1 - exp(-dt / surprise_time), is about 1 per component under the
+        model (the per-sample whitened values have unit variance up to nu / (nu - 2))."""
+        cfg = self.cfg
+        if cfg.forgetting_mode == "fixed":
+            return
+        u = solve_lower(chol(L11), dw)
+        ubar = np.exp(self.logw) @ u
+        if not np.all(np.isfinite(ubar)):
+            return
+        a = -math.expm1(-dt / cfg.surprise_time)
+        self.drift = self.drift + a * (ubar - self.drift)
+        z = float(self.drift @ self.drift) * (2.0 - a) / (a * len(ubar))
+        self.lam = min(self.lam, max(1.0 - (1.0 - cfg.forgetting) * z, cfg.forgetting_min))
 
     def _informed_start(self, uk, yk) -> np.ndarray:
         """Draw each particle's initial (r, vy) from its prior conditioned on the first yaw
