@@ -164,7 +164,7 @@ def test_drift_statistic_forgets_fast_when_the_sampled_deviations_lean_one_way()
     mpf = StiffnessMPF(VEHICLE, cfg)
     mpf.reset(np.random.default_rng(0))
     L11 = np.broadcast_to(np.diag([4.0, 9.0]), (3, 2, 2))  # predictive scale: std 2 and 3
-    a = -math.expm1(-0.01 / cfg.surprise_time)
+    a = -math.expm1(-0.01 / cfg.drift_time)
     d = np.zeros(2)
     for k in range(3):
         dw = np.tile([2.0 * 0.5, -3.0 * 0.5], (3, 1))  # whitened: (0.5, -0.5) in every particle

@@ -50,7 +50,8 @@ class MPFConfig:
     forgetting_mode: str = "adaptive"  # "adaptive" | "fixed"
     forgetting_min: float = 0.95
     forgetting_max: float = 0.999
-    surprise_time: float = 0.15  # s, time constant of the smoothing of z_k
+    surprise_time: float = 0.15  # s, time constant of the smoothing of z_k (the innovation)
+    drift_time: float = 1.0  # s, time constant of the smoothing of z'_k (the lean of the sampled w)
     model: str = "full"  # "full" (wheel speeds) | "lateral" (vx given)
     integrator: str = "heun"  # "euler" (the paper) | "heun" (same w, wheel slip held)
     resample_threshold: float = 0.5  # resample when ESS < threshold * N
@@ -114,8 +115,9 @@ class MPFConfig:
             bad("forgetting_mode", f"expected adaptive or fixed, got {self.forgetting_mode!r}")
         if not 0.0 < self.forgetting_min <= self.forgetting_max <= 1.0:
             bad("forgetting_min", "need 0 < forgetting_min <= forgetting_max <= 1")
-        if not self.surprise_time > 0:
-            bad("surprise_time", f"must be > 0, got {self.surprise_time!r}")
+        for key in ("surprise_time", "drift_time"):
+            if not getattr(self, key) > 0:
+                bad(key, f"must be > 0, got {getattr(self, key)!r}")
         if self.model not in ("full", "lateral"):
             bad("model", f"expected full or lateral, got {self.model!r}")
         if self.integrator not in ("euler", "heun"):
@@ -488,7 +490,7 @@ class StiffnessMPF:
         mean zero while the statistics' mean is right, whatever the deviation spread; a
         stale mean makes it lean one way sample after sample. Its weighted mean over the
         particles is smoothed into `drift` (n_w,), whose square, scaled by (2 - a) / a for
-        the smoothing a = 1 - exp(-dt / surprise_time), is about 1 per component under the
+        the smoothing a = 1 - exp(-dt / drift_time), is about 1 per component under the
         model (the per-sample whitened values have unit variance up to nu / (nu - 2))."""
         cfg = self.cfg
         if cfg.forgetting_mode == "fixed":
@@ -497,7 +499,7 @@ class StiffnessMPF:
         ubar = np.exp(self.logw) @ u
         if not np.all(np.isfinite(ubar)):
             return
-        a = -math.expm1(-dt / cfg.surprise_time)
+        a = -math.expm1(-dt / cfg.drift_time)
         self.drift = self.drift + a * (ubar - self.drift)
         z = float(self.drift @ self.drift) * (2.0 - a) / (a * len(ubar))
         self.lam = min(self.lam, max(1.0 - (1.0 - cfg.forgetting) * z, cfg.forgetting_min))
