@@ -103,7 +103,7 @@ def cmd_peer_drive(args) -> int:
     spec = DriveSpec(model=args.model, vehicle=args.vehicle, maneuver=args.maneuver, duration=args.duration,
                      seed=args.seed, speed=args.speed, ay=args.ay, cornering_per_deg=args.cornering_per_deg,
                      sensors=SensorSpec().scaled(noise=args.noise_scale, bias=args.bias_scale),
-                     roll_gradient_in_vehicle=args.with_roll_gradient)
+                     roll_gradient_in_vehicle=args.with_roll_gradient, camber=args.camber)
     drive = simulate(spec)
     log, vehicle = write_drive(drive, args.out, args.vehicle_toml)
     print(describe(drive))
@@ -353,6 +353,9 @@ def build_parser() -> argparse.ArgumentParser:
     pd.add_argument("--cornering-per-deg", type=float, default=0.25,
                     help="rule of thumb for the vehicle TOML's nominal stiffness: cornering coefficient per degree "
                     "times the static axle load (default 0.25)")
+    pd.add_argument("--camber", default="off", choices=("off", "continuous", "peer"),
+                    help="MB tire camber thrust: off (default; the axle stiffness is the tires'), continuous (the "
+                    "Magic Formula's camber terms), peer (as published: offsets that switch sign with the camber)")
     pd.add_argument("--with-roll-gradient", action="store_true",
                     help="also write the MB drive's measured roll gradient into the vehicle TOML")
     pd.add_argument("--out", required=True, help="Log CSV to write (.csv or .csv.gz)")

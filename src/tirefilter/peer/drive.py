@@ -13,8 +13,12 @@ Log columns: `t, delta, ax, ay, yaw_rate, vx, omega_f, omega_r` (road-wheel stee
 IMU's readings with bias and noise, the model's v^X, axle-mean wheel rates with noise),
 then references: `beta_true, vx_true, vy_true, yaw_rate_true, ax_true, ay_true,
 alpha_f_true, alpha_r_true, roll_true, Cf_y_true, Cr_y_true, Cx_true, Fz_f_true, Fz_r_true,
-b_ax_true, b_ay_true, b_yaw_rate_true` (biases = measured - true IMU reading; for the MB
-model the true IMU lateral reading includes g sin(roll), which is no bias).
+b_ax_true, b_ay_true, b_yaw_rate_true, Cf_y_eff_true, Cr_y_eff_true` (biases = measured -
+true IMU reading; for the MB model the true IMU lateral reading includes g sin(roll),
+which is no bias). `C*_y_true` is the tires' linear-region stiffness at the actual axle
+load (derivations: "Peer drives"); `C*_y_eff_true` the effective axle stiffness of the
+whole drive (`model.effective_stiffness`, one value repeated), which differs from it where
+the MB model's camber thrust is on (`--camber continuous|peer`; the default is off).
 """
 
 from __future__ import annotations
@@ -27,7 +31,7 @@ import numpy as np
 
 from tirefilter.errors import TirefilterError
 from tirefilter.peer.maneuvers import Profile, make_profile
-from tirefilter.peer.model import VEHICLES, PeerModel, load_model
+from tirefilter.peer.model import VEHICLES, PeerModel, effective_stiffness, load_model
 from tirefilter.peer.sensors import SensorSpec, measure
 
 RATE = 100.0  # Hz, log sample rate
@@ -61,6 +65,7 @@ class DriveSpec:
     ay: float = 3.0  # m/s^2, peak lateral acceleration in steady state
     straight: float = 4.0  # s of straight driving at the start
     sensors: SensorSpec = field(default_factory=SensorSpec)
+    camber: str = "off"  # MB tire camber terms: "continuous" | "peer" | "off" (model.load_model)
     cornering_per_deg: float = CORNERING_PER_DEG  # the user's guess of the nominal stiffness
     roll_gradient_in_vehicle: bool = False  # write the MB model's measured roll gradient into the vehicle TOML
 
@@ -130,7 +135,7 @@ def integrate(model: PeerModel, profile: Profile, rate: float = RATE, substeps: 
 
 def simulate(spec: DriveSpec) -> PeerDrive:
     """Generate the drive `spec`: integrate, sample, add the sensors."""
-    model = load_model(spec.model, spec.vehicle)
+    model = load_model(spec.model, spec.vehicle, spec.camber)
     maneuver_rng, sensor_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(spec.seed).spawn(2))
     profile = make_profile(spec.maneuver, spec.duration, speed=spec.speed, ay=spec.ay, steer_gain=steer_gain(model),
                            straight=spec.straight, dt=0.5 / (RATE * SUBSTEPS), rng=maneuver_rng)
@@ -142,6 +147,9 @@ def simulate(spec: DriveSpec) -> PeerDrive:
                "vx": true["vx"], "omega_f": meas["omega_f"], "omega_r": meas["omega_r"]}
     columns.update({f"{name}_true": true[name] for name in TRUE_COLUMNS})
     columns.update({f"b_{name}_true": bias[:, i] for i, name in enumerate(("ax", "ay", "yaw_rate"))})
+    eff = effective_stiffness(model, true)
+    columns["Cf_y_eff_true"] = np.full(t.size, eff[0])
+    columns["Cr_y_eff_true"] = np.full(t.size, eff[1])
     turning = np.abs(true["ay"]) > 0.5
     roll_gradient = (float(-np.sum(true["roll"][turning] * true["ay"][turning]) / np.sum(true["ay"][turning] ** 2))
                      if spec.model == "mb" and turning.any() else 0.0)  # outward roll is -x[6] for a^Y > 0
@@ -215,6 +223,10 @@ def describe(drive: PeerDrive) -> str:
              f"Cr_y {np.mean(cr):.4g} ({np.min(cr):.4g}-{np.max(cr):.4g}) N/rad; "
              f"vehicle TOML guess Cf_y {v['Cf_y']:.4g} ({100 * (v['Cf_y'] / np.mean(cf) - 1):+.0f} %), "
              f"Cr_y {v['Cr_y']:.4g} ({100 * (v['Cr_y'] / np.mean(cr) - 1):+.0f} %)",
+             f"  effective axle stiffness of the drive (least squares on the peer's forces): Cf_y "
+             f"{c['Cf_y_eff_true'][0]:.4g} ({100 * (c['Cf_y_eff_true'][0] / np.mean(cf) - 1):+.1f} %), Cr_y "
+             f"{c['Cr_y_eff_true'][0]:.4g} ({100 * (c['Cr_y_eff_true'][0] / np.mean(cr) - 1):+.1f} %)"
+             + (f", camber {s.camber}" if s.model == "mb" else ""),
              f"  IMU bias at t = 0: b_ax {c['b_ax_true'][0]:+.3f} m/s^2, b_ay {c['b_ay_true'][0]:+.3f} m/s^2, "
              f"b_yaw_rate {c['b_yaw_rate_true'][0]:+.4f} rad/s; noise std {s.sensors.sigma[0]:g}, {s.sensors.sigma[1]:g} m/s^2, "
              f"{s.sensors.sigma[2]:g} rad/s"]

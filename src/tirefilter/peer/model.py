@@ -115,8 +115,23 @@ class PeerModel:
         return vehicle_dynamics_mb
 
 
-def load_model(kind: str, vehicle_id: int) -> PeerModel:
-    """The peer model `kind` ("std" or "mb") with parameter set `vehicle_id` (1, 2, 3)."""
+CAMBER = ("continuous", "peer", "off")
+
+
+def load_model(kind: str, vehicle_id: int, camber: str = "continuous") -> PeerModel:
+    """The peer model `kind` ("std" or "mb") with parameter set `vehicle_id` (1, 2, 3).
+
+    `camber` (matters for MB only; STD has no camber): the peer's lateral tire formula
+    shifts the curve by S_hy = sign(gamma) (p_hy1 + p_hy3 |gamma|) and adds S_vy =
+    sign(gamma) F_z (p_vy1 + p_vy3 |gamma|), so the constant offsets p_hy1, p_vy1 (in the
+    Magic Formula a conicity / ply-steer offset, not a camber effect) switch sign with the
+    camber: a step of about 7 % of the wheel load in lateral force whenever a wheel's camber
+    crosses zero. "continuous" sets p_hy1 = p_vy1 = 0, which leaves the Magic Formula's
+    continuous camber thrust p_hy3 gamma, F_z p_vy3 gamma; "peer" keeps the published
+    parameters; "off" also sets p_hy3 = p_vy3 = 0 (no camber thrust). The cornering
+    stiffness p_ky1 is the same in all three."""
+    if camber not in CAMBER:
+        raise TirefilterError(f"camber must be one of {', '.join(CAMBER)}, got {camber!r}")
     if kind not in MODELS:
         raise TirefilterError(f"peer model must be one of {', '.join(MODELS)}, got {kind!r}")
     if vehicle_id not in VEHICLES:
@@ -125,7 +140,33 @@ def load_model(kind: str, vehicle_id: int) -> PeerModel:
     require_vehiclemodels()
     from vehiclemodels.vehicle_parameters import setup_vehicle_parameters
 
-    return PeerModel(kind, vehicle_id, setup_vehicle_parameters(vehicle_id=vehicle_id))
+    p = setup_vehicle_parameters(vehicle_id=vehicle_id)  # a fresh, mutable dataclass per call
+    zero = {"peer": (), "continuous": ("p_hy1", "p_vy1"), "off": ("p_hy1", "p_vy1", "p_hy3", "p_vy3")}[camber]
+    for name in zero:
+        setattr(p.tire, name, 0.0)
+    return PeerModel(kind, vehicle_id, p)
+
+
+def effective_stiffness(model: PeerModel, true: dict, min_ay: float = 0.3) -> tuple[float, float]:
+    """Effective axle cornering stiffness of a drive (Cf, Cr) [N/rad]: the least-squares
+    slope (with offset) of the single-track axle lateral forces against the single-track
+    slip angles over the samples with |a^Y| > min_ay. The forces come from the peer's own
+    accelerations, m a^Y = F_yf cos(delta) + F_yr and I_z dr/dt = l_f F_yf cos(delta) -
+    l_r F_yr; `true` holds (n,) arrays "ay", "yaw_acc", "delta", "alpha_f", "alpha_r".
+    With linear tires and no camber this is the tire stiffness; the MB model's camber
+    thrust from body roll makes it larger (derivations: "Peer drives")."""
+    p, L = model.p, model.wheelbase
+    ay, dr = true["ay"], true["yaw_acc"]
+    Fyf = (p.m * ay * p.b + p.I_z * dr) / L / np.cos(true["delta"])
+    Fyr = (p.m * ay * p.a - p.I_z * dr) / L
+    sel = np.abs(ay) > min_ay
+    if np.count_nonzero(sel) < 10:
+        return math.nan, math.nan
+    out = []
+    for F, a in ((Fyf, true["alpha_f"]), (Fyr, true["alpha_r"])):
+        A = np.column_stack([a[sel], np.ones(np.count_nonzero(sel))])
+        out.append(float(np.linalg.lstsq(A, F[sel], rcond=None)[0][0]))
+    return out[0], out[1]
 
 
 def _stiffness(model: PeerModel, Fz_f: float, Fz_r: float) -> dict:
@@ -148,8 +189,8 @@ def _sample_std(model: PeerModel, x, u, f) -> dict:
     L = model.wheelbase
     Fz_f = p.m * (-a * p.h_s + G_PEER * p.b) / L  # the peer's load transfer (vehicle_dynamics_std)
     Fz_r = p.m * (a * p.h_s + G_PEER * p.a) / L
-    out = {"delta": delta, "vx": vx, "vy": vy, "yaw_rate": r, "beta": math.atan2(vy, vx), "ax": ax, "ay": ay,
-           "ax_imu": ax, "ay_imu": ay, "yaw_rate_imu": r, "roll": 0.0, "pitch": 0.0,
+    out = {"delta": delta, "vx": vx, "vy": vy, "yaw_rate": r, "yaw_acc": f[5], "beta": math.atan2(vy, vx),
+           "ax": ax, "ay": ay, "ax_imu": ax, "ay_imu": ay, "yaw_rate_imu": r, "roll": 0.0, "pitch": 0.0,
            "omega_f": x[7], "omega_r": x[8],
            "alpha_f": delta - math.atan2(vy + p.a * r, vx), "alpha_r": -math.atan2(vy - p.b * r, vx)}
     out.update(_stiffness(model, Fz_f, Fz_r))
@@ -169,8 +210,8 @@ def _sample_mb(model: PeerModel, x, f) -> dict:
     ax_imu = ax * math.cos(pitch) + az_up * math.sin(pitch)
     Fz_f = 2 * (x[16] + p.R_w * (math.cos(x[13]) - 1)) * p.K_zt  # F_z_LF + F_z_RF of the peer
     Fz_r = 2 * (x[21] + p.R_w * (math.cos(x[18]) - 1)) * p.K_zt
-    out = {"delta": delta, "vx": vx, "vy": vy, "yaw_rate": r, "beta": math.atan2(vy, vx), "ax": ax, "ay": ay,
-           "ax_imu": ax_imu, "ay_imu": ay_imu, "yaw_rate_imu": r * math.cos(roll) * math.cos(pitch),
+    out = {"delta": delta, "vx": vx, "vy": vy, "yaw_rate": r, "yaw_acc": f[5], "beta": math.atan2(vy, vx),
+           "ax": ax, "ay": ay, "ax_imu": ax_imu, "ay_imu": ay_imu, "yaw_rate_imu": r * math.cos(roll) * math.cos(pitch),
            "roll": roll, "pitch": pitch,
            "omega_f": 0.5 * (x[23] + x[24]), "omega_r": 0.5 * (x[25] + x[26]),
            "alpha_f": delta - math.atan2(vy + p.a * r, vx), "alpha_r": -math.atan2(vy - p.b * r, vx)}
