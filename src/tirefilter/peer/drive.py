@@ -136,13 +136,14 @@ def integrate(model: PeerModel, profile: Profile, rate: float = RATE, substeps: 
 def simulate(spec: DriveSpec) -> PeerDrive:
     """Generate the drive `spec`: integrate, sample, add the sensors."""
     model = load_model(spec.model, spec.vehicle, spec.camber)
-    maneuver_rng, sensor_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(spec.seed).spawn(2))
+    maneuver_seed, sensor_seed = np.random.SeedSequence(spec.seed).spawn(2)
+    maneuver_rng = np.random.default_rng(maneuver_seed)
     profile = make_profile(spec.maneuver, spec.duration, speed=spec.speed, ay=spec.ay, steer_gain=steer_gain(model),
                            straight=spec.straight, dt=0.5 / (RATE * SUBSTEPS), rng=maneuver_rng)
     t, X, U = integrate(model, profile)
     rows = [model.sample(x, u) for x, u in zip(X, U)]
     true = {key: np.array([r[key] for r in rows]) for key in rows[0]}
-    meas, bias = measure(t, true, spec.sensors, sensor_rng)
+    meas, bias = measure(t, true, spec.sensors, sensor_seed)
     columns = {"t": t, "delta": true["delta"], "ax": meas["ax"], "ay": meas["ay"], "yaw_rate": meas["yaw_rate"],
                "vx": true["vx"], "omega_f": meas["omega_f"], "omega_r": meas["omega_r"]}
     columns.update({f"{name}_true": true[name] for name in TRUE_COLUMNS})

@@ -14,7 +14,7 @@ Both take u = [steering rate of the road wheels (rad/s), longitudinal accelerati
 (m/s^2)], clipped by the peer's own steering and acceleration constraints. Parameter sets
 1 (Ford Escort, front drive), 2 (BMW 320i, rear drive), 3 (VW Vanagon, rear drive).
 
-Sign conventions of the peer (checked against its source, docs/derivations.md Sec. 15):
+Sign conventions of the peer (checked against its source, docs/derivations.md "Peer drives"):
 its slip angle is the negative of ours (alpha_peer = atan(...) - delta), and its lateral
 coefficient p_ky1 < 0, so our positive axle cornering stiffness is -p_ky1 * F_z. Its
 longitudinal slip s = 1 - R_w omega / u_w is the negative of ours (it flips it again
@@ -81,7 +81,7 @@ class PeerModel:
         return p.m_s * G_PEER * p.b / L + p.m_uf * G_PEER, p.m_s * G_PEER * p.a / L + p.m_ur * G_PEER  # init_mb
 
     def lateral_coefficient(self) -> float:
-        """Axle cornering stiffness per unit normal load [1/rad]: -p_ky1 (derivations Sec. 15)."""
+        """Axle cornering stiffness per unit normal load [1/rad]: -p_ky1 (derivations: "Peer drives")."""
         return -float(self.p.tire.p_ky1)
 
     def longitudinal_coefficient(self) -> float:
@@ -118,15 +118,15 @@ class PeerModel:
 CAMBER = ("continuous", "peer", "off")
 
 
-def load_model(kind: str, vehicle_id: int, camber: str = "continuous") -> PeerModel:
+def load_model(kind: str, vehicle_id: int, camber: str = "off") -> PeerModel:
     """The peer model `kind` ("std" or "mb") with parameter set `vehicle_id` (1, 2, 3).
 
     `camber` (matters for MB only; STD has no camber): the peer's lateral tire formula
     shifts the curve by S_hy = sign(gamma) (p_hy1 + p_hy3 |gamma|) and adds S_vy =
     sign(gamma) F_z (p_vy1 + p_vy3 |gamma|), so the constant offsets p_hy1, p_vy1 (in the
     Magic Formula a conicity / ply-steer offset, not a camber effect) switch sign with the
-    camber: a step of about 7 % of the wheel load in lateral force whenever a wheel's camber
-    crosses zero. "continuous" sets p_hy1 = p_vy1 = 0, which leaves the Magic Formula's
+    camber: a step of 2 |p_ky1 p_hy1 + p_vy1| = 4.3 % of the wheel load in lateral force
+    whenever a wheel's camber crosses zero. "continuous" sets p_hy1 = p_vy1 = 0, which leaves the Magic Formula's
     continuous camber thrust p_hy3 gamma, F_z p_vy3 gamma; "peer" keeps the published
     parameters; "off" also sets p_hy3 = p_vy3 = 0 (no camber thrust). The cornering
     stiffness p_ky1 is the same in all three."""
@@ -205,7 +205,7 @@ def _sample_mb(model: PeerModel, x, f) -> dict:
     az_up = G_PEER - f[12]  # upward support force / m_s (the peer's z points down: f[12] = g - sumZ_s/m_s)
     # Specific force on the body axes (the IMU is fixed to the sprung mass at its centre of
     # gravity): roll leans the lateral axis, pitch (x[8] > 0 nose up) the longitudinal one,
-    # so each picks up a share of the support force (derivations Sec. 15).
+    # so each picks up a share of the support force (derivations: "Peer drives").
     ay_imu = ay * math.cos(roll) - az_up * math.sin(roll)
     ax_imu = ax * math.cos(pitch) + az_up * math.sin(pitch)
     Fz_f = 2 * (x[16] + p.R_w * (math.cos(x[13]) - 1)) * p.K_zt  # F_z_LF + F_z_RF of the peer

@@ -34,21 +34,29 @@ class SensorSpec:
                           tuple(bias * q for q in self.bias_rw), noise * self.sigma_omega)
 
 
-def imu_biases(t: np.ndarray, spec: SensorSpec, rng: np.random.Generator) -> np.ndarray:
-    """(n, 3) biases of ax, ay, yaw rate at the sample times t (n,)."""
-    b0 = rng.uniform(-1.0, 1.0, 3) * np.asarray(spec.bias_max)
+def imu_biases(t: np.ndarray, spec: SensorSpec, seed: np.random.SeedSequence) -> np.ndarray:
+    """(n, 3) biases of ax, ay, yaw rate at the sample times t (n,): one generator per
+    channel, so a longer drive of the same seed starts with the same biases."""
     dt = np.diff(t, prepend=t[0])
-    steps = rng.standard_normal((t.size, 3)) * np.sqrt(dt)[:, None] * np.asarray(spec.bias_rw)
-    return b0 + np.cumsum(steps, axis=0)
+    out = np.empty((t.size, 3))
+    for i, child in enumerate(seed.spawn(3)):
+        rng = np.random.default_rng(child)
+        b0 = rng.uniform(-1.0, 1.0) * spec.bias_max[i]
+        out[:, i] = b0 + np.cumsum(rng.standard_normal(t.size) * np.sqrt(dt) * spec.bias_rw[i])
+    return out
 
 
-def measure(t: np.ndarray, true: dict, spec: SensorSpec, rng: np.random.Generator) -> tuple[dict, np.ndarray]:
+def measure(t: np.ndarray, true: dict, spec: SensorSpec, seed: np.random.SeedSequence) -> tuple[dict, np.ndarray]:
     """Sensor readings from the true IMU readings `true["ax_imu"]`, `["ay_imu"]`,
     `["yaw_rate_imu"]` and wheel rates `["omega_f"]`, `["omega_r"]` (each (n,)); returns
-    the readings (log names) and the (n, 3) biases."""
-    bias = imu_biases(t, spec, rng)
-    noise = rng.standard_normal((t.size, 3)) * np.asarray(spec.sigma)
-    out = {name: true[f"{name}_imu"] + bias[:, i] + noise[:, i] for i, name in enumerate(IMU_CHANNELS)}
-    for w in ("omega_f", "omega_r"):
-        out[w] = true[w] + spec.sigma_omega * rng.standard_normal(t.size)
+    the readings (log names) and the (n, 3) biases. Every channel draws from its own
+    generator (spawned from `seed`): the readings of a drive are a prefix of those of a
+    longer drive with the same seed."""
+    bias_seed, *noise_seeds = seed.spawn(1 + len(IMU_CHANNELS) + 2)
+    bias = imu_biases(t, spec, bias_seed)
+    out = {}
+    for i, (name, child) in enumerate(zip(IMU_CHANNELS, noise_seeds)):
+        out[name] = true[f"{name}_imu"] + bias[:, i] + spec.sigma[i] * np.random.default_rng(child).standard_normal(t.size)
+    for w, child in zip(("omega_f", "omega_r"), noise_seeds[len(IMU_CHANNELS):]):
+        out[w] = true[w] + spec.sigma_omega * np.random.default_rng(child).standard_normal(t.size)
     return out, bias
