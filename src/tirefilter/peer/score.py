@@ -40,6 +40,12 @@ def score_replay(log_csv: str | Path, result_csv: str | Path, *, last: float = 3
     est = read_columns(result_csv, ("t", "beta", "Cf_y", "Cr_y"))
     if truth["t"].size != est["t"].size or not np.allclose(truth["t"], est["t"]):
         raise TirefilterError(f"{result_csv}: its rows do not match the log {log_csv} (t differs)")
+    return score(truth, est, last=last)
+
+
+def score(truth: dict, est: dict, *, last: float = 30.0) -> dict:
+    """The scores of `score_replay` from arrays: `truth` with "t", "beta_true", "Cf_y_true",
+    "Cr_y_true", `est` with "beta", "Cf_y", "Cr_y" (all (n,), the same rows)."""
     t = truth["t"]
     window = t >= t[-1] - last
     out = {"window": float(min(last, t[-1] - t[0]))}
