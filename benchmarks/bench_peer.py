@@ -10,10 +10,11 @@ Per drive and estimator: the lateral stiffness error (mean of the estimate over 
 `--last` seconds against the mean of `Cf_y_true`, `Cr_y_true` there, in %), the sideslip
 RMSE over the whole drive (deg; "zero guess" is the RMSE of a zero-sideslip guess), the
 restarts of the particle filters, and the wall time of the replay; per drive also its
-largest |a^Y| and the IMU's a^Y gain 1 + g k from body roll (k the roll gradient; 1 for STD). Then the mean absolute errors per
-model and estimator. `--readme` writes the tables into the section "Peer drives" at the
-end of benchmarks/README.md (replacing that section only). The default run is modest
-(12 drives of 60 s, one worker): the machine is shared.
+largest |a^Y| and the IMU's a^Y gain 1 + g k from body roll (k the roll gradient; 1 for
+STD). Then the mean absolute errors per model and estimator. `--readme` writes the
+tables into the section "Peer drives" at the end of benchmarks/README.md, under a
+subsection named by the settings and estimators (replacing that subsection only). The
+default run is modest (12 drives of 60 s, one worker): the machine is shared.
 """
 
 from __future__ import annotations
@@ -73,8 +74,8 @@ def _fmt(x: float, spec: str) -> str:
 
 
 def tables(rows: list[dict], args) -> str:
-    lines = ["| model | vehicle | seed | max abs a^Y | IMU a^Y gain | estimator | Cf_y error | Cr_y error | sideslip RMSE "
-             "| zero guess | restarts | wall |",
+    lines = ["| model | vehicle | seed | max abs a^Y | IMU a^Y gain | estimator | Cf_y error | Cr_y error "
+             "| sideslip RMSE | zero guess | restarts | wall |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['model']} | {r['vehicle']} | {r['seed']} | {r['ay_max']:.1f} m/s^2 | "
@@ -83,8 +84,8 @@ def tables(rows: list[dict], args) -> str:
                      f"{_fmt(r['beta_rmse_deg'], '.3f')} deg | {r['beta_zero_rmse_deg']:.3f} deg | "
                      f"{'-' if r['restarts'] is None else r['restarts']} | {r['wall_s']:.0f} s |")
     lines += ["", "Mean over the drives (absolute errors; a failed replay counts as infinite):", "",
-              "| model | estimator | mean abs Cf_y error | mean abs Cr_y error | worst abs error | mean sideslip RMSE | "
-              "drives within 10 % and 0.1 deg | restarts |",
+              "| model | estimator | mean abs Cf_y error | mean abs Cr_y error | worst abs error "
+              "| mean sideslip RMSE | drives within 10 % and 0.1 deg | restarts |",
               "|---|---|---|---|---|---|---|---|"]
     for model in args.models:
         for name in args.estimators:
@@ -96,7 +97,8 @@ def tables(rows: list[dict], args) -> str:
             beta = np.array([r["beta_rmse_deg"] for r in sel])
             ok = sum(1 for a, b, c in zip(cf, cr, beta) if a <= 10 and b <= 10 and c <= 0.1)
             restarts = [r["restarts"] for r in sel if r["restarts"] is not None]
-            lines.append(f"| {model} | {name} | {_fmt(float(np.mean(cf)), '.1f')} % | {_fmt(float(np.mean(cr)), '.1f')} % | "
+            lines.append(f"| {model} | {name} | {_fmt(float(np.mean(cf)), '.1f')} % | "
+                         f"{_fmt(float(np.mean(cr)), '.1f')} % | "
                          f"{_fmt(float(max(cf.max(), cr.max())), '.1f')} % | {_fmt(float(np.mean(beta)), '.3f')} deg | "
                          f"{ok} / {len(sel)} | {sum(restarts) if restarts else '-'} |")
     return "\n".join(lines)
@@ -161,7 +163,8 @@ def main() -> None:
         for job in jobs:
             out = run_drive(job)
             rows += out
-            print(f"  {job[0]} vehicle {job[1]} seed {job[2]} done ({out[0]['gen_s']:.0f} s to generate)", file=sys.stderr)
+            print(f"  {job[0]} vehicle {job[1]} seed {job[2]} done ({out[0]['gen_s']:.0f} s to generate)",
+                  file=sys.stderr)
     table = tables(rows, args)
     command = "    .venv/bin/python benchmarks/bench_peer.py " + " ".join(sys.argv[1:])
     header = (f"{len(jobs)} drives ({', '.join(args.models)}; vehicles {', '.join(map(str, args.vehicles))}; seeds "

@@ -129,7 +129,8 @@ def integrate(model: PeerModel, profile: Profile, rate: float = RATE, substeps: 
             k4 = f(j + 2, x + h * k3)
             x = x + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
         if not np.all(np.isfinite(x)):
-            raise TirefilterError(f"peer model {model.kind} (vehicle {model.vehicle_id}) diverged at t = {k / rate:g} s")
+            raise TirefilterError(f"peer model {model.kind} (vehicle {model.vehicle_id}) diverged "
+                                  f"at t = {k / rate:g} s")
     return np.arange(n) / rate, X, U
 
 
@@ -192,13 +193,16 @@ def vehicle_toml(drive: PeerDrive) -> str:
              f'times the static axle load ({s.cornering_per_deg * 180 / math.pi:.3g} per rad)',
              f'Cf_y = {v["Cf_y"]!r}  # N/rad',
              f'Cr_y = {v["Cr_y"]!r}  # N/rad',
-             f'Cx = {v["Cx"]!r}  # N per unit slip: guessed, {LONGITUDINAL_PER_LOAD:g} x the driven axle\'s static load']
+             f'Cx = {v["Cx"]!r}  # N per unit slip: guessed, {LONGITUDINAL_PER_LOAD:g} x the driven axle\'s '
+             'static load']
     if "roll_gradient" in v:
-        lines.append(f'roll_gradient = {v["roll_gradient"]!r}  # rad per m/s^2, measured on this drive (not a data-sheet value)')
+        lines.append(f'roll_gradient = {v["roll_gradient"]!r}  # rad per m/s^2, measured on this drive '
+                     '(not a data-sheet value)')
     return "\n".join(lines) + "\n"
 
 
-def write_drive(drive: PeerDrive, log_path: str | Path, vehicle_path: str | Path | None = None) -> tuple[Path, Path | None]:
+def write_drive(drive: PeerDrive, log_path: str | Path,
+                vehicle_path: str | Path | None = None) -> tuple[Path, Path | None]:
     """Write the Log CSV (and the vehicle TOML when `vehicle_path` is given)."""
     from tirefilter.replay.log import write_log
 
@@ -215,8 +219,8 @@ def describe(drive: PeerDrive) -> str:
     c, s, v = drive.columns, drive.spec, drive.vehicle
     t = c["t"]
     cf, cr = c["Cf_y_true"], c["Cr_y_true"]
-    lines = [f"peer drive: {s.model.upper()} model, vehicle {s.vehicle} ({VEHICLES[s.vehicle]}), maneuver {s.maneuver}, "
-             f"{t[-1]:g} s at {RATE:g} Hz, seed {s.seed}",
+    lines = [f"peer drive: {s.model.upper()} model, vehicle {s.vehicle} ({VEHICLES[s.vehicle]}), "
+             f"maneuver {s.maneuver}, {t[-1]:g} s at {RATE:g} Hz, seed {s.seed}",
              f"  |a^Y| max {np.max(np.abs(c['ay_true'])):.2f} m/s^2, v^X {np.min(c['vx_true']):.1f}-"
              f"{np.max(c['vx_true']):.1f} m/s, |beta| max {np.degrees(np.max(np.abs(c['beta_true']))):.2f} deg, "
              f"|alpha_f| max {np.degrees(np.max(np.abs(c['alpha_f_true']))):.2f} deg",
@@ -229,8 +233,8 @@ def describe(drive: PeerDrive) -> str:
              f"{c['Cr_y_eff_true'][0]:.4g} ({100 * (c['Cr_y_eff_true'][0] / np.mean(cr) - 1):+.1f} %)"
              + (f", camber {s.camber}" if s.model == "mb" else ""),
              f"  IMU bias at t = 0: b_ax {c['b_ax_true'][0]:+.3f} m/s^2, b_ay {c['b_ay_true'][0]:+.3f} m/s^2, "
-             f"b_yaw_rate {c['b_yaw_rate_true'][0]:+.4f} rad/s; noise std {s.sensors.sigma[0]:g}, {s.sensors.sigma[1]:g} m/s^2, "
-             f"{s.sensors.sigma[2]:g} rad/s"]
+             f"b_yaw_rate {c['b_yaw_rate_true'][0]:+.4f} rad/s; noise std {s.sensors.sigma[0]:g}, "
+             f"{s.sensors.sigma[1]:g} m/s^2, {s.sensors.sigma[2]:g} rad/s"]
     if s.model == "mb":
         lines.append(f"  body roll {drive.roll_gradient:.4f} rad per m/s^2 (the IMU's a^Y reads about "
                      f"{1 + G * drive.roll_gradient:.3f} x a^Y)")

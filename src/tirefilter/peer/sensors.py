@@ -56,7 +56,8 @@ def measure(t: np.ndarray, true: dict, spec: SensorSpec, seed: np.random.SeedSeq
     bias = imu_biases(t, spec, bias_seed)
     out = {}
     for i, (name, child) in enumerate(zip(IMU_CHANNELS, noise_seeds)):
-        out[name] = true[f"{name}_imu"] + bias[:, i] + spec.sigma[i] * np.random.default_rng(child).standard_normal(t.size)
+        noise = spec.sigma[i] * np.random.default_rng(child).standard_normal(t.size)
+        out[name] = true[f"{name}_imu"] + bias[:, i] + noise
     for w, child in zip(("omega_f", "omega_r"), noise_seeds[len(IMU_CHANNELS):]):
         out[w] = true[w] + spec.sigma_omega * np.random.default_rng(child).standard_normal(t.size)
     return out, bias
