@@ -48,7 +48,7 @@ class MPFConfig:
     # forgetting_max), z_k the smoothed normalised innovation of the accelerometers (1 when the data fit the
     # predictive): a surface change forgets fast, a drive that fits keeps a long memory. "fixed": the paper's
     forgetting_mode: str = "adaptive"  # "adaptive" | "fixed"
-    forgetting_min: float = 0.95
+    forgetting_min: float = 0.97
     forgetting_max: float = 0.999
     surprise_time: float = 0.15  # s, time constant of the smoothing of z_k (the innovation)
     drift_time: float = 1.0  # s, time constant of the smoothing of z'_k (the lean of the sampled w)
