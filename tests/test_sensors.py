@@ -185,3 +185,23 @@ def test_drift_statistic_forgets_fast_when_the_sampled_deviations_lean_one_way()
         mpf._track_drift(np.tile(rng.standard_normal(2) * [2.0, 3.0], (3, 1)), L11, 0.01)
         zs.append(float(mpf.drift @ mpf.drift) * (2 - a) / (a * 2))
     assert np.mean(zs[200:]) == pytest.approx(1.0, abs=0.15)
+
+
+def test_check_log_shows_the_noise_and_warns_on_a_3x_disagreement(tmp_path):
+    from tirefilter.replay import check_log
+
+    t, sig = _drive(n=2000, seed=6)
+    log = tmp_path / "log.csv"
+    cols = {"t": t, "delta": 0.01 * np.sin(t), "vx": np.full_like(t, 20.0), **sig}
+    np.savetxt(log, np.column_stack(list(cols.values())), delimiter=",", header=",".join(cols), comments="")
+    veh = tmp_path / "v.toml"
+    veh.write_text("mass = 1500.0\nyaw_inertia = 2500.0\nlf = 1.2\nlr = 1.5\nwheel_radius = 0.31\n"
+                   "cg_height = 0.55\nCf_y = 80000.0\nCr_y = 90000.0\nCx = 150000.0\nsigma_ay = 0.05\n")
+    summary = check_log(log, veh)
+    assert summary.noise["sigma_from_data"]["ay"] == pytest.approx(0.2, rel=0.1)
+    assert summary.noise["sigma_from_data"]["yaw_rate"] == pytest.approx(0.004, rel=0.1)
+    text = summary.format()
+    assert "white noise estimated from the log: ax 0.3" in text and "(vehicle file: 0.05)" in text
+    assert any("sigma_ay = 0.05" in w and "0.25 times" in w for w in summary.warnings)
+    assert not any("sigma_ax" in w for w in summary.warnings)  # not given: nothing to disagree with
+    assert json.loads(json.dumps(summary.to_dict()))["noise"]["sigma_source"]["ay"] == "vehicle file"

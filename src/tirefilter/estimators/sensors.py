@@ -136,9 +136,10 @@ def _compare(sigma, sigma_data, sources, span: str) -> list[str]:
 
 
 def sensors_for_log(vehicle, signals: dict, span: str = "the log") -> SensorModel:
-    """The IMU model for a replay: the vehicle's figures where given, else the data's."""
+    """The IMU model for a replay: the vehicle's figures where given, else the data's
+    (`vehicle` None: no figures given)."""
     sigma_data, held = noise_from_data(signals, span)
-    given = (vehicle.sigma_ax, vehicle.sigma_ay, vehicle.sigma_yaw_rate)
+    given = (None,) * 3 if vehicle is None else (vehicle.sigma_ax, vehicle.sigma_ay, vehicle.sigma_yaw_rate)
     sigma, sources = [], []
     for g, d in zip(given, sigma_data):
         if g is not None:
@@ -147,8 +148,8 @@ def sensors_for_log(vehicle, signals: dict, span: str = "the log") -> SensorMode
             sigma.append(d), sources.append("data")
         else:
             sigma.append(FALLBACK_SIGMA[len(sigma)]), sources.append("default")
-    b0 = (vehicle.bias0_std_ax, vehicle.bias0_std_ay, vehicle.bias0_std_yaw_rate)
-    rw = (vehicle.bias_rw_ax, vehicle.bias_rw_ay, vehicle.bias_rw_yaw_rate)
+    b0 = (None,) * 3 if vehicle is None else (vehicle.bias0_std_ax, vehicle.bias0_std_ay, vehicle.bias0_std_yaw_rate)
+    rw = (None,) * 3 if vehicle is None else (vehicle.bias_rw_ax, vehicle.bias_rw_ay, vehicle.bias_rw_yaw_rate)
     given_bias = any(v is not None for v in b0 + rw)
     b0 = tuple(d if v is None else float(v) for v, d in zip(b0, MEMS_BIAS0_STD))
     rw = tuple(d if v is None else float(v) for v, d in zip(rw, MEMS_BIAS_RW))
