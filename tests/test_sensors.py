@@ -40,6 +40,22 @@ def _drive(n=6000, dt=0.01, seed=0, sigma=(0.3, 0.2, 0.004)):
     return t, {c: base[c] + s * rng.standard_normal(n) for c, s in zip(base, sigma)}
 
 
+DATA_SHEET = ("mass = 1500.0\nyaw_inertia = 2500.0\nlf = 1.2\nlr = 1.5\nwheel_radius = 0.31\ncg_height = 0.55\n"
+              "Cf_y = 80000.0\nCr_y = 90000.0\nCx = 150000.0\n")
+
+
+def _files(tmp_path, n, seed, extra_vehicle=""):
+    """A lateral-model Log CSV of `_drive` and a vehicle TOML of data-sheet values (plus
+    `extra_vehicle`)."""
+    t, sig = _drive(n=n, seed=seed)
+    log = tmp_path / "log.csv"
+    cols = {"t": t, "delta": 0.01 * np.sin(t), "vx": np.full_like(t, 20.0), **sig}
+    np.savetxt(log, np.column_stack(list(cols.values())), delimiter=",", header=",".join(cols), comments="")
+    veh = tmp_path / "v.toml"
+    veh.write_text(DATA_SHEET + extra_vehicle)
+    return log, veh
+
+
 @pytest.mark.parametrize("sigma", [0.02, 0.3, 1.1])
 def test_noise_estimate_within_10_percent_of_a_known_level(sigma):
     _, sig = _drive(sigma=(sigma, sigma, sigma))
@@ -107,13 +123,7 @@ def test_mpf_overrides_are_reported_as_such_and_short_logs_fall_back():
 
 
 def test_replay_summary_records_the_sensor_model(tmp_path):
-    t, sig = _drive(n=300, seed=5)
-    log = tmp_path / "log.csv"
-    cols = {"t": t, "delta": 0.01 * np.sin(t), "vx": np.full_like(t, 20.0), **sig}
-    np.savetxt(log, np.column_stack(list(cols.values())), delimiter=",", header=",".join(cols), comments="")
-    veh = tmp_path / "v.toml"
-    veh.write_text("mass = 1500.0\nyaw_inertia = 2500.0\nlf = 1.2\nlr = 1.5\nwheel_radius = 0.31\n"
-                   "cg_height = 0.55\nCf_y = 80000.0\nCr_y = 90000.0\nCx = 150000.0\n")
+    log, veh = _files(tmp_path, 300, 5)
     assert load_vehicle(veh).sigma_ay is None and load_vehicle(veh).bias_rw_ay is None
     out = tmp_path / "r.csv"
     res = subprocess.run([sys.executable, "-m", "tirefilter.cli", "replay", str(log), "--vehicle", str(veh),
@@ -190,13 +200,7 @@ def test_drift_statistic_forgets_fast_when_the_sampled_deviations_lean_one_way()
 def test_check_log_shows_the_noise_and_warns_on_a_3x_disagreement(tmp_path):
     from tirefilter.replay import check_log
 
-    t, sig = _drive(n=2000, seed=6)
-    log = tmp_path / "log.csv"
-    cols = {"t": t, "delta": 0.01 * np.sin(t), "vx": np.full_like(t, 20.0), **sig}
-    np.savetxt(log, np.column_stack(list(cols.values())), delimiter=",", header=",".join(cols), comments="")
-    veh = tmp_path / "v.toml"
-    veh.write_text("mass = 1500.0\nyaw_inertia = 2500.0\nlf = 1.2\nlr = 1.5\nwheel_radius = 0.31\n"
-                   "cg_height = 0.55\nCf_y = 80000.0\nCr_y = 90000.0\nCx = 150000.0\nsigma_ay = 0.05\n")
+    log, veh = _files(tmp_path, 2000, 6, "sigma_ay = 0.05\n")
     summary = check_log(log, veh)
     assert summary.noise["sigma_from_data"]["ay"] == pytest.approx(0.2, rel=0.1)
     assert summary.noise["sigma_from_data"]["yaw_rate"] == pytest.approx(0.004, rel=0.1)
