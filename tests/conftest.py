@@ -9,7 +9,7 @@ from tirefilter.cosim.fmu import build_vehicle_fmu, vehicle_fmu_path
 # Truth without randomness: what the numpy model and the closed-form checks compare with.
 NOISE_OFF = {
     "stiffness_dev_std": 0.0, "sigma_ax": 0.0, "sigma_ay": 0.0, "sigma_yaw_rate": 0.0, "sigma_omega": 0.0,
-    "sigma_delta": 0.0, "bias_rw_ax": 0.0, "bias_rw_ay": 0.0, "bias_rw_yaw_rate": 0.0, "bias0_std_ax": 0.0,
+    "sigma_delta": 0.0, "bias_q_ax": 0.0, "bias_q_ay": 0.0, "bias_q_yaw_rate": 0.0, "bias0_std_ax": 0.0,
     "bias0_std_ay": 0.0, "bias0_std_yaw_rate": 0.0, "vx0_std": 0.0, "vy0_std": 0.0, "yaw_rate0_std": 0.0,
 }
 
