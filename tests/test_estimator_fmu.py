@@ -37,11 +37,8 @@ IN_NAMES = ("u.delta", "u.omega_f", "u.omega_r", "u.vx", "y.ax", "y.ay", "y.yaw_
 
 
 @pytest.fixture(scope="module")
-def fmus(tmp_path_factory):
-    from tirefilter.fmu_export.build import build_driver_fmu, build_estimator_fmu
-
-    out = tmp_path_factory.mktemp("fmus")
-    return {"estimator": build_estimator_fmu("mpf", out), "driver": build_driver_fmu("snow-sine", out)}
+def fmus(python_fmu):
+    return {"estimator": python_fmu("mpf"), "driver": python_fmu("driver")}
 
 
 @pytest.fixture(scope="module")
@@ -365,10 +362,8 @@ FRICTION_H = 0.04  # s: friction-snow's estimator sample period (the friction pa
 
 
 @pytest.fixture(scope="module")
-def friction_fmu(tmp_path_factory):
-    from tirefilter.fmu_export.build import build_estimator_fmu
-
-    return build_estimator_fmu("combined", tmp_path_factory.mktemp("friction_fmu"))
+def friction_fmu(python_fmu):
+    return python_fmu("combined")
 
 
 @pytest.fixture(scope="module")
