@@ -30,7 +30,7 @@ def cmd_run(args) -> int:
     model = getattr(getattr(estimator, "cfg", None), "model", None) or resolve_model(args.model, scenario.sensors)
     summary = _run_and_record(
         lambda: run_scenario(scenario, estimator=estimator, seed=args.seed, fmi_version=args.fmi, results_csv=results,
-                             recording=_recording(args), progress=_progress(args),
+                             recording=_recording(args), progress=_progress(args), coupling=args.coupling,
                              friction_csv=_friction_csv(estimator, out / "friction.csv")),
         lambda s: write_run_json(out / "run.json", s, command=sys.argv, model=model, fmi_version=args.fmi,
                                  **_estimator_record(estimator, config, args)),
@@ -318,6 +318,9 @@ def build_parser() -> argparse.ArgumentParser:
     _estimator_options(run, default="mpf", particles="default from the scenario")
     run.add_argument("--out", help="output folder (default runs/<scenario>)")
     run.add_argument("--fmi", default="2", choices=("2", "3"), help="vehicle FMU version (default 2)")
+    run.add_argument("--coupling", default="gauss-seidel", choices=("gauss-seidel", "jacobi"),
+                     help="master coupling: gauss-seidel (default: inputs of t_k set before the outputs of t_k are "
+                     "read) or jacobi (values exchanged once per step, as fmpy's SSP master; docs/using-the-fmus.md)")
     _output_options(run)
     run.set_defaults(func=cmd_run)
 

@@ -196,9 +196,9 @@ def _jacobi_samples(scenario: Scenario, fmu: VehicleFMU, params: dict,
     """cosim_samples with the coupling of fmpy's SSP master (driver, vehicle and estimator
     FMUs, `fmu_export.ssp`): step k takes the inputs the driver computed in step k - 1
     (open loop at t_k, PI on v^X(t_{k-1})), step 0 zeros on every connected input; the
-    sample at t_k (k >= 1) holds the outputs read after step k - 1, before u_k is set."""
-    from tirefilter.fmu_export.ssp import surface_connected
-
+    sample at t_k (k >= 1) holds the outputs read after step k - 1, before u_k is set.
+    The surface scale is the exception: it keeps the profile's value in step 0 (fmpy's
+    master, whose connectors start at 0, cannot run a scenario that connects it)."""
     h = scenario.communication_step
     n = int(round(scenario.duration / h))
     sps = scenario.steps_per_sample
@@ -207,7 +207,7 @@ def _jacobi_samples(scenario: Scenario, fmu: VehicleFMU, params: dict,
     gain = scenario.vehicle.mass * scenario.vehicle.wheel_radius
     idx = {name: j for j, name in enumerate(fmu.output_names)}
     sensors = set(scenario.sensors)
-    connected = [j for j, name in enumerate(INPUT_NAMES) if name != "surface" or surface_connected(scenario)]
+    connected = [j for j, name in enumerate(INPUT_NAMES) if name != "surface"]
 
     fmu.reset(params)
     y = fmu.outputs()
