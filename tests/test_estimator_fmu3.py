@@ -145,11 +145,17 @@ def test_state_restores_into_an_instance_that_was_only_instantiated(python_fmu, 
         np.testing.assert_array_equal(_run_fmu(fresh, stream, 60, 80), first)
 
 
-def test_cli_builds_the_fmi3_estimator_fmus(capsys):
+def test_cli_builds_fmi2_and_fmi3_of_every_fmu_all_validated(capsys):
     from tirefilter.cli import main
     from tirefilter.cosim.fmu import BUILD_DIR
 
-    assert main(["fmu", "build", "estimator", "--fmi", "3"]) == 0
+    assert main(["fmu", "build", "all"]) == 0
     out = capsys.readouterr().out
-    assert "built estimator FMU mpf (FMI 3.0, pythonfmu3)" in out and "no problems" in out
-    assert validate_fmu(str(BUILD_DIR / "TirefilterMPF_fmi3.fmu")) == []
+    for line in ("built vehicle FMU (FMI 2.0)", "built vehicle FMU (FMI 3.0)",
+                 "built estimator FMU mpf (FMI 2.0, pythonfmu)", "built estimator FMU mpf (FMI 3.0, pythonfmu3)",
+                 "built estimator FMU combined (FMI 3.0, pythonfmu3)", "built driver FMU of snow-sine (FMI 3.0)",
+                 "built SSP of snow-sine", "validated 8 FMUs with fmpy.validation.validate_fmu: no problems"):
+        assert line in out, out
+    for name in ("TirefilterVehicle_fmi2", "TirefilterVehicle_fmi3", "TirefilterMPF", "TirefilterMPF_fmi3",
+                 "TirefilterFriction", "TirefilterFriction_fmi3", "TirefilterDriver", "TirefilterDriver_fmi3"):
+        assert validate_fmu(str(BUILD_DIR / f"{name}.fmu")) == [], name
