@@ -103,6 +103,10 @@ fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean tolDef, fmi2Real tol
     (void)tol;
     (void)stopDef;
     (void)stop;
+    if (!isfinite(start)) {
+        log_msg((Instance *)c, fmi2Error, "error", "fmi2SetupExperiment: start time %g is not finite", start);
+        return fmi2Error;
+    }
     ((Instance *)c)->model.time = start;
     return fmi2OK;
 }
@@ -389,16 +393,21 @@ fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2Stri
 
 /* ---- Model Exchange functions: not supported, exported because loaders expect them ---- */
 
-fmi2Status fmi2EnterEventMode(fmi2Component c) { (void)c; return fmi2Error; }
-fmi2Status fmi2NewDiscreteStates(fmi2Component c, fmi2EventInfo *e) { (void)c; (void)e; return fmi2Error; }
-fmi2Status fmi2EnterContinuousTimeMode(fmi2Component c) { (void)c; return fmi2Error; }
-fmi2Status fmi2CompletedIntegratorStep(fmi2Component c, fmi2Boolean a, fmi2Boolean *b, fmi2Boolean *d) {
-    (void)c; (void)a; (void)b; (void)d;
+static fmi2Status me_unsupported(fmi2Component c, const char *function) {
+    log_msg((Instance *)c, fmi2Error, "error", "%s: this FMU supports Co-Simulation only", function);
     return fmi2Error;
 }
-fmi2Status fmi2SetTime(fmi2Component c, fmi2Real t) { (void)c; (void)t; return fmi2Error; }
-fmi2Status fmi2SetContinuousStates(fmi2Component c, const fmi2Real x[], size_t n) { (void)c; (void)x; (void)n; return fmi2Error; }
-fmi2Status fmi2GetDerivatives(fmi2Component c, fmi2Real d[], size_t n) { (void)c; (void)d; (void)n; return fmi2Error; }
-fmi2Status fmi2GetEventIndicators(fmi2Component c, fmi2Real e[], size_t n) { (void)c; (void)e; (void)n; return fmi2Error; }
-fmi2Status fmi2GetContinuousStates(fmi2Component c, fmi2Real x[], size_t n) { (void)c; (void)x; (void)n; return fmi2Error; }
-fmi2Status fmi2GetNominalsOfContinuousStates(fmi2Component c, fmi2Real x[], size_t n) { (void)c; (void)x; (void)n; return fmi2Error; }
+
+fmi2Status fmi2EnterEventMode(fmi2Component c) { (void)c; return me_unsupported(c, "fmi2EnterEventMode"); }
+fmi2Status fmi2NewDiscreteStates(fmi2Component c, fmi2EventInfo *e) { (void)c; (void)e; return me_unsupported(c, "fmi2NewDiscreteStates"); }
+fmi2Status fmi2EnterContinuousTimeMode(fmi2Component c) { (void)c; return me_unsupported(c, "fmi2EnterContinuousTimeMode"); }
+fmi2Status fmi2CompletedIntegratorStep(fmi2Component c, fmi2Boolean a, fmi2Boolean *b, fmi2Boolean *d) {
+    (void)c; (void)a; (void)b; (void)d;
+    return me_unsupported(c, "fmi2CompletedIntegratorStep");
+}
+fmi2Status fmi2SetTime(fmi2Component c, fmi2Real t) { (void)c; (void)t; return me_unsupported(c, "fmi2SetTime"); }
+fmi2Status fmi2SetContinuousStates(fmi2Component c, const fmi2Real x[], size_t n) { (void)c; (void)x; (void)n; return me_unsupported(c, "fmi2SetContinuousStates"); }
+fmi2Status fmi2GetDerivatives(fmi2Component c, fmi2Real d[], size_t n) { (void)c; (void)d; (void)n; return me_unsupported(c, "fmi2GetDerivatives"); }
+fmi2Status fmi2GetEventIndicators(fmi2Component c, fmi2Real e[], size_t n) { (void)c; (void)e; (void)n; return me_unsupported(c, "fmi2GetEventIndicators"); }
+fmi2Status fmi2GetContinuousStates(fmi2Component c, fmi2Real x[], size_t n) { (void)c; (void)x; (void)n; return me_unsupported(c, "fmi2GetContinuousStates"); }
+fmi2Status fmi2GetNominalsOfContinuousStates(fmi2Component c, fmi2Real x[], size_t n) { (void)c; (void)x; (void)n; return me_unsupported(c, "fmi2GetNominalsOfContinuousStates"); }

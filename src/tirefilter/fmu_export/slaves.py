@@ -158,7 +158,7 @@ class _Slave:
     (fmpy's validation asks for them), the independent variable `time` (FMI 3.0), logging
     an error before raising it, and the reference that pythonfmu's loader drops (above)."""
 
-    _T: _API  # set by the FMU classes (`_fmu_classes`)
+    _T: _API  # set by the FMU classes (`_fmu_class`)
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
