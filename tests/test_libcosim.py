@@ -7,11 +7,18 @@ libcosim's fixed-step algorithm steps every FMU from t_k to t_k+1 and then copie
 connected outputs to the inputs; in initialisation it copies the outputs the FMUs report
 in Initialization Mode (the vehicle's initial state: the estimator's first sample at t = 0
 sees v^X = vx0, not 0). The fmpy run below does the same by hand.
+
+libcosim runs in a child process (this file run as a script): it loads the estimator FMU's
+embedded Python into the test process otherwise, and unloading it there is libcosim's
+business at interpreter exit.
 """
 
 from __future__ import annotations
 
 import gc
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -86,9 +93,13 @@ def _run_fmpy(vehicle, estimator):
     return np.array(rows)
 
 
-def test_libcosim_and_fmpy_give_the_same_run(fmus):
+def test_libcosim_and_fmpy_give_the_same_run(fmus, tmp_path):
     vehicle, estimator = fmus
-    cosim = _run_libcosim(vehicle, estimator)
+    out = tmp_path / "libcosim.npy"
+    proc = subprocess.run([sys.executable, __file__, str(vehicle), str(estimator), str(out)], capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 0 and out.is_file(), proc.stderr[-3000:]
+    cosim = np.load(out)
     fmpy_rows = _run_fmpy(vehicle, estimator)
     assert cosim.shape == fmpy_rows.shape == (STEPS, len(EST_OUT) + len(VEH_OUT))
     assert np.all(np.isfinite(cosim))
@@ -97,3 +108,7 @@ def test_libcosim_and_fmpy_give_the_same_run(fmus):
     np.testing.assert_allclose(cosim, fmpy_rows, rtol=1e-9, atol=1e-12)
     # and it did something: the steady turn moved the stiffness estimate and the lateral state
     assert np.ptp(cosim[:, EST_OUT.index("Cf_y")]) > 0 and np.ptp(cosim[:, len(EST_OUT) + VEH_OUT.index("vy")]) > 0
+
+
+if __name__ == "__main__":  # the libcosim run, in the child process of the test
+    np.save(sys.argv[3], _run_libcosim(Path(sys.argv[1]), Path(sys.argv[2])))
