@@ -8,7 +8,9 @@ Generates, from the single variable table `fmu/vehicle/variables.py`,
   range checks;
 - `modelDescription.xml` for FMI 2.0 and for FMI 3.0;
 - `fmi3_stubs.c`: the FMI 3.0 entry points the FMU does not support, generated from the
-  FMI 3.0 headers shipped with fmpy so every symbol a loader looks for exists;
+  FMI 3.0 headers shipped with fmpy so every symbol a loader looks for exists; each logs
+  why it fails, and the get/set functions of absent types accept zero variables;
+- `sources/buildDescription.xml` (FMI 3.0), so a tool can compile the shipped sources;
 then compiles the shared libraries with the system C compiler and zips
 `fmu/build/TirefilterVehicle_fmi2.fmu` and `..._fmi3.fmu` (sources included).
 """
@@ -133,6 +135,39 @@ def _unit_definitions(table) -> list[str]:
     return out
 
 
+def _variability(v) -> str:
+    if v.causality == "parameter":
+        return "fixed"
+    if v.type == "Integer":
+        return "discrete"
+    return v.variability or "continuous"
+
+
+def _dependencies(table, v, refs: dict[str, int]) -> str:
+    """The `dependencies` / `dependenciesKind` attributes of an output: the inputs it
+    depends on directly (variables.EQUATIONS), all nonlinearly ("dependent")."""
+    deps = table.direct_inputs(v.name)
+    return (f' dependencies="{" ".join(str(refs[d]) for d in deps)}"'
+            f' dependenciesKind="{" ".join("dependent" for _ in deps)}"')
+
+
+def build_description(table) -> str:
+    """sources/buildDescription.xml of the FMI 3.0 FMU."""
+    files = MODEL_SOURCES + GLUE_SOURCES["3"]
+    return "\n".join([
+        '<?xml version="1.0" encoding="UTF-8"?>',
+        '<fmiBuildDescription fmiVersion="3.0">',
+        f'  <BuildConfiguration modelIdentifier="{table.MODEL_IDENTIFIER}" description="C99; link with libm">',
+        '    <SourceFileSet language="C99">',
+        *[f'      <SourceFile name="{f}"/>' for f in files],
+        "    </SourceFileSet>",
+        '    <Library name="m"/>',
+        "  </BuildConfiguration>",
+        "</fmiBuildDescription>",
+        "",
+    ])
+
+
 def _range_attrs(v) -> str:
     attrs = ""
     if v.min is not None:
@@ -145,6 +180,7 @@ def _range_attrs(v) -> str:
 def model_description(table, version: str) -> str:
     gen = 'generationTool="tirefilter fmu/build.py"'
     outputs = [k for k, v in enumerate(table.VARIABLES, start=1) if v.causality == "output"]
+    index = {v.name: k for k, v in enumerate(table.VARIABLES, start=1)}  # FMI 2 index = FMI 3 value reference
     if version == "2":
         lines = [
             '<?xml version="1.0" encoding="UTF-8"?>',
@@ -162,9 +198,8 @@ def model_description(table, version: str) -> str:
             "  <ModelVariables>",
         ]
         for k, v in enumerate(table.VARIABLES, start=1):
-            variability = {"parameter": "fixed", "input": "continuous", "output": "continuous"}[v.causality]
+            variability = _variability(v)
             if v.type == "Integer":
-                variability = "fixed" if v.causality == "parameter" else "discrete"
                 elem = f'<Integer start="{int(v.start)}"{_range_attrs(v)}/>'
             else:
                 start = f' start="{_fmt(v.start)}"' if v.start is not None else ""
@@ -177,7 +212,7 @@ def model_description(table, version: str) -> str:
             "  </ModelVariables>",
             "  <ModelStructure>",
             "    <Outputs>",
-            *[f'      <Unknown index="{k}"/>' for k in outputs],
+            *[f'      <Unknown index="{k}"{_dependencies(table, table.VARIABLES[k - 1], index)}/>' for k in outputs],
             "    </Outputs>",
             "    <InitialUnknowns>",
             *[f'      <Unknown index="{k}"/>' for k in outputs],
@@ -205,11 +240,10 @@ def model_description(table, version: str) -> str:
     for k, v in enumerate(table.VARIABLES, start=1):
         common = f'name="{v.name}" valueReference="{k}" causality="{v.causality}"'
         desc = f' description="{escape(v.description)}"'
+        variability = _variability(v)
         if v.type == "Integer":
-            variability = "fixed" if v.causality == "parameter" else "discrete"
             lines.append(f'    <Int32 {common} variability="{variability}"{desc} start="{int(v.start)}"{_range_attrs(v)}/>')
         else:
-            variability = "fixed" if v.causality == "parameter" else "continuous"
             start = f' start="{_fmt(v.start)}"' if v.start is not None else ""
             lines.append(
                 f'    <Float64 {common} variability="{variability}"{desc}{start}'
@@ -218,7 +252,7 @@ def model_description(table, version: str) -> str:
     lines += [
         "  </ModelVariables>",
         "  <ModelStructure>",
-        *[f'    <Output valueReference="{k}"/>' for k in outputs],
+        *[f'    <Output valueReference="{k}"{_dependencies(table, table.VARIABLES[k - 1], index)}/>' for k in outputs],
         *[f'    <InitialUnknown valueReference="{k}"/>' for k in outputs],
         "  </ModelStructure>",
         "</fmiModelDescription>",
@@ -237,8 +271,12 @@ def generate_fmi3_stubs(headers: Path) -> str:
     text = (headers / "fmi3FunctionTypes.h").read_text()
     text = re.sub(r"/\*.*?\*/", "", text, flags=re.S)
     out = [
-        "/* Generated by fmu/build.py: FMI 3.0 entry points this FMU does not support. */",
+        "/* Generated by fmu/build.py: FMI 3.0 entry points this FMU does not support. Each logs",
+        " * why through the instance's logger; get/set of a type the FMU has no variables of",
+        " * succeeds for zero variables (as for Float64 and Int32). */",
         '#include "fmi3Functions.h"',
+        "",
+        "fmi3Status vehicle_fmi3_unsupported(fmi3Instance instance, const char *function); /* fmi3_glue.c */",
         "",
     ]
     for ret, name, params in _TYPEDEF.findall(text):
@@ -254,7 +292,12 @@ def generate_fmi3_stubs(headers: Path) -> str:
         if ret.strip() == "void":
             result = ""
         elif ret.strip() == "fmi3Status":
-            result = " return fmi3Error;"
+            result = f' return vehicle_fmi3_unsupported({names[0]}, "{name}");'
+            if re.match(r"fmi3(Get|Set)[A-Z]", name) and "nValueReferences" in names:
+                result = " if (nValueReferences == 0) return fmi3OK;" + result
+        elif "logMessage" in names:  # fmi3InstantiateModelExchange, ...ScheduledExecution
+            result = (f' if (logMessage) logMessage(instanceEnvironment, fmi3Error, "error", "{name}: this FMU '
+                      'supports Co-Simulation only"); return NULL;')
         else:
             result = " return NULL;"
         out.append(f"{ret} {name}({params}) {{ {body}{result} }}")
@@ -313,6 +356,8 @@ def build_vehicle(out_dir: Path = DEFAULT_OUT, versions: tuple[str, ...] = ("2",
             src_out.mkdir()
             for f in [*sources, SRC_DIR / "vehicle_model.h", SRC_DIR / "var_access.h", gen_dir / "vehicle_vars.h"]:
                 shutil.copy(f, src_out / f.name)
+            if version == "3":
+                (src_out / "buildDescription.xml").write_text(build_description(table))
             target = fmu_path(out_dir, version)
             tmp_zip = target.with_suffix(".fmu.part")
             with zipfile.ZipFile(tmp_zip, "w", zipfile.ZIP_DEFLATED) as zf:

@@ -1,4 +1,5 @@
-"""Shared fixtures: the vehicle FMUs are built once (into fmu/build) if missing."""
+"""Shared fixtures: the vehicle FMUs are built once (into fmu/build) if missing; the Python
+FMUs (estimator, driver; FMI 2.0 and 3.0) once per session, on first use."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ from tirefilter.cosim.fmu import build_vehicle_fmu, vehicle_fmu_path
 # Truth without randomness: what the numpy model and the closed-form checks compare with.
 NOISE_OFF = {
     "stiffness_dev_std": 0.0, "sigma_ax": 0.0, "sigma_ay": 0.0, "sigma_yaw_rate": 0.0, "sigma_omega": 0.0,
-    "sigma_delta": 0.0, "bias_rw_ax": 0.0, "bias_rw_ay": 0.0, "bias_rw_yaw_rate": 0.0, "bias0_std_ax": 0.0,
+    "sigma_delta": 0.0, "bias_q_ax": 0.0, "bias_q_ay": 0.0, "bias_q_yaw_rate": 0.0, "bias0_std_ax": 0.0,
     "bias0_std_ay": 0.0, "bias0_std_yaw_rate": 0.0, "vx0_std": 0.0, "vy0_std": 0.0, "yaw_rate0_std": 0.0,
 }
 
@@ -20,3 +21,22 @@ def fmu_paths():
     if not all(p.is_file() for p in paths.values()):
         build_vehicle_fmu()
     return paths
+
+
+@pytest.fixture(scope="session")
+def python_fmu(tmp_path_factory):
+    """python_fmu(name, fmi): the FMU of estimator `name` (a key of ESTIMATOR_FMUS) or of
+    the driver ("driver", scenario snow-sine), FMI "2" or "3", built once per session."""
+    from tirefilter.fmu_export.build import build_driver_fmu, build_estimator_fmu
+
+    root = tmp_path_factory.mktemp("python_fmus")
+    cache = {}
+
+    def get(name: str = "mpf", fmi: str = "2"):
+        if (name, fmi) not in cache:
+            dest = root / f"fmi{fmi}"
+            cache[name, fmi] = (build_driver_fmu("snow-sine", dest, fmi=fmi) if name == "driver"
+                                else build_estimator_fmu(name, dest, fmi=fmi))
+        return cache[name, fmi]
+
+    return get

@@ -3,10 +3,12 @@
  * preloaded and Python pointed at numpy/scipy. tests/test_estimator_fmu.py runs it.
  *
  *   host_python_fmu <unzipped FMU dir> <modelIdentifier> <guid> <vr_in> <value> <vr_out> <steps>
+ *                   [<vr>=<value> ...]
  *
  * Instantiates with the FMU's resource location, default parameters, holds input <vr_in>
- * at <value>, runs <steps> communication steps of 0.01 s and prints the Real output
- * <vr_out> as "final out=<value>" (17 significant digits). Exit status 0 on success.
+ * at <value> (and every further <vr>=<value>), runs <steps> communication steps of 0.01 s
+ * and prints the Real output <vr_out> as "final out=<value>" (17 significant digits).
+ * Exit status 0 on success.
  *
  * Build: cc -std=c99 -I<fmpy>/c-code host_python_fmu.c -ldl
  */
@@ -38,10 +40,22 @@ static void *symbol(void *lib, const char *name) {
 }
 
 int main(int argc, char **argv) {
-    if (argc != 8) {
-        fprintf(stderr, "usage: %s <unzipped dir> <modelIdentifier> <guid> <vr_in> <value> <vr_out> <steps>\n",
-                argv[0]);
+    if (argc < 8 || argc > 8 + 16) {
+        fprintf(stderr, "usage: %s <unzipped dir> <modelIdentifier> <guid> <vr_in> <value> <vr_out> <steps> "
+                "[<vr>=<value> ...]\n", argv[0]);
         return 1;
+    }
+    fmi2ValueReference vr_more[16];
+    fmi2Real value_more[16];
+    const size_t n_more = (size_t)(argc - 8);
+    for (size_t i = 0; i < n_more; i++) {
+        char *end;
+        vr_more[i] = (fmi2ValueReference)strtoul(argv[8 + i], &end, 10);
+        if (*end != '=') {
+            fprintf(stderr, "host_python_fmu: %s is not <vr>=<value>\n", argv[8 + i]);
+            return 1;
+        }
+        value_more[i] = strtod(end + 1, NULL);
     }
     const char *dir = argv[1], *id = argv[2], *guid = argv[3];
     const fmi2ValueReference vr_in = (fmi2ValueReference)strtoul(argv[4], NULL, 10);
@@ -80,7 +94,9 @@ int main(int argc, char **argv) {
     if (!ok) fprintf(stderr, "host_python_fmu: initialization failed\n");
     double out = 0.0;
     for (int k = 0; ok && k < steps; k++) {
-        if (set_real(c, &vr_in, 1, &value) != fmi2OK || do_step(c, k * 0.01, 0.01, fmi2True) != fmi2OK) ok = 0;
+        if (set_real(c, &vr_in, 1, &value) != fmi2OK || (n_more && set_real(c, vr_more, n_more, value_more) != fmi2OK) ||
+            do_step(c, k * 0.01, 0.01, fmi2True) != fmi2OK)
+            ok = 0;
     }
     if (ok && get_real(c, &vr_out, 1, &out) != fmi2OK) ok = 0;
     if (ok) terminate(c);

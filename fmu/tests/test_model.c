@@ -189,7 +189,7 @@ static void test_determinism(void) {
     vm_set_defaults(&a); /* default noise is on: stiffness deviations and IMU noise */
     a.v.seed = 42;
     a.v.sigma_omega = 0.01;
-    a.v.bias_rw_yaw_rate = 1e-4;
+    a.v.bias_q_yaw_rate = 1e-8;
     a.v.delta = 0.02;
     b = a;
     c = a;

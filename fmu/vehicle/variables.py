@@ -4,17 +4,29 @@
 the C header with the value references and the variable struct, so the two cannot drift.
 
 Each row: name, type ("Real" or "Integer"), causality, start (parameters and inputs),
-unit, description, and optional min/max. Value references are assigned in table order,
-starting at 1 (0 is `time` in FMI 3.0).
+unit, description, and optional min/max; outputs also their variability ("continuous",
+or "discrete" when the value only changes at sample instants). Value references are
+assigned in table order, starting at 1 (0 is `time` in FMI 3.0).
+
+`EQUATIONS` lists, for every output and every intermediate quantity of
+`vehicle_model.c`, what it is computed from at the same instant (inputs, other
+quantities; the continuous state and the parameters are left out: they never change
+within an instant). `direct_inputs(name)` closes over it: the inputs an output depends on
+directly, which `fmu/build.py` writes as the output's `dependencies` in the model
+structure. tests/test_fmu_metadata.py perturbs every input after a step and checks that
+exactly these outputs move at once.
+
+The GUID / instantiation token is a hash of this table (`instantiation_token()`): a change
+of a name, type, causality, start value, unit or range changes it.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import hashlib
+from dataclasses import astuple, dataclass
 
 MODEL_NAME = "TirefilterVehicle"
 MODEL_IDENTIFIER = "TirefilterVehicle"
-INSTANTIATION_TOKEN = "{7e3a1b2c-4d5e-4f60-8a71-9b2c3d4e5f60}"
 DESCRIPTION = (
     "Planar single-track vehicle with wheel-spin dynamics, linear or Pacejka tires, "
     "per-sample stiffness deviations and production sensors (IMU with bias, wheel speeds)."
@@ -35,8 +47,8 @@ UNITS = {
     "N/rad": {"kg": 1, "m": 1, "s": -2, "rad": -1},
     "N.s2/m2": {"kg": 1, "m": -1},
     "rad.s2/m": {"rad": 1, "m": -1, "s": 2},
-    "m/s2/s0.5": {"m": 1, "s": -2},  # per sqrt(s); FMI base units have integer exponents
-    "rad/s/s0.5": {"rad": 1, "s": -1},
+    "m2/s5": {"m": 2, "s": -5},  # random-walk intensity of an accelerometer bias: (m/s2)^2 per s
+    "rad2/s3": {"rad": 2, "s": -3},  # random-walk intensity of a gyro bias: (rad/s)^2 per s
     "1": {},
 }
 
@@ -51,6 +63,7 @@ class Var:
     description: str
     min: float | None = None
     max: float | None = None
+    variability: str | None = None  # outputs: "continuous" or "discrete"; None: from the causality
 
 
 def _p(name, start, unit, description, lo=None, hi=None, type_="Real"):
@@ -61,8 +74,13 @@ def _i(name, start, unit, description, lo=None, hi=None):
     return Var(name, "Real", "input", start, unit, description, lo, hi)
 
 
-def _o(name, unit, description):
-    return Var(name, "Real", "output", None, unit, description)
+def _o(name, unit, description, variability="continuous"):
+    return Var(name, "Real", "output", None, unit, description, variability=variability)
+
+
+def _s(name, unit, description):
+    """A sensor output: sampled and held at the sample instants k sample_period."""
+    return _o(name, unit, description + "; sampled at t = k sample_period and held", "discrete")
 
 
 VARIABLES: list[Var] = [
@@ -113,9 +131,11 @@ VARIABLES: list[Var] = [
     _p("sigma_yaw_rate", 0.0035, "rad/s", "white-noise std of the yaw-rate gyro", 0.0, None),
     _p("sigma_omega", 0.0, "rad/s", "white-noise std of the wheel-speed sensors", 0.0, None),
     _p("sigma_delta", 0.0, "rad", "white-noise std of the steer-angle sensor", 0.0, None),
-    _p("bias_rw_ax", 0.0, "m/s2/s0.5", "random-walk intensity of the ax bias (std per sqrt(s))", 0.0, None),
-    _p("bias_rw_ay", 0.0, "m/s2/s0.5", "random-walk intensity of the ay bias (std per sqrt(s))", 0.0, None),
-    _p("bias_rw_yaw_rate", 0.0, "rad/s/s0.5", "random-walk intensity of the gyro bias (std per sqrt(s))", 0.0, None),
+    _p("bias_q_ax", 0.0, "m2/s5", "random-walk intensity of the ax bias: variance growth per second "
+       "(the square of a std per sqrt(s))", 0.0, None),
+    _p("bias_q_ay", 0.0, "m2/s5", "random-walk intensity of the ay bias: variance growth per second", 0.0, None),
+    _p("bias_q_yaw_rate", 0.0, "rad2/s3", "random-walk intensity of the gyro bias: variance growth per second",
+       0.0, None),
     _p("bias0_ax", 0.0, "m/s2", "initial ax bias mean", None, None),
     _p("bias0_ay", 0.0, "m/s2", "initial ay bias mean", None, None),
     _p("bias0_yaw_rate", 0.0, "rad/s", "initial gyro bias mean", None, None),
@@ -139,12 +159,12 @@ VARIABLES: list[Var] = [
     _i("surface", 1.0, "1", "surface scale: multiplies stiffness and peak friction", 0.01, 2.0),
     _i("bank", 0.0, "rad", "road bank angle, left side up positive", -0.5, 0.5),
     # --- sensors (what an estimator sees) ------------------------------------------------
-    _o("ax_meas", "m/s2", "measured longitudinal acceleration (IMU, with noise and bias)"),
-    _o("ay_meas", "m/s2", "measured lateral acceleration (IMU, roll pick-up, noise and bias)"),
-    _o("yaw_rate_meas", "rad/s", "measured yaw rate (gyro, with noise and bias)"),
-    _o("omega_f_meas", "rad/s", "measured front wheel rotation rate"),
-    _o("omega_r_meas", "rad/s", "measured rear wheel rotation rate"),
-    _o("delta_meas", "rad", "measured road-wheel steer angle"),
+    _s("ax_meas", "m/s2", "measured longitudinal acceleration (IMU, with noise and bias)"),
+    _s("ay_meas", "m/s2", "measured lateral acceleration (IMU, roll pick-up, noise and bias)"),
+    _s("yaw_rate_meas", "rad/s", "measured yaw rate (gyro, with noise and bias)"),
+    _s("omega_f_meas", "rad/s", "measured front wheel rotation rate"),
+    _s("omega_r_meas", "rad/s", "measured rear wheel rotation rate"),
+    _s("delta_meas", "rad", "measured road-wheel steer angle"),
     # --- ground truth --------------------------------------------------------------------
     _o("vx", "m/s", "longitudinal velocity at the CG"),
     _o("vy", "m/s", "lateral velocity at the CG"),
@@ -177,12 +197,59 @@ VARIABLES: list[Var] = [
     _o("true_Cf_y_mean", "N/rad", "surface mean of the front cornering stiffness (no deviation)"),
     _o("true_Cr_y_mean", "N/rad", "surface mean of the rear cornering stiffness (no deviation)"),
     _o("true_Cx_mean", "N", "surface mean of the driven axle's longitudinal stiffness"),
-    _o("true_b_ax", "m/s2", "current ax sensor bias"),
-    _o("true_b_ay", "m/s2", "current ay sensor bias"),
-    _o("true_b_yaw_rate", "rad/s", "current gyro bias"),
+    _o("true_b_ax", "m/s2", "current ax sensor bias", "discrete"),
+    _o("true_b_ay", "m/s2", "current ay sensor bias", "discrete"),
+    _o("true_b_yaw_rate", "rad/s", "current gyro bias", "discrete"),
 ]
 
 BY_NAME = {v.name: v for v in VARIABLES}
+INPUTS = tuple(v.name for v in VARIABLES if v.causality == "input")
+
+# What each output and intermediate quantity of vehicle_model.c is computed from at one
+# instant (vm_derivatives, axle_forces, vm_update_outputs); state and parameters omitted.
+EQUATIONS: dict[str, tuple[str, ...]] = {
+    # vm_derivatives: slips from the state, the front slip angle also from the steer
+    "alpha_f": ("delta",), "alpha_r": (), "lambda_f": (), "lambda_r": (), "Fz_f": (), "Fz_r": (),
+    # axle_forces: linear F = surface C (1 + dev) slip; Pacejka surface MF(slip) G(other slip)
+    "Fy_f": ("alpha_f", "lambda_f", "surface"), "Fx_f": ("lambda_f", "alpha_f", "surface"),
+    "Fy_r": ("alpha_r", "lambda_r", "surface"), "Fx_r": ("lambda_r", "alpha_r", "surface"),
+    "true_Cf_y": ("surface", "Fz_f"), "true_Cr_y": ("surface", "Fz_r"), "true_Cf_x": ("surface", "Fz_f"),
+    "true_Cr_x": ("surface", "Fz_r"), "true_Cx": ("true_Cf_x", "true_Cr_x"),
+    "true_Cf_y_mean": ("surface", "Fz_f"), "true_Cr_y_mean": ("surface", "Fz_r"),
+    "true_Cx_mean": ("surface", "Fz_f", "Fz_r"),
+    # specific force and yaw acceleration: the axle forces rotated by the steer (eq. 1a-1c)
+    "ax": ("Fx_f", "Fy_f", "Fx_r", "delta"), "ay": ("Fy_f", "Fx_f", "Fy_r", "delta"),
+    "yaw_acc": ("Fy_f", "Fx_f", "Fy_r", "delta"),
+    # the state itself
+    "vx": (), "vy": (), "yaw_rate": (), "beta": (), "omega_f": (), "omega_r": (), "x": (), "y": (), "psi": (),
+    "true_b_ax": (), "true_b_ay": (), "true_b_yaw_rate": (),
+    # sensors: IMU lever arm, roll pick-up of gravity on the banked road, noise and bias
+    "roll": ("ay",), "ax_meas": ("ax", "yaw_acc"), "ay_meas": ("ay", "yaw_acc", "roll", "bank"),
+    "yaw_rate_meas": (), "omega_f_meas": (), "omega_r_meas": (), "delta_meas": ("delta",),
+}
+
+
+def direct_inputs(name: str) -> tuple[str, ...]:
+    """The inputs `name` depends on at the same instant (table order), from EQUATIONS."""
+    seen, todo = set(), [name]
+    while todo:
+        for arg in EQUATIONS.get(todo.pop(), ()):
+            if arg not in seen:
+                seen.add(arg)
+                if arg not in INPUTS:
+                    todo.append(arg)
+    return tuple(n for n in INPUTS if n in seen)
+
+
+def instantiation_token() -> str:
+    """The GUID (FMI 2.0) / instantiationToken (FMI 3.0): a SHA-256 of the variable table,
+    written as a UUID."""
+    text = repr((MODEL_IDENTIFIER, [astuple(v) for v in VARIABLES]))
+    h = hashlib.sha256(text.encode()).hexdigest()
+    return "{" + f"{h[:8]}-{h[8:12]}-{h[12:16]}-{h[16:20]}-{h[20:32]}" + "}"
+
+
+INSTANTIATION_TOKEN = instantiation_token()
 
 
 def value_reference(name: str) -> int:

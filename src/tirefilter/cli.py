@@ -32,7 +32,7 @@ def cmd_run(args) -> int:
     model = getattr(getattr(estimator, "cfg", None), "model", None) or resolve_model(args.model, scenario.sensors)
     summary = _run_and_record(
         lambda: run_scenario(scenario, estimator=estimator, seed=args.seed, fmi_version=args.fmi, results_csv=results,
-                             recording=_recording(args), progress=_progress(args),
+                             recording=_recording(args), progress=_progress(args), coupling=args.coupling,
                              friction_csv=_friction_csv(estimator, out / "friction.csv")),
         lambda s: (_check_sensors(estimator, results),
                    write_run_json(out / "run.json", s, command=sys.argv, model=model, fmi_version=args.fmi,
@@ -268,14 +268,24 @@ def cmd_scenarios(args) -> int:
 def cmd_fmu_build(args) -> int:
     from tirefilter.cosim.fmu import build_vehicle_fmu
 
+    versions = ("2", "3") if args.fmi == "all" or (args.fmi is None and args.target == "all") else (args.fmi or "2",)
+    built = []
     if args.target in ("vehicle", "all"):
-        for version, path in build_vehicle_fmu().items():
+        for version, path in build_vehicle_fmu(versions=("2", "3") if args.fmi is None else versions).items():
             print(f"built vehicle FMU (FMI {version}.0): {path}")
+            built.append(path)
     if args.target in ("estimator", "all"):
-        from tirefilter.fmu_export.build import build_estimator_fmus
+        from tirefilter.fmu_export.build import build_driver_fmu, build_estimator_fmus
 
-        for name, path in build_estimator_fmus().items():
-            print(f"built estimator FMU {name} (FMI 2.0, pythonfmu): {path}")
+        for (name, version), path in build_estimator_fmus(fmi=versions).items():
+            print(f"built estimator FMU {name} (FMI {version}.0, {'pythonfmu3' if version == '3' else 'pythonfmu'}): "
+                  f"{path}")
+            built.append(path)
+        if args.target == "all":
+            for version in versions:
+                path = build_driver_fmu(args.scenario, fmi=version)
+                print(f"built driver FMU of {args.scenario} (FMI {version}.0): {path}")
+                built.append(path)
     if args.target in ("ssp", "all"):
         from tirefilter.fmu_export.ssp import build_ssp
 
@@ -287,6 +297,16 @@ def cmd_fmu_build(args) -> int:
         if surface_connected(load_scenario(args.scenario)):
             print("note: the scenario changes the surface, so the SSP connects it; fmpy's simulate_ssp starts "
                   "connectors at 0, which the vehicle rejects (README, 'The SSP')")
+    if built:
+        from fmpy.validation import validate_fmu
+
+        problems = {p: validate_fmu(str(p)) for p in built}
+        for path, found in problems.items():
+            for problem in found:
+                print(f"error: {path.name}: {problem}", file=sys.stderr)
+        if any(problems.values()):
+            return 1
+        print(f"validated {len(built)} FMUs with fmpy.validation.validate_fmu: no problems")
     return 0
 
 
@@ -342,6 +362,9 @@ def build_parser() -> argparse.ArgumentParser:
     _estimator_options(run, default="mpf", particles="default from the scenario")
     run.add_argument("--out", help="output folder (default runs/<scenario>)")
     run.add_argument("--fmi", default="2", choices=("2", "3"), help="vehicle FMU version (default 2)")
+    run.add_argument("--coupling", default="gauss-seidel", choices=("gauss-seidel", "jacobi"),
+                     help="master coupling: gauss-seidel (default: inputs of t_k set before the outputs of t_k are "
+                     "read) or jacobi (values exchanged once per step, as fmpy's SSP master; docs/using-the-fmus.md)")
     _output_options(run)
     run.set_defaults(func=cmd_run)
 
@@ -405,6 +428,9 @@ def build_parser() -> argparse.ArgumentParser:
     build.add_argument("target", nargs="?", default="vehicle", choices=("vehicle", "estimator", "ssp", "all"),
                        help="vehicle: the C vehicle FMU (FMI 2.0, 3.0); estimator: the estimator FMU(s) (pythonfmu); "
                        "ssp: fmu/build/<scenario>.ssp wiring driver -> vehicle -> estimator; all: all of them")
+    build.add_argument("--fmi", choices=("2", "3", "all"),
+                       help="FMI version of the Python FMUs (estimator, driver): 2 (default; pythonfmu), 3 (pythonfmu3) "
+                       "or all; `all` targets build both; the vehicle FMU is built in both unless this is given")
     build.add_argument("--scenario", default="snow-sine", help="scenario of the SSP (default snow-sine)")
     build.add_argument("--seed", type=int, default=0, help="seed of the SSP's run (default 0)")
     build.add_argument("--particles", type=int, help="N of the SSP's estimator (default: the scenario's)")

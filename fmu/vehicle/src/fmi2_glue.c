@@ -18,6 +18,8 @@ typedef struct {
     int in_init;      /* between EnterInitializationMode and ExitInitializationMode */
     int outputs_dirty;/* an input changed since the outputs were computed */
     int failed;
+    int terminated;   /* doStep returned Discard: the model left its domain (fmi2Terminated) */
+    VehicleModel preview; /* in Initialization Mode: the model initialised from the current values */
 } Instance;
 
 static void log_msg(Instance *c, fmi2Status status, const char *category, const char *fmt, ...) {
@@ -43,6 +45,23 @@ static void refresh_outputs(Instance *c) {
         vm_update_outputs(&c->model);
         c->outputs_dirty = 0;
     }
+}
+
+/* The model whose values fmi2Get* reads: in Initialization Mode the outputs (the
+ * InitialUnknowns) are those the current parameters initialise to, computed on a copy. */
+static const VehicleModel *readable(Instance *c, const fmi2ValueReference vr[], size_t n, fmi2Status *status) {
+    *status = fmi2OK;
+    if (!c->in_init || !va_any_output(vr, n)) {
+        refresh_outputs(c);
+        return &c->model;
+    }
+    char msg[512];
+    c->preview = c->model;
+    if (vm_initialize(&c->preview, c->model.time, msg, sizeof(msg))) {
+        log_msg(c, fmi2Error, "error", "the outputs cannot be computed in Initialization Mode: %s", msg);
+        *status = fmi2Error;
+    }
+    return &c->preview;
 }
 
 const char *fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
@@ -84,6 +103,10 @@ fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean tolDef, fmi2Real tol
     (void)tol;
     (void)stopDef;
     (void)stop;
+    if (!isfinite(start)) {
+        log_msg((Instance *)c, fmi2Error, "error", "fmi2SetupExperiment: start time %g is not finite", start);
+        return fmi2Error;
+    }
     ((Instance *)c)->model.time = start;
     return fmi2OK;
 }
@@ -115,6 +138,7 @@ fmi2Status fmi2Reset(fmi2Component ci) {
     Instance *c = (Instance *)ci;
     vm_set_defaults(&c->model);
     c->failed = 0;
+    c->terminated = 0;
     c->in_init = 0;
     c->outputs_dirty = 0;
     return fmi2OK;
@@ -122,9 +146,11 @@ fmi2Status fmi2Reset(fmi2Component ci) {
 
 fmi2Status fmi2GetReal(fmi2Component ci, const fmi2ValueReference vr[], size_t n, fmi2Real value[]) {
     Instance *c = (Instance *)ci;
-    refresh_outputs(c);
+    fmi2Status status;
+    const VehicleModel *m = readable(c, vr, n, &status);
+    if (status != fmi2OK) return status;
     for (size_t i = 0; i < n; i++) {
-        const int code = va_get_real(&c->model, vr[i], &value[i]);
+        const int code = va_get_real(m, vr[i], &value[i]);
         if (code) return access_error(c, "fmi2GetReal", vr[i], code);
     }
     return fmi2OK;
@@ -197,6 +223,7 @@ fmi2Status fmi2GetFMUstate(fmi2Component ci, fmi2FMUstate *state) {
     Instance *c = (Instance *)ci;
     VehicleModel *copy = *state ? (VehicleModel *)*state : (VehicleModel *)malloc(sizeof(VehicleModel));
     if (!copy) return fmi2Error;
+    refresh_outputs(c); /* the state holds the outputs of the inputs set so far */
     *copy = c->model;
     *state = copy;
     return fmi2OK;
@@ -204,10 +231,15 @@ fmi2Status fmi2GetFMUstate(fmi2Component ci, fmi2FMUstate *state) {
 
 fmi2Status fmi2SetFMUstate(fmi2Component ci, fmi2FMUstate state) {
     Instance *c = (Instance *)ci;
-    if (!state) return fmi2Error;
+    if (!state) {
+        log_msg(c, fmi2Error, "error", "fmi2SetFMUstate: no state given");
+        return fmi2Error;
+    }
     c->model = *(const VehicleModel *)state;
-    c->outputs_dirty = 0;
+    c->outputs_dirty = 1; /* recomputed from the restored state and inputs on the next read */
     c->failed = 0;
+    c->terminated = 0;
+    c->in_init = 0;
     return fmi2OK;
 }
 
@@ -223,23 +255,29 @@ fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *state) {
 fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate state, size_t *size) {
     (void)c;
     (void)state;
-    *size = sizeof(VehicleModel);
+    *size = vs_size();
     return fmi2OK;
 }
 
 fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate state, fmi2Byte bytes[], size_t size) {
-    (void)c;
-    if (size < sizeof(VehicleModel)) return fmi2Error;
-    memcpy(bytes, state, sizeof(VehicleModel));
+    char msg[512];
+    if (!state || vs_serialize((const VehicleModel *)state, (unsigned char *)bytes, size, msg, sizeof(msg))) {
+        log_msg((Instance *)c, fmi2Error, "error", "%s", state ? msg : "fmi2SerializeFMUstate: no state given");
+        return fmi2Error;
+    }
     return fmi2OK;
 }
 
 fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte bytes[], size_t size, fmi2FMUstate *state) {
-    (void)c;
-    if (size != sizeof(VehicleModel)) return fmi2Error;
+    char msg[512];
+    VehicleModel tmp;
+    if (vs_deserialize((const unsigned char *)bytes, size, &tmp, msg, sizeof(msg))) {
+        log_msg((Instance *)c, fmi2Error, "error", "%s", msg);
+        return fmi2Error;
+    }
     VehicleModel *copy = *state ? (VehicleModel *)*state : (VehicleModel *)malloc(sizeof(VehicleModel));
     if (!copy) return fmi2Error;
-    memcpy(copy, bytes, sizeof(VehicleModel));
+    *copy = tmp;
     *state = copy;
     return fmi2OK;
 }
@@ -287,13 +325,24 @@ fmi2Status fmi2DoStep(fmi2Component ci, fmi2Real t, fmi2Real h, fmi2Boolean noSe
         log_msg(c, fmi2Error, "error", "doStep called on an instance that is not initialized or has failed");
         return fmi2Error;
     }
+    if (!isfinite(t) || !isfinite(h) || h < 0.0) {
+        log_msg(c, fmi2Error, "error", "doStep refused: communication point %g s and step size %g s must be finite, "
+                "the step size not negative", t, h);
+        return fmi2Error;
+    }
     if (fabs(t - c->model.time) > 1e-9 * fmax(1.0, fabs(t))) {
         log_msg(c, fmi2Error, "error", "doStep at t = %.9g s, but the model is at t = %.9g s", t, c->model.time);
         return fmi2Error;
     }
     if (vm_do_step(&c->model, t + h, msg, sizeof(msg))) {
-        log_msg(c, fmi2Error, "error", "%s", msg);
         c->failed = 1;
+        if (c->model.below_v_min) { /* out of the model's domain: the tool may stop cleanly here */
+            c->terminated = 1;
+            vm_update_outputs(&c->model);
+            log_msg(c, fmi2Discard, "discard", "%s", msg);
+            return fmi2Discard;
+        }
+        log_msg(c, fmi2Error, "error", "%s", msg);
         return fmi2Error;
     }
     c->outputs_dirty = 0;
@@ -328,9 +377,10 @@ fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind s, fmi2Int
 }
 
 fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boolean *value) {
-    (void)c;
-    (void)s;
-    (void)value;
+    if (s == fmi2Terminated) {
+        *value = ((Instance *)c)->terminated ? fmi2True : fmi2False;
+        return fmi2OK;
+    }
     return fmi2Discard;
 }
 
@@ -343,16 +393,21 @@ fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2Stri
 
 /* ---- Model Exchange functions: not supported, exported because loaders expect them ---- */
 
-fmi2Status fmi2EnterEventMode(fmi2Component c) { (void)c; return fmi2Error; }
-fmi2Status fmi2NewDiscreteStates(fmi2Component c, fmi2EventInfo *e) { (void)c; (void)e; return fmi2Error; }
-fmi2Status fmi2EnterContinuousTimeMode(fmi2Component c) { (void)c; return fmi2Error; }
-fmi2Status fmi2CompletedIntegratorStep(fmi2Component c, fmi2Boolean a, fmi2Boolean *b, fmi2Boolean *d) {
-    (void)c; (void)a; (void)b; (void)d;
+static fmi2Status me_unsupported(fmi2Component c, const char *function) {
+    log_msg((Instance *)c, fmi2Error, "error", "%s: this FMU supports Co-Simulation only", function);
     return fmi2Error;
 }
-fmi2Status fmi2SetTime(fmi2Component c, fmi2Real t) { (void)c; (void)t; return fmi2Error; }
-fmi2Status fmi2SetContinuousStates(fmi2Component c, const fmi2Real x[], size_t n) { (void)c; (void)x; (void)n; return fmi2Error; }
-fmi2Status fmi2GetDerivatives(fmi2Component c, fmi2Real d[], size_t n) { (void)c; (void)d; (void)n; return fmi2Error; }
-fmi2Status fmi2GetEventIndicators(fmi2Component c, fmi2Real e[], size_t n) { (void)c; (void)e; (void)n; return fmi2Error; }
-fmi2Status fmi2GetContinuousStates(fmi2Component c, fmi2Real x[], size_t n) { (void)c; (void)x; (void)n; return fmi2Error; }
-fmi2Status fmi2GetNominalsOfContinuousStates(fmi2Component c, fmi2Real x[], size_t n) { (void)c; (void)x; (void)n; return fmi2Error; }
+
+fmi2Status fmi2EnterEventMode(fmi2Component c) { (void)c; return me_unsupported(c, "fmi2EnterEventMode"); }
+fmi2Status fmi2NewDiscreteStates(fmi2Component c, fmi2EventInfo *e) { (void)c; (void)e; return me_unsupported(c, "fmi2NewDiscreteStates"); }
+fmi2Status fmi2EnterContinuousTimeMode(fmi2Component c) { (void)c; return me_unsupported(c, "fmi2EnterContinuousTimeMode"); }
+fmi2Status fmi2CompletedIntegratorStep(fmi2Component c, fmi2Boolean a, fmi2Boolean *b, fmi2Boolean *d) {
+    (void)c; (void)a; (void)b; (void)d;
+    return me_unsupported(c, "fmi2CompletedIntegratorStep");
+}
+fmi2Status fmi2SetTime(fmi2Component c, fmi2Real t) { (void)c; (void)t; return me_unsupported(c, "fmi2SetTime"); }
+fmi2Status fmi2SetContinuousStates(fmi2Component c, const fmi2Real x[], size_t n) { (void)c; (void)x; (void)n; return me_unsupported(c, "fmi2SetContinuousStates"); }
+fmi2Status fmi2GetDerivatives(fmi2Component c, fmi2Real d[], size_t n) { (void)c; (void)d; (void)n; return me_unsupported(c, "fmi2GetDerivatives"); }
+fmi2Status fmi2GetEventIndicators(fmi2Component c, fmi2Real e[], size_t n) { (void)c; (void)e; (void)n; return me_unsupported(c, "fmi2GetEventIndicators"); }
+fmi2Status fmi2GetContinuousStates(fmi2Component c, fmi2Real x[], size_t n) { (void)c; (void)x; (void)n; return me_unsupported(c, "fmi2GetContinuousStates"); }
+fmi2Status fmi2GetNominalsOfContinuousStates(fmi2Component c, fmi2Real x[], size_t n) { (void)c; (void)x; (void)n; return me_unsupported(c, "fmi2GetNominalsOfContinuousStates"); }

@@ -200,13 +200,19 @@ static void rk4_step(const VehicleModel *m, double x[VM_NX], double h) {
 static void draw_sample(VehicleModel *m, int first) {
     const VehicleVars *v = &m->v;
     if (!first) {
-        const double sq = sqrt(v->sample_period);
-        m->bias[0] += v->bias_rw_ax * sq * vm_rng_normal(&m->rng);
-        m->bias[1] += v->bias_rw_ay * sq * vm_rng_normal(&m->rng);
-        m->bias[2] += v->bias_rw_yaw_rate * sq * vm_rng_normal(&m->rng);
+        /* random walk of intensity q (variance per second): increment std sqrt(q Ts) */
+        const double Ts = v->sample_period;
+        m->bias[0] += sqrt(v->bias_q_ax * Ts) * vm_rng_normal(&m->rng);
+        m->bias[1] += sqrt(v->bias_q_ay * Ts) * vm_rng_normal(&m->rng);
+        m->bias[2] += sqrt(v->bias_q_yaw_rate * Ts) * vm_rng_normal(&m->rng);
     }
     for (int i = 0; i < VM_NDEV; i++) m->dev[i] = v->stiffness_dev_std * vm_rng_normal(&m->rng);
     for (int i = 0; i < VM_NNOISE; i++) m->noise[i] = vm_rng_normal(&m->rng);
+}
+
+int vm_at_sample(const VehicleModel *m) {
+    const double Ts = m->v.sample_period;
+    return fabs(m->time - (m->start_time + (double)m->sample_index * Ts)) <= 1e-9 * Ts;
 }
 
 void vm_update_outputs(VehicleModel *m) {
@@ -250,6 +256,9 @@ void vm_update_outputs(VehicleModel *m) {
     v->true_b_ay = m->bias[1];
     v->true_b_yaw_rate = m->bias[2];
 
+    /* The sensors are sampled at the sample instants t_k = start + k Ts and held between
+     * them (variability "discrete"); at t_k they see the inputs set at t_k. */
+    if (!vm_at_sample(m)) return;
     /* IMU at (imu_x, imu_y) from the CG: a_p = a_cg + r' x p + r x (r x p) */
     const double ax_imu = a.ax - racc * v->imu_y - r * r * v->imu_x;
     const double ay_imu = a.ay + racc * v->imu_x - r * r * v->imu_y;
@@ -271,6 +280,7 @@ int vm_initialize(VehicleModel *m, double start_time, char *msg, size_t len) {
     m->time = start_time;
     m->start_time = start_time;
     m->sample_index = 0;
+    m->below_v_min = 0;
     memset(m->x, 0, sizeof(m->x));
     m->x[X_VX] = v->vx0 + v->vx0_std * vm_rng_normal(&m->rng);
     m->x[X_VY] = v->vy0 + v->vy0_std * vm_rng_normal(&m->rng);
@@ -292,8 +302,14 @@ int vm_initialize(VehicleModel *m, double start_time, char *msg, size_t len) {
 
 int vm_do_step(VehicleModel *m, double t_end, char *msg, size_t len) {
     const VehicleVars *v = &m->v;
-    if (vm_check(m, 1, msg, len)) return 1;
     const double Ts = v->sample_period, tol = 1e-9 * Ts;
+    if (!isfinite(t_end) || t_end < m->time - tol) {
+        snprintf(msg, len, "cannot step from t = %.9g s to t = %.9g s: the end time must be finite and not "
+                 "before the current time", m->time, t_end);
+        return 1;
+    }
+    m->below_v_min = 0;
+    if (vm_check(m, 1, msg, len)) return 1;
     while (t_end - m->time > tol) {
         const double t_sample = m->start_time + (double)(m->sample_index + 1) * Ts;
         const int hits = t_sample <= t_end + tol;
@@ -312,6 +328,7 @@ int vm_do_step(VehicleModel *m, double t_end, char *msg, size_t len) {
                 return 1;
             }
             if (m->x[X_VX] < v->v_min) {
+                m->below_v_min = 1;
                 snprintf(msg, len,
                          "speed vx = %.4g m/s fell below v_min = %g m/s at t = %.6f s: the "
                          "single-track model is not valid at standstill",
@@ -322,6 +339,7 @@ int vm_do_step(VehicleModel *m, double t_end, char *msg, size_t len) {
         if (hits) {
             m->sample_index++;
             draw_sample(m, 0);
+            vm_update_outputs(m); /* the sample of the sensors at t_k */
         }
     }
     m->time = t_end;

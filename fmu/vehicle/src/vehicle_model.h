@@ -46,6 +46,7 @@ typedef struct {
     double bias[3];         /* ax, ay, yaw-rate bias of sample k */
     VmRng rng;
     int initialized;
+    int below_v_min;        /* the last vm_do_step stopped because vx fell below v_min */
 } VehicleModel;
 
 /* Algebraic quantities at one instant (forces, slips, stiffness). */
@@ -78,10 +79,15 @@ int vm_initialize(VehicleModel *m, double start_time, char *msg, size_t len);
 
 /* Integrate from m->time to t_end with RK4 steps of at most max_step, breaking at sample
  * boundaries, where new deviations, noise and bias increments are drawn. Returns nonzero
- * with a message on failure (state left at the last good step). */
+ * with a message on failure (state left at the last good step; below_v_min set when the
+ * speed fell below v_min). A non-finite t_end or one before m->time is refused. */
 int vm_do_step(VehicleModel *m, double t_end, char *msg, size_t len);
 
-/* Recompute every output from the state (after inputs changed, for example). */
+/* Recompute every output from the state (after inputs changed, for example); the
+ * sensor outputs only at a sample instant (they are held in between). */
 void vm_update_outputs(VehicleModel *m);
+
+/* Whether m->time is the sample instant of m->sample_index. */
+int vm_at_sample(const VehicleModel *m);
 
 #endif

@@ -3,6 +3,14 @@
 One run: reset the FMU with the scenario's parameters and a seed, then for every
 communication step set the inputs, read the outputs at estimator sample instants, call
 the estimator, write a Result-CSV row (and a Rerun row), and step the FMU.
+
+Coupling (`coupling=`): "gauss-seidel" (the default) sets the inputs of t_k before it reads
+the outputs of t_k, so sensors with direct feedthrough (a^X, a^Y, delta) and the speed-hold
+PI see the same instant. "jacobi" reproduces a master that exchanges values once per
+step (fmpy's SSP master, `fmu_export.ssp`): every step uses the values of the previous
+communication point, the connectors start at 0 (the vehicle's first step gets zero
+inputs, the estimator's first sample is at t_1), the estimator sees the outputs read
+before the new inputs are set, and the PI sees v^X one step old. docs/using-the-fmus.md.
 """
 
 from __future__ import annotations
@@ -45,6 +53,7 @@ def run_scenario(
     parameter_overrides: dict | None = None,
     friction_csv: str | Path | None = None,
     recording=None,
+    coupling: str = "gauss-seidel",
 ) -> tuple[RunSummary, np.ndarray | None]:
     """Co-simulate `scenario`; returns the summary and, with keep_rows, the result rows.
 
@@ -83,7 +92,7 @@ def run_scenario(
                          total=n, progress=progress, recording=recording, context=_recording_context(scenario)) as out:
             if estimator is not None:
                 estimator.reset(rng)
-            for s in cosim_samples(scenario, fmu, params, on_step=on_step):
+            for s in cosim_samples(scenario, fmu, params, on_step=on_step, coupling=coupling):
                 est = None
                 if estimator is not None:
                     est = out.step(estimator, s.t, s.inputs, s.meas)
@@ -112,8 +121,11 @@ class CosimSample:
     u: np.ndarray  # FMU inputs held over the coming step, ordered as INPUT_NAMES (a view, idem)
 
 
+COUPLINGS = ("gauss-seidel", "jacobi")
+
+
 def cosim_samples(scenario: Scenario, fmu: VehicleFMU, params: dict,
-                  on_step: Callable[[int], None] | None = None) -> Iterator[CosimSample]:
+                  on_step: Callable[[int], None] | None = None, coupling: str = "gauss-seidel") -> Iterator[CosimSample]:
     """Reset `fmu` with `params`, then co-simulate `scenario` one communication step at a
     time, yielding the sensors and outputs at every estimator sample instant.
 
@@ -121,7 +133,13 @@ def cosim_samples(scenario: Scenario, fmu: VehicleFMU, params: dict,
     set before the outputs are read; the caller runs its estimator on each sample before
     asking for the next one (the loop of `run_scenario`, and the dashboard's stepping).
     `on_step(k)` is called after communication step k (0-based) has been taken.
+    `coupling` "jacobi" exchanges values once per step (module docstring).
     """
+    if coupling not in COUPLINGS:
+        raise ValueError(f"coupling {coupling!r}: expected one of {', '.join(COUPLINGS)}")
+    if coupling == "jacobi":
+        yield from _jacobi_samples(scenario, fmu, params, on_step)
+        return
     h = scenario.communication_step
     n = int(round(scenario.duration / h))
     sps = scenario.steps_per_sample
@@ -158,6 +176,58 @@ def cosim_samples(scenario: Scenario, fmu: VehicleFMU, params: dict,
                               y, u)
         if k == n:
             break
+        y = fmu.do_step(t, h)
+        if on_step is not None:
+            on_step(k)
+
+
+def _sample(k, t, y, u, idx, sensors) -> CosimSample:
+    def sensor(name: str, output: str) -> float:
+        return float(y[idx[output]]) if name in sensors else math.nan
+
+    return CosimSample(k, t, Inputs(delta=sensor("delta", "delta_meas"), omega_f=sensor("omega_f", "omega_f_meas"),
+                                    omega_r=sensor("omega_r", "omega_r_meas"), vx=sensor("vx", "vx")),
+                       Measurement(ax=sensor("ax", "ax_meas"), ay=sensor("ay", "ay_meas"),
+                                   yaw_rate=sensor("yaw_rate", "yaw_rate_meas")), y, u)
+
+
+def _jacobi_samples(scenario: Scenario, fmu: VehicleFMU, params: dict,
+                    on_step: Callable[[int], None] | None) -> Iterator[CosimSample]:
+    """cosim_samples with the coupling of fmpy's SSP master (driver, vehicle and estimator
+    FMUs, `fmu_export.ssp`): step k takes the inputs the driver computed in step k - 1
+    (open loop at t_k, PI on v^X(t_{k-1})), step 0 zeros on every connected input; the
+    sample at t_k (k >= 1) holds the outputs read after step k - 1, before u_k is set.
+    The surface scale is the exception: it keeps the profile's value in step 0 (fmpy's
+    master, whose connectors start at 0, cannot run a scenario that connects it)."""
+    h = scenario.communication_step
+    n = int(round(scenario.duration / h))
+    sps = scenario.steps_per_sample
+    U = scenario.inputs.open_loop(np.arange(n + 1) * h)
+    hold = scenario.inputs.speed_hold
+    gain = scenario.vehicle.mass * scenario.vehicle.wheel_radius
+    idx = {name: j for j, name in enumerate(fmu.output_names)}
+    sensors = set(scenario.sensors)
+    connected = [j for j, name in enumerate(INPUT_NAMES) if name != "surface"]
+
+    fmu.reset(params)
+    y = fmu.outputs()
+    integral, vx_lag = 0.0, math.nan  # v^X after step k - 2: what the driver saw in step k - 1
+    u = np.empty(len(INPUT_NAMES))
+    for k in range(n + 1):
+        t = k * h
+        u[:] = U[k]
+        if k == 0:
+            u[connected] = 0.0  # the connectors' start value
+        elif hold is not None:
+            err = 0.0 if k == 1 else float(hold.reference(t)) - float(vx_lag)  # t_first = h: no v^X in step 0
+            integral += err * h
+            u[1] += gain * (hold.kp * err + hold.ki * integral)
+        if k >= 1 and k % sps == 0:
+            yield _sample(k, t, y, u, idx, sensors)
+        if k == n:
+            break
+        vx_lag = float(y[idx["vx"]])
+        fmu.set_inputs(u)
         y = fmu.do_step(t, h)
         if on_step is not None:
             on_step(k)

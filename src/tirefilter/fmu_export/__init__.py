@@ -1,7 +1,8 @@
-"""The estimator (and a scenario driver) exported as FMI 2.0 Co-Simulation FMUs with
-pythonfmu, and an SSP that wires driver -> vehicle FMU -> estimator FMU.
+"""The estimator (and a scenario driver) exported as Co-Simulation FMUs, FMI 2.0 with
+pythonfmu and FMI 3.0 with pythonfmu3 (same slave code), and an SSP that wires driver ->
+vehicle FMU -> estimator FMU. docs/using-the-fmus.md is the user's guide.
 
-- `slaves.py`: the FMU classes (`EstimatorSlave`, `DriverSlave`);
+- `slaves.py`: the FMU classes (`EstimatorSlave`, `DriverSlave`; `...3` for FMI 3.0);
 - `state.py`: the serialised FMU state (restricted unpickling);
 - `build.py`: building the FMUs into `fmu/build/` (`tirefilter fmu build estimator`);
 - `ssp.py`: the SSP of a scenario and running it with `fmpy.ssp.simulation.simulate_ssp`.
@@ -11,13 +12,15 @@ which, and the FMUs print it when they cannot load.
 """
 
 REQUIREMENTS = """\
-The tirefilter Python FMUs run Python code inside the importing tool's process (pythonfmu 0.7).
+The tirefilter Python FMUs run Python code inside the importing tool's process (FMI 2.0:
+pythonfmu 0.7, FMI 3.0: pythonfmu3 0.3; either ships inside its FMU).
 The target machine needs:
   - CPython >= 3.11, 64-bit (Linux x86_64 or Windows x64), the same interpreter for every
     Python FMU in one process;
   - the packages numpy (>= 1.26, < 3) and scipy (>= 1.11, < 2) importable by that
     interpreter; rerun-sdk (>= 0.41, < 0.42) only when the parameter `rrd` is set.
     The tirefilter package itself ships inside the FMU (resources/tirefilter).
+  - Linux binaries: x86_64 (FMI 2.0: binaries/linux64, FMI 3.0: binaries/x86_64-linux).
 How to provide them:
   - from a Python tool (fmpy, ...): run the tool with that interpreter (e.g. the venv with
     `pip install numpy scipy`);

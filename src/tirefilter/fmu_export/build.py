@@ -1,7 +1,8 @@
-"""Build the Python FMUs (pythonfmu 0.7) into `fmu/build/`.
+"""Build the Python FMUs into `fmu/build/`: FMI 2.0 with pythonfmu 0.7 (`<Name>.fmu`), FMI
+3.0 with pythonfmu3 (`<Name>_fmi3.fmu`), from the same slave code (`slaves.py`).
 
 Each FMU is one generated entry script (pythonfmu finds the FMU class by the line
-`class <Name>(Fmi2Slave):` in it) plus the tirefilter package as a project file, so the
+`class <Name>(Fmi2Slave):` in it, pythonfmu3 by `class <Name>(Fmi3Slave):`) plus the tirefilter package as a project file, so the
 FMU needs only Python, numpy and scipy on the target (`REQUIREMENTS`). The entry script
 prints those requirements when its imports fail, which is what a tool shows on a failed
 load.
@@ -58,62 +59,84 @@ def _cannot_load(problem):
 if sys.version_info < (3, 11):
     raise _cannot_load("Python %d.%d.%d found" % sys.version_info[:3])
 try:
-    from {module} import {base} as Fmi2Slave
+    from {module} import {base} as {alias}
 except ImportError as _exc:
     raise _cannot_load("%s: %s" % (type(_exc).__name__, _exc)) from None
 
 
-class {identifier}(Fmi2Slave):
+class {identifier}({alias}):
 {body}
 '''
+FMI_VERSIONS = ("2", "3")
 
 
-def _pythonfmu():
+def _pythonfmu(fmi: str):
     try:
-        from pythonfmu import FmuBuilder
+        if fmi == "3":
+            from pythonfmu3 import FmuBuilder
+        else:
+            from pythonfmu import FmuBuilder
     except ImportError:
-        raise FMUError("pythonfmu is not installed: pip install 'pythonfmu>=0.7,<0.8'") from None
+        need = "pythonfmu3>=0.3,<0.4" if fmi == "3" else "pythonfmu>=0.7,<0.8"
+        raise FMUError(f"FMI {fmi}.0 FMUs need {need.split('>')[0]}: pip install '{need}'") from None
     return FmuBuilder
 
 
-def _build(identifier: str, base: str, body: str, dest: Path, resources: dict[str, str]) -> Path:
+def fmu_file_name(identifier: str, fmi: str = "2") -> str:
+    """`<Name>.fmu` for FMI 2.0 (the name the SSP and earlier builds use), `<Name>_fmi3.fmu`."""
+    return f"{identifier}.fmu" if fmi == "2" else f"{identifier}_fmi3.fmu"
+
+
+def _build(identifier: str, base: str, body: str, dest: Path, resources: dict[str, str], fmi: str = "2") -> Path:
     from tirefilter.fmu_export import REQUIREMENTS
 
-    FmuBuilder = _pythonfmu()
+    if fmi not in FMI_VERSIONS:
+        raise FMUError(f"FMI version {fmi!r}: expected 2 or 3")
+    FmuBuilder = _pythonfmu(fmi)
     dest = Path(dest)
     dest.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="tirefilter_fmu_") as tmp:
         tmp = Path(tmp)
-        script = tmp / f"{identifier}.py"
-        script.write_text(_ENTRY.format(identifier=identifier, requirements=REQUIREMENTS,
-                                        module="tirefilter.fmu_export.slaves", base=base, body=body))
+        # the entry module's name: distinct per FMI version, so both FMUs load in one process
+        script = tmp / (f"{identifier}.py" if fmi == "2" else f"{identifier}_fmi3.py")
+        script.write_text(_ENTRY.format(identifier=identifier, requirements=REQUIREMENTS, alias=f"Fmi{fmi}Slave",
+                                        module="tirefilter.fmu_export.slaves", base=base + ("3" if fmi == "3" else ""),
+                                        body=body))
         package = tmp / "tirefilter"
         shutil.copytree(PACKAGE_DIR, package, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
         extra = []
         for name, text in resources.items():
             (tmp / name).write_text(text)
             extra.append(tmp / name)
-        target = dest / f"{identifier}.fmu"
-        part = dest / f"{identifier}.fmu.part.fmu"
+        target = dest / fmu_file_name(identifier, fmi)
+        part = dest / f"{target.name}.part.fmu"
         sys.path.insert(0, str(tmp))
         try:
-            FmuBuilder.build_FMU(script, dest=part, project_files=[package, *extra],
-                                 canGetAndSetFMUstate=True, canSerializeFMUstate=True,
-                                 canHandleVariableCommunicationStepSize=True)
+            if fmi == "2":
+                FmuBuilder.build_FMU(script, dest=part, project_files=[package, *extra],
+                                     canGetAndSetFMUstate=True, canSerializeFMUstate=True,
+                                     canHandleVariableCommunicationStepSize=True)
+            else:  # pythonfmu3 names the file after the class: build into a folder of its own
+                out = tmp / "out"
+                built = FmuBuilder.build_FMU(script, dest=out, project_files=[package, *extra],
+                                             canGetAndSetFMUState=True, canSerializeFMUState=True,
+                                             canHandleVariableCommunicationStepSize=True)
+                shutil.move(str(built), part)
         except Exception as exc:
             part.unlink(missing_ok=True)
             raise FMUError(f"building {target.name} failed: {exc}") from None
         finally:
             sys.path.remove(str(tmp))
-            sys.modules.pop(identifier, None)
+            sys.modules.pop(script.stem, None)
         part.replace(target)
     return target
 
 
 def build_estimator_fmu(name: str = "mpf", dest: Path | None = None, *, config_toml: str | None = None,
-                        identifier: str | None = None) -> Path:
+                        identifier: str | None = None, fmi: str = "2") -> Path:
     """Build the FMU of estimator `name` (a key of ESTIMATOR_FMUS) into `dest` (default
-    fmu/build); `config_toml` becomes the start value of its `config` parameter."""
+    fmu/build) for FMI `fmi` ("2" or "3"); `config_toml` becomes the start value of its
+    `config` parameter."""
     from tirefilter.cosim.fmu import BUILD_DIR
 
     if name not in ESTIMATOR_FMUS:
@@ -122,17 +145,18 @@ def build_estimator_fmu(name: str = "mpf", dest: Path | None = None, *, config_t
     body = (f"    estimator_name = {spec.estimator!r}\n    option_table = {spec.option_table!r}\n"
             f"    description = {spec.description!r}\n")
     resources = {"estimator_config.toml": config_toml} if config_toml else {}
-    return _build(identifier or spec.model_identifier, spec.base, body, dest or BUILD_DIR, resources)
+    return _build(identifier or spec.model_identifier, spec.base, body, dest or BUILD_DIR, resources, fmi)
 
 
-def build_estimator_fmus(dest: Path | None = None) -> dict[str, Path]:
-    """Every estimator FMU of ESTIMATOR_FMUS (`tirefilter fmu build estimator`)."""
-    return {name: build_estimator_fmu(name, dest) for name in ESTIMATOR_FMUS}
+def build_estimator_fmus(dest: Path | None = None, fmi: tuple[str, ...] = ("2",)) -> dict[tuple[str, str], Path]:
+    """Every estimator FMU of ESTIMATOR_FMUS for each FMI version in `fmi`
+    (`tirefilter fmu build estimator --fmi 2|3|all`); keys (name, version)."""
+    return {(name, v): build_estimator_fmu(name, dest, fmi=v) for v in fmi for name in ESTIMATOR_FMUS}
 
 
-def build_driver_fmu(scenario: str = "paper-sim", dest: Path | None = None) -> Path:
+def build_driver_fmu(scenario: str = "paper-sim", dest: Path | None = None, fmi: str = "2") -> Path:
     """The driver FMU; `scenario` (a built-in name) is the start value of its parameter."""
     from tirefilter.cosim.fmu import BUILD_DIR
 
     return _build(DRIVER_IDENTIFIER, "DriverSlave", "    pass\n", dest or BUILD_DIR,
-                  {"driver_scenario.txt": scenario + "\n"})
+                  {"driver_scenario.txt": scenario + "\n"}, fmi)

@@ -1,6 +1,7 @@
-"""A small FMI 2.0 Co-Simulation host for the Python FMUs (through fmpy): set parameters
-by name, step with inputs by name, read outputs, save and restore the FMU state, and
-keep the FMI logger's messages. Tests and benchmarks use it; any FMI tool does the same.
+"""A small FMI 2.0 / 3.0 Co-Simulation host for the Python FMUs (through fmpy): set
+parameters by name, step with inputs by name, read outputs, save and restore the FMU
+state, and keep the FMI logger's messages. Tests and benchmarks use it; any FMI tool does
+the same. The FMI version is the FMU's (modelDescription.xml).
 """
 
 from __future__ import annotations
@@ -23,6 +24,12 @@ class FMUHost:
         self.vars = {v.name: v for v in self.md.modelVariables}
         self.unzip_dir = extract(str(self.path))
         self.messages: list[tuple[int, str]] = []
+        self.fmi = self.md.fmiVersion[0]
+        if self.fmi == "3":
+            self._instantiate3(instance_name)
+            self.time = 0.0
+            self.failed = False
+            return
         self.slave = FMU2Slave(guid=self.md.guid, unzipDirectory=self.unzip_dir,
                                modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=instance_name)
         callbacks = fmi2CallbackFunctions()
@@ -44,6 +51,18 @@ class FMUHost:
         self.time = 0.0
         self.failed = False  # after fmi2Error/fmi2Fatal the instance gets no further calls
 
+    def _instantiate3(self, instance_name: str) -> None:
+        from fmpy.fmi3 import FMU3Slave
+
+        self.slave = FMU3Slave(guid=self.md.instantiationToken, unzipDirectory=self.unzip_dir,
+                               modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=instance_name)
+        try:
+            self.slave.instantiate(loggingOn=True, logMessage=lambda env, status, cat, msg: self._log(
+                env, None, status, cat, msg))
+        except Exception:
+            shutil.rmtree(self.unzip_dir, ignore_errors=True)
+            raise FMUError(f"{self.path.name}: instantiation failed: " + "; ".join(m for _, m in self.messages)) from None
+
     def _log(self, env, name, status, category, message):
         text = message.decode("utf-8", "replace") if isinstance(message, bytes) else str(message)
         self.messages.append((int(status), text))
@@ -54,10 +73,10 @@ class FMUHost:
                 raise FMUError(f"{self.path.name} has no variable {name!r}")
             v = self.vars[name]
             vr = [v.valueReference]
-            if v.type == "Real":
-                self.slave.setReal(vr, [float(value)])
-            elif v.type == "Integer":
-                self.slave.setInteger(vr, [int(value)])
+            if v.type in ("Real", "Float64"):
+                (self.slave.setReal if self.fmi == "2" else self.slave.setFloat64)(vr, [float(value)])
+            elif v.type in ("Integer", "Int32"):
+                (self.slave.setInteger if self.fmi == "2" else self.slave.setInt32)(vr, [int(value)])
             elif v.type == "Boolean":
                 self.slave.setBoolean(vr, [bool(value)])
             else:
@@ -68,15 +87,24 @@ class FMUHost:
         for name in names:
             v = self.vars[name]
             vr = [v.valueReference]
-            out[name] = {"Real": self.slave.getReal, "Integer": self.slave.getInteger,
-                         "Boolean": self.slave.getBoolean, "String": self.slave.getString}[v.type](vr)[0]
+            if self.fmi == "2":
+                get = {"Real": self.slave.getReal, "Integer": self.slave.getInteger,
+                       "Boolean": self.slave.getBoolean, "String": self.slave.getString}[v.type]
+            else:
+                get = {"Float64": self.slave.getFloat64, "Int32": self.slave.getInt32,
+                       "Boolean": self.slave.getBoolean, "String": self.slave.getString}[v.type]
+            out[name] = get(vr)[0]
         return out
 
     def initialize(self, parameters: dict, start_time: float = 0.0) -> None:
         try:
-            self.slave.setupExperiment(startTime=start_time)
-            self.set(parameters)
-            self.slave.enterInitializationMode()
+            if self.fmi == "2":
+                self.slave.setupExperiment(startTime=start_time)
+                self.set(parameters)
+                self.slave.enterInitializationMode()
+            else:
+                self.set(parameters)
+                self.slave.enterInitializationMode(startTime=start_time)
             self.slave.exitInitializationMode()
         except Exception:
             self.failed = True
@@ -97,17 +125,17 @@ class FMUHost:
         return self.get([n for n, v in self.vars.items() if v.causality == "output"])
 
     def get_state(self):
-        return self.slave.getFMUstate(), self.time
+        return (self.slave.getFMUstate() if self.fmi == "2" else self.slave.getFMUState()), self.time
 
     def set_state(self, state) -> None:
-        self.slave.setFMUstate(state[0])
+        (self.slave.setFMUstate if self.fmi == "2" else self.slave.setFMUState)(state[0])
         self.time = state[1]
 
     def serialize(self, state) -> bytes:
-        return bytes(self.slave.serializeFMUstate(state[0]))
+        return bytes((self.slave.serializeFMUstate if self.fmi == "2" else self.slave.serializeFMUState)(state[0]))
 
     def deserialize(self, data: bytes, time: float):
-        return self.slave.deSerializeFMUstate(data), time
+        return (self.slave.deSerializeFMUstate if self.fmi == "2" else self.slave.deserializeFMUState)(data), time
 
     def errors(self) -> list[str]:
         return [m for s, m in self.messages if s >= 3]

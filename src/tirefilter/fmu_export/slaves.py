@@ -1,4 +1,11 @@
-"""The Python FMUs (FMI 2.0 Co-Simulation, through pythonfmu): the estimator and the driver.
+"""The Python FMUs (Co-Simulation, FMI 2.0 through pythonfmu and FMI 3.0 through
+pythonfmu3, from the same code): the estimator and the driver.
+
+The classes here are FMI-version independent (`_EstimatorLogic`, ...): the variable types,
+enumerations and the slave base class come from `self._T` (`_API`). The FMU classes
+`EstimatorSlave`, `FrictionEstimatorSlave`, `DriverSlave` (FMI 2.0, pythonfmu) and
+`EstimatorSlave3`, `FrictionEstimatorSlave3`, `DriverSlave3` (FMI 3.0, pythonfmu3) are
+made on first access (module `__getattr__`), so an FMU needs only its own pythonfmu.
 
 `EstimatorSlave` wraps any estimator that `tirefilter.estimators.build_log_estimator`
 builds by name from a vehicle record plus options; the FMU class of one estimator only
@@ -14,22 +21,24 @@ builds the estimator; `do_step(t, h)` processes the samples due in [t, t + h);
 
 An exception here is fatal for the FMU instance (pythonfmu turns it into fmi2Fatal); it
 is logged first through the FMI logger with a message naming the parameter or input.
+Every Real variable has a unit (`UNITS`; `to_xml` writes them, pythonfmu 0.7 cannot).
+After initialisation the outputs hold the prior (t = start time, samples = 0).
 """
 
 from __future__ import annotations
 
 import copy
+import inspect
 import math
 import sys
 import tomllib
-from dataclasses import fields
+from dataclasses import dataclass, fields
+from functools import lru_cache
 from pathlib import Path
-from xml.etree.ElementTree import SubElement
+from xml.etree.ElementTree import Element, SubElement
 
 import numpy as np
 import scipy.special  # noqa: F401  the estimators need it: a missing scipy fails the load, not later
-from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Boolean, Integer, Real, String
-from pythonfmu.enums import Fmi2Initial, Fmi2Status
 
 from tirefilter.errors import TirefilterError
 from tirefilter.fmu_export import state as fmu_state
@@ -71,6 +80,21 @@ ESTIMATOR_OUTPUTS = {
 }
 MODELS = {1: "full", 2: "lateral"}
 DRIVES = {0: "front", 1: "rear", 2: "all"}
+# units of the vehicle record's keys (`vehicle.<key>` parameters); Integer keys have none
+VEHICLE_UNITS = {
+    "mass": "kg", "yaw_inertia": "kg.m2", "lf": "m", "lr": "m", "wheel_radius": "m", "cg_height": "m",
+    "Cf_y": "N/rad", "Cr_y": "N/rad", "Cx": "N", "steering_ratio": "1", "roll_gradient": "rad.s2/m", "imu_x": "m",
+    "imu_y": "m", "sigma_ax": "m/s2", "sigma_ay": "m/s2", "sigma_yaw_rate": "rad/s", "Cx_undriven": "N",
+    "wheel_inertia_f": "kg.m2", "wheel_inertia_r": "kg.m2", "brake_front_share": "1", "awd_front_share": "1",
+    "rolling_resistance": "1", "drag_coefficient": "N.s2/m2",
+}
+# every unit the Python FMUs use, as SI base-unit exponents (UnitDefinitions)
+UNITS = {
+    "1": {}, "s": {"s": 1}, "Hz": {"s": -1}, "m": {"m": 1}, "kg": {"kg": 1}, "kg.m2": {"kg": 1, "m": 2},
+    "m/s": {"m": 1, "s": -1}, "m/s2": {"m": 1, "s": -2}, "rad": {"rad": 1}, "rad/s": {"rad": 1, "s": -1},
+    "N": {"kg": 1, "m": 1, "s": -2}, "N/rad": {"kg": 1, "m": 1, "s": -2, "rad": -1},
+    "N.m": {"kg": 1, "m": 2, "s": -2}, "N.s2/m2": {"kg": 1, "m": -1}, "rad.s2/m": {"rad": 1, "s": 2, "m": -1},
+}
 
 
 def _vehicle_parameters():
@@ -103,43 +127,111 @@ def _vehicle_parameters():
 _MODULE_DICT_REFS: list = []
 
 
-class _Slave(Fmi2Slave):
-    """What both FMUs share: explicit getters/setters for dotted names, InitialUnknowns in
-    the model description (fmpy's validation asks for them), logging an error before
-    raising it, and the reference that pythonfmu's loader drops (above)."""
+@dataclass(frozen=True)
+class _API:
+    """One pythonfmu flavour: FMI version, slave base, variable types and enumerations."""
+
+    fmi: str  # "2" | "3"
+    Slave: type
+    Real: type
+    Integer: type
+    Boolean: type
+    String: type
+    causality: type
+    variability: type
+    initial: type
+    status: type
+
+
+@lru_cache(maxsize=None)
+def _api(fmi: str) -> _API:
+    if fmi == "2":
+        from pythonfmu import Boolean, Fmi2Causality, Fmi2Slave, Fmi2Variability, Integer, Real, String
+        from pythonfmu.enums import Fmi2Initial, Fmi2Status
+
+        return _API("2", Fmi2Slave, Real, Integer, Boolean, String, Fmi2Causality, Fmi2Variability, Fmi2Initial,
+                    Fmi2Status)
+    from pythonfmu3 import Boolean, Fmi3Causality, Fmi3Slave, Fmi3Variability, Float64, Int32, String
+    from pythonfmu3.enums import Fmi3Initial, Fmi3Status
+
+    return _API("3", Fmi3Slave, Float64, Int32, Boolean, String, Fmi3Causality, Fmi3Variability, Fmi3Initial,
+                Fmi3Status)
+
+
+class _Slave:
+    """What every FMU shares (a mixin before pythonfmu's slave class): explicit
+    getters/setters for dotted names, units and InitialUnknowns in the model description
+    (fmpy's validation asks for them), the independent variable `time` (FMI 3.0), logging
+    an error before raising it, and the reference that pythonfmu's loader drops (above)."""
+
+    _T: _API  # set by the FMU classes (`_fmu_class`)
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
         module = sys.modules.get(type(self).__module__)
         if module is not None:
             _MODULE_DICT_REFS.append(module.__dict__)
+        self._units: dict[str, str] = {}
+        self._time = 0.0
+        if self._T.fmi == "3":  # value reference 0: the independent variable
+            self.register_variable(self._T.Real("time", causality=self._T.causality.independent,
+                                                variability=self._T.variability.continuous,
+                                                description="simulation time", getter=lambda: self._time),
+                                   nested=False)
+            self._units["time"] = "s"
 
-    def _add(self, kind, name, causality, value, description, variability=None, initial=None):
+    def _add(self, kind, name, causality, value, description, variability=None, initial=None, unit=None):
+        T = self._T
+        kind = {"Real": T.Real, "Integer": T.Integer, "Boolean": T.Boolean, "String": T.String}[kind]
         self._values[name] = value
         var = kind(name, causality=causality, description=description, variability=variability, initial=initial,
                    getter=lambda n=name: self._values[n], setter=lambda v, n=name: self._values.__setitem__(n, v))
+        if unit is not None:
+            self._units[name] = unit
         self.register_variable(var, nested=False)
 
-    def _parameter(self, kind, name, value, description):
-        self._add(kind, name, Fmi2Causality.parameter, value, description, Fmi2Variability.fixed, Fmi2Initial.exact)
+    def _parameter(self, kind, name, value, description, unit=None):
+        T = self._T
+        self._add(kind, name, T.causality.parameter, value, description, T.variability.fixed, T.initial.exact, unit)
+
+    def _output(self, kind, name, value, description, unit=None):
+        self._add(kind, name, self._T.causality.output, value, description, self._T.variability.discrete, None, unit)
 
     def to_xml(self, model_options=dict()):
         root = super().to_xml(model_options)
-        structure = root.find("ModelStructure")
-        outputs = [i + 1 for i, v in enumerate(self.vars.values()) if v.causality == Fmi2Causality.output]
-        if outputs:
-            unknowns = SubElement(structure, "InitialUnknowns")
-            for index in outputs:
-                SubElement(unknowns, "Unknown", attrib={"index": str(index)})
+        self._write_units(root)
+        if self._T.fmi == "2":
+            structure = root.find("ModelStructure")
+            outputs = [i + 1 for i, v in enumerate(self.vars.values()) if v.causality == self._T.causality.output]
+            if outputs:
+                unknowns = SubElement(structure, "InitialUnknowns")
+                for index in outputs:
+                    SubElement(unknowns, "Unknown", attrib={"index": str(index)})
         return root
 
+    def _write_units(self, root) -> None:
+        """`unit` on every Real variable and the UnitDefinitions after <CoSimulation>."""
+        missing = [v.name for v in self.vars.values() if type(v) is self._T.Real and v.name not in self._units]
+        if missing:
+            raise TirefilterError(f"no unit for the FMU variables {', '.join(missing)}")
+        for elem in root.find("ModelVariables"):
+            unit = self._units.get(elem.get("name"))
+            if unit is not None:
+                (elem.find("Real") if self._T.fmi == "2" else elem).set("unit", unit)
+        defs = Element("UnitDefinitions")
+        for name in sorted(set(self._units.values())):
+            unit = SubElement(defs, "Unit", attrib={"name": name})
+            SubElement(unit, "BaseUnit", attrib={k: str(e) for k, e in UNITS[name].items()})
+        position = list(root).index(root.find("CoSimulation")) + 1
+        root.insert(position, defs)
+
     def _fail(self, message: str):
-        self.log(message, Fmi2Status.error)
+        self.log(message, self._T.status.error)
         raise RuntimeError(message)
 
 
-class EstimatorSlave(_Slave):
-    """An online estimator as an FMI 2.0 Co-Simulation FMU (subclasses set `estimator_name`)."""
+class _EstimatorLogic(_Slave):
+    """An online estimator as a Co-Simulation FMU (subclasses set `estimator_name`)."""
 
     estimator_name = "mpf"
     option_table = "mpf"  # the --config table that `forgetting` goes to
@@ -154,30 +246,29 @@ class EstimatorSlave(_Slave):
 
         self.version = __version__
         self._values = {}
-        P, I, S = Real, Integer, String
+        P, I, S = "Real", "Integer", "String"
         for key, default in _vehicle_parameters():
-            kind = Integer if key == "drive" else Real
+            kind = I if key == "drive" else P
             desc = ("drive axle: 0 front, 1 rear, 2 all" if key == "drive" else
                     "vehicle TOML key (0 = not given)" if key in ("steering_ratio", "Cx_undriven") else
                     "vehicle TOML key (SI units)")
-            self._parameter(kind, f"vehicle.{key}", default, desc)
+            self._parameter(kind, f"vehicle.{key}", default, desc, None if key == "drive" else VEHICLE_UNITS[key])
         self._parameter(I, "particles", self.default_particles, "number of particles N")
-        self._parameter(P, "forgetting", 0.99, "forgetting factor lambda of eq. (20), in (0, 1]")
+        self._parameter(P, "forgetting", 0.99, "forgetting factor lambda of eq. (20), in (0, 1]", "1")
         self._parameter(I, "seed", 0, "seed of the run's SeedSequence (spawns the vehicle's and the estimator's)")
-        self._parameter(P, "estimator_rate", self.default_rate, "[Hz] samples at n / estimator_rate")
+        self._parameter(P, "estimator_rate", self.default_rate, "[Hz] samples at n / estimator_rate", "Hz")
         self._parameter(I, "model", self.default_model, "estimation model: 1 full (wheel speeds), 2 lateral (u.vx given)")
         self._parameter(P, "t_first", 0.0, "[s] first sample time processed (masters that start connectors "
-                        "at 0 deliver real inputs one communication step later)")
+                        "at 0 deliver real inputs one communication step later)", "s")
         self._parameter(S, "config", self._default_config(), "estimator options: TOML text or a path to a TOML "
                         "file, as --config ([mpf] table)")
         self._parameter(S, "rrd", "", "optional Rerun recording (.rrd) to write; empty: none")
         for name, (unit, desc) in ESTIMATOR_INPUTS.items():
-            self._add(Real, name, Fmi2Causality.input, 0.0, f"[{unit}] {desc}; NaN = missing sample")
-        self._add(Boolean, "active", Fmi2Causality.output, False, "learning gate open at the last sample",
-                  Fmi2Variability.discrete)
+            self._add(P, name, self._T.causality.input, 0.0, f"[{unit}] {desc}; NaN = missing sample", unit=unit)
+        self._output("Boolean", "active", False, "learning gate open at the last sample")
         for name, (unit, desc) in ESTIMATOR_OUTPUTS.items():
-            self._add(Real, name, Fmi2Causality.output, math.nan, f"[{unit}] {desc}", Fmi2Variability.discrete)
-        self._add(Integer, "samples", Fmi2Causality.output, 0, "samples processed so far", Fmi2Variability.discrete)
+            self._output(P, name, math.nan, f"[{unit}] {desc}", unit)
+        self._output(I, "samples", 0, "samples processed so far")
         self._est = None
         self._recorder = None
         self._start_time = 0.0
@@ -190,13 +281,14 @@ class EstimatorSlave(_Slave):
 
     # ---- initialisation -------------------------------------------------------------
     def setup_experiment(self, start_time, stop_time=None, tolerance=None):
-        self._start_time = float(start_time)
+        self._start_time = self._time = float(start_time)
 
     def exit_initialization_mode(self):
         try:
             self._initialize()
         except TirefilterError as exc:
             self._fail(f"{self.instance_name}: {exc}")
+        self._publish_prior()
 
     def _config(self) -> dict:
         text = str(self._values["config"]).strip()
@@ -218,6 +310,9 @@ class EstimatorSlave(_Slave):
         from tirefilter.vehicle.params import vehicle_from_dict
 
         v = self._values
+        for name, unit in self._units.items():  # every Real parameter: a number
+            if name in v and _is_parameter(self, name) and not math.isfinite(v[name]):
+                raise _param_error(name, f"{v[name]!r} is not finite [{unit}]")
         data = {}
         for key, _ in _vehicle_parameters():
             value = v[f"vehicle.{key}"]
@@ -288,6 +383,7 @@ class EstimatorSlave(_Slave):
             self._n += 1
             if s < current_time - eps:
                 continue  # an instant the master stepped over (start time inside a period)
+            self._check_inputs(s)
             u = Inputs(delta=v["u.delta"], omega_f=v["u.omega_f"], omega_r=v["u.omega_r"], vx=v["u.vx"])
             y = Measurement(ax=v["y.ax"], ay=v["y.ay"], yaw_rate=v["y.yaw_rate"])
             try:
@@ -295,7 +391,38 @@ class EstimatorSlave(_Slave):
             except Exception as exc:  # logged with the sample time, then fatal for this instance
                 self._fail(f"{self.instance_name}: the estimator failed at t = {s:.6g} s: {type(exc).__name__}: {exc}")
             self._publish(s, est)
+        self._time = current_time + step_size
         return True
+
+    def _check_inputs(self, s: float) -> None:
+        """Refuse physically impossible samples (NaN is a missing sample, allowed): an
+        infinite value, or a speed the model uses (u.vx for the lateral model, the wheel
+        speeds for the full one) that is not positive: the models are not valid at
+        standstill, and a master that never connected the inputs sends zeros."""
+        v = self._values
+        for name, (unit, _) in ESTIMATOR_INPUTS.items():
+            if math.isinf(v[name]):
+                self._fail(f"{self.instance_name}: input {name} = {v[name]!r} {unit} at t = {s:.6g} s is not finite "
+                           "(NaN marks a missing sample)")
+        speeds = ("u.vx",) if MODELS[self._values["model"]] == "lateral" else ("u.omega_f", "u.omega_r")
+        given = [n for n in speeds if not math.isnan(v[n])]
+        if given and all(v[n] <= 0.0 for n in given):
+            what = " and ".join(f"{n} = {v[n]!r} {ESTIMATOR_INPUTS[n][0]}" for n in given)
+            self._fail(f"{self.instance_name}: input {what} at t = {s:.6g} s: the {MODELS[self._values['model']]} "
+                       "model needs a positive longitudinal speed (the vehicle is not moving forward, or the input "
+                       "is not connected)")
+
+    def _publish_prior(self) -> None:
+        """Outputs at the start time: the estimator's prior (no sample processed yet)."""
+        from tirefilter.cosim.results import ESTIMATE_COLUMNS, estimate_values
+
+        est = _prior_estimate(self._est, self._values["u.vx"])
+        v = self._values
+        for name, value in zip(ESTIMATE_COLUMNS, estimate_values(self._start_time, est)):
+            if name != "active":
+                v[name] = float(value)
+        v["active"] = False
+        v["vx_std"], v["vy_std"], v["yaw_rate_std"] = (float(x) for x in est.state_std)
 
     def _publish(self, s, est) -> None:
         from tirefilter.cosim.results import ESTIMATE_COLUMNS, estimate_values
@@ -319,12 +446,18 @@ class EstimatorSlave(_Slave):
 
     # ---- FMU state: the whole particle system ----------------------------------------
     def _get_fmu_state(self):
-        return {"estimator": copy.deepcopy(self._est), "n": self._n,
-                "values": {k: x for k, x in self._values.items() if not _is_parameter(self, k)}}
+        # everything do_step needs, so the state restores into a fresh instance too (one
+        # that was only instantiated, as fmusim's --initial-fmu-state-file does)
+        return {"estimator": copy.deepcopy(self._est), "n": self._n, "Ts": self.Ts, "time": self._time,
+                "start_time": self._start_time, "values": {k: x for k, x in self._values.items()
+                                                           if not _is_parameter(self, k) or k == "model"}}
 
     def _set_fmu_state(self, state):
         self._est = copy.deepcopy(state["estimator"])
         self._n = state["n"]
+        self.Ts = state["Ts"]
+        self._time = state["time"]
+        self._start_time = state["start_time"]
         self._values.update(state["values"])
 
     @staticmethod
@@ -348,7 +481,7 @@ def friction_output(field: str, k: int) -> str:
 FRICTION_VISITED = ("alpha_f_min", "alpha_f_max", "alpha_r_min", "alpha_r_max")
 
 
-class FrictionEstimatorSlave(EstimatorSlave):
+class _FrictionLogic(_EstimatorLogic):
     """A friction estimator (`gpssm`, `combined`) as an FMU: the outputs of every
     estimator FMU plus the learned curves on a fixed slip grid (FMI 2.0 has scalars only):
     `mu_f[i]`, `mu_f_std[i]`, `mu_r[i]`, `mu_r_std[i]` at alpha = the i-th of
@@ -366,20 +499,17 @@ class FrictionEstimatorSlave(EstimatorSlave):
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
-        self._parameter(Real, "friction_period", 1.0, "[s] time between updates of the friction outputs "
-                        "(0: every sample)")
-        self._add(Real, "friction_t", Fmi2Causality.output, math.nan, "[s] sample time of the friction outputs",
-                  Fmi2Variability.discrete)
+        self._parameter("Real", "friction_period", 1.0, "[s] time between updates of the friction outputs "
+                        "(0: every sample)", "s")
+        self._output("Real", "friction_t", math.nan, "[s] sample time of the friction outputs", "s")
         for k in FRICTION_ALPHA_DEG:
             for axle, what in (("f", "front"), ("r", "rear")):
-                self._add(Real, friction_output(f"mu_{axle}", k), Fmi2Causality.output, math.nan,
-                          f"[1] {what} axle friction (lateral force / normal load) at alpha = {k} deg",
-                          Fmi2Variability.discrete)
-                self._add(Real, friction_output(f"mu_{axle}_std", k), Fmi2Causality.output, math.nan,
-                          f"[1] posterior std of mu_{axle} at alpha = {k} deg", Fmi2Variability.discrete)
+                self._output("Real", friction_output(f"mu_{axle}", k), math.nan,
+                             f"[1] {what} axle friction (lateral force / normal load) at alpha = {k} deg", "1")
+                self._output("Real", friction_output(f"mu_{axle}_std", k), math.nan,
+                             f"[1] posterior std of mu_{axle} at alpha = {k} deg", "1")
         for name in FRICTION_VISITED:
-            self._add(Real, name, Fmi2Causality.output, math.nan, f"[rad] visited slip range while learning: {name}",
-                      Fmi2Variability.discrete)
+            self._output("Real", name, math.nan, f"[rad] visited slip range while learning: {name}", "rad")
 
     def _initialize(self) -> None:
         period = self._values["friction_period"]
@@ -415,6 +545,15 @@ class FrictionEstimatorSlave(EstimatorSlave):
         self._friction_due = state["friction_due"]
 
 
+def _prior_estimate(est, vx_input: float):
+    """The Estimate of an estimator's prior, before any sample: the particle filters'
+    `_estimate` on the initial particles (ESS = N), v^X from the input for the lateral model."""
+    n = float(est.cfg.particles)
+    if len(inspect.signature(est._estimate).parameters) == 1:  # the stiffness MPF
+        return est._estimate(n)
+    return est._estimate(n, float(vx_input))  # the friction GP-SSM (lateral model)
+
+
 def _is_parameter(slave, name) -> bool:
     return name.startswith("vehicle.") or name in ("particles", "forgetting", "seed", "estimator_rate", "model",
                                                    "t_first", "config", "rrd", "scenario", "friction_period")
@@ -424,7 +563,7 @@ def _param_error(name: str, problem: str) -> TirefilterError:
     return TirefilterError(f"parameter {name}: {problem}")
 
 
-class DriverSlave(_Slave):
+class _DriverLogic(_Slave):
     """A scenario's input profile as an FMU: outputs delta, drive_torque, brake_torque,
     surface, bank at the end of each step (t + h: what the vehicle applies over its next
     step), the speed-hold PI driver closed over the input `vx`.
@@ -446,17 +585,17 @@ class DriverSlave(_Slave):
         self._values = {}
         path = Path(self.resources or ".") / "driver_scenario.txt"
         default = path.read_text().strip() if path.is_file() else "paper-sim"
-        self._parameter(String, "scenario", default, "scenario: built-in name or path to a scenario TOML")
-        self._parameter(Real, "t_first", 0.0, "[s] the vx input is used from this time on")
-        self._add(Real, "vx", Fmi2Causality.input, 0.0, "[m/s] vehicle longitudinal speed (for the speed hold)")
+        self._parameter("String", "scenario", default, "scenario: built-in name or path to a scenario TOML")
+        self._parameter("Real", "t_first", 0.0, "[s] the vx input is used from this time on", "s")
+        self._add("Real", "vx", self._T.causality.input, 0.0, "[m/s] vehicle longitudinal speed (for the speed hold)",
+                  unit="m/s")
         for name, unit in (("delta", "rad"), ("drive_torque", "N.m"), ("brake_torque", "N.m"), ("surface", "1"),
                            ("bank", "rad")):
-            self._add(Real, name, Fmi2Causality.output, math.nan, f"[{unit}] vehicle input {name}",
-                      Fmi2Variability.discrete)
+            self._output("Real", name, math.nan, f"[{unit}] vehicle input {name}", unit)
         self._start_time = 0.0
 
     def setup_experiment(self, start_time, stop_time=None, tolerance=None):
-        self._start_time = float(start_time)
+        self._start_time = self._time = float(start_time)
 
     def exit_initialization_mode(self):
         from tirefilter.scenarios import load_scenario
@@ -497,6 +636,7 @@ class DriverSlave(_Slave):
 
     def do_step(self, current_time, step_size):
         self._set_outputs(current_time + step_size, step_size)
+        self._time = current_time + step_size
         return True
 
     def _get_fmu_state(self):
@@ -514,3 +654,22 @@ class DriverSlave(_Slave):
     @staticmethod
     def _fmu_state_from_bytes(data):
         return fmu_state.state_from_bytes(data)
+
+
+_CLASSES = {"EstimatorSlave": _EstimatorLogic, "FrictionEstimatorSlave": _FrictionLogic, "DriverSlave": _DriverLogic}
+
+
+@lru_cache(maxsize=None)
+def _fmu_class(name: str):
+    logic = _CLASSES[name.removesuffix("3")]
+    api = _api("3" if name.endswith("3") else "2")
+    return type(name, (logic, api.Slave), {"_T": api, "__module__": __name__,
+                                           "__doc__": f"{logic.__doc__} (FMI {api.fmi}.0)"})
+
+
+def __getattr__(name: str):
+    """EstimatorSlave, FrictionEstimatorSlave, DriverSlave (FMI 2.0) and the same with a
+    3 (FMI 3.0): made on first use from the logic classes and that version's pythonfmu."""
+    if name.removesuffix("3") in _CLASSES:
+        return _fmu_class(name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -111,6 +111,8 @@ class Scenario:
             p.update({f"pac_{f.name}": getattr(m.pacejka, f.name) for f in dataclasses.fields(PacejkaParams)})
         s = self.sensor_spec
         p.update({f.name: getattr(s, f.name) for f in dataclasses.fields(SensorSpec) if f.name != "available"})
+        for axis in ("ax", "ay", "yaw_rate"):  # the FMU takes the random-walk intensity as variance per second
+            p[f"bias_q_{axis}"] = p.pop(f"bias_rw_{axis}") ** 2
         for key in ("stiffness_dev_std", "vx0", "vy0", "yaw_rate0", "vx0_std", "vy0_std", "yaw_rate0_std"):
             if key in self.truth:
                 p[key] = self.truth[key]
