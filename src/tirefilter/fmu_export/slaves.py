@@ -86,14 +86,19 @@ VEHICLE_UNITS = {
     "Cf_y": "N/rad", "Cr_y": "N/rad", "Cx": "N", "steering_ratio": "1", "roll_gradient": "rad.s2/m", "imu_x": "m",
     "imu_y": "m", "sigma_ax": "m/s2", "sigma_ay": "m/s2", "sigma_yaw_rate": "rad/s", "Cx_undriven": "N",
     "wheel_inertia_f": "kg.m2", "wheel_inertia_r": "kg.m2", "brake_front_share": "1", "awd_front_share": "1",
-    "rolling_resistance": "1", "drag_coefficient": "N.s2/m2",
+    "rolling_resistance": "1", "drag_coefficient": "N.s2/m2", "bias0_std_ax": "m/s2", "bias0_std_ay": "m/s2",
+    "bias0_std_yaw_rate": "rad/s", "bias_q_ax": "m2/s5", "bias_q_ay": "m2/s5", "bias_q_yaw_rate": "rad2/s3",
 }
+# The TOML's bias random walks (per sqrt(s)) have no unit with integer exponents: the FMU
+# takes their variance per second, bias_q = bias_rw^2 (as the vehicle FMU does)
+RW_AS_VARIANCE = {"bias_rw_ax": "bias_q_ax", "bias_rw_ay": "bias_q_ay", "bias_rw_yaw_rate": "bias_q_yaw_rate"}
 # every unit the Python FMUs use, as SI base-unit exponents (UnitDefinitions)
 UNITS = {
     "1": {}, "s": {"s": 1}, "Hz": {"s": -1}, "m": {"m": 1}, "kg": {"kg": 1}, "kg.m2": {"kg": 1, "m": 2},
     "m/s": {"m": 1, "s": -1}, "m/s2": {"m": 1, "s": -2}, "rad": {"rad": 1}, "rad/s": {"rad": 1, "s": -1},
     "N": {"kg": 1, "m": 1, "s": -2}, "N/rad": {"kg": 1, "m": 1, "s": -2, "rad": -1},
     "N.m": {"kg": 1, "m": 2, "s": -2}, "N.s2/m2": {"kg": 1, "m": -1}, "rad.s2/m": {"rad": 1, "s": 2, "m": -1},
+    "m2/s5": {"m": 2, "s": -5}, "rad2/s3": {"rad": 2, "s": -3},
 }
 
 
@@ -115,6 +120,8 @@ def _vehicle_parameters():
             value = mems[f.name]
         if f.name == "drive":
             out.append((f.name, {v: k for k, v in DRIVES.items()}[value]))
+        elif f.name in RW_AS_VARIANCE:
+            out.append((RW_AS_VARIANCE[f.name], float(value) ** 2))
         else:
             out.append((f.name, 0.0 if value is None else float(value)))
     return out
@@ -323,6 +330,10 @@ class _EstimatorLogic(_Slave):
                 data[key] = DRIVES[value]
             elif key in ("steering_ratio", "Cx_undriven") and value == 0.0:
                 continue
+            elif key.startswith("bias_q_"):
+                if value < 0:
+                    raise _param_error(f"vehicle.{key}", f"{value!r} is out of range: a variance per second is >= 0")
+                data[key.replace("bias_q_", "bias_rw_")] = math.sqrt(value)
             else:
                 data[key] = value
         try:

@@ -76,6 +76,7 @@ def scenario_run_parameters(scenario, *, seed: int, particles: int | None = None
     """(vehicle FMU parameters, estimator FMU parameters, driver FMU parameters, estimator
     options TOML) of one run of `scenario`, as `tirefilter run` sets them up."""
     from tirefilter.estimators import check_model_signals, mpf_config_for_scenario, resolve_model
+    from tirefilter.fmu_export.slaves import RW_AS_VARIANCE
     from tirefilter.runs import spawn_seeds
 
     fmu_seed, _ = spawn_seeds(seed)
@@ -89,6 +90,8 @@ def scenario_run_parameters(scenario, *, seed: int, particles: int | None = None
         x = getattr(v, f.name)
         if f.name == "drive":
             est["vehicle.drive"] = {"front": 0, "rear": 1, "all": 2}[x]
+        elif f.name in RW_AS_VARIANCE and x is not None:
+            est[f"vehicle.{RW_AS_VARIANCE[f.name]}"] = float(x) ** 2
         elif x is not None:
             est[f"vehicle.{f.name}"] = float(x)
         elif f.name in ("steering_ratio", "Cx_undriven"):
