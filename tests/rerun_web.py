@@ -222,6 +222,8 @@ def main(argv=None) -> int:
     p.add_argument("--tab", type=int, nargs=2, default=(0, 0), metavar=("MIDDLE", "RIGHT"),
                    help="the open tab of the middle and the right column (default 0 0)")
     p.add_argument("--wait", type=float, default=LOAD_TIMEOUT, help="s to wait for the views to fill")
+    p.add_argument("--settle", type=float, default=0.0,
+                   help="s to wait after the views have filled (a long recording is still arriving)")
     p.add_argument("--scale", type=float, default=0.5, help="scale of the PNG written (default 0.5)")
     args = p.parse_args(argv)
     from PIL import Image
@@ -233,7 +235,14 @@ def main(argv=None) -> int:
             rec = blueprint_sender(args.rrd, proxy)
             rec.send_blueprint(build_blueprint(layout, active=tuple(args.tab)), make_active=True)
             rec.flush()
-        img = wait_loaded(page, view_cells(*layout_grid(layout, tuple(args.tab))), args.wait)
+        boxes = view_cells(*layout_grid(layout, tuple(args.tab)))
+        img = wait_loaded(page, boxes, args.wait)
+        if args.settle:
+            time.sleep(args.settle)
+            img = wait_loaded(page, boxes, 30)
+        problems = check_views(img, boxes)
+        if problems:
+            print("\n".join(f"warning: {p}" for p in problems), file=sys.stderr)
     pic = Image.fromarray(img)
     pic = pic.resize((int(pic.width * args.scale), int(pic.height * args.scale)), Image.LANCZOS)
     args.out.parent.mkdir(parents=True, exist_ok=True)

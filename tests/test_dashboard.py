@@ -518,6 +518,49 @@ def _not_blank(path: Path) -> float:
     return float(pixels.std())
 
 
+# Records every text uPlot draws (tick values, axis labels) with its canvas, position,
+# alignment and width, so the tests can read what the charts say and whether it fits.
+RECORD_CANVAS_TEXT = """
+(() => {
+  const texts = new WeakMap();
+  window.__canvasTexts = (canvas) => texts.get(canvas) || [];
+  const orig = CanvasRenderingContext2D.prototype.fillText;
+  CanvasRenderingContext2D.prototype.fillText = function (text, x, y, maxWidth) {
+    const t = this.getTransform();
+    const list = texts.get(this.canvas) || [];
+    list.push({text: String(text), x: t.a * x + t.c * y + t.e, align: this.textAlign,
+               width: this.measureText(String(text)).width * Math.abs(t.a || 1), rotated: t.b !== 0});
+    if (list.length > 400) list.splice(0, list.length - 400);
+    texts.set(this.canvas, list);
+    return orig.apply(this, arguments);
+  };
+})();
+"""
+
+
+def _charts_on_page(page) -> list[dict]:
+    """Every visible uPlot chart: its title, box on the page (CSS px), the canvas width in
+    device px, and the texts drawn on its canvas since the last redraw began."""
+    return page.evaluate("""() => [...document.querySelectorAll('.uplot')].filter(u => u.offsetParent !== null)
+        .map(u => {
+            const c = u.querySelector('canvas'); const r = u.getBoundingClientRect();
+            return {title: (u.querySelector('.u-title') || {}).textContent || '', x: r.x, y: r.y, width: r.width,
+                    height: r.height, canvas_width: c ? c.width : 0, texts: c ? window.__canvasTexts(c) : []};
+        })""")
+
+
+def _tick_labels(chart: dict) -> list[dict]:
+    """The numeric tick labels drawn on a chart's canvas (its latest drawing of each)."""
+    out = {}
+    for t in chart["texts"]:
+        try:
+            float(t["text"].replace("\u2212", "-").replace(",", ""))
+        except ValueError:
+            continue
+        out[(t["text"], t["align"], t["rotated"])] = t
+    return list(out.values())
+
+
 def _chart_has_line(page, index: int = 0) -> bool:
     """Whether chart `index` shows the estimate's line: pixels of its colour (#1f77b4)."""
     return page.evaluate("""(i) => {
@@ -532,6 +575,50 @@ def _chart_has_line(page, index: int = 0) -> bool:
     }""", index)
 
 
+def _check_layout(page, tmp_path) -> None:
+    """At 1600 x 1000 the charts are the page: each tab of the charts panel shows its charts
+    whole (no scrolling), at least 900 px wide; the controls take at most 300 px; the axes
+    are labelled, tick labels keep their signs and fit in the canvas; the particle cloud has
+    numeric ticks on both axes; the densities are there."""
+    from tirefilter_viewer.app import CONTROLS_WIDTH
+    from tirefilter_viewer.views import TABS, charts
+
+    expected = {tab: [c.title for c in charts() if c.tab == tab] for tab in TABS}
+    expected["densities"] = [f"posterior density of {p} (eq. (26)), true surface mean" for p in ("Cf_y", "Cr_y", "Cx")]
+    expected["particles"] = [f"particle cloud: stiffness mean per particle, {y} against Cf_y" for y in ("Cr_y", "Cx")]
+    for tab in ("stiffness", "state, bias", "densities", "particles"):
+        page.get_by_role("tab", name=tab, exact=True).click()
+        wait_for(lambda: [c["title"] for c in _charts_on_page(page)] == expected[tab], timeout=20,
+                 what=f"the charts of the {tab} tab")
+        # a redraw with data (the texts of this drawing are the newest ones)
+        wait_for(lambda: all(len(_tick_labels(c)) >= 4 for c in _charts_on_page(page)), timeout=30,
+                 what=f"tick labels in the {tab} tab")
+        page.screenshot(path=tmp_path / f"tab-{tab.replace(', ', '-')}.png")
+        for c in _charts_on_page(page):
+            assert c["width"] >= 900 and c["height"] >= 150, c["title"]
+            assert c["x"] >= 0 and c["y"] >= 0 and c["y"] + c["height"] <= 1000, f"{c['title']} needs scrolling"
+            labels = [t for t in c["texts"] if not _tick_labels({"texts": [t]})]
+            assert any(t["rotated"] for t in labels) and any(not t["rotated"] for t in labels), \
+                f"{c['title']}: axis labels {[t['text'] for t in labels]}"
+            for t in _tick_labels(c):  # every tick label lies inside the canvas: nothing clipped
+                left = t["x"] - (t["width"] if t["align"] == "right" else t["width"] / 2 if t["align"] == "center"
+                                 else 0)
+                assert left >= -0.5 and left + t["width"] <= c["canvas_width"] + 0.5, (c["title"], t)
+        if tab == "state, bias":
+            bias = next(c for c in _charts_on_page(page) if c["title"].startswith("accelerometer bias"))
+            ticks = [t["text"] for t in _tick_labels(bias) if not t["rotated"]]
+            assert any(x.startswith(("-", "\u2212")) for x in ticks), ticks  # the signs are drawn
+            assert "bias [m/s^2]" in [t["text"] for t in bias["texts"]]
+        if tab == "particles":
+            for c in _charts_on_page(page):
+                values = {t["text"] for t in _tick_labels(c)}
+                assert len(values) >= 6, (c["title"], values)  # numeric ticks on both axes
+    controls = page.evaluate("""() => Math.max(...[...document.querySelectorAll('button')]
+        .filter(b => b.textContent.trim() === 'Start').map(b => b.getBoundingClientRect().width))""")
+    assert controls <= CONTROLS_WIDTH, controls
+    page.get_by_role("tab", name="stiffness", exact=True).click()
+
+
 @pytest.mark.skipif(not CHROMIUM.is_file(), reason="/usr/bin/chromium is absent (Debian package `chromium`; "
                     ".ci/run installs it)")
 def test_the_page_in_a_real_browser(fmu_paths, tmp_path):
@@ -544,19 +631,21 @@ def test_the_page_in_a_real_browser(fmu_paths, tmp_path):
         with sync_api.sync_playwright() as pw, tempfile.TemporaryDirectory() as profile:
             browser = pw.chromium.launch_persistent_context(
                 profile, executable_path=str(CHROMIUM), headless=True, args=CHROMIUM_FLAGS,
-                viewport={"width": 1400, "height": 1000})
+                viewport={"width": 1600, "height": 1000})
             try:
                 page = browser.new_page()
+                page.add_init_script(RECORD_CANVAS_TEXT)
                 requests = []
                 page.on("request", lambda r: requests.append(r.url))
                 page.goto(d.url)
                 status = page.locator("p", has_text=re.compile(r"^(idle|running|paused|finished|failed|result)"))
                 page.get_by_role("button", name="Start", exact=True).click()
                 page.get_by_text(re.compile(r"running · scenario paper-sim")).wait_for(timeout=20000)
-                page.wait_for_function("() => document.querySelectorAll('.uplot canvas').length >= 7", timeout=20000)
+                page.wait_for_function("() => document.querySelectorAll('.uplot canvas').length >= 3", timeout=20000)
                 wait_for(lambda: _chart_has_line(page, 0), timeout=20, what="a line in the Cf_y chart")
                 shots.append(tmp_path / "running.png")
                 page.screenshot(path=shots[-1])
+                _check_layout(page, tmp_path)
 
                 page.get_by_role("button", name="Pause", exact=True).click()
                 page.get_by_text(re.compile(r"^paused · ")).wait_for(timeout=10000)

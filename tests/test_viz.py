@@ -200,19 +200,20 @@ def _short_scenario(tmp_path: Path, duration=DURATION) -> Path:
 
 
 def documented_paths(e: str, params, lateral: bool) -> list[str]:
-    """The README's table, for estimator `e` (kept in step with it by
-    test_readme_lists_every_documented_path)."""
+    """The table of docs/rerun.md, for estimator `e` (kept in step with it by
+    test_docs_list_every_documented_path)."""
     out = [f"/truth/{c}" for c in ("vx", "vy", "yaw_rate", "beta", "alpha_f", "alpha_r", "Cf_y", "Cr_y", "Cx",
                                    "Cf_y_mean", "Cr_y_mean", "Cx_mean", "b_ax", "b_ay", "b_yaw_rate", "delta")]
     out += [f"/sensors/{s}" for s in ("ax", "ay", "yaw_rate", "omega_f", "omega_r", "delta")]
     out += ["/vehicle/x", "/vehicle/y", "/vehicle/psi", "/vehicle/path", "/vehicle/trail", "/vehicle/body",
-            "/vehicle/body/outline", "/vehicle/body/heading", "/vehicle/body/steer"]
+            "/vehicle/body/outline", "/vehicle/body/heading", "/vehicle/body/steer", "/vehicle/body/frame"]
     b = f"/estimator/{e}"
     out += [f"{b}/state/{s}" for s in ("vx", "vy", "yaw_rate", "beta")]
     out += [f"{b}/bias/{s}" for s in ("ay", "yaw_rate") + (() if lateral else ("ax",))]
     out += [f"{b}/ess", f"{b}/active", f"{b}/particles/stiffness", f"{b}/particles/state"]
     for p in params:
-        out += [f"{b}/stiffness/{p}", f"{b}/stiffness/{p}_std", f"{b}/stiffness/{p}_sigma", f"{b}/density/{p}"]
+        out += [f"{b}/stiffness/{p}", f"{b}/stiffness/{p}_std", f"{b}/stiffness/{p}_sigma", f"{b}/density/{p}",
+                f"{b}/density_history/{p}"]
         out += [f"{b}/stiffness/{p}/{w}_{s}" for w in ("posterior", "spread") for s in ("lower", "upper")]
     return out
 
@@ -259,10 +260,10 @@ def test_every_documented_path_exists_with_a_blueprint(cosim_recording):
     assert len(RrdReader(rrd).blueprints()) == 1
 
 
-def test_readme_lists_every_documented_path():
-    readme = (REPO / "README.md").read_text()
+def test_docs_list_every_documented_path():
+    readme = (REPO / "docs" / "rerun.md").read_text()
     section = readme[readme.index("### Rerun entity paths"):]
-    section = section[:section.index("\n## ")]
+    section = section.split("\n## ")[0]
     for path in documented_paths("mpf", ("Cf_y",), False):
         named = path.replace("/mpf", "/<name>")
         forms = {named, re.sub(r"Cf_y|Cr_y|Cx", "<param>", named)}

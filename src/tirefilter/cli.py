@@ -248,7 +248,7 @@ def cmd_fmu_build(args) -> int:
         print(f"built SSP of {args.scenario} (driver -> vehicle -> estimator, seed {args.seed}): {path}")
         if surface_connected(load_scenario(args.scenario)):
             print("note: the scenario changes the surface, so the SSP connects it; fmpy's simulate_ssp starts "
-                  "connectors at 0, which the vehicle rejects (README, 'The SSP')")
+                  "connectors at 0, which the vehicle rejects (docs/fmu.md, 'The SSP')")
     return 0
 
 

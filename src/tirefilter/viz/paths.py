@@ -1,4 +1,4 @@
-"""Entity paths of the recordings (DESIGN.md, "Rerun entity paths"; README table).
+"""Entity paths of the recordings (DESIGN.md, "Rerun entity paths"; the table of docs/rerun.md).
 
 One function per kind of entity so the recorder, the blueprint and the tests agree.
 """

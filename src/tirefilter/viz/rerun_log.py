@@ -14,7 +14,7 @@ knows what the estimator provides (its first step) and sent at the end with the 
 the stiffness plots fitted to the data after the start-up (STARTUP_S); a viewer that
 watches live also gets it at the first step, without the ranges.
 
-Entity paths: `viz.paths` and the README table.
+Entity paths: `viz.paths` and the table of docs/rerun.md.
 """
 
 from __future__ import annotations
