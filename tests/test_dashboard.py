@@ -687,3 +687,42 @@ def test_the_page_in_a_real_browser(fmu_paths, tmp_path):
         d.stop()
     for shot in shots:
         assert shot.is_file() and _not_blank(shot) > 5.0, f"{shot} looks blank"
+
+
+def test_density_chart_is_the_mixture_on_a_grid_around_it_with_the_truth():
+    from scipy import stats
+
+    from tirefilter.viz.density import gaussian_marginals
+    from tirefilter_viewer.views import DENSITY_POINTS, density_data
+
+    mix = gaussian_marginals(np.log([0.25, 0.75]), [[1.0e5], [1.1e5]], [[2e3], [4e3]], ("Cf_y",))
+    x, pdf, truth = density_data(mix, "Cf_y", truth=1.5e5)  # beyond mean + 6 std
+    mean = 0.25 * 1.0e5 + 0.75 * 1.1e5
+    std = math.sqrt(0.25 * ((1e5 - mean) ** 2 + 2e3 ** 2) + 0.75 * ((1.1e5 - mean) ** 2 + 4e3 ** 2))
+    assert len(x) == DENSITY_POINTS + 1 and np.all(np.diff(x) >= 0)
+    assert x[0] == pytest.approx((mean - 6 * std) * 1e-3) and x[-1] == pytest.approx((1.5e5 + std) * 1e-3)
+    exact = (0.25 * stats.norm.pdf(x * 1e3, 1e5, 2e3) + 0.75 * stats.norm.pdf(x * 1e3, 1.1e5, 4e3)) * 1e3
+    # per kN/rad; viz.density leaves points below 1e-12 of a component's peak at 0
+    np.testing.assert_allclose(pdf, exact, rtol=1e-9, atol=1e-11 * exact.max())
+    k = np.flatnonzero(np.isfinite(truth))
+    assert len(k) == 1 and x[k[0]] == pytest.approx(150.0) and truth[k[0]] == pytest.approx(pdf.max())
+    assert density_data(mix, "Cx") is None and density_data(None, "Cf_y") is None
+
+
+def test_cloud_scatter_sorts_x_splits_the_heaviest_tenth_and_adds_the_truth():
+    from tirefilter_viewer.views import cloud_scatter
+
+    rng = np.random.default_rng(0)
+    values = np.column_stack([rng.normal(1e5, 1e3, 50), rng.normal(1.2e5, 1e3, 50)])
+    w = rng.random(50)
+    w /= w.sum()
+    x, light, heavy, truth = cloud_scatter((("Cf_y", "Cr_y"), values, w, np.array([1e5, 1.2e5])), "Cf_y", "Cr_y",
+                                           {"Cf_y": 1.01e5, "Cr_y": 1.19e5})
+    assert len(x) == 51 and np.all(np.diff(x) >= 0)
+    assert np.count_nonzero(np.isfinite(heavy)) == np.count_nonzero(w >= np.quantile(w, 0.9)) == 5
+    assert np.count_nonzero(np.isfinite(light)) == 45
+    k = np.flatnonzero(np.isfinite(truth))
+    assert len(k) == 1 and (x[k[0]], truth[k[0]]) == (pytest.approx(101.0), pytest.approx(119.0))
+    pairs = sorted(zip(x[np.isfinite(light) | np.isfinite(heavy)], np.fmax(light, heavy)[np.isfinite(light)
+                                                                                      | np.isfinite(heavy)]))
+    np.testing.assert_allclose(pairs, sorted(zip(values[:, 0] * 1e-3, values[:, 1] * 1e-3)))
