@@ -129,3 +129,27 @@ def test_samples_at_a_slower_estimator_rate(fmu_paths):
     summary, rows = run_scenario(replace(scenario, duration=4.0), seed=1, keep_rows=True)
     assert summary.steps == 101 and summary.communication_steps == 400
     np.testing.assert_allclose(np.diff(rows[:, 0]), 0.04, atol=1e-9)
+
+
+def test_run_summary_states_the_metrics_of_its_results(fmu_paths, tmp_path, capsys):
+    """run.json `metrics` is `metrics.run_metrics` of the Result CSV written (with the
+    scenario's windows and the estimator's counters), and the printed summary states it."""
+    from tirefilter.metrics import run_metrics
+    from tirefilter.scenarios import load_scenario
+
+    short = tmp_path / "paper-sim-short.toml"
+    short.write_text(load_scenario("paper-sim").file.read_text().replace("duration = 60.0", "duration = 8.0")
+                     .replace("excitation = [[0.0, 60.0]]", "excitation = [[0.0, 8.0]]"))
+    out = tmp_path / "run"
+    assert main(["run", "--scenario", str(short), "--particles", "40", "--seed", "1", "--out", str(out),
+                 "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    m = json.loads((out / "run.json").read_text())["metrics"]
+    expected = run_metrics(read_results(out / "results.csv"), load_scenario(short), restarts=m["restarts"],
+                           resamples=m["resamples"])
+    assert json.loads(json.dumps(expected)) == m
+    assert m["settled_windows"] == [[5.0, 8.0]] and set(m["stiffness"]) == {"Cf_y", "Cr_y", "Cx"}
+    assert m["resamples"] > 0 and m["restarts"] >= 0 and 0 < m["gate_open_share"] <= 1
+    assert "mean |err|" in printed and "settled" in printed and "coverage90" in printed
+    assert f"restarts {m['restarts']}, resamples {m['resamples']}" in printed
+    assert "vy RMSE" in printed

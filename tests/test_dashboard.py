@@ -518,6 +518,49 @@ def _not_blank(path: Path) -> float:
     return float(pixels.std())
 
 
+# Records every text uPlot draws (tick values, axis labels) with its canvas, position,
+# alignment and width, so the tests can read what the charts say and whether it fits.
+RECORD_CANVAS_TEXT = """
+(() => {
+  const texts = new WeakMap();
+  window.__canvasTexts = (canvas) => texts.get(canvas) || [];
+  const orig = CanvasRenderingContext2D.prototype.fillText;
+  CanvasRenderingContext2D.prototype.fillText = function (text, x, y, maxWidth) {
+    const t = this.getTransform();
+    const list = texts.get(this.canvas) || [];
+    list.push({text: String(text), x: t.a * x + t.c * y + t.e, align: this.textAlign,
+               width: this.measureText(String(text)).width * Math.abs(t.a || 1), rotated: t.b !== 0});
+    if (list.length > 400) list.splice(0, list.length - 400);
+    texts.set(this.canvas, list);
+    return orig.apply(this, arguments);
+  };
+})();
+"""
+
+
+def _charts_on_page(page) -> list[dict]:
+    """Every visible uPlot chart: its title, box on the page (CSS px), the canvas width in
+    device px, and the texts drawn on its canvas since the last redraw began."""
+    return page.evaluate("""() => [...document.querySelectorAll('.uplot')].filter(u => u.offsetParent !== null)
+        .map(u => {
+            const c = u.querySelector('canvas'); const r = u.getBoundingClientRect();
+            return {title: (u.querySelector('.u-title') || {}).textContent || '', x: r.x, y: r.y, width: r.width,
+                    height: r.height, canvas_width: c ? c.width : 0, texts: c ? window.__canvasTexts(c) : []};
+        })""")
+
+
+def _tick_labels(chart: dict) -> list[dict]:
+    """The numeric tick labels drawn on a chart's canvas (its latest drawing of each)."""
+    out = {}
+    for t in chart["texts"]:
+        try:
+            float(t["text"].replace("\u2212", "-").replace(",", ""))
+        except ValueError:
+            continue
+        out[(t["text"], t["align"], t["rotated"])] = t
+    return list(out.values())
+
+
 def _chart_has_line(page, index: int = 0) -> bool:
     """Whether chart `index` shows the estimate's line: pixels of its colour (#1f77b4)."""
     return page.evaluate("""(i) => {
@@ -532,6 +575,50 @@ def _chart_has_line(page, index: int = 0) -> bool:
     }""", index)
 
 
+def _check_layout(page, tmp_path) -> None:
+    """At 1600 x 1000 the charts are the page: each tab of the charts panel shows its charts
+    whole (no scrolling), at least 900 px wide; the controls take at most 300 px; the axes
+    are labelled, tick labels keep their signs and fit in the canvas; the particle cloud has
+    numeric ticks on both axes; the densities are there."""
+    from tirefilter_viewer.app import CONTROLS_WIDTH
+    from tirefilter_viewer.views import TABS, charts
+
+    expected = {tab: [c.title for c in charts() if c.tab == tab] for tab in TABS}
+    expected["densities"] = [f"posterior density of {p} (eq. (26)), true surface mean" for p in ("Cf_y", "Cr_y", "Cx")]
+    expected["particles"] = [f"particle cloud: stiffness mean per particle, {y} against Cf_y" for y in ("Cr_y", "Cx")]
+    for tab in ("stiffness", "state, bias", "densities", "particles"):
+        page.get_by_role("tab", name=tab, exact=True).click()
+        wait_for(lambda: [c["title"] for c in _charts_on_page(page)] == expected[tab], timeout=20,
+                 what=f"the charts of the {tab} tab")
+        # a redraw with data (the texts of this drawing are the newest ones)
+        wait_for(lambda: all(len(_tick_labels(c)) >= 4 for c in _charts_on_page(page)), timeout=30,
+                 what=f"tick labels in the {tab} tab")
+        page.screenshot(path=tmp_path / f"tab-{tab.replace(', ', '-')}.png")
+        for c in _charts_on_page(page):
+            assert c["width"] >= 900 and c["height"] >= 150, c["title"]
+            assert c["x"] >= 0 and c["y"] >= 0 and c["y"] + c["height"] <= 1000, f"{c['title']} needs scrolling"
+            labels = [t for t in c["texts"] if not _tick_labels({"texts": [t]})]
+            assert any(t["rotated"] for t in labels) and any(not t["rotated"] for t in labels), \
+                f"{c['title']}: axis labels {[t['text'] for t in labels]}"
+            for t in _tick_labels(c):  # every tick label lies inside the canvas: nothing clipped
+                left = t["x"] - (t["width"] if t["align"] == "right" else t["width"] / 2 if t["align"] == "center"
+                                 else 0)
+                assert left >= -0.5 and left + t["width"] <= c["canvas_width"] + 0.5, (c["title"], t)
+        if tab == "state, bias":
+            bias = next(c for c in _charts_on_page(page) if c["title"].startswith("accelerometer bias"))
+            ticks = [t["text"] for t in _tick_labels(bias) if not t["rotated"]]
+            assert any(x.startswith(("-", "\u2212")) for x in ticks), ticks  # the signs are drawn
+            assert "bias [m/s^2]" in [t["text"] for t in bias["texts"]]
+        if tab == "particles":
+            for c in _charts_on_page(page):
+                values = {t["text"] for t in _tick_labels(c)}
+                assert len(values) >= 6, (c["title"], values)  # numeric ticks on both axes
+    controls = page.evaluate("""() => Math.max(...[...document.querySelectorAll('button')]
+        .filter(b => b.textContent.trim() === 'Start').map(b => b.getBoundingClientRect().width))""")
+    assert controls <= CONTROLS_WIDTH, controls
+    page.get_by_role("tab", name="stiffness", exact=True).click()
+
+
 @pytest.mark.skipif(not CHROMIUM.is_file(), reason="/usr/bin/chromium is absent (Debian package `chromium`; "
                     ".ci/run installs it)")
 def test_the_page_in_a_real_browser(fmu_paths, tmp_path):
@@ -544,19 +631,21 @@ def test_the_page_in_a_real_browser(fmu_paths, tmp_path):
         with sync_api.sync_playwright() as pw, tempfile.TemporaryDirectory() as profile:
             browser = pw.chromium.launch_persistent_context(
                 profile, executable_path=str(CHROMIUM), headless=True, args=CHROMIUM_FLAGS,
-                viewport={"width": 1400, "height": 1000})
+                viewport={"width": 1600, "height": 1000})
             try:
                 page = browser.new_page()
+                page.add_init_script(RECORD_CANVAS_TEXT)
                 requests = []
                 page.on("request", lambda r: requests.append(r.url))
                 page.goto(d.url)
                 status = page.locator("p", has_text=re.compile(r"^(idle|running|paused|finished|failed|result)"))
                 page.get_by_role("button", name="Start", exact=True).click()
                 page.get_by_text(re.compile(r"running · scenario paper-sim")).wait_for(timeout=20000)
-                page.wait_for_function("() => document.querySelectorAll('.uplot canvas').length >= 7", timeout=20000)
+                page.wait_for_function("() => document.querySelectorAll('.uplot canvas').length >= 3", timeout=20000)
                 wait_for(lambda: _chart_has_line(page, 0), timeout=20, what="a line in the Cf_y chart")
                 shots.append(tmp_path / "running.png")
                 page.screenshot(path=shots[-1])
+                _check_layout(page, tmp_path)
 
                 page.get_by_role("button", name="Pause", exact=True).click()
                 page.get_by_text(re.compile(r"^paused · ")).wait_for(timeout=10000)
@@ -598,3 +687,42 @@ def test_the_page_in_a_real_browser(fmu_paths, tmp_path):
         d.stop()
     for shot in shots:
         assert shot.is_file() and _not_blank(shot) > 5.0, f"{shot} looks blank"
+
+
+def test_density_chart_is_the_mixture_on_a_grid_around_it_with_the_truth():
+    from scipy import stats
+
+    from tirefilter.viz.density import gaussian_marginals
+    from tirefilter_viewer.views import DENSITY_POINTS, density_data
+
+    mix = gaussian_marginals(np.log([0.25, 0.75]), [[1.0e5], [1.1e5]], [[2e3], [4e3]], ("Cf_y",))
+    x, pdf, truth = density_data(mix, "Cf_y", truth=1.5e5)  # beyond mean + 6 std
+    mean = 0.25 * 1.0e5 + 0.75 * 1.1e5
+    std = math.sqrt(0.25 * ((1e5 - mean) ** 2 + 2e3 ** 2) + 0.75 * ((1.1e5 - mean) ** 2 + 4e3 ** 2))
+    assert len(x) == DENSITY_POINTS + 1 and np.all(np.diff(x) >= 0)
+    assert x[0] == pytest.approx((mean - 6 * std) * 1e-3) and x[-1] == pytest.approx((1.5e5 + std) * 1e-3)
+    exact = (0.25 * stats.norm.pdf(x * 1e3, 1e5, 2e3) + 0.75 * stats.norm.pdf(x * 1e3, 1.1e5, 4e3)) * 1e3
+    # per kN/rad; viz.density leaves points below 1e-12 of a component's peak at 0
+    np.testing.assert_allclose(pdf, exact, rtol=1e-9, atol=1e-11 * exact.max())
+    k = np.flatnonzero(np.isfinite(truth))
+    assert len(k) == 1 and x[k[0]] == pytest.approx(150.0) and truth[k[0]] == pytest.approx(pdf.max())
+    assert density_data(mix, "Cx") is None and density_data(None, "Cf_y") is None
+
+
+def test_cloud_scatter_sorts_x_splits_the_heaviest_tenth_and_adds_the_truth():
+    from tirefilter_viewer.views import cloud_scatter
+
+    rng = np.random.default_rng(0)
+    values = np.column_stack([rng.normal(1e5, 1e3, 50), rng.normal(1.2e5, 1e3, 50)])
+    w = rng.random(50)
+    w /= w.sum()
+    x, light, heavy, truth = cloud_scatter((("Cf_y", "Cr_y"), values, w, np.array([1e5, 1.2e5])), "Cf_y", "Cr_y",
+                                           {"Cf_y": 1.01e5, "Cr_y": 1.19e5})
+    assert len(x) == 51 and np.all(np.diff(x) >= 0)
+    assert np.count_nonzero(np.isfinite(heavy)) == np.count_nonzero(w >= np.quantile(w, 0.9)) == 5
+    assert np.count_nonzero(np.isfinite(light)) == 45
+    k = np.flatnonzero(np.isfinite(truth))
+    assert len(k) == 1 and (x[k[0]], truth[k[0]]) == (pytest.approx(101.0), pytest.approx(119.0))
+    pairs = sorted(zip(x[np.isfinite(light) | np.isfinite(heavy)], np.fmax(light, heavy)[np.isfinite(light)
+                                                                                      | np.isfinite(heavy)]))
+    np.testing.assert_allclose(pairs, sorted(zip(values[:, 0] * 1e-3, values[:, 1] * 1e-3)))

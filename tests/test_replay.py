@@ -418,13 +418,15 @@ def test_real_recording_checks_and_replays(mbds_log, tmp_path):
     assert summary.rows == 55001 and summary.median_rate == pytest.approx(100.0, rel=1e-6)
     assert summary.gaps["count"] == 0
     assert all(c["missing"] == 0 for c in summary.columns.values())
-    assert summary.ignored == ("beta_true", "vy_true")
+    assert summary.ignored == () and summary.references == ("beta_true", "vy_true")
     assert not summary.models["full"]["supported"] and summary.models["auto"] == "lateral"
     assert 0.5 < summary.gates["share_ay_above"] < 0.6 and summary.gates["share_speed_below"] == 0.0
 
     log = read_log(mbds_log)
-    stretch = write_log(tmp_path / "stretch.csv",
-                        {name: x[(log.t >= 300.0) & (log.t < 320.0)] for name, x in log.columns.items()})
+    assert set(log.references) == {"true_beta", "true_vy"}
+    window = (log.t >= 300.0) & (log.t < 320.0)
+    stretch = write_log(tmp_path / "stretch.csv", {**{name: x[window] for name, x in log.columns.items()},
+                                                   "beta_true": log.references["true_beta"][window]})
     out = tmp_path / "result.csv"
     assert main(["replay", str(stretch), "--vehicle", str(EXAMPLE / "vehicle.toml"), "--model", "lateral",
                  "--particles", "50", "--out", str(out), "--quiet"]) == 0
@@ -432,8 +434,14 @@ def test_real_recording_checks_and_replays(mbds_log, tmp_path):
     assert len(r["t"]) == 2000
     for col in ("vy", "yaw_rate", "beta", "Cf_y", "Cr_y", "Cf_y_std", "ess"):
         assert np.isfinite(r[col]).all(), col
-    beta_true = read_results(mbds_log)["beta_true"][(log.t >= 300.0) & (log.t < 320.0)]
-    assert math.degrees(np.sqrt(np.mean((r["beta"] - beta_true) ** 2))) < 3.0  # a sanity bound, not a benchmark
+    beta_true = read_results(mbds_log)["beta_true"][window]
+    np.testing.assert_array_equal(r["true_beta"], beta_true)  # the reference is carried into the results
+    rmse = np.sqrt(np.mean((r["beta"] - beta_true) ** 2))
+    assert math.degrees(rmse) < 3.0  # a sanity bound, not a benchmark
+    metrics = json.loads(out.with_suffix(".json").read_text())["metrics"]
+    assert metrics["state"]["beta"]["reference"] == "true_beta"
+    assert metrics["state"]["beta"]["rmse"] == pytest.approx(rmse, rel=1e-9)  # scored in the summary
+    assert metrics["stiffness"] == {} and metrics["diverged"]["signal"] == "beta"
 
 
 def test_save_state_then_init_state_on_the_next_drive(log_columns, tmp_path, capsys):

@@ -200,19 +200,20 @@ def _short_scenario(tmp_path: Path, duration=DURATION) -> Path:
 
 
 def documented_paths(e: str, params, lateral: bool) -> list[str]:
-    """The README's table, for estimator `e` (kept in step with it by
-    test_readme_lists_every_documented_path)."""
+    """The table of docs/rerun.md, for estimator `e` (kept in step with it by
+    test_docs_list_every_documented_path)."""
     out = [f"/truth/{c}" for c in ("vx", "vy", "yaw_rate", "beta", "alpha_f", "alpha_r", "Cf_y", "Cr_y", "Cx",
                                    "Cf_y_mean", "Cr_y_mean", "Cx_mean", "b_ax", "b_ay", "b_yaw_rate", "delta")]
     out += [f"/sensors/{s}" for s in ("ax", "ay", "yaw_rate", "omega_f", "omega_r", "delta")]
     out += ["/vehicle/x", "/vehicle/y", "/vehicle/psi", "/vehicle/path", "/vehicle/trail", "/vehicle/body",
-            "/vehicle/body/outline", "/vehicle/body/heading", "/vehicle/body/steer"]
+            "/vehicle/body/outline", "/vehicle/body/heading", "/vehicle/body/steer", "/vehicle/body/frame"]
     b = f"/estimator/{e}"
     out += [f"{b}/state/{s}" for s in ("vx", "vy", "yaw_rate", "beta")]
     out += [f"{b}/bias/{s}" for s in ("ay", "yaw_rate") + (() if lateral else ("ax",))]
     out += [f"{b}/ess", f"{b}/active", f"{b}/particles/stiffness", f"{b}/particles/state"]
     for p in params:
-        out += [f"{b}/stiffness/{p}", f"{b}/stiffness/{p}_std", f"{b}/stiffness/{p}_sigma", f"{b}/density/{p}"]
+        out += [f"{b}/stiffness/{p}", f"{b}/stiffness/{p}_std", f"{b}/stiffness/{p}_sigma", f"{b}/density/{p}",
+                f"{b}/density_history/{p}"]
         out += [f"{b}/stiffness/{p}/{w}_{s}" for w in ("posterior", "spread") for s in ("lower", "upper")]
     return out
 
@@ -259,10 +260,10 @@ def test_every_documented_path_exists_with_a_blueprint(cosim_recording):
     assert len(RrdReader(rrd).blueprints()) == 1
 
 
-def test_readme_lists_every_documented_path():
-    readme = (REPO / "README.md").read_text()
+def test_docs_list_every_documented_path():
+    readme = (REPO / "docs" / "rerun.md").read_text()
     section = readme[readme.index("### Rerun entity paths"):]
-    section = section[:section.index("\n## ")]
+    section = section.split("\n## ")[0]
     for path in documented_paths("mpf", ("Cf_y",), False):
         named = path.replace("/mpf", "/<name>")
         forms = {named, re.sub(r"Cf_y|Cr_y|Cx", "<param>", named)}
@@ -634,3 +635,49 @@ def test_every_estimator_records_its_series_and_what_its_posterior_supports(fmu_
     assert friction == (name in ("gpssm", "combined"))
     if friction:
         assert len(temporal(rec, "/truth/friction/rear", "LineStrips3D:strips")) == logged
+
+
+def test_stiffness_y_ranges_fit_the_data_after_the_start_up(tmp_path):
+    """The stiffness plots' y range: 0.5-99.5% quantiles of estimate and true mean from
+    STARTUP_S on, widened by 15% each side (at least 5% of the mean); the start-up
+    transient is left out."""
+    from tirefilter.viz.rerun_log import STARTUP_S, RerunRecorder
+
+    t = np.arange(0, 1001) * 0.01
+    est = np.where(t < 1.0, 6e5, 1e5 + 1e3 * np.sin(t))  # a transient to 6e5, then 1e5 +- 1e3
+    truth = np.full(t.shape, 1.01e5)
+    rec = RerunRecorder(tmp_path / "r.rrd", ("t", "Cx", "true_Cx_mean"), "mpf", chunk=300)
+    for row in zip(t, est, truth):
+        rec.log_row(row)
+    rec.flush()
+    after = t >= STARTUP_S
+    lo, hi = np.quantile(np.concatenate([est[after], truth[after]]), [0.005, 0.995])
+    pad = max(0.15 * (hi - lo), 0.05 * abs(0.5 * (lo + hi)))  # here 5% of the mean: the data span 2%
+    assert pad == 0.05 * abs(0.5 * (lo + hi))
+    assert rec.y_ranges() == {"Cx": (pytest.approx(lo - pad), pytest.approx(hi + pad))}
+    assert rec.y_ranges()["Cx"][1] < 1.1e5  # not the transient's 6e5
+    rec.close()
+
+
+def test_density_history_is_every_snapshot_scaled_to_its_peak_and_cropped(tmp_path):
+    from tirefilter.viz.rerun_log import _VIRIDIS_LUT, HISTORY_SHAPE, RerunRecorder
+
+    rec = RerunRecorder(tmp_path / "d.rrd", ("t",), "mpf")
+    grid = np.linspace(0.0, 100.0, 101)
+    rec._grids["Cf_y"] = grid
+    d0 = np.exp(-0.5 * ((grid - 40.0) / 2.0) ** 2)  # 1% of the peak at 40 +- 6.07
+    d1 = 3.0 * np.exp(-0.5 * ((grid - 50.0) / 2.0) ** 2)
+    rec._history["Cf_y"] = [(0.0, d0.astype(np.float32)), (1.0, d1.astype(np.float32))]
+    h = rec.density_history()["Cf_y"]
+    # used rows: 34 .. 56 (above 1% of a peak), two grid points of margin below, three above (exclusive end)
+    assert h["range"] == (32.0, 58.0) and h["t"] == (0.0, 1.0)
+    assert h["image"].shape == HISTORY_SHAPE + (3,) and h["image"].dtype == np.uint8
+    # the peak of each snapshot is the LUT's top colour; stiffness grows upwards
+    rows = np.linspace(0, 26, HISTORY_SHAPE[0]).round().astype(int)
+    first = h["image"][:, 0]
+    top = np.flatnonzero((first == _VIRIDIS_LUT[255]).all(axis=1))
+    assert len(top) and all(grid[32 + 26 - rows[r]] == 40.0 for r in top)
+    last = h["image"][:, -1]
+    top = np.flatnonzero((last == _VIRIDIS_LUT[255]).all(axis=1))
+    assert len(top) and all(grid[32 + 26 - rows[r]] == 50.0 for r in top)
+    rec.close()

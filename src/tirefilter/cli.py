@@ -46,6 +46,7 @@ def cmd_run(args) -> int:
     _print_timing(summary, scenario.duration)
     _print_sensors(estimator)
     _print_truth_summary(results)
+    _print_metrics(summary)
     print(f"results: {results}\nsummary: {out / 'run.json'}" + (f"\nrecording: {args.rrd}" if args.rrd else "")
           + _streamed(args))
     _print_friction(estimator, out / "friction.csv")
@@ -92,6 +93,7 @@ def cmd_replay(args) -> int:
                  if final.get(p) is not None and final.get(p + "_std") is not None]
     if estimates:
         print(f"final stiffness at t = {final['t']:g} s: {', '.join(estimates)} (mean +- posterior std of the mean)")
+    _print_metrics(summary)
     print(f"results: {results}\nsummary: {summary_json}" + (f"\nrecording: {args.rrd}" if args.rrd else "")
           + _streamed(args))
     _print_friction(estimator, _friction_name(results))
@@ -243,10 +245,14 @@ def _print_truth_summary(results: Path) -> None:
     for label, col in rows:
         x = r[col]
         print(f"{label:28s}{np.min(x):12.4g}{np.mean(x):12.4g}{np.max(x):12.4g}")
-    for col in ("Cf_y", "Cr_y", "Cx"):
-        if np.isfinite(r[col]).any():
-            err = 100 * (r[col] - r[f"true_{col}_mean"]) / r[f"true_{col}_mean"]
-            print(f"{col} error vs surface mean: mean {np.nanmean(err):+.2f}%, final {err[-1]:+.2f}%")
+
+
+def _print_metrics(summary) -> None:
+    """The accuracy and health lines of `metrics.format_metrics` (run.json `metrics`)."""
+    from tirefilter.metrics import format_metrics
+
+    if summary.metrics:
+        print("\n".join(format_metrics(summary.metrics)))
 
 
 def cmd_scenarios(args) -> int:
@@ -296,7 +302,7 @@ def cmd_fmu_build(args) -> int:
         print(f"built SSP of {args.scenario} (driver -> vehicle -> estimator, seed {args.seed}): {path}")
         if surface_connected(load_scenario(args.scenario)):
             print("note: the scenario changes the surface, so the SSP connects it; fmpy's simulate_ssp starts "
-                  "connectors at 0, which the vehicle rejects (README, 'The SSP')")
+                  "connectors at 0, which the vehicle rejects (docs/fmu.md, 'The SSP')")
     if built:
         from fmpy.validation import validate_fmu
 

@@ -45,6 +45,7 @@ class StepSummary:
     status: str = "ok"  # "ok" | "failed"
     error: str | None = None
     results: str | None = None  # the Result CSV
+    metrics: dict | None = None  # metrics.run_metrics of the rows written (run.json `metrics`)
 
 
 class Progress:
@@ -78,7 +79,7 @@ class RunOutputs:
 
     def __init__(self, columns: tuple[str, ...], *, results_csv: str | Path | None = None, rrd: str | Path | None = None,
                  estimator: str | None = None, keep_rows: bool = False, total: int = 0, progress: bool = False,
-                 recording=None, context=None):
+                 recording=None, context=None, schedule=None):
         from tirefilter.cosim.results import ResultWriter
         from tirefilter.viz.options import recording_options
 
@@ -90,7 +91,10 @@ class RunOutputs:
 
             self.recorder = RerunRecorder(recording, self.columns, estimator, context=context)
         self.writer = ResultWriter(results_csv, self.columns) if results_csv else None
-        self.kept: list[np.ndarray] | None = [] if keep_rows else None
+        self.keep_rows = keep_rows
+        self.kept: list[np.ndarray] = []  # every row: the metrics need them, keep_rows hands them back
+        self.schedule = schedule  # the scenario (excitation windows, surface changes) of the settled metrics
+        self.estimator: Estimator | None = None
         self.bar = Progress(total, progress)
         self.step_times: list[float] = []
         self.rows = 0
@@ -98,6 +102,7 @@ class RunOutputs:
 
     def step(self, estimator: Estimator, t: float, u: Inputs, y: Measurement) -> Estimate:
         """`estimator.step(t, u, y)`, timed."""
+        self.estimator = estimator
         ts = time.perf_counter()
         est = estimator.step(t, u, y)
         self.step_times.append(time.perf_counter() - ts)
@@ -110,8 +115,7 @@ class RunOutputs:
             self.writer.write(row)
         if self.recorder:
             self.recorder.log_row(row)
-        if self.kept is not None:
-            self.kept.append(row)
+        self.kept.append(np.array(row, float))
         self.last = row
         self.rows += 1
 
@@ -124,7 +128,18 @@ class RunOutputs:
         return float(np.median(self.step_times[min(WARMUP_STEPS, len(self.step_times) - 1):]) * 1e6)
 
     def kept_rows(self) -> np.ndarray | None:
-        return np.vstack(self.kept) if self.kept else None
+        return np.vstack(self.kept) if self.kept and self.keep_rows else None
+
+    def metrics(self) -> dict | None:
+        """`metrics.run_metrics` of the rows so far, with the estimator's restart and
+        resample counters (None before the first row)."""
+        from tirefilter.metrics import run_metrics
+
+        if not self.kept:
+            return None
+        r = dict(zip(self.columns, np.vstack(self.kept).T))
+        return run_metrics(r, self.schedule, restarts=getattr(self.estimator, "restarts", None),
+                           resamples=getattr(self.estimator, "resamples", None))
 
     def close(self) -> None:
         self.bar.close()
@@ -156,6 +171,7 @@ def run_outputs(summary: StepSummary, columns: tuple[str, ...], **options):
         summary.wall_time_s = time.perf_counter() - t0
         summary.steps = out.rows
         summary.median_step_us = out.median_step_us()
+        summary.metrics = out.metrics()
 
 
 def write_summary_json(path: str | Path, summary: StepSummary, *, command: list[str], model: str | None,

@@ -23,16 +23,24 @@ import numpy as np
 
 from tirefilter_viewer.history import History
 from tirefilter_viewer.session import LiveRun, Settings, open_result
-from tirefilter_viewer.views import (CLOUD_SCALE, FRICTION_BANDS, FRICTION_SERIES, STIFFNESS, Chart, charts,
-                                     cloud_positions, friction_data, friction_from_csv, friction_truth,
+from tirefilter_viewer.views import (CLOUD_SCALE, CLOUD_SERIES, DENSITY_SERIES, FRICTION_BANDS, FRICTION_SERIES,
+                                     STIFFNESS, TABS, UNITS, Chart, axes, charts, cloud_positions, cloud_scatter,
+                                     density_data, friction_data, friction_from_csv, friction_truth,
                                      particle_stiffness, placeholder, truth_position, weight_colors, y_range)
 
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8080
 PUBLISH_HZ = 30.0  # the most view updates per second
+POSTERIOR_HZ = 4.0  # the most updates per second of the densities and the 2-D clouds (eq. (26) costs)
 SPEEDS = ("0.1x", "0.25x", "0.5x", "1x", "2x", "5x", "10x", "max")
 PATH_BOX = 10.0  # scene units the vehicle path is scaled into
-PATH_CENTRE = (3.0 * CLOUD_SCALE, 0.9 * CLOUD_SCALE, 0.0)  # right of the cloud
+PATH_CENTRE = (0.8 * CLOUD_SCALE, 3.2 * CLOUD_SCALE, 0.0)  # beyond the cloud: the scene is a tall column
+# The page at 1600 x 1000: the charts panel on the left (the main part), the 3-D scene in the
+# middle, the controls docked on the right, compact.
+CHARTS_WIDTH = 1000  # px
+CONTROLS_WIDTH = 280  # px
+# px per chart, by tab: each tab fits the page's height without scrolling
+CHART_HEIGHT = {"stiffness": 240, "state, bias": 170, "densities": 235, "particles": 370, "friction": 370}
 
 
 def friction_files(results_csv) -> list[Path]:
@@ -76,6 +84,8 @@ class Dashboard:
         self._pace = (time.perf_counter(), 0.0)  # (wall, sim time) the speed is measured from
         self._finished_unshown = False
         self._result_friction = None  # (FrictionCurve, truth) of an opened Result CSV
+        self._posterior_shown = -math.inf  # perf_counter of the last density / 2-D cloud update
+        self._metrics = ""  # metrics.metrics_line of a finished run or an opened Result CSV
         self._build_gui(speed)
         self._build_scene()
         self._quit = threading.Event()
@@ -124,7 +134,9 @@ class Dashboard:
         from tirefilter.scenarios import DATA_DIR, scenario_files
 
         gui = self.server.gui
-        gui.configure_theme(control_width="large", show_share_button=False)
+        gui.configure_theme(control_width="small", show_share_button=False)
+        gui.main_panel.dock_right()
+        gui.main_panel.set_width(CONTROLS_WIDTH)
         s = self.settings
         gui.add_markdown("**tirefilter** — tire stiffness and friction estimation, live")
         with gui.add_folder("Run"):
@@ -162,19 +174,45 @@ class Dashboard:
         self._open.on_click(lambda _: self.command("open_result", self._result_path.value))
         self._speed.on_update(lambda _: self.command("speed"))
 
+        self._build_charts()
+
+    def _build_charts(self) -> None:
+        """The charts panel, docked left: one tab per group of charts (views.TABS)."""
+        gui = self.server.gui
+        self._panel = gui.add_panel()
+        tabs = {name: self._panel.add_tab(name) for name in TABS}
         self._charts: list[tuple[Chart, object]] = []
         self._ranges: dict[int, tuple[float, float]] = {}  # id(handle) -> the y range it shows
         for chart in charts():
-            handle = gui.add_uplot(placeholder(len(chart.series)), chart.uplot_series(), title=chart.title,
-                                   bands=chart.uplot_bands() or None, scales=self._scales(chart.uplot_scales()),
-                                   aspect=2.0)
+            with tabs[chart.tab]:
+                handle = gui.add_uplot(placeholder(len(chart.series)), chart.uplot_series(), title=chart.title,
+                                       bands=chart.uplot_bands() or None, scales=self._scales(chart.uplot_scales()),
+                                       axes=chart.uplot_axes(), height=CHART_HEIGHT[chart.tab])
             self._charts.append((chart, handle))
+        self._densities = {}
+        self._clouds = {}
+        with tabs["densities"]:
+            for p in STIFFNESS:
+                self._densities[p] = gui.add_uplot(
+                    placeholder(len(DENSITY_SERIES) - 1), DENSITY_SERIES, axes=axes(f"{p} [{UNITS[p]}]", "density"),
+                    title=f"posterior density of {p} (eq. (26)), true surface mean", height=CHART_HEIGHT["densities"],
+                    scales=self._scales({"x": {"time": False}}))
+        with tabs["particles"]:
+            for x, y in (("Cf_y", "Cr_y"), ("Cf_y", "Cx")):
+                self._clouds[(x, y)] = gui.add_uplot(
+                    placeholder(len(CLOUD_SERIES) - 1), CLOUD_SERIES, axes=axes(f"{x} [{UNITS[x]}]", f"{y} [{UNITS[y]}]"),
+                    title=f"particle cloud: stiffness mean per particle, {y} against {x}",
+                    height=CHART_HEIGHT["particles"], scales=self._scales({"x": {"time": False}}))
         self._friction = {}
-        for axle, name in (("f", "front"), ("r", "rear")):
-            self._friction[axle] = gui.add_uplot(placeholder(len(FRICTION_SERIES) - 1), FRICTION_SERIES,
-                                                 title=f"friction mu(alpha), {name} axle: estimate, 90% band, truth",
-                                                 bands=FRICTION_BANDS, scales=self._scales({"x": {"time": False}}),
-                                                 aspect=2.0, visible=False)
+        with tabs["friction"]:
+            for axle, name in (("f", "front"), ("r", "rear")):
+                self._friction[axle] = gui.add_uplot(placeholder(len(FRICTION_SERIES) - 1), FRICTION_SERIES,
+                                                     title=f"friction mu(alpha), {name} axle: estimate, 90% band, truth",
+                                                     bands=FRICTION_BANDS, scales=self._scales({"x": {"time": False}}),
+                                                     axes=axes("alpha [deg]", "mu [-]"),
+                                                     height=CHART_HEIGHT["friction"], visible=False)
+        self._panel.dock_left()
+        self._panel.set_width(CHARTS_WIDTH)
 
     @staticmethod
     def _scales(base: dict, y: tuple[float, float] = (0.0, 1.0), x: tuple[float, float] = (0.0, 1.0)) -> dict:
@@ -216,8 +254,8 @@ class Dashboard:
         self._path = scene.add_line_segments("/vehicle/path", np.zeros((1, 2, 3)), (40, 40, 40), thickness=0.04,
                                              visible=False)
         self._car = scene.add_box("/vehicle/car", color=(31, 119, 180), dimensions=(0.7, 0.3, 0.2), visible=False)
-        self.server.initial_camera.position = (PATH_CENTRE[0] * 0.75, -2.8 * CLOUD_SCALE, 2.3 * CLOUD_SCALE)
-        self.server.initial_camera.look_at = (PATH_CENTRE[0] * 0.75, 0.8 * CLOUD_SCALE, 0.2 * CLOUD_SCALE)
+        self.server.initial_camera.position = (0.8 * CLOUD_SCALE, -2.2 * CLOUD_SCALE, 4.2 * CLOUD_SCALE)
+        self.server.initial_camera.look_at = (0.8 * CLOUD_SCALE, 1.9 * CLOUD_SCALE, 0.0)
         self.server.initial_camera.up = (0.0, 0.0, 1.0)
 
     def _settings(self) -> Settings:
@@ -314,6 +352,7 @@ class Dashboard:
         self._finished_unshown = True  # the last samples and the state still go to the page
         if self._run is not None:
             self._run.close()
+            self._metrics = self._metrics_line(self._run.scenario, self._run.estimator)
 
     def _advance(self, until: float) -> None:
         """Step until the next publication is due, no faster than the chosen speed."""
@@ -348,8 +387,21 @@ class Dashboard:
         self._history = History.from_columns(data)
         self._result_friction = friction
         self._source_label = f"Result CSV {Path(str(path).strip()).name}" + (", friction CSV" if friction else "")
+        self._metrics = self._metrics_line(None, None)
         self._state = "result"
         self._publish_times.clear()
+
+    def _metrics_line(self, scenario, estimator) -> str:
+        """`metrics.metrics_line` of the rows so far (the windows of the scenario, if any;
+        the estimator's restart and resample counters)."""
+        from tirefilter.metrics import metrics_line, run_metrics
+
+        h = self._history
+        if h is None or not h.rows:
+            return ""
+        m = run_metrics({c: h.column(c) for c in h.columns}, scenario,
+                        restarts=getattr(estimator, "restarts", None), resamples=getattr(estimator, "resamples", None))
+        return metrics_line(m)
 
     def _fail(self, exc: Exception) -> None:
         from tirefilter.errors import TirefilterError
@@ -386,6 +438,10 @@ class Dashboard:
                     handle.data = placeholder(len(chart.series))
             for handle in self._friction.values():
                 handle.visible = False
+            for handle in (*self._densities.values(), *self._clouds.values()):
+                if self._ranges.pop(id(handle), None) is not None:
+                    handle.data = placeholder(len(handle.series) - 1)
+            self._metrics = ""
             for node in (self._cloud, self._truth, self._path, self._car):
                 node.visible = False
 
@@ -421,6 +477,10 @@ class Dashboard:
             self._cloud.visible = self._truth.visible = False
             return
         names, values, w, nominal = cloud
+        now = time.perf_counter()
+        if now - self._posterior_shown >= 1.0 / POSTERIOR_HZ or self._finished_unshown or not self._playing:
+            self._posterior_shown = now
+            self._publish_posterior(h, cloud)
         points, colors = cloud_positions(names, values, nominal).astype(np.float16), weight_colors(w)
         if self._cloud.points.shape == points.shape and self._cloud.visible:
             self._cloud.points = points
@@ -432,6 +492,24 @@ class Dashboard:
         if truth is not None:
             self._truth.position = tuple(truth)
         self._truth.visible = truth is not None
+
+    def _publish_posterior(self, h: History, cloud) -> None:
+        """The posterior tab: the density of each stiffness parameter (eq. (26) for the MPF)
+        and the particle cloud in two projections, each framed on what it shows (ticks in
+        kN/rad), with the true surface mean where the run has one."""
+        from tirefilter.viz.density import stiffness_mixture
+
+        est = self._run.estimator
+        truth = {p: h.last(f"true_{p}_mean") for p in STIFFNESS if h.has_values(f"true_{p}_mean")}
+        mixture = stiffness_mixture(est.posterior(), None, params=getattr(est, "params", None))
+        for p, handle in self._densities.items():
+            data = density_data(mixture, p, truth.get(p, math.nan))
+            if data is not None:
+                self._set_data(handle, data, (1, 2), {"x": {"time": False}}, (data[0][0], data[0][-1]))
+        for (x, y), handle in self._clouds.items():
+            data = cloud_scatter(cloud, x, y, truth)
+            if data is not None:
+                self._set_data(handle, data, (1, 2, 3), {"x": {"time": False}}, _padded(data[0]))
 
     def _publish_pose(self, h: History, idx: np.ndarray) -> None:
         x, y, psi = h.pose()
@@ -483,7 +561,16 @@ class Dashboard:
             parts.append(f"{self.update_rate():.0f} updates/s")
         if self._run is not None and self._run.median_step_us():
             parts.append(f"step {self._run.median_step_us():.0f} us (median)")
+        if self._metrics:
+            parts.append(self._metrics)
         return " · ".join(parts)
+
+
+def _padded(x: np.ndarray) -> tuple[float, float]:
+    """The range of x with 10% margins (at least 1e-6 wide)."""
+    lo, hi = float(np.nanmin(x)), float(np.nanmax(x))
+    pad = max(0.1 * (hi - lo), 1e-6)
+    return lo - pad, hi + pad
 
 
 def serve(host: str = DEFAULT_HOST, port: int = DEFAULT_PORT, *, verbose: bool = True) -> None:

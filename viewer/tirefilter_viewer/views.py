@@ -53,6 +53,8 @@ class Chart:
     bands: tuple[tuple[int, int], ...] = ()
     scales: dict | None = None
     min_span: float = 1e-9  # the smallest y range shown (a flat series sits in its middle)
+    tab: str = "stiffness"  # the tab of the charts panel it is on
+    y_label: str = ""  # the y axis label (the x axis is the time, t [s])
 
     def data(self, history: History, idx: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
         idx = history.decimation() if idx is None else idx
@@ -73,6 +75,19 @@ class Chart:
         scales = {"x": {"time": False}}
         scales.update(self.scales or {})
         return scales
+
+    def uplot_axes(self) -> tuple[dict, ...]:
+        return axes("t [s]", self.y_label)
+
+
+AXIS_SIZE = 80  # px left of a chart for the y tick labels: room for a sign and 6 digits
+
+
+def axes(x_label: str, y_label: str) -> tuple[dict, ...]:
+    """uPlot axes: x below with its label, y on the left with its label and room enough
+    for tick labels with a minus sign (the default 50 px clipped '-0.0012' to '0.0012')."""
+    return ({"label": x_label, "size": 44, "labelSize": 18},
+            {"label": y_label, "size": AXIS_SIZE, "labelSize": 18, "gap": 4})
 
 
 def placeholder(n_series: int) -> tuple[np.ndarray, ...]:
@@ -129,7 +144,7 @@ def stiffness_chart(p: str) -> Chart:
     surface mean and the true per-step stiffness, in kN."""
     k = 1e-3
     return Chart(
-        key=p, title=f"{p} [{UNITS[p]}]: estimate, 90% band, truth",
+        key=p, title=f"{p} [{UNITS[p]}]: estimate, 90% band, truth", y_label=f"{p} [{UNITS[p]}]",
         series=(Series("true per step", col(f"true_{p}", k), stroke="rgba(214,39,40,0.25)", width=1),
                 Series("true surface mean", col(f"true_{p}_mean", k), stroke=TRUTH_COLOR),
                 Series("lower 90%", edge(p, -1, k), stroke="rgba(31,119,180,0.5)", width=1),
@@ -142,20 +157,102 @@ def charts() -> tuple[Chart, ...]:
     """Every time chart of the dashboard (friction curves are separate: `friction_chart`)."""
     return (
         *(stiffness_chart(p) for p in STIFFNESS),
-        Chart(key="bias_acc", title="accelerometer bias [m/s^2]: estimate vs truth", min_span=0.02,
+        Chart(key="bias_acc", title="accelerometer bias [m/s^2]: estimate vs truth", min_span=0.02, tab="state, bias",
+              y_label="bias [m/s^2]",
               series=(Series("b_ax", col("b_ax")), Series("true b_ax", col("true_b_ax"), stroke=TRUTH_COLOR),
                       Series("b_ay", col("b_ay"), stroke="#2ca02c"),
                       Series("true b_ay", col("true_b_ay"), stroke="#ff7f0e"))),
-        Chart(key="bias_yaw", title="yaw-rate bias [rad/s]: estimate vs truth", min_span=2e-3,
+        Chart(key="bias_yaw", title="yaw-rate bias [rad/s]: estimate vs truth", min_span=2e-3, tab="state, bias",
+              y_label="bias [rad/s]",
               series=(Series("b_yaw_rate", col("b_yaw_rate")),
                       Series("true b_yaw_rate", col("true_b_yaw_rate"), stroke=TRUTH_COLOR))),
-        Chart(key="vy", title="lateral velocity v^Y [m/s]: estimate vs truth", min_span=0.1,
+        Chart(key="vy", title="lateral velocity v^Y [m/s]: estimate vs truth", min_span=0.1, tab="state, bias",
+              y_label="v^Y [m/s]",
               series=(Series("vy", col("vy")), Series("true vy", col("true_vy"), stroke=TRUTH_COLOR))),
         Chart(key="ess", title="effective sample size; grey: learning gate (top: active)", min_span=2.0,
+              tab="state, bias", y_label="ESS [particles]",
               series=(Series("ESS", col("ess")),
                       Series("learning active", col("active"), stroke="#7f7f7f", width=1, scale="gate")),
               scales={"gate": {"range": (0.0, 1.05)}}),
     )
+
+
+TABS = ("stiffness", "state, bias", "densities", "particles", "friction")  # the charts panel's tabs, in order
+DENSITY_POINTS = 241  # grid points of a density chart
+
+
+def density_data(mixture, param: str, truth: float = math.nan) -> tuple[np.ndarray, ...] | None:
+    """uPlot data of the posterior density of `param` (eq. (26) for the MPF; what
+    `viz.density.stiffness_mixture` gives for the others): stiffness [kN/rad] on a grid
+    over the mixture's mean +- 6 of its std (the truth, if given, included), the density
+    [per kN/rad], and the truth as a vertical line (two points: 0 and the peak). None
+    when the mixture lacks `param`."""
+    if mixture is None or param not in mixture.params:
+        return None
+    j = mixture.index(param)
+    w, loc, scale = mixture.weights, mixture.loc[:, j], mixture.scale[:, j]
+    ok = np.isfinite(loc) & np.isfinite(scale) & (w > 0)
+    if not ok.any():
+        return None
+    mean = float(w[ok] @ loc[ok] / w[ok].sum())
+    std = float(np.sqrt(w[ok] @ ((loc[ok] - mean) ** 2 + scale[ok] ** 2) / w[ok].sum()))
+    std = max(std, 1e-4 * abs(mean), 1e-9)
+    lo, hi = mean - 6 * std, mean + 6 * std
+    if math.isfinite(truth):
+        lo, hi = min(lo, truth - std), max(hi, truth + std)
+    grid = np.linspace(lo, hi, DENSITY_POINTS)
+    if math.isfinite(truth):
+        grid = np.sort(np.append(grid, truth))
+    pdf = mixture.pdf(param, grid) * 1e3  # per kN/rad
+    line = np.full(grid.shape, math.nan)
+    if math.isfinite(truth):
+        k = int(np.searchsorted(grid, truth))
+        line[k] = float(np.nanmax(pdf))
+    return grid * 1e-3, pdf, line
+
+
+DENSITY_SERIES = (
+    {"label": "stiffness [kN/rad]"},
+    {"label": "posterior density", "stroke": ESTIMATE_COLOR, "width": 2, "fill": BAND_FILL, "points": {"show": False}},
+    {"label": "true surface mean", "stroke": TRUTH_COLOR, "width": 0, "points": {"show": True, "size": 9,
+                                                                                  "fill": TRUTH_COLOR}},
+)
+
+
+def cloud_scatter(cloud, x_param: str, y_param: str, truth: dict | None = None) -> tuple[np.ndarray, ...] | None:
+    """uPlot data of the particle cloud projected on (x_param, y_param) [kN/rad]: x sorted
+    (uPlot needs increasing x), the particles of the heaviest tenth of the weight, the
+    others, and the true surface mean as one point. None without both parameters."""
+    if cloud is None:
+        return None
+    names, values, w, _ = cloud
+    if x_param not in names or y_param not in names:
+        return None
+    x = values[:, list(names).index(x_param)] * 1e-3
+    y = values[:, list(names).index(y_param)] * 1e-3
+    heavy = w >= np.quantile(w, 0.9) if w.size else np.zeros(0, bool)
+    tx = ty = math.nan
+    if truth is not None:
+        tx, ty = truth.get(x_param, math.nan) * 1e-3, truth.get(y_param, math.nan) * 1e-3
+    xs = np.append(x, tx) if math.isfinite(tx) and math.isfinite(ty) else x
+    order = np.argsort(xs, kind="stable")
+    n = len(x)
+    ys_heavy = np.append(np.where(heavy, y, math.nan), math.nan)[:len(xs)]
+    ys_light = np.append(np.where(heavy, math.nan, y), math.nan)[:len(xs)]
+    ys_truth = np.full(len(xs), math.nan)
+    if len(xs) > n:
+        ys_truth[n] = ty
+    return xs[order], ys_light[order], ys_heavy[order], ys_truth[order]
+
+
+CLOUD_SERIES = (
+    {"label": "x"},
+    {"label": "particles", "stroke": "rgba(31,119,180,0.45)", "width": 0,
+     "points": {"show": True, "size": 5, "fill": "rgba(31,119,180,0.45)"}},
+    {"label": "heaviest 10%", "stroke": "#1f3f8f", "width": 0, "points": {"show": True, "size": 7, "fill": "#1f3f8f"}},
+    {"label": "true surface mean", "stroke": TRUTH_COLOR, "width": 0,
+     "points": {"show": True, "size": 11, "fill": TRUTH_COLOR}},
+)
 
 
 # -- the particle cloud ---------------------------------------------------------------------

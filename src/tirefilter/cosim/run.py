@@ -89,7 +89,8 @@ def run_scenario(
 
     try:
         with run_outputs(summary, columns, results_csv=results_csv, rrd=rrd, estimator=est_name, keep_rows=keep_rows,
-                         total=n, progress=progress, recording=recording, context=_recording_context(scenario)) as out:
+                         total=n, progress=progress, recording=recording, context=_recording_context(scenario),
+                         schedule=scenario) as out:
             if estimator is not None:
                 estimator.reset(rng)
             for s in cosim_samples(scenario, fmu, params, on_step=on_step, coupling=coupling):

@@ -10,7 +10,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from tirefilter.errors import LogError
-from tirefilter.replay.log import CORNERS, Log, read_log, vehicle_arg
+from tirefilter.replay.log import CORNERS, Log, read_log, reference_name, vehicle_arg
 
 GAP_FACTOR = 2.0  # a time step longer than this times the median is a gap
 
@@ -32,6 +32,7 @@ class LogSummary:
     models: dict  # "full" / "lateral" -> {supported, reason}; "auto" -> the model auto picks (or None)
     gates: dict  # the MPF's default linear-region and speed gates and the shares of samples beyond them
     warnings: tuple[str, ...]
+    references: tuple[str, ...] = ()  # reference columns (`*_true`, `true_*`): carried into results, scored
     noise: dict = None  # IMU white noise estimated from the log (and the vehicle's figures): sensors.SensorModel
 
     @property
@@ -55,6 +56,8 @@ class LogSummary:
             out.append(f"{label:24s}{c['missing']:9d}{_g(c['min']):>13s}{_g(c['max']):>13s}")
         out += [f"  * {n}: {c.get('derived') or c['note']}" for n, c in self.columns.items()
                 if c.get("derived") or c.get("note")]
+        if self.references:
+            out.append(f"reference columns (scored, never given to the estimator): {', '.join(self.references)}")
         if self.ignored:
             out.append(f"ignored columns: {', '.join(self.ignored)}")
         for model in ("full", "lateral"):
@@ -94,7 +97,7 @@ def check_log(path, vehicle=None) -> LogSummary:
         dt_min=float(dt.min()) if dt.size else math.nan, dt_max=float(dt.max()) if dt.size else math.nan,
         gaps=_gaps(log, dt, median), columns=_columns(log), ignored=log.ignored, models=_models(log),
         gates=_gates(log, vehicle, MPFConfig()), warnings=tuple(_warnings(log) + list(noise.warnings)),
-        noise=noise.to_dict(),
+        references=tuple(h for h in log.header if reference_name(h) is not None), noise=noise.to_dict(),
     )
     if not summary.usable:
         raise LogError(log.path, "no model can run on this log: " + "; ".join(

@@ -4,8 +4,10 @@ One row per sample, header names exactly: `t` [s], `delta` [rad, road-wheel] or
 `steering_wheel_angle` [rad] (divided by the vehicle TOML's `steering_ratio`), `ax`, `ay`
 [m/s^2], `yaw_rate` [rad/s], and `vx` [m/s] and/or `omega_f`, `omega_r` [rad/s]; optional
 `omega_fl, omega_fr, omega_rl, omega_rr` (their axle means stand in for a missing
-`omega_f` / `omega_r`; a corner sample missing makes the axle sample missing). Extra
-columns are ignored. An empty or NaN cell is a missing sample; a `.gz` file is read
+`omega_f` / `omega_r`; a corner sample missing makes the axle sample missing). Columns
+named `<name>_true` or `true_<name>` are references (`Log.references`, under the name
+`true_<name>`): carried into the results and scored, never given to an estimator. Other
+extra columns are ignored. An empty or NaN cell is a missing sample; a `.gz` file is read
 through gzip.
 
 Rejected, with an error naming the file, column, data row (1-based, header not counted)
@@ -56,6 +58,7 @@ class Log:
     ignored: tuple[str, ...] = ()
     derived: dict[str, str] = field(default_factory=dict)
     lines: np.ndarray | None = None  # (n,) int
+    references: dict[str, np.ndarray] = field(default_factory=dict)  # true_<name> -> (n,), NaN where missing
 
     @property
     def rows(self) -> int:
@@ -121,8 +124,25 @@ def read_log(path: str | Path, vehicle=None, *, need_steering_ratio: bool = True
                            f"(cut the log before t = {float(t[k])!r} s)", column="vx", row=k + 1, line=int(lines[k]),
                            value=value)
     signals = {name: signals[name] for name in SIGNALS if name in signals}
-    ignored = tuple(c for c in header if c not in COLUMNS)
-    return Log(path, t, signals, columns, header, ignored, derived, lines)
+    references = {}
+    for h in header:
+        name = reference_name(h)
+        if name is not None:
+            if name in references:
+                raise LogError(path, f"two reference columns of {name[len('true_'):]!r} ({name} and "
+                               f"{name[len('true_'):]}_true)", column=h, line=1)
+            references[name] = _parse_column(path, h, cells[h], lines)
+    ignored = tuple(c for c in header if c not in COLUMNS and reference_name(c) is None)
+    return Log(path, t, signals, columns, header, ignored, derived, lines, references)
+
+
+def reference_name(column: str) -> str | None:
+    """`true_<name>` for a reference column (`<name>_true` or `true_<name>`), else None."""
+    if column.startswith("true_") and len(column) > len("true_"):
+        return column
+    if column.endswith("_true") and len(column) > len("_true"):
+        return "true_" + column[: -len("_true")]
+    return None
 
 
 def vehicle_arg(vehicle) -> tuple:
@@ -157,7 +177,7 @@ def _read_cells(path: Path) -> tuple[tuple[str, ...], np.ndarray, dict[str, list
             dupes = sorted({h for h in header if header.count(h) > 1})
             if dupes:
                 raise LogError(path, f"the header names column {dupes[0]!r} more than once", column=dupes[0], line=1)
-            known = [(j, h) for j, h in enumerate(header) if h in COLUMNS]
+            known = [(j, h) for j, h in enumerate(header) if h in COLUMNS or reference_name(h) is not None]
             cells: dict[str, list[str]] = {h: [] for _, h in known}
             lines: list[int] = []
             for row in reader:

@@ -5,7 +5,8 @@ log: `estimator.reset(rng)` with the generator `spawn_seeds(seed)` gives a co-si
 then `estimator.step(t, Inputs, Measurement)` for every row at the row's own time (the
 estimator takes dt = t - t_prev itself, so irregular sampling and gaps pass through),
 with missing samples passed on as NaN. The Result CSV has the estimate columns, then the
-log's signals as `meas_<name>`.
+log's signals as `meas_<name>`, then its reference columns as `true_<name>` (scored by
+`metrics.run_metrics` into the summary).
 """
 
 from __future__ import annotations
@@ -38,8 +39,9 @@ class ReplaySummary(StepSummary):
 
 
 def result_columns(log: Log) -> tuple[str, ...]:
-    """ESTIMATE_COLUMNS, then `meas_<name>` for each signal of the log."""
-    return ESTIMATE_COLUMNS + tuple(f"meas_{s}" for s in SIGNALS if s in log.signals)
+    """ESTIMATE_COLUMNS, then `meas_<name>` for each signal of the log, then the log's
+    reference columns as `true_<name>` (`Log.references`)."""
+    return ESTIMATE_COLUMNS + tuple(f"meas_{s}" for s in SIGNALS if s in log.signals) + tuple(log.references)
 
 
 def log_samples(log: Log) -> Iterator[tuple[int, float, Inputs, Measurement]]:
@@ -87,7 +89,7 @@ def replay_log(
     est_name = getattr(estimator, "name", None) if estimator is not None else None
     columns = result_columns(log)
     present = [s for s in SIGNALS if s in log.signals]
-    data = np.column_stack([log.signals[s] for s in present])
+    data = np.column_stack([log.signals[s] for s in present] + list(log.references.values()))
     summary = ReplaySummary(log=str(log.path), vehicle=str(vehicle_file) if vehicle_file else None, seed=seed,
                             estimator=est_name or "none", rows=log.rows, duration_s=log.duration,
                             results=str(results_csv) if results_csv else None)

@@ -1,4 +1,4 @@
-"""Entity paths of the recordings (DESIGN.md, "Rerun entity paths"; README table).
+"""Entity paths of the recordings (DESIGN.md, "Rerun entity paths"; the table of docs/rerun.md).
 
 One function per kind of entity so the recorder, the blueprint and the tests agree.
 """
@@ -55,6 +55,11 @@ def density(estimator: str, param: str) -> str:
     return f"{estimator_root(estimator)}/density/{param}"
 
 
+def density_history(estimator: str, param: str) -> str:
+    """The density of every snapshot as an image (stiffness up, time to the right), static."""
+    return f"{estimator_root(estimator)}/density_history/{param}"
+
+
 def density_mass(estimator: str, param: str) -> str:
     """The exact probability of the density grid's range (scalar beside the density)."""
     return f"{density(estimator, param)}/mass"
@@ -73,6 +78,7 @@ def truth_friction(axle: str) -> str:
 VEHICLE_BODY = "/vehicle/body"  # pose (transform per step), outline and heading arrow below it
 VEHICLE_OUTLINE = "/vehicle/body/outline"
 VEHICLE_HEADING = "/vehicle/body/heading"
+VEHICLE_FRAME = "/vehicle/body/frame"  # a faint square around the car that the top view's camera follows
 VEHICLE_STEER = "/vehicle/body/steer"  # front wheel: transform (lf, steer angle) and arrow
 VEHICLE_TRAIL = "/vehicle/trail"  # one point per sample: the path up to the time cursor
 VEHICLE_PATH = "/vehicle/path"  # the whole path, static, written at the end

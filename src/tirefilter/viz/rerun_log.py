@@ -9,10 +9,12 @@ density of each stiffness parameter on a fixed grid (eq. (26), `viz.density`), a
 friction curves of estimators that have `friction()`.
 
 The recording goes to any of: an .rrd file, a viewer spawned here, a viewer or gRPC proxy
-at a URL (`RecordingOptions`). The layout (`viz.blueprint`) is sent with it once the
-recorder knows what the estimator provides (its first step).
+at a URL (`RecordingOptions`). The layout (`viz.blueprint`) is decided once the recorder
+knows what the estimator provides (its first step) and sent at the end with the y ranges of
+the stiffness plots fitted to the data after the start-up (STARTUP_S); a viewer that
+watches live also gets it at the first step, without the ranges.
 
-Entity paths: `viz.paths` and the README table.
+Entity paths: `viz.paths` and the table of docs/rerun.md.
 """
 
 from __future__ import annotations
@@ -36,7 +38,12 @@ from tirefilter.viz.options import RecordingContext, RecordingOptions
 from tirefilter.viz.paths import TIMELINE, entity_path
 
 LIVE_FLUSH_TIMEOUT = 10.0  # s, the end of a run waits this long for a viewer to take the rest
+HISTORY_SHAPE = (120, 240)  # px (stiffness, time) of a density-history image
+FRAME_HALF_SIZE = 25.0  # m
+STARTUP_S = 5.0  # s: the stiffness plots' y axes fit the data from this long after the first row
 _VIRIDIS = np.array([[68, 1, 84], [59, 82, 139], [33, 145, 140], [94, 201, 98], [253, 231, 37]], float)
+_VIRIDIS_LUT = np.stack([np.interp(np.linspace(0, len(_VIRIDIS) - 1, 256), np.arange(len(_VIRIDIS)), _VIRIDIS[:, c])
+                         for c in range(3)], axis=-1).astype(np.uint8)  # (256, 3)
 
 
 def weight_colors(log_weights) -> np.ndarray:
@@ -72,6 +79,10 @@ class RerunRecorder:
         self._paths = [entity_path(c, estimator) for c in self.columns]
         self._t_index = self.columns.index("t")
         self._truth = "true_x" in self._col and "true_y" in self._col
+        self._references = tuple(s for s in paths.STATES if f"true_{s}" in self._col)  # a log's references
+        self._t0: float | None = None
+        self._settled: dict[str, list[np.ndarray]] = {}  # per parameter: estimate and true mean after start-up
+        self._history: dict[str, list[tuple[float, np.ndarray]]] = {}  # per parameter: (t, density) per snapshot
         self._rows: list[np.ndarray] = []
         # rows per bulk send: large for a file, small when a viewer watches live (0.5 s at 100 Hz)
         self._chunk = chunk or (50 if opts.spawn or opts.connect else 1000)
@@ -85,7 +96,7 @@ class RerunRecorder:
         self._lf = None
         self.snapshots = 0
         if estimator is None:
-            self._send_layout(Layout(None, truth=self._truth))
+            self._send_layout(Layout(None, truth=self._truth, references=self._references))
 
     # ---- sinks and layout ---------------------------------------------------------------
     def _open_sinks(self) -> None:
@@ -104,9 +115,27 @@ class RerunRecorder:
         self.rec.set_sinks(*sinks)
 
     def _send_layout(self, layout: Layout) -> None:
+        """Decide the layout; a live viewer gets it now (the file gets it at the end)."""
         self._layout = layout
         self._log_vehicle_drawing()
-        self.rec.send_blueprint(build_blueprint(layout), make_active=True, make_default=True)
+        if self.options.spawn or self.options.connect:
+            self.rec.send_blueprint(build_blueprint(layout), make_active=True, make_default=True)
+
+    def y_ranges(self) -> dict[str, tuple[float, float]]:
+        """Per stiffness parameter, the y range of its plot: the 0.5 .. 99.5 % quantiles of
+        the estimate and the true surface mean after the start-up, widened by 15 % (at least
+        5 % of the mean) on each side; none for a parameter without such data."""
+        out = {}
+        for p, chunks in self._settled.items():
+            x = np.concatenate(chunks)
+            x = x[np.isfinite(x)]
+            if x.size < 2:
+                continue
+            lo, hi = np.quantile(x, [0.005, 0.995])
+            pad = max(0.15 * (hi - lo), 0.05 * abs(0.5 * (lo + hi)))
+            if pad > 0:
+                out[p] = (float(lo - pad), float(hi + pad))
+        return out
 
     def _log_vehicle_drawing(self) -> None:
         """The car in its body frame (static): outline, heading arrow, front wheel."""
@@ -120,6 +149,10 @@ class RerunRecorder:
         log("/vehicle", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         log(paths.VEHICLE_OUTLINE, rr.LineStrips3D([outline], colors=[ESTIMATE]), static=True)
         log(paths.VEHICLE_HEADING, rr.Arrows3D(vectors=[[front + 1.5, 0, 0]], colors=[TRUTH]), static=True)
+        # the top view's camera follows this square, and frames it: the car with 25 m of its path around it
+        f = FRAME_HALF_SIZE
+        log(paths.VEHICLE_FRAME, rr.LineStrips3D([[[f, f, 0], [-f, f, 0], [-f, -f, 0], [f, -f, 0], [f, f, 0]]],
+                                                 colors=[(225, 225, 225)]), static=True)
         log(paths.VEHICLE_STEER, rr.Arrows3D(origins=[[-0.35, 0, 0]], vectors=[[0.7, 0, 0]], colors=[TRUTH_STEP],
                                              radii=[0.08]), static=True)
 
@@ -130,7 +163,7 @@ class RerunRecorder:
         order = tuple(p for p in ("Cx", "Cf_y", "Cr_y") if p in params)
         particles = post is not None and len(post.log_weights) > 1
         return Layout(self.estimator, params=order, lateral="Cx" not in order,
-                      clouds=particles,
+                      clouds=particles, references=self._references,
                       densities=tuple(p for p in order if mixture is not None and p in mixture.params),
                       friction=callable(getattr(estimator, "friction", None)), truth=self._truth,
                       sensors=tuple(s for s in paths.SENSORS if est is None or math.isfinite(getattr(est, f"b_{s}",
@@ -187,6 +220,7 @@ class RerunRecorder:
                 mixture = dataclasses.replace(mixture, scale=np.maximum(mixture.scale, spacing))
             for p, grid in grids.items():
                 values = mixture.pdf(p, grid, self._caches.setdefault(p, ComponentCache())).astype(np.float32)
+                self._history.setdefault(p, []).append((float(row[self._t_index]), values))
                 self.rec.log(paths.density(e, p), rr.BarChart.from_fields(values=values))
                 self.rec.log(paths.density_mass(e, p), rr.Scalars(mixture.mass(p, grid[0], grid[-1])))
         if layout.friction:
@@ -216,8 +250,43 @@ class RerunRecorder:
         with warnings.catch_warnings():  # rerun-sdk 0.41 warns about the absent `values` of a partial update
             warnings.simplefilter("ignore")
             self.rec.log(paths.density(self.estimator, param),
-                         self._rr.BarChart.from_fields(abscissa=grid.astype(np.float32)), static=True)
+                         self._rr.BarChart.from_fields(abscissa=grid.astype(np.float32), color=ESTIMATE,
+                                                       # bars as wide as the grid step (the default, 1, is 1 N/rad)
+                                                       widths=np.full(grid.size, grid[1] - grid[0], np.float32)),
+                         static=True)
         return grid
+
+    def density_history(self) -> dict[str, dict]:
+        """Per parameter with densities: the image of all snapshots (`image`: (rows, cols, 3)
+        uint8, stiffness increasing upwards, one column per snapshot, each column scaled to
+        its own peak and coloured viridis-like), cropped to the stiffness range where some
+        snapshot exceeds 1 % of its peak (`range`, N/rad), and the time span (`t`, s)."""
+        out = {}
+        for p, snaps in self._history.items():
+            grid = self._grids.get(p)
+            if grid is None or not snaps:
+                continue
+            d = np.stack([v for _, v in snaps]).astype(float)  # (snapshots, grid)
+            peak = d.max(axis=1, keepdims=True)
+            d = np.divide(d, peak, out=np.zeros_like(d), where=peak > 0)
+            used = np.flatnonzero((d > 0.01).any(axis=0))
+            if used.size == 0:
+                continue
+            lo, hi = max(int(used[0]) - 2, 0), min(int(used[-1]) + 3, grid.size)
+            img = _VIRIDIS_LUT[np.clip((d[:, lo:hi] * 255).astype(int), 0, 255)]  # (snapshots, rows, 3)
+            img = img.transpose(1, 0, 2)[::-1]
+            rows = np.linspace(0, img.shape[0] - 1, HISTORY_SHAPE[0]).round().astype(int)  # nearest neighbour
+            cols = np.linspace(0, img.shape[1] - 1, HISTORY_SHAPE[1]).round().astype(int)
+            out[p] = {"image": np.ascontiguousarray(img[rows][:, cols]),
+                      "range": (float(grid[lo]), float(grid[hi - 1])), "t": (snaps[0][0], snaps[-1][0])}
+        return out
+
+    def _log_density_history(self) -> dict[str, tuple[float, float]]:
+        ranges = {}
+        for p, h in self.density_history().items():
+            self.rec.log(paths.density_history(self.estimator, p), self._rr.Image(h["image"]), static=True)
+            ranges[p] = h["range"] + h["t"]
+        return ranges
 
     def _log_friction(self, curve, row: np.ndarray) -> None:
         """Per axle: the posterior mean mu(alpha), the +-2 std band, the visited slip range,
@@ -258,6 +327,14 @@ class RerunRecorder:
         data = np.vstack(self._rows)
         self._rows.clear()
         t = data[:, self._t_index]
+        if self._t0 is None:
+            self._t0 = float(t[0])
+        after = t >= self._t0 + STARTUP_S
+        if after.any():
+            for p in paths.STIFFNESS:
+                for c in (p, f"true_{p}_mean"):
+                    if c in self._col:
+                        self._settled.setdefault(p, []).append(data[after, self._col[c]])
         for j, path in enumerate(self._paths):
             if path is not None:
                 self._send_scalars(path, t, data[:, j])
@@ -265,7 +342,8 @@ class RerunRecorder:
             if self._layout is None:  # rows without estimator steps (the estimator FMU): layout from the columns
                 params = tuple(p for p in ("Cx", "Cf_y", "Cr_y")
                                if p in self._col and np.isfinite(data[:, self._col[p]]).any())
-                self._send_layout(Layout(self.estimator, params=params, lateral="Cx" not in params, truth=self._truth))
+                self._send_layout(Layout(self.estimator, params=params, lateral="Cx" not in params, truth=self._truth,
+                                         references=self._references))
             for p in paths.STIFFNESS:
                 if p not in self._col:
                     continue
@@ -341,11 +419,15 @@ class RerunRecorder:
     def close(self) -> None:
         self.flush()
         if self._layout is None:
-            self._send_layout(Layout(self.estimator, truth=self._truth))
+            self._send_layout(Layout(self.estimator, truth=self._truth, references=self._references))
         if self._xy:
             path = np.vstack(self._xy)
             path = path[np.all(np.isfinite(path), axis=1)]
-            self.rec.log(paths.VEHICLE_PATH, self._rr.LineStrips2D([path]), static=True)
+            path3 = np.column_stack([path, np.zeros(len(path))])  # 3-D: the top view is a 3-D view
+            self.rec.log(paths.VEHICLE_PATH, self._rr.LineStrips3D([path3], colors=[SPREAD_BAND]), static=True)
+        self.rec.send_blueprint(build_blueprint(self._layout, y_ranges=self.y_ranges(),
+                                                density_history=self._log_density_history()),
+                                make_active=True, make_default=True)
         live = self.options.spawn or self.options.connect
         try:
             # a viewer that went away must not hang the end of the run (the file sink is flushed too)

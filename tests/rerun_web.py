@@ -1,0 +1,255 @@
+"""Rerun's web viewer in a real browser: serve a recording on loopback with rerun-sdk's
+viewer, open it in Debian's chromium through Playwright (software GL), and read the
+rendered pixels. Used by tests/test_rerun_web.py and, from the command line, to make the
+README's screenshot:
+
+    .venv/bin/python tests/rerun_web.py RECORDING.rrd OUT.png [--tab MIDDLE RIGHT]
+
+The viewer draws everything into one canvas (egui), so the checks work on pixels: the
+views are the cells of the blueprint's grid (`view_cells`), a view shows data when its
+inside holds enough coloured pixels (the layout draws every series, bar and outline in
+colour on a grey UI), and an error badge is the viewer's error red in a view.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+CHROMIUM = Path("/usr/bin/chromium")
+# headless chromium with WebGL on SwiftShader (no GPU); nothing from the network
+CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--no-first-run", "--disable-background-networking",
+                  "--disable-component-update", "--disable-sync", "--disable-quic", "--use-gl=angle",
+                  "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"]
+VIEWPORT = {"width": 1600, "height": 1000}
+TOP_BAR, TIME_BAR, TAB_BAR = 38, 40, 28  # px of the viewer's top panel, collapsed time panel, a tab strip
+LOAD_TIMEOUT = 150.0  # s: the viewer needs 30-60 s to start under software GL on a loaded machine
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def rerun_exe() -> str:
+    import rerun_cli
+
+    return str(Path(rerun_cli.__file__).with_name("rerun"))
+
+
+@contextlib.contextmanager
+def serve_web_viewer(rrd: Path, log: Path | None = None):
+    """rerun-sdk's web viewer serving `rrd` on 127.0.0.1 (HTTP and gRPC on free ports);
+    yields (page URL, gRPC proxy URL). The server is stopped on leaving."""
+    grpc, http = free_port(), free_port()
+    env = dict(os.environ, RERUN_ANALYTICS="0")  # the welcome text only; nothing leaves the machine
+    out = open(log, "w") if log else subprocess.DEVNULL
+    proc = subprocess.Popen([rerun_exe(), "--web-viewer", "--bind", "127.0.0.1", "--port", str(grpc),
+                             "--web-viewer-port", str(http), "--renderer", "webgl", str(rrd)],
+                            stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT, env=env,
+                            start_new_session=True)
+    try:
+        deadline = time.monotonic() + 30
+        for port in (grpc, http):
+            while True:
+                with contextlib.suppress(OSError):
+                    socket.create_connection(("127.0.0.1", port), timeout=0.5).close()
+                    break
+                if proc.poll() is not None or time.monotonic() > deadline:
+                    raise RuntimeError(f"the Rerun web viewer did not listen on 127.0.0.1:{port}"
+                                       + (f" (see {log})" if log else ""))
+                time.sleep(0.2)
+        proxy = f"rerun+http://127.0.0.1:{grpc}/proxy"
+        from urllib.parse import quote
+
+        yield f"http://127.0.0.1:{http}/?url={quote(proxy, safe='')}&renderer=webgl", proxy
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+        if log:
+            out.close()
+
+
+@contextlib.contextmanager
+def browser_page(viewport=None):
+    """A Playwright page in Debian's chromium (never Playwright's own browser download)."""
+    from playwright import sync_api
+
+    with sync_api.sync_playwright() as pw, tempfile.TemporaryDirectory() as profile:
+        ctx = pw.chromium.launch_persistent_context(profile, executable_path=str(CHROMIUM), headless=True,
+                                                    args=CHROMIUM_FLAGS, viewport=viewport or VIEWPORT)
+        try:
+            yield ctx.new_page()
+        finally:
+            ctx.close()
+
+
+def pixels(page, path: Path | None = None) -> np.ndarray:
+    """A screenshot as an (h, w, 3) uint8 array (also saved to `path`)."""
+    import io
+
+    from PIL import Image
+
+    png = page.screenshot(path=str(path) if path else None)
+    return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
+
+
+def view_cells(rows: tuple[int, ...], tabs: tuple[bool, ...], size=(VIEWPORT["width"], VIEWPORT["height"])):
+    """The pixel boxes (x0, y0, x1, y1) of the views of a horizontal row of equal columns,
+    column j holding rows[j] equal views below a tab strip when tabs[j]; each box is the
+    inside of the view (below its title bar, off its axes' edges)."""
+    w, h = size
+    top, bottom = TOP_BAR, h - TIME_BAR
+    col_w = w / len(rows)
+    boxes = []
+    for j, (n, tabbed) in enumerate(zip(rows, tabs)):
+        y0 = top + (TAB_BAR if tabbed else 0)
+        cell_h = (bottom - y0) / n
+        for i in range(n):
+            x_a, x_b = j * col_w, (j + 1) * col_w
+            y_a, y_b = y0 + i * cell_h, y0 + (i + 1) * cell_h
+            boxes.append((int(x_a + 0.12 * col_w), int(y_a + 30), int(x_b - 0.04 * col_w), int(y_b - 0.12 * cell_h)))
+    return boxes
+
+
+def coloured(img: np.ndarray) -> np.ndarray:
+    """Pixels with colour (chroma > 60): data; the viewer's own UI is grey, text black."""
+    img = img.astype(int)
+    return (img.max(axis=2) - img.min(axis=2)) > 60
+
+
+def error_red(img: np.ndarray) -> np.ndarray:
+    """Pixels of the viewer's error colour (a saturated red, as its error badges and texts
+    are drawn; the layout draws no red)."""
+    img = img.astype(int)
+    r, g, b = img[..., 0], img[..., 1], img[..., 2]
+    return (r > 170) & (g < 90) & (b < 90)
+
+
+def check_views(img: np.ndarray, boxes, min_pixels: int = 40) -> list[str]:
+    """Problems of a screenshot: views (boxes) without coloured pixels, error red anywhere
+    in the views' area."""
+    problems = []
+    for k, (x0, y0, x1, y1) in enumerate(boxes):
+        n = int(coloured(img[y0:y1, x0:x1]).sum())
+        if n < min_pixels:
+            problems.append(f"view {k} at ({x0}, {y0})-({x1}, {y1}) is empty ({n} coloured pixels)")
+    red = error_red(img[TOP_BAR:img.shape[0] - TIME_BAR])
+    if red.sum() > 30:
+        ys, xs = np.nonzero(red)
+        problems.append(f"error red at {int(red.sum())} pixels around ({int(np.median(xs))}, "
+                        f"{int(np.median(ys)) + TOP_BAR})")
+    return problems
+
+
+def wait_loaded(page, boxes, timeout: float = LOAD_TIMEOUT, shot: Path | None = None) -> np.ndarray:
+    """Screenshots until every view shows data (the viewer has loaded and ingested the
+    recording) or `timeout`; returns the last screenshot (saved to `shot`). Under load the
+    viewer sometimes draws a frame with its time series empty; the next frames have them."""
+    from PIL import Image
+
+    end = time.monotonic() + timeout
+    while True:
+        img = pixels(page)
+        if not [p for p in check_views(img, boxes) if "empty" in p] or time.monotonic() > end:
+            if shot:
+                Image.fromarray(img).save(shot)  # the very frame that was checked
+            return img
+        time.sleep(3)
+
+
+def layout_grid(layout, active: tuple[int, int]):
+    """(rows, tabs) of `view_cells` for `viz.blueprint.build_blueprint(layout, active=...)`."""
+    e = layout.estimator
+    middle = [4, len(layout.sensors), 2] if e else [4, 2]
+    right = ([2] if e and layout.clouds else []) + ([len(layout.densities)] if e and layout.densities else [])
+    right += [2] if e and layout.friction else []
+    right += [1]
+    rows = ((len(layout.params),) if e and layout.params else ()) + (middle[min(active[0], len(middle) - 1)],
+                                                                     right[min(active[1], len(right) - 1)])
+    return rows, (False,) * (len(rows) - 2) + (True, True)
+
+
+def recording_id(rrd: Path) -> str:
+    """The recording id of the (one) recording in `rrd`."""
+    import warnings
+
+    from rerun.chunk import RrdReader
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return RrdReader(rrd).recordings()[0].recording_id
+
+
+def blueprint_sender(rrd: Path, proxy: str):
+    """A stream into the served recording (same application and recording id: a stream
+    of its own would open an empty recording in the viewer) for sending blueprints."""
+    import rerun as rr
+
+    rec = rr.RecordingStream("tirefilter", recording_id=recording_id(rrd))
+    rec.connect_grpc(proxy)
+    return rec
+
+
+def mpf_layout():
+    """The layout of an MPF recording with the full model (what `tirefilter run` records)."""
+    from tirefilter.viz.blueprint import Layout
+
+    return Layout("mpf", params=("Cx", "Cf_y", "Cr_y"), clouds=True, densities=("Cx", "Cf_y", "Cr_y"))
+
+
+def main(argv=None) -> int:
+    import argparse
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
+    from tirefilter.viz.blueprint import build_blueprint
+
+    p = argparse.ArgumentParser(description="screenshot a recording in Rerun's web viewer (chromium, headless)")
+    p.add_argument("rrd", type=Path)
+    p.add_argument("out", type=Path, help="PNG to write")
+    p.add_argument("--tab", type=int, nargs=2, default=(0, 0), metavar=("MIDDLE", "RIGHT"),
+                   help="the open tab of the middle and the right column (default 0 0)")
+    p.add_argument("--wait", type=float, default=LOAD_TIMEOUT, help="s to wait for the views to fill")
+    p.add_argument("--settle", type=float, default=0.0,
+                   help="s to wait after the views have filled (a long recording is still arriving)")
+    p.add_argument("--scale", type=float, default=0.5, help="scale of the PNG written (default 0.5)")
+    args = p.parse_args(argv)
+    from PIL import Image
+
+    layout = mpf_layout()  # the script is for `tirefilter run` recordings (MPF, full model)
+    with serve_web_viewer(args.rrd) as (url, proxy), browser_page() as page:
+        page.goto(url)
+        if tuple(args.tab) != (0, 0):
+            rec = blueprint_sender(args.rrd, proxy)
+            rec.send_blueprint(build_blueprint(layout, active=tuple(args.tab)), make_active=True)
+            rec.flush()
+        boxes = view_cells(*layout_grid(layout, tuple(args.tab)))
+        img = wait_loaded(page, boxes, args.wait)
+        if args.settle:
+            time.sleep(args.settle)
+            img = wait_loaded(page, boxes, 30)
+        problems = check_views(img, boxes)
+        if problems:
+            print("\n".join(f"warning: {p}" for p in problems), file=sys.stderr)
+    pic = Image.fromarray(img)
+    pic = pic.resize((int(pic.width * args.scale), int(pic.height * args.scale)), Image.LANCZOS)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    pic.save(args.out, optimize=True)
+    print(f"{args.out}: {args.out.stat().st_size / 1024:.0f} KB")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

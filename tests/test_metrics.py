@@ -1,0 +1,98 @@
+"""The run summary's metrics (`metrics.run_metrics`) against answers worked out by hand."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from tirefilter.metrics import DIVERGED_VY, Z90, format_metrics, metrics_line, run_metrics, stiffness_errors
+
+T = np.round(np.arange(0, 2001) * 0.01, 10)  # 0 .. 20 s at 100 Hz
+SCHEDULE = SimpleNamespace(excitation=((0.0, 20.0),), surface_changes=(10.0,))
+
+
+def _run(**overrides) -> dict:
+    """A run whose Cf_y error alternates +-4 % before t = 10 s and +-2 % after (signed mean
+    0 in each half), with a surface change at 10 s that halves the truth."""
+    n = T.size
+    truth = np.where(T < 10.0, 8e4, 4e4)
+    sign = np.where(np.arange(n) % 2 == 0, 1.0, -1.0)
+    rel = np.where(T < 10.0, 0.04, 0.02) * sign
+    r = {"t": T, "active": (T >= 2.0).astype(float), "Cf_y": truth * (1 + rel), "true_Cf_y_mean": truth,
+         "Cf_y_std": np.full(n, 0.03 * 8e4 / Z90),  # band +-2400 N/rad: holds the +-2 % half, not the +-4 % one
+         "vy": np.zeros(n), "true_vy": np.full(n, 0.1), "beta": np.zeros(n), "true_beta": np.zeros(n)}
+    r.update(overrides)
+    return r
+
+
+def test_errors_are_absolute_and_the_settled_window_follows_the_schedule():
+    m = run_metrics(_run(), SCHEDULE, restarts=0, resamples=7)
+    s = m["stiffness"]["Cf_y"]
+    assert s["reference"] == "true_Cf_y_mean"
+    # 1000 samples at 4 %, 1001 at 2 %: the signed mean would be ~0
+    assert s["mean_abs_pct"] == pytest.approx((1000 * 4 + 1001 * 2) / 2001, rel=1e-9)
+    # settled: 5-10 s (4 %, 500 samples) and 15-20 s (2 %, 501 samples)
+    assert m["settled_windows"] == [[5.0, 9.99], [15.0, 20.0]]
+    assert s["settled_mean_abs_pct"] == pytest.approx((500 * 4 + 501 * 2) / 1001, rel=1e-9)
+    assert s["settled_mean_abs_pct"] == pytest.approx(stiffness_errors(_run(), SCHEDULE, "Cf_y")["mean_abs"])
+    assert s["final_pct"] == pytest.approx(2.0)  # sample 2000 is even: +2 %
+    # the band holds 2 % errors (1600 < 2400 N/rad at 8e4, 800 at 4e4) but not 4 % (3200 > 2400)
+    assert s["coverage90"] == pytest.approx(1001 / 2001)
+    assert s["settled_coverage90"] == pytest.approx(501 / 1001)
+    assert s["settled_missing"] == 0
+    # after 10 s the estimate is within 5 % at once
+    assert s["settling_s"] == [0.0]
+    assert m["state"]["vy"] == {"reference": "true_vy", "rmse": pytest.approx(0.1), "max_abs": pytest.approx(0.1),
+                                "unit": "m/s"}
+    assert m["restarts"] == 0 and m["resamples"] == 7
+    assert m["gate_open_share"] == pytest.approx(1801 / 2001)
+    assert m["diverged"]["samples"] == 0 and m["warnings"] == []
+
+
+def test_log_references_without_a_schedule():
+    """A replay: `<name>_true` columns are references, there is no settled window."""
+    r = _run()
+    r["beta_true"] = r.pop("true_beta") + 0.02
+    r["vy_true"] = r.pop("true_vy")
+    r["Cf_y_true"] = r.pop("true_Cf_y_mean")
+    m = run_metrics(r)
+    assert m["settled_windows"] is None and "settled_mean_abs_pct" not in m["stiffness"]["Cf_y"]
+    assert m["stiffness"]["Cf_y"]["reference"] == "Cf_y_true"
+    assert m["state"]["beta"]["reference"] == "beta_true" and m["state"]["beta"]["rmse"] == pytest.approx(0.02)
+    assert m["restarts"] is None and m["resamples"] is None
+
+
+def test_divergence_restarts_and_overconfidence_are_warned():
+    vy = np.zeros(T.size)
+    bad = (T >= 2.2) & (T < 2.9)
+    vy[bad] = -7.2
+    std = np.full(T.size, 1.0)  # a band far too narrow
+    m = run_metrics(_run(vy=vy, Cf_y_std=std), SCHEDULE, restarts=1)
+    d = m["diverged"]
+    assert d["signal"] == "vy" and d["threshold"] == DIVERGED_VY
+    assert d["samples"] == int(bad.sum()) == 70 and d["windows"] == [[2.2, 2.89]]
+    assert d["max_abs"] == pytest.approx(7.3)
+    lines = format_metrics(m)
+    warnings = [line for line in lines if line.startswith("warning:")]
+    assert len(warnings) == 3
+    assert any("diverged at 70 samples (2.2-2.89 s)" in w for w in warnings)
+    assert any("restarted 1 time" in w for w in warnings)
+    assert any("Cf_y: the 90% band" in w and "overconfident" in w for w in warnings)
+    assert "restarts 1" in "\n".join(lines) and "DIVERGED" in metrics_line(m) and "1 restart(s)" in metrics_line(m)
+
+
+def test_missing_estimates_in_the_settled_window_are_counted():
+    est = _run()["Cf_y"].copy()
+    est[(T >= 16.0) & (T < 17.0)] = np.nan
+    m = run_metrics(_run(Cf_y=est), SCHEDULE)
+    assert m["stiffness"]["Cf_y"]["settled_missing"] == 100
+    assert any("no estimate at 100 samples" in w for w in m["warnings"])
+
+
+def test_no_reference_no_figures():
+    r = {"t": T, "active": np.ones(T.size), "Cf_y": np.full(T.size, 1e5), "vy": np.zeros(T.size)}
+    m = run_metrics(r)
+    assert m["stiffness"] == {} and m["state"] == {} and m["diverged"] is None
+    assert format_metrics(m) == ["learning gate open 100 % of the time"]
