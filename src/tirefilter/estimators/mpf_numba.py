@@ -186,7 +186,7 @@ def weights(a, B, x, gamma, mu, Lam, nu, b, P, R, y, avail, bias_on, roll_gain, 
     L12 = (D_a L11)^T, S = D_a L11 D_a^T + (nu~ - 2) / nu~ (R + P)_aa, its factor Lc, the
     residual e = y_a - h_a - b_a - D_a mu and v = Lc^-1 e, and the Student-t log-likelihood
     (`t_logpdf_whitened`; when all particles share one nu~ its log-Gamma terms are computed
-    once, as the reference does)."""
+    once, as the reference does). Last: that common nu~, or 0 when the particles differ."""
     n = x.shape[0]
     mch = 3 if full else 2
     na = avail.shape[0]
@@ -272,7 +272,7 @@ def weights(a, B, x, gamma, mu, Lam, nu, b, P, R, y, avail, bias_on, roll_gain, 
             nn = dof
             cn = math.lgamma(0.5 * (nn + p)) - math.lgamma(0.5 * nn) - 0.5 * p * math.log(nn * math.pi)
         ll[i] = cn - 0.5 * logdet - 0.5 * (nn + p) * math.log1p(vv / nn)
-    return h, D, L11, nu_w, L12, Lc, e, v, ll
+    return h, D, L11, nu_w, L12, Lc, e, v, ll, const_nu
 
 
 @njit(**_JIT)

@@ -30,7 +30,7 @@ from tirefilter.estimators.base import Estimate, Inputs, Measurement, Posterior,
 from tirefilter.estimators.baseline_common import gate_open
 from tirefilter.stats import NiW, effective_sample_size, normalize_log_weights, systematic_resample
 from tirefilter.stats.linalg import chol, chol_solve, logdet_chol, solve_lower
-from tirefilter.stats.student_t import _common, t_conditional, t_logpdf_whitened, t_sample
+from tirefilter.stats.student_t import t_conditional, t_logpdf_whitened, t_sample
 from tirefilter.vehicle.params import VehicleParams
 from tirefilter.vehicle.single_track import GRAVITY
 
@@ -170,6 +170,16 @@ class StiffnessMPF:
             self._nb = mpf_numba
             self._vp = np.array([v.mass, v.yaw_inertia, v.lf, v.lr, v.Cf_y, v.Cr_y, self.C_nom_fx, self.C_nom_rx,
                                  v.wheel_radius], float)
+
+    def __getstate__(self):  # (copies and FMU states: the kernel module is not state)
+        return {**self.__dict__, "_nb": None}
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        if self.cfg.backend == "numba":
+            from tirefilter.estimators import mpf_numba
+
+            self._nb = mpf_numba
 
     def _outlier_bound(self, nc: int) -> float:
         cache = self.__dict__.setdefault("_bounds", {})
@@ -375,7 +385,7 @@ class StiffnessMPF:
         ess = None
         if self._nb is not None:  # step 2 below, compiled
             st = self.stats
-            h, D, L11, nu_w, L12, Lc, e, v, ll = self._nb.weights(
+            h, D, L11, nu_w, L12, Lc, e, v, ll, nu_common = self._nb.weights(
                 model_k[0], model_k[1], self.x, st.gamma, st.mu, st.Lam, st.nu, self.b, self.P, self.R, yk, a,
                 self.bias_on, self.roll_gain, self.full, self.n_w)
             mu_w = st.mu
@@ -445,7 +455,7 @@ class StiffnessMPF:
         #    the yaw-rate residual carries no information on w (d row 0) and is left out.
         #    The leading nc x nc block of Lc is the Cholesky factor of their scale matrix.
         if self._nb is not None:
-            w = self._sample_compiled(mu_w, L11, L12, Lc, v, nu_w, nc)
+            w = self._sample_compiled(mu_w, L11, L12, Lc, v, nu_w, nc, nu_common)
         elif nc:
             mu_c, Lam_c, nu_c = t_conditional(mu_w, 0.0, L11, L12[:, :, :nc], None, nu_w, e[:, :nc],
                                               L22_chol=Lc[:, :nc, :nc], x2_white=v[:, :nc])
@@ -479,13 +489,18 @@ class StiffnessMPF:
         self._at_x = model_k  # the first stage of the next propagation, at this x and u
         return self._estimate(ess)
 
-    def _sample_compiled(self, mu_w, L11, L12, Lc, v, nu_w, nc):
-        """Step 3 by `mpf_numba.sample`, with the random numbers drawn as `t_sample` draws them."""
-        nu_c = nu_w + nc if nc else nu_w
-        nu = _common(nu_c)
+    def _sample_compiled(self, mu_w, L11, L12, Lc, v, nu_w, nc, nu_common):
+        """Step 3 by `mpf_numba.sample`, with the random numbers drawn as `t_sample` draws them
+        (`nu_common` > 0: every particle has this nu~, and the chi-square draws share it)."""
+        N = len(mu_w)
         z = self.rng.standard_normal(mu_w.shape)
-        chi = self.rng.chisquare(nu, len(mu_w)) if np.ndim(nu) == 0 else self.rng.chisquare(nu_c)
-        nu_draw = np.full(len(mu_w), nu) if np.ndim(nu) == 0 else nu_c
+        if nu_common > 0:
+            nu = nu_common + nc
+            chi = self.rng.chisquare(nu, N)
+            nu_draw = np.full(N, nu)
+        else:
+            nu_draw = nu_w + nc if nc else nu_w
+            chi = self.rng.chisquare(nu_draw)
         return self._nb.sample(mu_w, L11, L12, Lc, v, nu_w, nc, z, chi, nu_draw)
 
     def _informed_start(self, uk, yk) -> np.ndarray:
