@@ -276,6 +276,20 @@ def weights(a, B, x, gamma, mu, Lam, nu, b, P, R, y, avail, bias_on, roll_gain, 
 
 
 @njit(**_JIT)
+def weighted_nis(logw, v, nu):
+    """sum_i q_i |v_i|^2 (nu_i - 2) / (nu_i nc) for v (N, nc): the predictive-weighted normalised
+    innovation of `StiffnessMPF._adapt_forgetting`."""
+    n, nc = v.shape
+    s = 0.0
+    for i in range(n):
+        vv = 0.0
+        for q in range(nc):
+            vv += v[i, q] * v[i, q]
+        s += math.exp(logw[i]) * (vv * (nu[i] - 2.0) / (nu[i] * nc))
+    return s
+
+
+@njit(**_JIT)
 def normalise(logw):
     """(normalised log-weights, ESS): `normalize_log_weights` then `effective_sample_size`."""
     n = logw.shape[0]

@@ -28,6 +28,7 @@ import numpy as np
 from tirefilter.errors import ConfigError
 from tirefilter.estimators.base import Estimate, Inputs, Measurement, Posterior, particle_estimate
 from tirefilter.estimators.baseline_common import gate_open
+from tirefilter.estimators.sensors import DISTURBANCE_RW, MEMS_BIAS0_STD, MEMS_BIAS_RW
 from tirefilter.stats import NiW, effective_sample_size, normalize_log_weights, systematic_resample
 from tirefilter.stats.linalg import chol, chol_solve, logdet_chol, solve_lower
 from tirefilter.stats.student_t import t_conditional, t_logpdf_whitened, t_sample
@@ -42,7 +43,14 @@ class MPFConfig:
     """Options of the stiffness MPF (all settable from the `[mpf]` table of --config)."""
 
     particles: int = 500
-    forgetting: float = 0.99  # lambda of eq. (20)
+    forgetting: float = 0.99  # lambda of eq. (20); with adaptive forgetting its value when the data fit
+    # adaptive forgetting (derivations, Sec. 17): lambda_k = clip(1 - (1 - forgetting) z_k, forgetting_min,
+    # forgetting_max), z_k the smoothed normalised innovation of the accelerometers (1 when the data fit the
+    # predictive): a surface change forgets fast, a drive that fits keeps a long memory. "fixed": the paper's
+    forgetting_mode: str = "adaptive"  # "adaptive" | "fixed"
+    forgetting_min: float = 0.95
+    forgetting_max: float = 0.999
+    surprise_time: float = 0.15  # s, time constant of the smoothing of z_k
     model: str = "full"  # "full" (wheel speeds) | "lateral" (vx given)
     integrator: str = "heun"  # "euler" (the paper) | "heun" (same w, wheel slip held)
     resample_threshold: float = 0.5  # resample when ESS < threshold * N
@@ -83,8 +91,14 @@ class MPFConfig:
     bound_high: float = 3.0
     # sensors
     sigma: tuple[float, float, float] = (0.05, 0.05, 0.0035)  # ax, ay, yaw rate white noise
-    bias_rw: tuple[float, float, float] = (0.0, 0.0, 0.0)  # random-walk std per sqrt(s)
-    bias0_std: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    # IMU bias (eq. (29)-(30)): prior std and random walk per sqrt(s) of ax, ay, yaw rate;
+    # the defaults are the automotive MEMS figures of `sensors` (a scenario or a vehicle
+    # TOML sets its own; all zero: no bias estimation, the paper's Sec. VI)
+    bias_rw: tuple[float, float, float] = MEMS_BIAS_RW
+    bias0_std: tuple[float, float, float] = MEMS_BIAS0_STD
+    # unmodelled offsets that wander (road bank and crown, body roll): a random walk per
+    # sqrt(s) added to the bias's (derivations, Sec. 16); zero: the paper's bias model
+    disturbance_rw: tuple[float, float, float] = DISTURBANCE_RW
     sample_period: float = 0.01  # s, used for the first step and as the bias-RW time base
     max_step: float = 0.02  # s, longest propagation step: longer sample intervals are sub-stepped
     backend: str = "numba"  # "numba": the compiled per-stage kernels (mpf_numba.py) | "numpy": the reference
@@ -97,6 +111,12 @@ class MPFConfig:
             bad("particles", f"N must be an integer >= 1, got {self.particles!r}")
         if not 0.0 < self.forgetting <= 1.0:
             bad("forgetting", f"lambda must be in (0, 1], got {self.forgetting!r}")
+        if self.forgetting_mode not in ("adaptive", "fixed"):
+            bad("forgetting_mode", f"expected adaptive or fixed, got {self.forgetting_mode!r}")
+        if not 0.0 < self.forgetting_min <= self.forgetting_max <= 1.0:
+            bad("forgetting_min", "need 0 < forgetting_min <= forgetting_max <= 1")
+        if not self.surprise_time > 0:
+            bad("surprise_time", f"must be > 0, got {self.surprise_time!r}")
         if self.model not in ("full", "lateral"):
             bad("model", f"expected full or lateral, got {self.model!r}")
         if self.integrator not in ("euler", "heun"):
@@ -108,7 +128,7 @@ class MPFConfig:
                     "plausible_yaw_rate", "restart_alpha", "restart_after"):
             if not getattr(self, key) >= 0:
                 bad(key, f"must be >= 0, got {getattr(self, key)!r}")
-        for key in ("sigma", "bias_rw", "bias0_std", "x0_std", "state_noise"):
+        for key in ("sigma", "bias_rw", "bias0_std", "disturbance_rw", "x0_std", "state_noise"):
             if any(not v >= 0 for v in getattr(self, key)):
                 bad(key, f"noise values must be >= 0, got {getattr(self, key)!r}")
         if min(self.sigma) <= 0:
@@ -152,8 +172,9 @@ class StiffnessMPF:
         self.roll_gain = 1.0 + v.roll_gradient * GRAVITY  # measured a^Y ~ (1 + k g) a^Y
         sig = np.asarray(self.cfg.sigma)[list(self.channels)]
         self.R = np.diag(sig**2)
-        self.bias_on = bool(np.any(np.asarray(self.cfg.bias_rw) > 0) or np.any(np.asarray(self.cfg.bias0_std) > 0))
-        self.q_bias = np.asarray(self.cfg.bias_rw)[list(self.channels)] ** 2
+        rw2 = np.square(self.cfg.bias_rw) + np.square(self.cfg.disturbance_rw)  # per s
+        self.bias_on = bool(np.any(rw2 > 0) or np.any(np.asarray(self.cfg.bias0_std) > 0))
+        self.q_bias = rw2[list(self.channels)]
         q = np.asarray(self.cfg.state_noise, float)[-(3 if self.full else 2):]
         self.state_noise = q if np.any(q > 0) else None
         ref = np.asarray(self.cfg.init_reference if self.cfg.init_reference is not None else self.C_nom, float)
@@ -205,6 +226,8 @@ class StiffnessMPF:
         self.resamples = 0
         self.restarts = 0
         self._contradiction_since = None
+        self.surprise = 1.0  # z_k of the adaptive forgetting: 1 while the data fit the predictive
+        self.lam = self.cfg.forgetting  # the forgetting factor applied at the next propagation
 
     def _draw_prior(self, x0_mean) -> None:
         """Particles from the initial distribution: stiffness statistics (or the carried
@@ -355,8 +378,8 @@ class StiffnessMPF:
             uk[0] = 0.0
 
         # 1. propagate from the previous sample
+        dt = t - self.t_prev if self.t_prev is not None else cfg.sample_period
         if self.t_prev is not None:
-            dt = t - self.t_prev
             if dt <= 0:
                 raise ConfigError("inputs", "t", f"time must increase: {t} after {self.t_prev}")
             self.x = self._propagate(self.x, self.u_prev, self.w_prev, dt, self._at_x)
@@ -367,9 +390,9 @@ class StiffnessMPF:
             if self.active:
                 if self._nb is not None:
                     st = self.stats
-                    self._nb.niw_forget(st.gamma, st.Lam, st.nu, cfg.forgetting, self.nu0)
+                    self._nb.niw_forget(st.gamma, st.Lam, st.nu, self.lam, self.nu0)
                 else:
-                    self.stats.forget(cfg.forgetting, nu_min=self.nu0)
+                    self.stats.forget(self.lam, nu_min=self.nu0)
         yk = np.array([y.ax, y.ay, y.yaw_rate], float)[list(self.channels)]
         start_logw = None
         if self.t_prev is None:
@@ -389,6 +412,8 @@ class StiffnessMPF:
                 model_k[0], model_k[1], self.x, st.gamma, st.mu, st.Lam, st.nu, self.b, self.P, self.R, yk, a,
                 self.bias_on, self.roll_gain, self.full, self.n_w)
             mu_w = st.mu
+            if nc and start_logw is None:
+                self._adapt_forgetting(v[:, :nc], nu_w, dt)
             if a.size and start_logw is None:
                 self.logw, ess = self._nb.normalise(self.logw + ll)
         else:
@@ -408,6 +433,8 @@ class StiffnessMPF:
             Lc = chol(S)
             e = yk[a] - (h + self.b if every else h[:, a] + self.b[:, a]) - np.einsum("nij,nj->ni", Da, mu_w)
             v = solve_lower(Lc, e)
+            if nc and start_logw is None:
+                self._adapt_forgetting(v[:, :nc], nu_w, dt)
             if start_logw is None:
                 self.logw = normalize_log_weights(self.logw + t_logpdf_whitened(v, logdet_chol(Lc), nu_w))
         if start_logw is not None:
@@ -502,6 +529,27 @@ class StiffnessMPF:
             nu_draw = nu_w + nc if nc else nu_w
             chi = self.rng.chisquare(nu_draw)
         return self._nb.sample(mu_w, L11, L12, Lc, v, nu_w, nc, z, chi, nu_draw)
+
+    def _adapt_forgetting(self, v: np.ndarray, nu: np.ndarray, dt: float) -> None:
+        """The forgetting factor of the next propagation from how well the accelerometers
+        fit the predictive (derivations, Sec. 17). `v` (N, nc) are the whitened residuals of
+        the weighting, Student-t with nu (N,) dof: E[v^T v] = nc nu / (nu - 2). Their
+        normalised square, averaged with the predictive weights (before this sample's
+        likelihood), is smoothed over `surprise_time` into z_k; lambda_k = 1 - (1 - lambda) z_k,
+        clipped: z = 1 gives the configured lambda, a surface change (z >> 1) forgets fast,
+        a drive that fits better than its noise figures (z < 1) forgets slowly."""
+        cfg = self.cfg
+        if cfg.forgetting_mode == "fixed":
+            return
+        if self._nb is not None:
+            s_k = self._nb.weighted_nis(self.logw, v, nu)
+        else:
+            nis = np.sum(v * v, axis=1) * (nu - 2.0) / (nu * v.shape[1])
+            s_k = float(np.exp(self.logw) @ nis)
+        if not math.isfinite(s_k):
+            return
+        self.surprise += -math.expm1(-dt / cfg.surprise_time) * (s_k - self.surprise)
+        self.lam = min(max(1.0 - (1.0 - cfg.forgetting) * self.surprise, cfg.forgetting_min), cfg.forgetting_max)
 
     def _informed_start(self, uk, yk) -> np.ndarray:
         """Draw each particle's initial (r, vy) from its prior conditioned on the first yaw
