@@ -4,8 +4,8 @@
         [--duration 10] [--estimators mpf augpf ekf rls kf bootstrap gpssm-axle gpssm-tensor gpssm-tensor100]
         [--figure benchmarks/figures/stiffness_fig14_cost.png] [--gpssm-max 1000]
 
-What is timed: `step()` of each estimator (median wall time after 10 warm-up steps, one
-process, one BLAS thread), fed the same recorded samples:
+What is timed: `step()` of each estimator (median wall time and median CPU time of the
+thread after 10 warm-up steps, one process, one BLAS thread), fed the same recorded samples:
 - mpf, augpf, ekf, rls, kf: paper-sim (full model, 100 Hz, seed 0, the first `--duration` s),
   the stiffness estimators as `tirefilter run` builds them;
 - bootstrap: the peer, a bootstrap particle filter of the `particles` library (Chopin,
@@ -65,19 +65,27 @@ def record(name: str, duration: float, seed: int = 0) -> tuple:
     return sc, samples
 
 
-def time_estimator(est, samples, seed: int = 1) -> tuple[float, float]:
-    """(median us per step after the warm-up, first call in ms)."""
+def _timed(step, n: int) -> tuple[float, float, float]:
+    """Call step(k) for k < n: (median wall us, median CPU us of this thread, first call ms)
+    after the warm-up. On a loaded machine a step longer than the scheduler's time slice is
+    preempted and its wall time inflates; the thread's CPU time does not."""
+    wall, cpu = [], []
+    for k in range(n):
+        c0, t0 = time.thread_time(), time.perf_counter()
+        step(k)
+        wall.append(time.perf_counter() - t0)
+        cpu.append(time.thread_time() - c0)
+    return float(np.median(wall[WARMUP:]) * 1e6), float(np.median(cpu[WARMUP:]) * 1e6), wall[0] * 1e3
+
+
+def time_estimator(est, samples, seed: int = 1) -> tuple[float, float, float]:
+    """(median wall us per step after the warm-up, median CPU us, first call in ms)."""
     est.reset(np.random.default_rng(seed))
-    times = []
-    for t, u, y in samples:
-        t0 = time.perf_counter()
-        est.step(t, u, y)
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times[WARMUP:]) * 1e6), times[0] * 1e3
+    return _timed(lambda k: est.step(*samples[k]), len(samples))
 
 
 # ---- the peer: a bootstrap PF of the `particles` library on the same car -----------------
-def bootstrap_peer(scenario, samples, N: int, seed: int = 1) -> tuple[float, float]:
+def bootstrap_peer(scenario, samples, N: int, seed: int = 1) -> tuple[float, float, float]:
     import particles
     from particles import distributions as dists
     from particles import state_space_models as ssm
@@ -128,12 +136,7 @@ def bootstrap_peer(scenario, samples, N: int, seed: int = 1) -> tuple[float, flo
     np.random.seed(seed)  # particles draws from numpy's global generator (not ours: the peer's way)
     smc = particles.SMC(fk=ssm.Bootstrap(ssm=SingleTrack(), data=Y), N=N, resampling="systematic", ESSrmin=0.5,
                         store_history=False, collect=None)
-    times = []
-    for _ in range(len(Y)):
-        t0 = time.perf_counter()
-        next(smc)
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times[WARMUP:]) * 1e6), times[0] * 1e3
+    return _timed(lambda k: next(smc), len(Y))
 
 
 def main() -> int:
@@ -144,6 +147,7 @@ def main() -> int:
                     default=["mpf", "augpf", "ekf", "rls", "kf", "bootstrap", *GPSSM])
     ap.add_argument("--gpssm-max", type=int, default=1000, help="largest N for the GP-SSM rows (default 1000)")
     ap.add_argument("--figure", type=Path, help="write Fig. 14 here (e.g. benchmarks/figures/stiffness_fig14_cost.png)")
+    ap.add_argument("--cpu-figure", action="store_true", help="plot the CPU medians (default: wall)")
     args = ap.parse_args()
     if "bootstrap" in args.estimators:
         try:
@@ -156,6 +160,7 @@ def main() -> int:
     sim, sim_samples = record("paper-sim", args.duration)
     snow, snow_samples = record("friction-snow", args.duration)
     table: dict[tuple[str, int], float] = {}
+    cpu_table: dict[tuple[str, int], float] = {}
     first: dict[str, float] = {}
     for name in args.estimators:
         for n in args.particles:
@@ -164,38 +169,41 @@ def main() -> int:
             if name in GPSSM and n > args.gpssm_max:
                 continue
             if name == "bootstrap":
-                us, ms = bootstrap_peer(sim, sim_samples, n)
+                us, cpu, ms = bootstrap_peer(sim, sim_samples, n)
             elif name in GPSSM:
                 est = build_estimator("gpssm", snow, model="auto", particles=n, config={"gpssm": GPSSM[name]})
-                us, ms = time_estimator(est, snow_samples)
+                us, cpu, ms = time_estimator(est, snow_samples)
             else:
                 est = build_estimator(name, sim, model="auto", particles=None if name in PARTICLE_FREE else n,
                                       config={})
-                us, ms = time_estimator(est, sim_samples)
-            table[(name, n)] = us
+                us, cpu, ms = time_estimator(est, sim_samples)
+            table[(name, n)], cpu_table[(name, n)] = us, cpu
             first.setdefault(name, ms)
-            print(f"  {name:16s} N = {n:5d}: {us:9.0f} us per step (first call {ms:.0f} ms)", flush=True)
+            print(f"  {name:16s} N = {n:5d}: {us:9.0f} us per step wall, {cpu:9.0f} us CPU (first call {ms:.0f} ms)",
+                  flush=True)
     print(f"load average after: {os.getloadavg()[0]:.2f}")
     cols = args.particles
-    print("\n| estimator | " + " | ".join(f"N = {n}" for n in cols) + " | first call ms |")
-    print("|---" * (len(cols) + 2) + "|")
-    for name in args.estimators:
-        cells = []
+    for label, tab in (("wall", table), ("CPU", cpu_table)):
+        print(f"\nmedian {label} us per step()")
+        print("| estimator | " + " | ".join(f"N = {n}" for n in cols) + " | first call ms |")
+        print("|---" * (len(cols) + 2) + "|")
+        for name in args.estimators:
+            cells = []
+            for n in cols:
+                key = (name, cols[0] if name in PARTICLE_FREE else n)
+                cells.append(f"{tab[key]:.0f}" if key in tab else "-")
+            print(f"| {name} | " + " | ".join(cells) + f" | {first.get(name, math.nan):.0f} |")
         for n in cols:
-            key = (name, cols[0] if name in PARTICLE_FREE else n)
-            cells.append(f"{table[key]:.0f}" if key in table else "-")
-        print(f"| {name} | " + " | ".join(cells) + f" | {first.get(name, math.nan):.0f} |")
-    for n in cols:
-        if ("mpf", n) in table and ("bootstrap", n) in table:
-            print(f"mpf / bootstrap at N = {n}: {table[('mpf', n)] / table[('bootstrap', n)]:.2f}")
-    if ("mpf", 500) in table and ("mpf", 5000) in table:
-        print(f"mpf N = 5000 / N = 500: {table[('mpf', 5000)] / table[('mpf', 500)]:.2f}")
+            if ("mpf", n) in tab and ("bootstrap", n) in tab:
+                print(f"{label}: mpf / bootstrap at N = {n}: {tab[('mpf', n)] / tab[('bootstrap', n)]:.2f}")
+        if ("mpf", 500) in tab and ("mpf", 5000) in tab:
+            print(f"{label}: mpf N = 5000 / N = 500: {tab[('mpf', 5000)] / tab[('mpf', 500)]:.2f}")
     if args.figure:
         from tirefilter.study import plots
 
         with tempfile.TemporaryDirectory() as tmp:
             shown = [e for e in args.estimators if e != "kf"]
-            path = plots.cost_plot({k: v for k, v in table.items()}, shown, cols, Path(tmp))
+            path = plots.cost_plot(cpu_table if args.cpu_figure else table, shown, cols, Path(tmp))
             args.figure.parent.mkdir(parents=True, exist_ok=True)
             shutil.copyfile(path, args.figure)
         print(f"figure: {args.figure}")
