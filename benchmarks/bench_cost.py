@@ -201,6 +201,10 @@ def main() -> int:
     if args.figure:
         from tirefilter.study import plots
 
+        plots.COLORS.update({"bootstrap": "black", "gpssm-axle": "tab:orange", "gpssm-tensor": "tab:purple",
+                             "gpssm-tensor100": "tab:brown"})
+        plots.LABELS.update({"bootstrap": "bootstrap PF (particles, peer)", "gpssm-axle": "GP-SSM per-axle",
+                             "gpssm-tensor": "GP-SSM tensor 50", "gpssm-tensor100": "GP-SSM tensor 100"})
         with tempfile.TemporaryDirectory() as tmp:
             shown = [e for e in args.estimators if e != "kf"]
             path = plots.cost_plot(cpu_table if args.cpu_figure else table, shown, cols, Path(tmp))
