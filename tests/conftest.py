@@ -3,9 +3,15 @@ FMUs (estimator, driver; FMI 2.0 and 3.0) once per session, on first use."""
 
 from __future__ import annotations
 
-import pytest
+import os
 
-from tirefilter.cosim.fmu import build_vehicle_fmu, vehicle_fmu_path
+# One BLAS thread: the batched solves of the numpy references are small, and OpenBLAS's
+# threads spin against each other on a loaded 2-core machine (a 100 x 100 batch took 30 s).
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import pytest  # noqa: E402
+
+from tirefilter.cosim.fmu import build_vehicle_fmu, vehicle_fmu_path  # noqa: E402
 
 # Truth without randomness: what the numpy model and the closed-form checks compare with.
 NOISE_OFF = {

@@ -327,7 +327,7 @@ def cmd_bench_stiffness(args) -> int:
     opts = StudyOptions(out=Path(args.out), parts=tuple(args.part or PARTS), trials=args.trials,
                         particles=tuple(args.particles) if args.particles else None,
                         scenarios=tuple(args.scenario) if args.scenario else None,
-                        estimators=_names(args.estimators), workers=args.workers,
+                        estimators=_names(args.estimators), workers=args.workers, scheduler=args.scheduler,
                         seed=args.seed, duration=args.duration, plots=not args.no_plots,
                         progress=sys.stderr.isatty() and not args.quiet)
     run_stiffness_study(opts)
@@ -455,6 +455,9 @@ def build_parser() -> argparse.ArgumentParser:
     st.add_argument("--scenario", nargs="+", help="scenarios (default: by part)")
     st.add_argument("--estimators", nargs="+", help="estimators, space- or comma-separated (default: by part)")
     st.add_argument("--workers", type=int, help="worker processes (default: one per CPU)")
+    st.add_argument("--scheduler", metavar="ADDRESS",
+                    help="run the trials on this Dask scheduler (tcp://host:8786) instead of local processes "
+                         "(the dask extra; docs/dask.md)")
     st.add_argument("--seed", type=int, default=0, help="seed of the study's SeedSequence")
     st.add_argument("--duration", type=float, help="shorten every trial to this many seconds")
     st.add_argument("--out", default="runs/bench-stiffness", help="output folder (default runs/bench-stiffness)")

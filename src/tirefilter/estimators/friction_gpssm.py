@@ -57,6 +57,7 @@ class GPSSMConfig:
     symmetry: str = "odd"  # "odd": only the basis functions odd in alpha (mu(-a) = -mu(a)) | "none" (the paper)
     s_f: float = 500.0  # SE kernel variance, relative to Q (A | Q ~ MN(0, Q, diag S)); the paper's 500
     stats: str = "exact"  # "exact" (eq. (27)-(29)) | "rank1" (forgetting applied to the prior too)
+    backend: str = "numba"  # "numba" (compiled kernels, stats/mniw_numba.py) | "numpy" (the reference)
     forgetting: float = 0.99  # lambda of eq. (29) (about 100 samples of memory: 4 s at 25 Hz)
     q0: float = 0.01  # prior guess of the std of w (friction units): Lambda_0 = q0^2 (nu_0 - d - 1) I
     nu0_margin: float = 2.0  # nu_0 = d + 1 + margin
@@ -95,6 +96,8 @@ class GPSSMConfig:
             bad("symmetry", f"expected none or odd, got {self.symmetry!r}")
         if self.stats not in ("exact", "rank1"):
             bad("stats", f"expected exact or rank1, got {self.stats!r}")
+        if self.backend not in ("numba", "numpy"):
+            bad("backend", f"expected numba or numpy, got {self.backend!r}")
         if self.measurement_friction not in ("learned", "prior"):
             bad("measurement_friction", f"expected learned or prior, got {self.measurement_friction!r}")
         GPBasis1D(self.L, self.m, self.lengthscale, self.s_f)  # L, l, m, s_f checks
@@ -209,7 +212,7 @@ class FrictionGPSSM:
             self.mpf.reset(rng)
         batch = (N,) if self.d == 2 else (N, 2)
         Lam0 = np.eye(self.d) * cfg.q0**2 * (self.nu0 - self.d - 1.0)  # E[Q] = q0^2 I
-        self.stats = make_mniw(cfg.stats, batch, self.d, self.basis.S, Lam0, self.nu0)
+        self.stats = make_mniw(cfg.stats, batch, self.d, self.basis.S, Lam0, self.nu0, cfg.backend)
         self.x = np.asarray(cfg.x0_mean, float) + rng.standard_normal((N, 2)) * np.asarray(cfg.x0_std, float)
         self.logw = np.full(N, -math.log(N))
         self.mu = np.zeros((N, 2))  # friction realised over the current step
@@ -267,8 +270,12 @@ class FrictionGPSSM:
         return x
 
     def _features(self, af, ar):
-        F = self.basis.features(af, ar)
-        return F  # tensor (N, m^2); axle (N, 2, m)
+        """phi(alpha): tensor (N, size); axle (N, 2, size)."""
+        if self.cfg.backend == "numba":
+            from tirefilter.stats.mniw_numba import basis_features
+
+            return basis_features(self.basis, af, ar)
+        return self.basis.features(af, ar)
 
     def _predictive(self, phi):
         """Joint predictive of zeta = (zeta_f, zeta_r): loc (N, 2), scale (N, 2, 2), dof (N,).

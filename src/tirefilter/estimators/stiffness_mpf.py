@@ -102,6 +102,7 @@ class MPFConfig:
     disturbance_rw: tuple[float, float, float] = DISTURBANCE_RW
     sample_period: float = 0.01  # s, used for the first step and as the bias-RW time base
     max_step: float = 0.02  # s, longest propagation step: longer sample intervals are sub-stepped
+    backend: str = "numba"  # "numba": the compiled per-stage kernels (mpf_numba.py) | "numpy": the reference
 
     def validated(self) -> "MPFConfig":
         def bad(key, problem):
@@ -146,6 +147,8 @@ class MPFConfig:
             bad("sample_period", "must be > 0")
         if not self.max_step > 0:
             bad("max_step", f"must be > 0, got {self.max_step!r}")
+        if self.backend not in ("numba", "numpy"):
+            bad("backend", f"expected numba or numpy, got {self.backend!r}")
         return self
 
 
@@ -186,6 +189,23 @@ class StiffnessMPF:
                               f"needs {self.n_w} values ({', '.join(self.params)})")
         self.C_ref, self.C_center = ref, center
         self._carried = None
+        self._nb = None
+        if self.cfg.backend == "numba":  # the compiled stages; the numpy methods stay the reference
+            from tirefilter.estimators import mpf_numba
+
+            self._nb = mpf_numba
+            self._vp = np.array([v.mass, v.yaw_inertia, v.lf, v.lr, v.Cf_y, v.Cr_y, self.C_nom_fx, self.C_nom_rx,
+                                 v.wheel_radius], float)
+
+    def __getstate__(self):  # (copies and FMU states: the kernel module is not state)
+        return {**self.__dict__, "_nb": None}
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        if self.cfg.backend == "numba":
+            from tirefilter.estimators import mpf_numba
+
+            self._nb = mpf_numba
 
     def _outlier_bound(self, nc: int) -> float:
         cache = self.__dict__.setdefault("_bounds", {})
@@ -257,6 +277,9 @@ class StiffnessMPF:
         a(x, u) + B(x, u) w: returns a (N, 3) = (a^X, a^Y, r') at w = 0, B = d a / d w
         (N, 3, n_w), the slip angles and the wheel slip of eq. (3)-(4) (small-angle form
         of the paper; `slip` given: held from an earlier evaluation)."""
+        if self._nb is not None and slip is None:
+            a, B, af, ar, slip = self._nb.model(x, u, self._vp, self.full, self.rear_drive, self.n_w)
+            return a, B, af, ar, slip if self.full else None
         v = self.vehicle
         if self.full:
             vx, vy, r = x[:, 0], x[:, 1], x[:, 2]
@@ -309,6 +332,11 @@ class StiffnessMPF:
         wheel slip held over the step. `first` = (a, B, slip) at x_k from the measurement
         step. A step longer than `max_step` (a gap in a log) is split into equal
         sub-steps with u and w held."""
+        if self._nb is not None:
+            a, B, _, _, slip = first
+            return self._nb.propagate(x, u, w, a, B, np.zeros((2, len(x))) if slip is None else slip, dt,
+                                      self.cfg.max_step, self.cfg.integrator == "heun", self._vp, self.full,
+                                      self.rear_drive, self.n_w)
         n_sub = max(1, math.ceil(dt / self.cfg.max_step - 1e-9))
         h = dt / n_sub
         for i in range(n_sub):
@@ -368,7 +396,11 @@ class StiffnessMPF:
                 q = self.q_bias if self.linear_region else self.q_bias_nonlinear
                 self.P = self.P + np.diag(q * dt)
             if self.active:
-                self.stats.forget(self.lam, nu_min=self.nu0)
+                if self._nb is not None:
+                    st = self.stats
+                    self._nb.niw_forget(st.gamma, st.Lam, st.nu, self.lam, self.nu0)
+                else:
+                    self.stats.forget(self.lam, nu_min=self.nu0)
         yk = np.array([y.ax, y.ay, y.yaw_rate], float)[list(self.channels)]
         start_logw = None
         if self.t_prev is None:
@@ -380,13 +412,25 @@ class StiffnessMPF:
         a = np.flatnonzero(np.isfinite(yk))  # available channels, in the order ax, ay, yaw rate
         nc = int(sum(self.channels[j] in (0, 1) for j in a))  # accelerometer channels lead
         model_k = self._model(self.x, uk)
-        h, D = self._measurement(model_k[0], model_k[1], self.x)
         af, ar = model_k[2], model_k[3]
-        mu_w, L11, nu_w = self.stats.predictive()
+        ess = None
+        if self._nb is not None:  # step 2 below, compiled
+            st = self.stats
+            h, D, L11, nu_w, L12, Lc, e, v, ll, nu_common = self._nb.weights(
+                model_k[0], model_k[1], self.x, st.gamma, st.mu, st.Lam, st.nu, self.b, self.P, self.R, yk, a,
+                self.bias_on, self.roll_gain, self.full, self.n_w)
+            mu_w = st.mu
+            if nc and start_logw is None:
+                self._adapt_forgetting(v[:, :nc], nu_w, dt)
+            if a.size and start_logw is None:
+                self.logw, ess = self._nb.normalise(self.logw + ll)
+        else:
+            h, D = self._measurement(model_k[0], model_k[1], self.x)
+            mu_w, L11, nu_w = self.stats.predictive()
 
         # 2. weights, eq. (36): the joint Student-t of (w, residual) with the common dof
         #    nu~ = nu - n_w + 1 and every block scaled alike (derivations, Sec. 3)
-        if a.size:
+        if a.size and self._nb is None:
             every = a.size == len(self.channels)  # the usual case: no indexing needed
             Da = D if every else D[:, a]
             DL = Da @ L11  # (N, |a|, n_w) = L21
@@ -403,9 +447,12 @@ class StiffnessMPF:
                 self.logw = normalize_log_weights(self.logw + t_logpdf_whitened(v, logdet_chol(Lc), nu_w))
         if start_logw is not None:
             self.logw = normalize_log_weights(start_logw)
-        if not self._plausible(uk):
+            ess = None
+        plausible = self._plausible(uk)
+        if plausible is False:
             return self._restart(t, uk, y)
-        ess = float(effective_sample_size(self.logw))
+        if ess is None or plausible is not True:  # (the compiled normalisation gave the ESS too)
+            ess = float(effective_sample_size(self.logw))
         if ess < cfg.resample_threshold * cfg.particles:
             idx = systematic_resample(self.logw, self.rng)
             self.x, self.b, self.P = self.x[idx], self.b[idx], self.P[idx]
@@ -420,13 +467,17 @@ class StiffnessMPF:
             self.resamples += 1
 
         # gate: observability (speed, steering) and linear tire region (Sec. V)
-        q = np.exp(self.logw)
-        vx_est = float(q @ self.x[:, 0]) if self.full else uk[3]
-        vy = self.x[:, 1 if self.full else 0]
-        vy_std = math.sqrt(max(float(q @ (vy - q @ vy) ** 2), 0.0))
+        if self._nb is not None:
+            vx_est, vy_std, alpha = self._nb.gate_moments(self.logw, self.x, af, ar, self.full)
+            vx_est = vx_est if self.full else uk[3]
+        else:
+            q = np.exp(self.logw)
+            vx_est = float(q @ self.x[:, 0]) if self.full else uk[3]
+            vy = self.x[:, 1 if self.full else 0]
+            vy_std = math.sqrt(max(float(q @ (vy - q @ vy) ** 2), 0.0))
+            alpha = max(abs(float(q @ af)), abs(float(q @ ar)))
         ay_m = y.ay if math.isfinite(y.ay) else 0.0
         self.linear_region = abs(ay_m) < cfg.gate_ay_max
-        alpha = max(abs(float(q @ af)), abs(float(q @ ar)))
         self.active = gate_open(cfg, t=t, t_start=self.t_start, vx=vx_est, delta=uk[0], ay_meas=y.ay, alpha=alpha,
                                 vy_std=vy_std)
         # a large slip angle with a small measured a^Y contradicts any tire: the state has
@@ -439,32 +490,56 @@ class StiffnessMPF:
         # 3. sample w_k from the conditional given the accelerometer residuals, eq. (39)-(41);
         #    the yaw-rate residual carries no information on w (d row 0) and is left out.
         #    The leading nc x nc block of Lc is the Cholesky factor of their scale matrix.
-        if nc:
+        if self._nb is not None:
+            w = self._sample_compiled(mu_w, L11, L12, Lc, v, nu_w, nc, nu_common)
+        elif nc:
             mu_c, Lam_c, nu_c = t_conditional(mu_w, 0.0, L11, L12[:, :, :nc], None, nu_w, e[:, :nc],
                                               L22_chol=Lc[:, :nc, :nc], x2_white=v[:, :nc])
-            if cfg.outlier_prob < 1:  # per-particle outlier gate on the accelerometer residuals
-                vc = solve_lower(Lc[:, :nc, :nc], e[:, :nc])
-                learn = np.sum(vc * vc, axis=1) < self._outlier_bound(nc)
-            else:
-                learn = None
         else:
             mu_c, Lam_c, nu_c = mu_w, L11, nu_w
-            learn = None
-        w = t_sample(mu_c, Lam_c, nu_c, self.rng)
+        if self._nb is None:
+            w = t_sample(mu_c, Lam_c, nu_c, self.rng)
+        learn = None
+        if nc and cfg.outlier_prob < 1:  # per-particle outlier gate on the accelerometer residuals
+            vc = solve_lower(Lc[:, :nc, :nc], e[:, :nc])
+            learn = np.sum(vc * vc, axis=1) < self._outlier_bound(nc)
 
         # 4. bias, eq. (30), with the predicted statistics (DESIGN.md order)
         if a.size and self.bias_on:
-            self._bias_update(yk, h, D, a)
+            if self._nb is not None:
+                st = self.stats
+                self._nb.bias_update(self.b, self.P, self.R, D, a, st.mu, st.Lam, st.nu, yk, h)
+            else:
+                self._bias_update(yk, h, D, a)
         if self.active:
             if nc:
-                self._track_drift(w - mu_w, L11, dt)
-            self.stats.update(w, learn)  # eq. (19) with the same w_k that drives the state
+                self._track_drift(w - mu_w, L11, dt)  # before the update: mu_w may be the statistics' own array
             lo = cfg.bound_low * self.C_ref - self.C_nom
             hi = cfg.bound_high * self.C_ref - self.C_nom
-            self.stats.mu = np.clip(self.stats.mu, lo, hi)  # parameter projection (Sec. V)
+            if self._nb is not None:
+                st = self.stats
+                self._nb.niw_update(st.gamma, st.mu, st.Lam, st.nu, w, np.ones(1, bool) if learn is None else learn,
+                                    learn is not None, lo, hi)
+            else:
+                self.stats.update(w, learn)  # eq. (19) with the same w_k that drives the state
+                self.stats.mu = np.clip(self.stats.mu, lo, hi)  # parameter projection (Sec. V)
         self.w_prev = w
         self._at_x = model_k  # the first stage of the next propagation, at this x and u
         return self._estimate(ess)
+
+    def _sample_compiled(self, mu_w, L11, L12, Lc, v, nu_w, nc, nu_common):
+        """Step 3 by `mpf_numba.sample`, with the random numbers drawn as `t_sample` draws them
+        (`nu_common` > 0: every particle has this nu~, and the chi-square draws share it)."""
+        N = len(mu_w)
+        z = self.rng.standard_normal(mu_w.shape)
+        if nu_common > 0:
+            nu = nu_common + nc
+            chi = self.rng.chisquare(nu, N)
+            nu_draw = np.full(N, nu)
+        else:
+            nu_draw = nu_w + nc if nc else nu_w
+            chi = self.rng.chisquare(nu_draw)
+        return self._nb.sample(mu_w, L11, L12, Lc, v, nu_w, nc, z, chi, nu_draw)
 
     def _adapt_forgetting(self, v: np.ndarray, nu: np.ndarray, dt: float) -> None:
         """The forgetting factor of the next propagation from how well the accelerometers
@@ -477,8 +552,11 @@ class StiffnessMPF:
         cfg = self.cfg
         if cfg.forgetting_mode == "fixed":
             return
-        nis = np.sum(v * v, axis=1) * (nu - 2.0) / (nu * v.shape[1])
-        s_k = float(np.exp(self.logw) @ nis)
+        if self._nb is not None:
+            s_k = self._nb.weighted_nis(self.logw, v, nu)
+        else:
+            nis = np.sum(v * v, axis=1) * (nu - 2.0) / (nu * v.shape[1])
+            s_k = float(np.exp(self.logw) @ nis)
         if not math.isfinite(s_k):
             return
         self.surprise += -math.expm1(-dt / cfg.surprise_time) * (s_k - self.surprise)
@@ -547,16 +625,24 @@ class StiffnessMPF:
     def _plausible(self, uk) -> bool:
         """Zero the weight of particles outside the physically possible region; False when
         none is left."""
-        vx = self.x[:, 0] if self.full else uk[3]
-        vy, r = self.x[:, -2], self.x[:, -1]
-        ok = (np.abs(vy) <= self.cfg.plausible_beta * np.maximum(np.abs(vx), self.cfg.gate_speed)) & (
-            np.abs(r) <= self.cfg.plausible_yaw_rate)
-        if ok.all():
-            return True
-        if not ok.any():
-            return False
+        if self._nb is not None:
+            ok, count = self._nb.plausible(self.x, float(uk[3]), self.full, self.cfg.plausible_beta,
+                                           self.cfg.plausible_yaw_rate, self.cfg.gate_speed)
+            if count == len(ok):
+                return True
+            if count == 0:
+                return False
+        else:
+            vx = self.x[:, 0] if self.full else uk[3]
+            vy, r = self.x[:, -2], self.x[:, -1]
+            ok = (np.abs(vy) <= self.cfg.plausible_beta * np.maximum(np.abs(vx), self.cfg.gate_speed)) & (
+                np.abs(r) <= self.cfg.plausible_yaw_rate)
+            if ok.all():
+                return True
+            if not ok.any():
+                return False
         self.logw = normalize_log_weights(np.where(ok, self.logw, -np.inf))
-        return True
+        return None  # some left: the weights changed
 
     def _restart(self, t, uk, y) -> Estimate:
         """Every particle has left the plausible region (the state diverged, typically after
@@ -591,6 +677,11 @@ class StiffnessMPF:
         self.P = 0.5 * (P + np.swapaxes(P, 1, 2))
 
     def _estimate(self, ess: float) -> Estimate:
+        st = self.stats
+        if self._nb is not None:
+            x_mean, x_std, mbar, var_mean, sigma2, b_mean = self._nb.estimate_moments(
+                self.logw, self.x, st.gamma, st.mu, st.Lam, st.nu, self.b)
+            return self._estimate_from(ess, x_mean, x_std, mbar, var_mean, sigma2, b_mean)
         q = np.exp(self.logw)
         x_mean = q @ self.x
         x_std = np.sqrt(np.maximum(q @ (self.x - x_mean) ** 2, 0.0))
@@ -600,9 +691,12 @@ class StiffnessMPF:
         Esig = np.diagonal(self.stats.Lam, axis1=1, axis2=2) / (self.stats.nu - self.n_w - 1.0)[:, None]  # E[Sigma]
         var_mean = q @ (self.stats.gamma[:, None] * Esig) + spread  # posterior variance of the mean
         sigma2 = q @ Esig + spread  # eq. (27b), diagonal, with nu - n_w - 1
+        return self._estimate_from(ess, x_mean, x_std, mbar, var_mean, sigma2, q @ self.b)
+
+    def _estimate_from(self, ess, x_mean, x_std, mbar, var_mean, sigma2, b_mean) -> Estimate:
         C = self.C_nom + mbar
         vals = dict(zip(self.params, zip(C, np.sqrt(var_mean), np.sqrt(sigma2))))
-        bias = dict(zip(("ax", "ay", "yaw_rate") if self.full else ("ay", "yaw_rate"), q @ self.b))
+        bias = dict(zip(("ax", "ay", "yaw_rate") if self.full else ("ay", "yaw_rate"), b_mean))
         return particle_estimate(active=self.active, ess=ess, x_mean=x_mean, x_std=x_std, stiffness=vals, bias=bias,
                                  vx_input=NAN if self.u_prev is None else self.u_prev[3])
 

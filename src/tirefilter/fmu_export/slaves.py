@@ -355,6 +355,10 @@ class _EstimatorLogic(_Slave):
         if not (math.isfinite(v["t_first"]) and v["t_first"] >= 0.0):
             raise _param_error("t_first", f"{v['t_first']!r} is out of range: expected a finite time >= 0")
         config = self._config()
+        for key in ("mpf", "gpssm"):  # numpy kernels unless the config asks for numba: an FMU is
+            # unpacked afresh by each importing tool, so numba's cache (beside the sources) does not
+            # survive and every instantiation would compile for 10-30 s (fmu_export REQUIREMENTS)
+            config[key] = {"backend": "numpy", **config.get(key, {})}
         table = dict(config.get(self.option_table, {}))
         table["forgetting"] = float(forgetting)
         table["sample_period"] = 1.0 / rate

@@ -262,7 +262,13 @@ class MNIWRank1(_Common):
         return Z @ np.swapaxes(C, -1, -2)
 
 
-def make_mniw(kind: str, batch, d: int, S, Lam0, nu0: float):
-    if kind == "rank1":
-        return MNIWRank1(tuple(batch), d, S, Lam0, nu0)
-    return MNIW(tuple(batch), d, S, Lam0, nu0)
+def make_mniw(kind: str, batch, d: int, S, Lam0, nu0: float, backend: str = "numpy"):
+    """The statistics `kind` ("exact" | "rank1"); backend "numba": the compiled kernels of
+    `tirefilter.stats.mniw_numba` (same layout and answers), "numpy": these classes."""
+    if backend == "numba":
+        from tirefilter.stats.mniw_numba import NumbaMNIW, NumbaMNIWRank1
+
+        cls = NumbaMNIWRank1 if kind == "rank1" else NumbaMNIW
+    else:
+        cls = MNIWRank1 if kind == "rank1" else MNIW
+    return cls(tuple(batch), d, S, Lam0, nu0)

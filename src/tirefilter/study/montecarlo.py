@@ -7,7 +7,9 @@
   numbers).
 - **Workers**: trials run in a process pool (`spawn` start method), one vehicle FMU per
   worker, reset between its trials (`run_scenario(fmu=...)`). With one worker they run in
-  this process. The estimators step one trial at a time; none of them carries a trial
+  this process. With `scheduler` (an address, `tcp://host:8786`) they run on an existing
+  Dask cluster instead (dask.distributed, the `dask` extra): the same function per trial,
+  one FMU per worker thread, reused across its trials (docs/dask.md). The estimators step one trial at a time; none of them carries a trial
   axis, so trials are not batched inside a process.
 - **Results** are written per trial as it finishes: its metrics as one line of
   `DIR/metrics.jsonl` and its (decimated) series as `DIR/trial-<i>.npz`. An interrupted
@@ -21,6 +23,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import threading
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field, replace
@@ -113,10 +116,12 @@ class StudyRun:
 
 
 def run_study(spec: TrialSpec, trials: int, directory: str | Path, *, study_seed: int = 0, workers: int | None = None,
-              progress: bool = False) -> StudyRun:
+              progress: bool = False, scheduler: str | None = None) -> StudyRun:
     """Run the trials of `spec` that `directory` does not hold yet; returns all of them.
 
     `workers` defaults to the number of CPUs; 1 runs the trials in this process.
+    `scheduler`: the address of a Dask scheduler; the trials run on its workers (`workers`
+    is then ignored) and are saved here as they finish, as with the local pool.
     """
     if trials < 1:
         raise ConfigError("--trials", "", f"needs at least one trial, got {trials}")
@@ -125,7 +130,10 @@ def run_study(spec: TrialSpec, trials: int, directory: str | Path, *, study_seed
     todo = [(i, s) for i, s in enumerate(seeds) if i not in store.metrics]
     bar = _Bar(spec.key(), trials, len(seeds) - len(todo), progress)
     workers = max(1, min(workers or os.cpu_count() or 1, len(todo) or 1))
-    if workers == 1:
+    if scheduler is not None:
+        if todo:
+            _run_on_dask(scheduler, spec, todo, store, bar)
+    elif workers == 1:
         fmu = None
         try:
             for i, s in todo:
@@ -153,17 +161,42 @@ def run_study(spec: TrialSpec, trials: int, directory: str | Path, *, study_seed
     return store
 
 
-_WORKER_FMU = None
+def _run_on_dask(address: str, spec: TrialSpec, todo, store: StudyRun, bar) -> None:
+    """The trials `todo` on the Dask cluster at `address`, saved as they come back."""
+    try:
+        from dask.distributed import Client, as_completed as dask_completed
+    except ImportError:
+        raise ConfigError("--scheduler", "", "needs dask.distributed: pip install 'tirefilter[dask]'") from None
+    try:
+        client = Client(address, timeout="20s", set_as_default=False)
+    except OSError as exc:
+        raise ConfigError("--scheduler", "", f"no Dask scheduler at {address!r} ({exc})") from None
+    try:
+        with client.as_current():
+            futures = [client.submit(_worker_trial, spec, i, s, key=f"tirefilter-trial-{spec.key()}-{i}-{s}",
+                                     pure=False) for i, s in todo]
+            try:
+                for fut in dask_completed(futures):
+                    store.save(fut.result())
+                    bar.update()
+            except BaseException:
+                client.cancel(futures)
+                raise
+    finally:
+        client.close()
+
+
+_WORKER = threading.local()  # one vehicle FMU per worker thread (pool process or Dask worker thread)
 
 
 def _worker_trial(spec: TrialSpec, index: int, seed: int) -> TrialResult:
-    """A trial in a pool worker, on that worker's one FMU instance."""
-    global _WORKER_FMU
-    if _WORKER_FMU is None:
+    """A trial in a pool or Dask worker, on that worker's one FMU instance."""
+    fmu = getattr(_WORKER, "fmu", None)
+    if fmu is None:
         from tirefilter.cosim.fmu import VehicleFMU
 
-        _WORKER_FMU = VehicleFMU()
-    return run_trial(spec, index, seed, fmu=_WORKER_FMU)
+        fmu = _WORKER.fmu = VehicleFMU()
+    return run_trial(spec, index, seed, fmu=fmu)
 
 
 def run_trial(spec: TrialSpec, index: int, seed: int, *, fmu) -> TrialResult:

@@ -49,6 +49,7 @@ class StudyOptions:
     scenarios: tuple[str, ...] | None = None
     estimators: tuple[str, ...] | None = None
     workers: int | None = None
+    scheduler: str | None = None  # a Dask scheduler's address: run the trials there (docs/dask.md)
     seed: int = 0
     duration: float | None = None  # shorten every trial (quick looks, tests)
     plots: bool = True
@@ -117,13 +118,15 @@ def _trials_part(part, opts, report, scenarios, estimators, particles, trials) -
                 t0 = time.perf_counter()
                 before = _finished(Path(opts.out) / part / spec.key())
                 run = run_study(spec, trials, Path(opts.out) / part / spec.key(), study_seed=opts.seed,
-                                workers=opts.workers, progress=opts.progress)
+                                workers=opts.workers, progress=opts.progress, scheduler=opts.scheduler)
                 wall = time.perf_counter() - t0
                 new = len(run.metrics) - before
                 runs[(scenario, est, spec.particles or 0)] = run
                 failed = len(run.metrics) - len(run.ok())
                 report(f"- {spec.key()}: {len(run.ok())} trials ok" + (f", {failed} failed" if failed else "")
-                       + f", wall time of this invocation {wall:.1f} s with {opts.workers or os.cpu_count()} workers"
+                       + f", wall time of this invocation {wall:.1f} s "
+                       + (f"on the Dask cluster at {opts.scheduler}" if opts.scheduler
+                          else f"with {opts.workers or os.cpu_count()} workers")
                        + (f" ({new} trials run, the others were in {opts.out})" if new < trials else ""))
     if part == "particles":
         _vy_table(report, runs, particles)

@@ -1,0 +1,218 @@
+"""Per-step cost against N, every estimator and a peer in one run (Fig. 14 of paper A).
+
+    .venv/bin/python benchmarks/bench_cost.py [--particles 50 100 200 500 1000 2000 5000]
+        [--duration 10] [--estimators mpf augpf ekf rls kf bootstrap gpssm-axle gpssm-tensor gpssm-tensor100]
+        [--figure benchmarks/figures/stiffness_fig14_cost.png] [--gpssm-max 1000]
+
+What is timed: `step()` of each estimator (median wall time and median CPU time of the
+thread after 10 warm-up steps, one process, one BLAS thread), fed the same recorded samples:
+- mpf, augpf, ekf, rls, kf: paper-sim (full model, 100 Hz, seed 0, the first `--duration` s),
+  the stiffness estimators as `tirefilter run` builds them;
+- bootstrap: the peer, a bootstrap particle filter of the `particles` library (Chopin,
+  `pip install --no-deps particles==0.4`, see pyproject's `bench` extra) on the same car and
+  the same samples: the single-track model of the estimators (linear tires at the nominal
+  stiffness, Euler steps) written as a `particles.state_space_models.StateSpaceModel`, state
+  [vx, vy, r], inputs delta and the wheel rates, measurements ax, ay, yaw rate. It learns
+  nothing: it is the cost of a plain particle filter of the same car in a maintained library;
+  one step is one `next()` of `particles.SMC` (systematic resampling at ESS < N / 2, as ours);
+- gpssm-*: the friction GP-SSM (exact statistics, the default) on friction-snow (25 Hz, seed 0),
+  the per-axle basis (20 odd functions in all), the default odd tensor (50) and the paper's
+  tensor (100), N up to `--gpssm-max`.
+
+Each estimator's first call (numba compilation when the cache is cold, imports) is printed
+apart: `first call ms`. The load average is printed before and after: on a shared machine,
+compare numbers within one run only.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # noqa: E402  (small batched calls; see tests/conftest.py)
+
+import argparse  # noqa: E402
+import math  # noqa: E402
+import shutil  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from dataclasses import replace  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from tirefilter.cosim.fmu import VehicleFMU  # noqa: E402
+from tirefilter.cosim.run import cosim_samples  # noqa: E402
+from tirefilter.runs import spawn_seeds  # noqa: E402
+from tirefilter.estimators import build_estimator  # noqa: E402
+from tirefilter.scenarios import load_scenario  # noqa: E402
+from tirefilter.vehicle.single_track import wheel_slip  # noqa: E402
+
+PARTICLE_FREE = ("ekf", "rls", "kf")
+GPSSM = {"gpssm-axle": {"basis": "axle"}, "gpssm-tensor": {"basis": "tensor"},
+         "gpssm-tensor100": {"basis": "tensor", "symmetry": "none"}}
+WARMUP = 10
+
+
+def record(name: str, duration: float, seed: int = 0) -> tuple:
+    """The scenario (shortened) and its estimator samples [(t, Inputs, Measurement)]."""
+    sc = load_scenario(name)
+    sc = replace(sc, duration=min(duration, sc.duration),
+                 surface_changes=tuple(t for t in sc.surface_changes if t < duration))
+    fmu_seed, _ = spawn_seeds(seed)
+    with VehicleFMU() as fmu:
+        samples = [(s.t, s.inputs, s.meas) for s in cosim_samples(sc, fmu, sc.fmu_parameters(fmu_seed))]
+    return sc, samples
+
+
+def _timed(step, n: int) -> tuple[float, float, float]:
+    """Call step(k) for k < n: (median wall us, median CPU us of this thread, first call ms)
+    after the warm-up. On a loaded machine a step longer than the scheduler's time slice is
+    preempted and its wall time inflates; the thread's CPU time does not."""
+    wall, cpu = [], []
+    for k in range(n):
+        c0, t0 = time.thread_time(), time.perf_counter()
+        step(k)
+        wall.append(time.perf_counter() - t0)
+        cpu.append(time.thread_time() - c0)
+    return float(np.median(wall[WARMUP:]) * 1e6), float(np.median(cpu[WARMUP:]) * 1e6), wall[0] * 1e3
+
+
+def time_estimator(est, samples, seed: int = 1) -> tuple[float, float, float]:
+    """(median wall us per step after the warm-up, median CPU us, first call in ms)."""
+    est.reset(np.random.default_rng(seed))
+    return _timed(lambda k: est.step(*samples[k]), len(samples))
+
+
+# ---- the peer: a bootstrap PF of the `particles` library on the same car -----------------
+def bootstrap_peer(scenario, samples, N: int, seed: int = 1) -> tuple[float, float, float]:
+    import particles
+    from particles import distributions as dists
+    from particles import state_space_models as ssm
+
+    v = scenario.vehicle
+    s = scenario.sensor_spec
+    Ts = scenario.sample_period
+    drive_front = v.drive != "rear"
+    Cx_other = v.Cx if v.Cx_undriven is None else v.Cx_undriven
+    Cfx, Crx = (v.Cx, Cx_other) if drive_front else (Cx_other, v.Cx)
+    U = np.array([[u.delta, u.omega_f, u.omega_r] for _, u, _ in samples])
+    Y = [np.array([y.ax, y.ay, y.yaw_rate]) for _, _, y in samples]
+
+    def accelerations(x, u):
+        """(a^X, a^Y, r') of the single-track model with linear tires (eq. (1)-(4) of paper A)."""
+        vx, vy, r = x[:, 0], x[:, 1], x[:, 2]
+        ivx = 1.0 / np.maximum(vx, 1.0)
+        af = u[0] - (vy + v.lf * r) * ivx
+        ar = (v.lr * r - vy) * ivx
+        lf_, lr_ = wheel_slip(vx, v.wheel_radius * u[1]), wheel_slip(vx, v.wheel_radius * u[2])
+        Ffy, Fry, Ffx, Frx = v.Cf_y * af, v.Cr_y * ar, Cfx * lf_, Crx * lr_
+        cd, sd = math.cos(u[0]), math.sin(u[0])
+        ax = (Ffx * cd - Ffy * sd + Frx) / v.mass
+        ay = (Ffy * cd + Ffx * sd + Fry) / v.mass
+        return ax, ay, (v.lf * (Ffy * cd + Ffx * sd) - v.lr * Fry) / v.yaw_inertia
+
+    class SingleTrack(ssm.StateSpaceModel):
+        """x = [vx, vy, r]; Euler step of eq. (1) plus Gaussian process noise; y = (ax, ay, r)."""
+
+        q = np.array([0.05, 0.05, 0.005])  # per step: the estimators' state noise would be 0
+
+        def PX0(self):
+            return dists.IndepProd(dists.Normal(loc=U[0, 2] * v.wheel_radius, scale=1.0),
+                                   dists.Normal(scale=0.5), dists.Normal(loc=Y[0][2], scale=0.0175))
+
+        def PX(self, t, xp):
+            ax, ay, rd = accelerations(xp, U[t - 1])
+            vx, vy, r = xp[:, 0], xp[:, 1], xp[:, 2]
+            return dists.IndepProd(dists.Normal(loc=vx + Ts * (vy * r + ax), scale=self.q[0]),
+                                   dists.Normal(loc=vy + Ts * (ay - vx * r), scale=self.q[1]),
+                                   dists.Normal(loc=r + Ts * rd, scale=self.q[2]))
+
+        def PY(self, t, xp, x):
+            ax, ay, _ = accelerations(x, U[t])
+            return dists.IndepProd(dists.Normal(loc=ax, scale=s.sigma_ax), dists.Normal(loc=ay, scale=s.sigma_ay),
+                                   dists.Normal(loc=x[:, 2], scale=s.sigma_yaw_rate))
+
+    np.random.seed(seed)  # particles draws from numpy's global generator (not ours: the peer's way)
+    smc = particles.SMC(fk=ssm.Bootstrap(ssm=SingleTrack(), data=Y), N=N, resampling="systematic", ESSrmin=0.5,
+                        store_history=False, collect=None)
+    return _timed(lambda k: next(smc), len(Y))
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--particles", type=int, nargs="+", default=[50, 100, 200, 500, 1000, 2000, 5000])
+    ap.add_argument("--duration", type=float, default=10.0, help="s of each scenario's samples (default 10)")
+    ap.add_argument("--estimators", nargs="+",
+                    default=["mpf", "augpf", "ekf", "rls", "kf", "bootstrap", *GPSSM])
+    ap.add_argument("--gpssm-max", type=int, default=1000, help="largest N for the GP-SSM rows (default 1000)")
+    ap.add_argument("--figure", type=Path, help="write Fig. 14 here (e.g. benchmarks/figures/stiffness_fig14_cost.png)")
+    ap.add_argument("--cpu-figure", action="store_true", help="plot the CPU medians (default: wall)")
+    args = ap.parse_args()
+    if "bootstrap" in args.estimators:
+        try:
+            import particles  # noqa: F401
+        except ImportError:
+            sys.exit("bench_cost.py: the peer needs the `particles` library: "
+                     ".venv/bin/pip install --no-deps particles==0.4 && .venv/bin/pip install -e '.[bench]'")
+    print(f"load average before: {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores; "
+          f"paper-sim and friction-snow, {args.duration:g} s of samples each")
+    sim, sim_samples = record("paper-sim", args.duration)
+    snow, snow_samples = record("friction-snow", args.duration)
+    table: dict[tuple[str, int], float] = {}
+    cpu_table: dict[tuple[str, int], float] = {}
+    first: dict[str, float] = {}
+    for name in args.estimators:
+        for n in args.particles:
+            if name in PARTICLE_FREE and n != args.particles[0]:
+                continue
+            if name in GPSSM and n > args.gpssm_max:
+                continue
+            if name == "bootstrap":
+                us, cpu, ms = bootstrap_peer(sim, sim_samples, n)
+            elif name in GPSSM:
+                est = build_estimator("gpssm", snow, model="auto", particles=n, config={"gpssm": GPSSM[name]})
+                us, cpu, ms = time_estimator(est, snow_samples)
+            else:
+                est = build_estimator(name, sim, model="auto", particles=None if name in PARTICLE_FREE else n,
+                                      config={})
+                us, cpu, ms = time_estimator(est, sim_samples)
+            table[(name, n)], cpu_table[(name, n)] = us, cpu
+            first.setdefault(name, ms)
+            print(f"  {name:16s} N = {n:5d}: {us:9.0f} us per step wall, {cpu:9.0f} us CPU (first call {ms:.0f} ms)",
+                  flush=True)
+    print(f"load average after: {os.getloadavg()[0]:.2f}")
+    cols = args.particles
+    for label, tab in (("wall", table), ("CPU", cpu_table)):
+        print(f"\nmedian {label} us per step()")
+        print("| estimator | " + " | ".join(f"N = {n}" for n in cols) + " | first call ms |")
+        print("|---" * (len(cols) + 2) + "|")
+        for name in args.estimators:
+            cells = []
+            for n in cols:
+                key = (name, cols[0] if name in PARTICLE_FREE else n)
+                cells.append(f"{tab[key]:.0f}" if key in tab else "-")
+            print(f"| {name} | " + " | ".join(cells) + f" | {first.get(name, math.nan):.0f} |")
+        for n in cols:
+            if ("mpf", n) in tab and ("bootstrap", n) in tab:
+                print(f"{label}: mpf / bootstrap at N = {n}: {tab[('mpf', n)] / tab[('bootstrap', n)]:.2f}")
+        if ("mpf", 500) in tab and ("mpf", 5000) in tab:
+            print(f"{label}: mpf N = 5000 / N = 500: {tab[('mpf', 5000)] / tab[('mpf', 500)]:.2f}")
+    if args.figure:
+        from tirefilter.study import plots
+
+        plots.COLORS.update({"bootstrap": "black", "gpssm-axle": "tab:orange", "gpssm-tensor": "tab:purple",
+                             "gpssm-tensor100": "tab:brown"})
+        plots.LABELS.update({"bootstrap": "bootstrap PF (particles, peer)", "gpssm-axle": "GP-SSM per-axle",
+                             "gpssm-tensor": "GP-SSM tensor 50", "gpssm-tensor100": "GP-SSM tensor 100"})
+        with tempfile.TemporaryDirectory() as tmp:
+            shown = [e for e in args.estimators if e != "kf"]
+            path = plots.cost_plot(cpu_table if args.cpu_figure else table, shown, cols, Path(tmp))
+            args.figure.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(path, args.figure)
+        print(f"figure: {args.figure}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

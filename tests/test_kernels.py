@@ -1,0 +1,184 @@
+"""The compiled (numba) kernels against the numpy reference: fed the same numbers and the
+same random generator, equal to 1e-12 relative (to each array's largest magnitude, so
+entries near zero are compared on the array's scale).
+
+Stiffness MPF: whole filter runs, both backends from one seed, full and lateral models,
+bias estimation on and off, resampling at every step, missing samples, a gap that is
+sub-stepped, and restarts.
+
+Friction GP-SSM: the basis, the MNIW predictive / update / forgetting (exact and rank-one
+statistics) and whole filter runs with resampling, over the per-axle basis, the default
+(odd 50-function tensor) and the paper's 100-function tensor. Sizes are small: the test is
+about equality, the cost is the benchmarks' business.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from tirefilter.estimators.base import Inputs, Measurement
+from tirefilter.estimators.friction_gpssm import FrictionGPSSM, GPSSMConfig
+from tirefilter.estimators.stiffness_mpf import MPFConfig, StiffnessMPF
+from tirefilter.scenarios import load_scenario
+from tirefilter.stats.gp import GPBasis1D, make_basis
+from tirefilter.stats.mniw import make_mniw
+from tirefilter.stats.mniw_numba import basis_features
+
+RTOL = 1e-12
+
+# (basis, symmetry, functions per slip dimension): per-axle, default, the paper's tensor
+BASES = [("axle", "odd", 20), ("tensor", "odd", 10), ("tensor", "none", 10)]
+BASIS_IDS = ["axle", "tensor-odd-50", "tensor-100"]
+
+
+def assert_equal_to_rounding(a, b, what=""):
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    assert a.shape == b.shape, (what, a.shape, b.shape)
+    scale = float(np.max(np.abs(b))) if b.size else 0.0
+    np.testing.assert_allclose(a, b, rtol=RTOL, atol=RTOL * scale, err_msg=what)
+
+
+def _basis(kind, symmetry, m):
+    return make_basis(kind, GPBasis1D(30 * math.pi / 180, m, 2 * math.pi / 180, 500.0), symmetry == "odd")
+
+
+@pytest.mark.parametrize("kind,symmetry,m", BASES, ids=BASIS_IDS)
+def test_basis_features_equal(kind, symmetry, m):
+    basis = _basis(kind, symmetry, m)
+    rng = np.random.default_rng(1)
+    af, ar = rng.uniform(-0.5, 0.5, 37), rng.uniform(-0.5, 0.5, 37)
+    assert_equal_to_rounding(basis_features(basis, af, ar), basis.features(af, ar), "features")
+
+
+@pytest.mark.parametrize("stats", ["exact", "rank1"])
+@pytest.mark.parametrize("kind,symmetry,m", BASES, ids=BASIS_IDS)
+def test_mniw_kernels_equal(kind, symmetry, m, stats):
+    """Twelve rounds of forget / predictive / update (with the prior's dof clamp active at
+    the start) and a resampling `take`, both backends fed the same zeta and phi."""
+    basis = _basis(kind, symmetry, m)
+    d = 2 if kind == "tensor" else 1
+    batch = (7,) if d == 2 else (7, 2)
+    nu0 = d + 3.0
+    Lam0 = np.eye(d) * 1e-4 * (nu0 - d - 1.0)
+    ref = make_mniw(stats, batch, d, basis.S, Lam0, nu0, "numpy")
+    fast = make_mniw(stats, batch, d, basis.S, Lam0, nu0, "numba")
+    rng = np.random.default_rng(2)
+    for k in range(12):
+        for s in (ref, fast):
+            s.forget(0.97, nu_min=nu0)
+        af, ar = rng.uniform(-0.2, 0.2, 7), rng.uniform(-0.2, 0.2, 7)
+        phi = basis.features(af, ar)
+        out_ref, out_fast = ref.predictive(phi), fast.predictive(phi)
+        for a, b, name in zip(out_fast, out_ref, ("loc", "scale", "dof")):
+            assert_equal_to_rounding(a, b, f"{name} at round {k}")
+        zeta = out_ref[0] + 0.01 * rng.standard_normal(out_ref[0].shape)
+        ref.update(zeta, phi)
+        fast.update(zeta, phi)
+        if k == 6:
+            idx = rng.integers(0, 7, 7)
+            ref, fast = ref.take(idx), fast.take(idx)
+    for a, b in zip(fast.posterior(), ref.posterior()):
+        assert_equal_to_rounding(a, b, "posterior")
+    assert_equal_to_rounding(fast.nu, ref.nu, "nu")
+
+
+def _drive(est: FrictionGPSSM, steps: int):
+    """A synthetic slalom at 15 m/s, 25 Hz, a^Y and yaw rate from a linear single track
+    with a little noise (no FMU): enough to learn, resample and clip nothing."""
+    rng = np.random.default_rng(5)
+    est.reset(np.random.default_rng(9))
+    out = []
+    for k in range(steps):
+        t = 0.04 * k
+        delta = 0.03 * math.sin(2 * math.pi * 0.5 * t)
+        r = 15.0 * delta / 2.8
+        e = est.step(t, Inputs(delta=delta, vx=15.0),
+                     Measurement(ay=15.0 * r + 0.05 * rng.standard_normal(), yaw_rate=r + 0.003 * rng.standard_normal()))
+        out.append((e.vy, e.yaw_rate, e.ess, e.Cf_y, e.Cr_y))
+    return np.array(out)
+
+
+@pytest.mark.parametrize("stats", ["exact", "rank1"])
+@pytest.mark.parametrize("kind,symmetry,m", BASES, ids=BASIS_IDS)
+def test_friction_gpssm_backends_equal(kind, symmetry, m, stats):
+    """A whole filter run (25 steps, N = 16, resampling at every step: threshold 1), numba
+    and numpy backends from the same seed: the same estimates, particles and statistics."""
+    vehicle = load_scenario("friction-snow").vehicle
+    runs = {}
+    for backend in ("numpy", "numba"):
+        cfg = GPSSMConfig(particles=16, basis=kind, symmetry=symmetry, basis_functions=m, stats=stats,
+                          backend=backend, resample_threshold=1.0)
+        est = FrictionGPSSM(vehicle, cfg)
+        runs[backend] = (_drive(est, 25), est)
+    (a, fast), (b, ref) = runs["numba"], runs["numpy"]
+    assert ref.resamples >= 12 and fast.resamples == ref.resamples
+    assert_equal_to_rounding(a, b, "estimates")
+    pa, pb = fast.posterior(), ref.posterior()
+    assert_equal_to_rounding(pa.particles, pb.particles, "particles")
+    assert_equal_to_rounding(pa.log_weights, pb.log_weights, "log-weights")
+    for key in ("M", "Lam", "nu", "mu"):
+        assert_equal_to_rounding(pa.stats[key], pb.stats[key], key)
+    fa, fb = fast.friction(), ref.friction()
+    assert_equal_to_rounding(fa.mu_f, fb.mu_f, "mu_f")
+    assert_equal_to_rounding(fa.mu_r_std, fb.mu_r_std, "mu_r_std")
+
+
+def test_backend_is_checked():
+    from tirefilter.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="backend"):
+        GPSSMConfig(backend="fortran").validated()
+    with pytest.raises(ConfigError, match="backend"):
+        MPFConfig(backend="fortran").validated()
+
+
+def _mpf_drive(est: StiffnessMPF, steps: int):
+    """A steering sine at about 20 m/s, 100 Hz, from a linear single track with noise and a
+    little wheel slip (no FMU); a^Y missing every 7th sample, all sensors missing once, and
+    one 50 ms gap (sub-stepped)."""
+    rng = np.random.default_rng(5)
+    est.reset(np.random.default_rng(9))
+    v = est.vehicle
+    out, t = [], 0.0
+    for k in range(steps):
+        t += 0.05 if k == 30 else 0.01
+        delta = 0.02 * math.sin(2 * math.pi * 0.7 * t)
+        r = 20.0 * delta / (v.lf + v.lr)
+        omega = 20.0 / v.wheel_radius
+        ay = math.nan if k % 7 == 3 else 20.0 * r + 0.05 * rng.standard_normal()
+        y = Measurement() if k == 40 else Measurement(ax=0.2 + 0.05 * rng.standard_normal(), ay=ay,
+                                                       yaw_rate=r + 0.003 * rng.standard_normal())
+        e = est.step(t, Inputs(delta=delta, omega_f=omega * 1.01, omega_r=omega, vx=20.0), y)
+        out.append((e.vx, e.vy, e.yaw_rate, e.Cf_y, e.Cr_y, e.Cf_y_std, e.Cr_y_sigma, e.b_ay, e.b_yaw_rate, e.ess))
+    return np.array(out)
+
+
+@pytest.mark.parametrize("restarts", [False, True], ids=["", "restarts"])
+@pytest.mark.parametrize("bias", [False, True], ids=["no-bias", "bias"])
+@pytest.mark.parametrize("model", ["full", "lateral"])
+def test_stiffness_mpf_backends_equal(model, bias, restarts):
+    """80 steps at N = 24 with resampling at every step (threshold 1) and learning from the
+    fifth sample: numba and numpy give the same estimates, particles, bias and statistics.
+    `restarts`: a plausible yaw rate so small that the cloud leaves it now and then."""
+    vehicle = load_scenario("paper-sim").vehicle
+    noise = dict(bias_rw=(0.01, 0.01, 0.001), bias0_std=(0.1, 0.1, 0.01)) if bias else dict(
+        bias_rw=(0.0, 0.0, 0.0), bias0_std=(0.0, 0.0, 0.0))
+    runs = {}
+    for backend in ("numpy", "numba"):
+        cfg = MPFConfig(particles=24, model=model, backend=backend, resample_threshold=1.0, gate_warmup=0.05,
+                        gate_vy_std=10.0, gate_steer=0.0, plausible_yaw_rate=0.02 if restarts else 2.0, **noise)
+        est = StiffnessMPF(vehicle, cfg)
+        runs[backend] = (_mpf_drive(est, 80), est)
+    (a, fast), (b, ref) = runs["numba"], runs["numpy"]
+    assert ref.resamples >= 30 and fast.resamples == ref.resamples
+    assert fast.restarts == ref.restarts and (ref.restarts >= 2 if restarts else ref.restarts == 0)
+    assert np.isfinite(b[:, :7]).all()
+    assert_equal_to_rounding(a, b, "estimates")
+    pa, pb = fast.posterior(), ref.posterior()
+    assert_equal_to_rounding(pa.particles, pb.particles, "particles")
+    assert_equal_to_rounding(pa.log_weights, pb.log_weights, "log-weights")
+    for key in ("gamma", "mu", "Lam", "nu", "bias", "bias_cov"):
+        assert_equal_to_rounding(pa.stats[key], pb.stats[key], key)
