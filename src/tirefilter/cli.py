@@ -168,9 +168,17 @@ def _estimator_record(estimator, config: dict, args) -> dict:
 def _run_and_record(run, write_summary, results: Path):
     """`run()` -> (summary, rows); the summary is written by `write_summary` whether the run
     succeeds or fails (then with status "failed"). Returns the summary, None on failure."""
+    from tirefilter.runs import Interrupted
+
     summary = None
     try:
         summary, _ = run()
+    except Interrupted as exc:
+        summary = getattr(exc, "summary", None)
+        at = f" at t = {summary.t_reached:g} s" if summary is not None and summary.t_reached is not None else ""
+        print(f"interrupted by {signal_name(exc.signum)}{at}: {summary.steps if summary else 0} whole rows in "
+              f"{results}, run summary with status \"interrupted\"", file=sys.stderr)
+        raise
     except TirefilterError as exc:
         summary = getattr(exc, "summary", None)
         print(f"error: {exc}\n(rows up to the failure are in {results})", file=sys.stderr)
@@ -260,7 +268,14 @@ def cmd_bench_stiffness(args) -> int:
                         estimators=_names(args.estimators), workers=args.workers,
                         seed=args.seed, duration=args.duration, plots=not args.no_plots,
                         progress=sys.stderr.isatty() and not args.quiet)
-    run_stiffness_study(opts)
+    from tirefilter.runs import Interrupted
+
+    try:
+        run_stiffness_study(opts)
+    except Interrupted as exc:
+        print(f"interrupted by {signal_name(exc.signum)}: the finished trials are kept in {opts.out}; the same "
+              "command resumes where it stopped", file=sys.stderr)
+        raise
     print(f"report: {opts.out / 'report.md'}")
     return 0
 
@@ -388,11 +403,27 @@ def main(argv=None) -> int:
     if any(n < 1 for n in (particles if isinstance(particles, list) else [particles or 1])):
         print(f"error: --particles must be at least 1, got {particles}", file=sys.stderr)
         return 2
+    from contextlib import nullcontext
+
+    from tirefilter.runs import Interrupted, interruptible
+
     try:
-        return args.func(args)
+        with interruptible() if args.command in INTERRUPTIBLE else nullcontext():
+            return args.func(args)
+    except Interrupted as exc:
+        return exc.exit_code  # 130 (SIGINT) or 143 (SIGTERM)
     except TirefilterError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
+
+
+INTERRUPTIBLE = ("run", "replay", "bench")  # SIGINT / SIGTERM end them at a row (trial) boundary
+
+
+def signal_name(signum: int) -> str:
+    import signal
+
+    return signal.Signals(signum).name
 
 
 if __name__ == "__main__":

@@ -9,8 +9,10 @@ from __future__ import annotations
 import dataclasses
 import json
 import platform
+import signal
 import sys
 import time
+from array import array
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -42,9 +44,56 @@ class StepSummary:
     steps: int = 0  # estimator samples (Result-CSV rows)
     wall_time_s: float = 0.0
     median_step_us: float | None = None  # median wall time of Estimator.step after warm-up
-    status: str = "ok"  # "ok" | "failed"
+    status: str = "ok"  # "ok" | "failed" | "interrupted" (SIGINT / SIGTERM, see `interruptible`)
     error: str | None = None
+    t_reached: float | None = None  # s: time of the last row written (set when a run is interrupted)
     results: str | None = None  # the Result CSV
+    guard: dict | None = None  # samples the measurement guard marked missing (estimators.guard)
+
+
+class Interrupted(BaseException):
+    """SIGINT or SIGTERM arrived during a run: raised at the next row boundary (after a
+    whole row has been written), never in the middle of one. A BaseException, like
+    KeyboardInterrupt, so that code catching an estimator's failures lets it through."""
+
+    def __init__(self, signum: int):
+        self.signum = signum
+        super().__init__(f"interrupted by {signal.Signals(signum).name}")
+
+    @property
+    def exit_code(self) -> int:
+        return 128 + self.signum  # 130 for SIGINT, 143 for SIGTERM, as a shell reports them
+
+
+_PENDING_SIGNAL: int | None = None  # set by the handlers of `interruptible`
+
+
+@contextmanager
+def interruptible():
+    """While inside, SIGINT and SIGTERM only note the signal; `check_interrupt()` (called by
+    `RunOutputs.write` after every row, and between trials of a study) then raises
+    Interrupted. The previous handlers come back on leaving. Outside such a block nothing
+    changes (library use keeps Python's own KeyboardInterrupt)."""
+    global _PENDING_SIGNAL
+
+    def note(signum, frame):
+        global _PENDING_SIGNAL
+        _PENDING_SIGNAL = signum
+
+    _PENDING_SIGNAL = None
+    old = {s: signal.signal(s, note) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+        _PENDING_SIGNAL = None
+
+
+def check_interrupt() -> None:
+    """Raise Interrupted if a signal arrived inside `interruptible()`."""
+    if _PENDING_SIGNAL is not None:
+        raise Interrupted(_PENDING_SIGNAL)
 
 
 class Progress:
@@ -92,12 +141,20 @@ class RunOutputs:
         self.writer = ResultWriter(results_csv, self.columns) if results_csv else None
         self.kept: list[np.ndarray] | None = [] if keep_rows else None
         self.bar = Progress(total, progress)
-        self.step_times: list[float] = []
+        self.step_times = array("f")  # s, 4 bytes a step: an hour at 100 Hz is 1.4 MB
         self.rows = 0
         self.last: np.ndarray | None = None
+        self.guard = None  # the estimator's measurement guard, once it has stepped
 
     def step(self, estimator: Estimator, t: float, u: Inputs, y: Measurement) -> Estimate:
-        """`estimator.step(t, u, y)`, timed."""
+        """`estimator.step(t, u, y)`, timed; the measurement first passes the estimator's
+        guard (`estimator.guard`, estimators.guard), reset on the run's first step."""
+        guard = getattr(estimator, "guard", None)
+        if guard is not None:
+            if self.guard is None:
+                self.guard = guard
+                guard.reset()
+            y = guard(t, y)
         ts = time.perf_counter()
         est = estimator.step(t, u, y)
         self.step_times.append(time.perf_counter() - ts)
@@ -114,6 +171,7 @@ class RunOutputs:
             self.kept.append(row)
         self.last = row
         self.rows += 1
+        check_interrupt()  # at a row boundary: the row above is whole in every sink
 
     def progress(self, k: int) -> None:
         self.bar.update(k)
@@ -121,7 +179,8 @@ class RunOutputs:
     def median_step_us(self) -> float | None:
         if not self.step_times:
             return None
-        return float(np.median(self.step_times[min(WARMUP_STEPS, len(self.step_times) - 1):]) * 1e6)
+        times = np.frombuffer(self.step_times, dtype=np.float32)
+        return float(np.median(times[min(WARMUP_STEPS, len(times) - 1):]) * 1e6)
 
     def kept_rows(self) -> np.ndarray | None:
         return np.vstack(self.kept) if self.kept else None
@@ -140,12 +199,19 @@ def run_outputs(summary: StepSummary, columns: tuple[str, ...], **options):
 
     On leaving, whatever happened: the sinks are closed, and the summary gets the steps,
     the wall time and the median step time. An exception marks the summary failed, is
-    given it as `exc.summary` (callers write the summary of a failed run too) and goes on.
+    given it as `exc.summary` (callers write the summary of a failed run too) and goes on;
+    Interrupted marks it "interrupted" with the time of the last row written.
     """
     out = RunOutputs(columns, **options)
     t0 = time.perf_counter()
     try:
         yield out
+    except Interrupted as exc:
+        summary.status = "interrupted"
+        summary.error = str(exc)
+        summary.t_reached = None if out.last is None else float(out.last[0])
+        exc.summary = summary
+        raise
     except Exception as exc:
         summary.status = "failed"
         summary.error = str(exc)
@@ -156,6 +222,8 @@ def run_outputs(summary: StepSummary, columns: tuple[str, ...], **options):
         summary.wall_time_s = time.perf_counter() - t0
         summary.steps = out.rows
         summary.median_step_us = out.median_step_us()
+        if out.guard is not None:
+            summary.guard = out.guard.counts()
 
 
 def write_summary_json(path: str | Path, summary: StepSummary, *, command: list[str], model: str | None,

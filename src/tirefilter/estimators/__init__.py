@@ -121,8 +121,23 @@ def check_model_signals(model: str, signals, source, key: str) -> None:
                           f"(available: {', '.join(signals) or 'none'})")
 
 
+def with_guard(estimator, config: dict):
+    """`estimator` carrying the measurement guard of `config`'s `[guard]` table as
+    `estimator.guard` (estimators.guard; the run loop applies it before every step)."""
+    if estimator is not None:
+        from tirefilter.estimators.guard import guard_from_config
+
+        estimator.guard = guard_from_config(config)
+    return estimator
+
+
 def build_estimator(name: str, scenario, *, model: str, particles: int | None, config: dict):
-    """The estimator `name` for a co-simulation of `scenario` (None for "none")."""
+    """The estimator `name` for a co-simulation of `scenario` (None for "none"), with its
+    measurement guard (`with_guard`)."""
+    return with_guard(_build_estimator(name, scenario, model=model, particles=particles, config=config), config)
+
+
+def _build_estimator(name: str, scenario, *, model: str, particles: int | None, config: dict):
     if _known(name) == "mpf":
         from tirefilter.estimators.stiffness_mpf import StiffnessMPF
 
@@ -162,7 +177,14 @@ def build_estimator(name: str, scenario, *, model: str, particles: int | None, c
 def build_log_estimator(name: str, vehicle, t, signals: dict, *, model: str, particles: int | None, config: dict,
                         source="log"):
     """The estimator `name` for replaying a log (None for "none"): `signals` maps the
-    log's signal names that have samples to (n,) arrays, `source` names the log in errors."""
+    log's signal names that have samples to (n,) arrays, `source` names the log in errors;
+    with its measurement guard (`with_guard`)."""
+    return with_guard(_build_log_estimator(name, vehicle, t, signals, model=model, particles=particles, config=config,
+                                           source=source), config)
+
+
+def _build_log_estimator(name: str, vehicle, t, signals: dict, *, model: str, particles: int | None, config: dict,
+                         source="log"):
     if _known(name) == "mpf":
         from tirefilter.estimators.stiffness_mpf import StiffnessMPF
 
