@@ -192,3 +192,34 @@ def faulty_samples(samples, faults, rng: np.random.Generator):
         yield dataclasses.replace(
             s, t=t, inputs=dataclasses.replace(u, **{k: values[k] for k in ("delta", "omega_f", "omega_r", "vx")}),
             meas=dataclasses.replace(y, **{k: values[k] for k in ("ax", "ay", "yaw_rate")}))
+
+
+def fault_sets(duration: float) -> dict[str, tuple[Fault, ...]]:
+    """The faults of issue 17 (tests and the fault benchmark), placed on a drive of
+    `duration` s: each alone, and `combined`, the set of the issue (20 % dropouts per IMU
+    channel, the yaw rate stuck for 2 s, five a^Y spikes of +20 m/s^2, an a^Y bias step of
+    +0.3 m/s^2, 1 ms time jitter)."""
+    d = float(duration)
+    imu = ("ax", "ay", "yaw_rate")
+    sets = {
+        "dropout": tuple(Fault("dropout", s, rate=0.2) for s in imu),
+        "stuck": (Fault("stuck", "yaw_rate", start=0.4 * d, end=0.4 * d + 2.0),),
+        "spike": (Fault("spike", "ay", size=20.0, times=tuple(round(d * f, 2) for f in (0.15, 0.3, 0.45, 0.6, 0.75))),),
+        "bias_step": (Fault("bias_step", "ay", start=0.5 * d, size=0.3),),
+        "held": tuple(Fault("held", s, rate=0.12) for s in imu),
+        "jitter": (Fault("jitter", size=0.001),),
+        "gap": (Fault("gap", start=0.65 * d, end=0.65 * d + 1.0),),
+    }
+    sets["combined"] = sets["dropout"] + sets["stuck"] + sets["spike"] + sets["bias_step"] + sets["jitter"]
+    return sets
+
+
+def fault_windows(faults) -> list[tuple[float, float]]:
+    """[start, end) of the faults that end (stuck, gap, spikes as instants) for recovery checks."""
+    out = []
+    for f in faults:
+        if f.kind == "spike":
+            out += [(x, x) for x in f.times]
+        elif f.kind in ("stuck", "gap") and math.isfinite(f.end):
+            out.append((f.start, f.end))
+    return sorted(out)
