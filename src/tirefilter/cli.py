@@ -51,7 +51,8 @@ def cmd_run(args) -> int:
 
 def cmd_replay(args) -> int:
     from tirefilter.estimators import build_log_estimator, resolve_model
-    from tirefilter.replay import read_log, replay_log
+    from tirefilter.replay import replay_log
+    from tirefilter.replay.stream import scan_log
     from tirefilter.runs import write_summary_json
     from tirefilter.vehicle.params import load_vehicle
 
@@ -61,9 +62,11 @@ def cmd_replay(args) -> int:
         raise ConfigError("--out", "", f"{results}: the Result CSV needs another suffix than .json (the run summary "
                           "goes to its stem + .json)")
     vehicle = load_vehicle(args.vehicle)
-    log = read_log(args.log, vehicle, vehicle_name=args.vehicle)
+    log = scan_log(args.log, vehicle, vehicle_name=args.vehicle)  # a first pass; the replay streams the file
+    for warning in log.plausibility.warnings():
+        print(f"warning: {warning}", file=sys.stderr)
     config = read_toml(args.config) if args.config else {}
-    estimator = build_log_estimator(args.estimator, vehicle, log.t, {s: log.signals[s] for s in log.available},
+    estimator = build_log_estimator(args.estimator, vehicle, log.t, log.signals,
                                     model=args.model, particles=args.particles, config=config, source=log.path)
     _init_state(args, estimator)
     model = getattr(getattr(estimator, "cfg", None), "model", None) or resolve_model(args.model, log.available)

@@ -32,8 +32,6 @@ import math
 from collections import deque
 from dataclasses import asdict, dataclass, replace
 
-import numpy as np
-
 from tirefilter.errors import ConfigError
 from tirefilter.estimators.base import Measurement
 
@@ -76,6 +74,13 @@ class GuardConfig:
         return self
 
 
+def _median(x) -> float:
+    """The median of a few floats (sorting in Python beats numpy's overhead at this size)."""
+    s = sorted(x)
+    n = len(s)
+    return s[n // 2] if n % 2 else 0.5 * (s[n // 2 - 1] + s[n // 2])
+
+
 class _Channel:
     """The state of one channel's tests."""
 
@@ -103,11 +108,11 @@ class _Channel:
             self._since_scale += 1
             if self._since_scale >= 25 and len(self.diffs) >= 10:  # re-estimated every 25 samples
                 self._since_scale = 0
-                self.scale = max(self.min_scale, 1.4826 * float(np.median(self.diffs)) / math.sqrt(2.0))
+                self.scale = max(self.min_scale, 1.4826 * _median(self.diffs) / math.sqrt(2.0))
         self.prev = y
         verdict = y
         if len(self.recent) >= 3:
-            m = float(np.median(self.recent))
+            m = _median(self.recent)
             if abs(y - m) > self.cfg.threshold * self.scale + self.jump:
                 self.outliers += 1
                 verdict = math.nan
