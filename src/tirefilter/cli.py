@@ -285,7 +285,7 @@ def cmd_bench_stiffness(args) -> int:
 
 def cmd_dashboard(args) -> int:
     serve = import_viewer().serve
-    serve(host=args.host, port=args.port)
+    serve(host=args.host, port=args.port, **({"data_dir": args.data_dir} if args.data_dir else {}))
     return 0
 
 
@@ -341,6 +341,8 @@ def build_parser() -> argparse.ArgumentParser:
     db.add_argument("--port", type=int, default=8080, help="port (default 8080; the next free one if taken)")
     db.add_argument("--host", default="127.0.0.1",
                     help="address to bind (default 127.0.0.1: this machine only; 0.0.0.0 exposes it to the network)")
+    db.add_argument("--data-dir", metavar="DIR", help="the folder the paths typed in the page must lie in "
+                    "('..' and symlinks out of it are refused; default: the working directory)")
     db.set_defaults(func=cmd_dashboard)
 
     fmu = sub.add_parser("fmu", help="FMU tools")
