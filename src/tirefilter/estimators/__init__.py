@@ -95,13 +95,51 @@ def _mpf_config(model: str, *, particles: int | None, sample_period: float | Non
 
 
 def apply_overrides(config, overrides: dict, source: str = "--config [mpf]"):
+    if not isinstance(overrides, dict):
+        raise ConfigError(source, "", f"expected a table of options, got {overrides!r}")
     known = {f.name: f for f in dataclasses.fields(config)}
     values = {}
     for key, value in overrides.items():
         if key not in known:
             raise ConfigError(source, key, f"unknown option (known: {', '.join(sorted(known))})")
         values[key] = tuple(value) if isinstance(value, list) else value
-    return dataclasses.replace(config, **values).validated()
+        _check_type(source, key, values[key], getattr(config, key), str(known[key].type))
+    try:
+        return dataclasses.replace(config, **values).validated()
+    except (TypeError, ValueError, OverflowError, ZeroDivisionError) as exc:  # a check the validator lacks
+        raise ConfigError(source, "", f"invalid option values {values!r} ({type(exc).__name__}: {exc})") from None
+
+
+def _check_type(source, key: str, value, default, annotation: str) -> None:
+    """An option's value has its default's kind: a number (not a bool) for a number, a
+    bool for a bool, a string for a string, numbers of the same count for a tuple of them
+    (None where the annotation allows it). NaN and infinity are numbers; the
+    configuration's own `validated()` judges the ranges."""
+    def number(x) -> bool:
+        return isinstance(x, (int, float)) and not isinstance(x, bool)
+
+    if value is None and "None" in annotation:
+        return
+    if default is None:
+        ok = number(value) if ("float" in annotation or "int" in annotation) and "str" not in annotation else True
+    elif isinstance(default, bool):
+        ok = isinstance(value, bool)
+    elif number(default):
+        ok = number(value) and (not isinstance(default, int) or float(value).is_integer()
+                                or "float" in annotation)
+    elif isinstance(default, str):
+        ok = isinstance(value, str)
+    elif isinstance(default, tuple):
+        ok = isinstance(value, tuple) and all(number(x) for x in value) and (
+            len(value) == len(default) or not default or "..." in annotation)
+    else:
+        ok = True
+    if not ok:
+        kind = ("true or false" if isinstance(default, bool) else "a string" if isinstance(default, str) else
+                f"{len(default)} numbers" if isinstance(default, tuple) and default else
+                "numbers" if isinstance(default, tuple) else "an integer" if isinstance(default, int) and
+                "float" not in annotation else "a number")
+        raise ConfigError(source, key, f"expected {kind}, got {value!r}")
 
 
 def resolve_model(model: str, sensors) -> str:
