@@ -13,10 +13,14 @@ stiffness `Cf_y_true`, `Cr_y_true` (paper-sim: from the co-simulation's truth, t
 mean). Stiffness error: mean |relative error| (%) of Cf_y and Cr_y over the second half of
 every stretch of constant true stiffness. Sideslip RMSE over the whole drive, in degrees.
 Recovered: for the single faults that end (stuck, gap, spikes), the sideslip RMS error over [end + 5 s,
-end + 10 s) is within 1.5 times that of the clean replay over the same window plus 0.02 deg.
+end + 10 s) is at most 0.1 deg above that of the clean replay over the same window.
 """
 
 from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # small matrices: BLAS threads only contend (30x slower expm)
 
 import argparse
 import json
@@ -33,6 +37,7 @@ from tirefilter.replay.log import SIGNALS, Log, read_log
 from tirefilter.scenarios.faults import fault_log_columns, fault_rng, fault_sets, fault_windows
 
 ESTIMATORS = ("mpf", "augpf", "rls", "ekf", "kf")
+RECOVERED_DEG = 0.1  # recovered: sideslip RMS error at most this above the clean replay's (see the docstring)
 
 
 def paper_sim_drive(seed: int = 0) -> tuple[Log, object]:
@@ -145,7 +150,7 @@ def recovered(scored: dict, clean: dict, t: np.ndarray, t_clean: np.ndarray, fau
             continue
         rms = float(np.sqrt(np.mean(scored["err_deg"][w] ** 2)))
         ref = float(np.sqrt(np.mean(clean["err_deg"][wc] ** 2)))
-        if not rms <= 1.5 * ref + 0.02:
+        if not rms <= ref + RECOVERED_DEG:
             return False
     return True
 

@@ -11,6 +11,10 @@ when every input gave a result or the project's own error).
 
 from __future__ import annotations
 
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # small matrices: BLAS threads only contend (30x slower expm)
+
 import argparse
 import sys
 import tempfile

@@ -24,6 +24,7 @@ from tirefilter.scenarios.faults import (Fault, FaultInjector, fault_log_columns
                                         parse_faults)
 
 DURATION, SEED, N = 20.0, 2, 100
+RECOVERED_DEG = 0.1  # sideslip RMS error over [end + 5 s, end + 10 s) at most this above the clean replay's
 
 
 # -- the guard ----------------------------------------------------------------------------------
@@ -176,7 +177,7 @@ def _replay(drive, name, faults):
     log, vehicle = drive
     flog = faulty_log(log, faults, SEED)[0] if faults else log
     est = build_log_estimator(name, vehicle, flog.t, {s: flog.signals[s] for s in flog.available}, model="auto",
-                              particles=N, config={}, source="test")
+                              particles=20 if name == "gpssm" else N, config={}, source="test")  # gpssm: cost
     summary, rows = replay_log(flog, estimator=est, seed=SEED, keep_rows=True)
     r = dict(zip(result_columns(flog), rows.T))
     err = np.degrees(r["beta"] - flog.columns["beta_true"])
@@ -205,4 +206,4 @@ def test_sideslip_recovers_within_5_s_of_the_fault_end(drive, name, fault):
     (start, end), = fault_windows(faults)
     w, w0 = (flog.t >= end + 5.0) & (flog.t < end + 10.0), (drive[0].t >= end + 5.0) & (drive[0].t < end + 10.0)
     assert w.sum() > 100
-    assert np.sqrt(np.mean(err[w] ** 2)) <= 1.5 * np.sqrt(np.mean(err0[w0] ** 2)) + 0.02
+    assert np.sqrt(np.mean(err[w] ** 2)) <= np.sqrt(np.mean(err0[w0] ** 2)) + RECOVERED_DEG
