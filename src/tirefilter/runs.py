@@ -155,6 +155,8 @@ class RunOutputs:
                 self.guard = guard
                 guard.reset()
             y = guard(t, y)
+            if guard.after_gap and getattr(estimator, "t_start", None) is not None:
+                estimator.t_start = t  # learning warms up again after a gap (estimators.guard)
         ts = time.perf_counter()
         est = estimator.step(t, u, y)
         self.step_times.append(time.perf_counter() - ts)

@@ -22,8 +22,11 @@ Per IMU channel c (ax, ay, yaw_rate), at the sample y_k:
   |y_k - m_k| > threshold s_c + jump_c. jump_c is the largest change the vehicle itself
   can produce between two samples (a steer step moves a^Y at once; the yaw rate is an
   integral and cannot jump): a spike smaller than that is left to the likelihood.
-- after a time step longer than `stale_after` the median's history is dropped (it no
-  longer predicts the channel).
+- after a time step longer than `stale_after` (a gap) the median's history is dropped (it
+  no longer predicts the channel), and the run loop restarts the estimator's learning
+  warm-up: over the gap the estimator held its inputs, so its state is off for a moment
+  and must settle before the stiffness learns from the residuals again
+  (`baseline_common.gate_open` counts `gate_warmup` from the estimator's `t_start`).
 """
 
 from __future__ import annotations
@@ -134,11 +137,15 @@ class MeasurementGuard:
         c = self.cfg
         self.channels = {name: _Channel(c, c.jump[j], c.min_scale[j]) for j, name in enumerate(CHANNELS)}
         self.t_prev = math.nan
+        self.after_gap = False  # this sample follows a gap (a time step longer than stale_after)
+        self.gaps = 0
 
     def __call__(self, t: float, y: Measurement) -> Measurement:
         if not self.cfg.enabled:
             return y
-        if math.isfinite(self.t_prev) and t - self.t_prev > self.cfg.stale_after:
+        self.after_gap = math.isfinite(self.t_prev) and t - self.t_prev > self.cfg.stale_after
+        if self.after_gap:
+            self.gaps += 1
             for ch in self.channels.values():
                 ch.clear()
         self.t_prev = t
@@ -150,7 +157,7 @@ class MeasurementGuard:
     def counts(self) -> dict:
         """The configuration and the samples marked missing so far, per channel:
         {"config": {...}, "held": {...}, "outliers": {...}}."""
-        return {"config": asdict(self.cfg), "held": {n: c.held for n, c in self.channels.items()},
+        return {"config": asdict(self.cfg), "gaps": self.gaps, "held": {n: c.held for n, c in self.channels.items()},
                 "outliers": {n: c.outliers for n, c in self.channels.items()}}
 
 
