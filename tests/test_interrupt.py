@@ -71,8 +71,8 @@ def test_run_ends_at_a_row_boundary(fmu_paths, tmp_path, signum, code):
 
 def test_replay_ends_at_a_row_boundary(tmp_path):
     t = np.arange(20000) * 0.01
-    write_log(tmp_path / "drive.csv", {"t": t, "delta": 0.02 * np.sin(t), "ax": 0 * t, "ay": 2 * np.sin(t),
-                                       "yaw_rate": 0.1 * np.sin(t), "vx": 20 + 0 * t})
+    write_log(tmp_path / "drive.csv", {"t": t, "delta": 0.02 * np.sin(t), "ax": 0.1 * np.sin(3 * t),
+                                       "ay": 2 * np.sin(t), "yaw_rate": 0.1 * np.sin(t), "vx": 20 + 0 * t})
     vehicle = Path(__file__).resolve().parents[1] / "src/tirefilter/scenarios/data/vehicles/midsize-suv.toml"
     result = tmp_path / "result.csv"
     rc, stdout, stderr = _interrupt(

@@ -19,7 +19,8 @@ from tirefilter.vehicle.params import VehicleParams
 from tirefilter.vehicle.single_track import GRAVITY
 
 VEHICLE = VehicleParams(mass=2050.0, yaw_inertia=3850.0, lf=1.30, lr=1.60, wheel_radius=0.36, cg_height=0.70,
-                        Cf_y=100000.0, Cr_y=115000.0, Cx=263200.0, roll_gradient=0.01)
+                        Cf_y=100000.0, Cr_y=115000.0, Cx=263200.0, roll_gradient=0.01, sigma_ax=0.05,
+                        sigma_ay=0.05, sigma_yaw_rate=0.0035)
 # lf Cf > lr Cr: oversteer, unstable above the critical speed sqrt(L^2 Cf Cr / (m (lf Cf - lr Cr))) ~ 25.6 m/s
 OVERSTEER = replace(VEHICLE, Cf_y=130000.0, Cr_y=70000.0)
 

@@ -14,6 +14,8 @@ from tirefilter.errors import ConfigError, TirefilterError
 from tirefilter.estimators import ESTIMATORS  # DESIGN.md reserves augpf, rls, ekf, gpssm, combined too
 from tirefilter.viz.options import DEFAULT_LOG_EVERY
 
+SENSOR_CHECK_S = 10.0  # s: a co-simulation's sensor noise is checked against its first seconds
+
 
 def cmd_run(args) -> int:
     from tirefilter.cosim.run import run_scenario, write_run_json
@@ -32,8 +34,9 @@ def cmd_run(args) -> int:
         lambda: run_scenario(scenario, estimator=estimator, seed=args.seed, fmi_version=args.fmi, results_csv=results,
                              recording=_recording(args), progress=_progress(args),
                              friction_csv=_friction_csv(estimator, out / "friction.csv")),
-        lambda s: write_run_json(out / "run.json", s, command=sys.argv, model=model, fmi_version=args.fmi,
-                                 **_estimator_record(estimator, config, args)),
+        lambda s: (_check_sensors(estimator, results),
+                   write_run_json(out / "run.json", s, command=sys.argv, model=model, fmi_version=args.fmi,
+                                  **_estimator_record(estimator, config, args))),
         results)
     if summary is None:
         return 1
@@ -41,6 +44,7 @@ def cmd_run(args) -> int:
           f"({summary.communication_steps} FMU steps of {scenario.communication_step:g} s, FMI {args.fmi}.0), "
           f"estimator {summary.estimator}, seed {args.seed}")
     _print_timing(summary, scenario.duration)
+    _print_sensors(estimator)
     _print_truth_summary(results)
     print(f"results: {results}\nsummary: {out / 'run.json'}" + (f"\nrecording: {args.rrd}" if args.rrd else "")
           + _streamed(args))
@@ -85,6 +89,7 @@ def cmd_replay(args) -> int:
                                               if hasattr(getattr(estimator, "cfg", None), "particles") else "")
           + f", seed {args.seed}")
     _print_timing(summary, log.duration)
+    _print_sensors(estimator)
     final = summary.final or {}
     estimates = [f"{p} {final[p]:.4g} +- {final[p + '_std']:.2g}" for p in ("Cf_y", "Cr_y", "Cx")
                  if final.get(p) is not None and final.get(p + "_std") is not None]
@@ -160,12 +165,29 @@ def _progress(args) -> bool:
 
 
 def _estimator_record(estimator, config: dict, args) -> dict:
-    """N and the full estimator configuration for the run summary JSON (with the state
-    file it started from, if any)."""
+    """N, the full estimator configuration and the IMU model it assumed (`sensors`) for the
+    run summary JSON (with the state file it started from, if any)."""
     est_config = estimator.config_dict() if hasattr(estimator, "config_dict") else dict(config)
     if args.init_state:
         est_config["init_state"] = str(args.init_state)
-    return {"particles": getattr(getattr(estimator, "cfg", None), "particles", None), "estimator_config": est_config}
+    sensors = getattr(estimator, "sensors", None)
+    return {"particles": getattr(getattr(estimator, "cfg", None), "particles", None), "estimator_config": est_config,
+            "sensors": sensors.to_dict() if sensors is not None else None}
+
+
+def _check_sensors(estimator, results: Path) -> None:
+    """A co-simulation's IMU model checked against the noise of the run's first seconds
+    (`estimator.sensors` gets the figures and any warning)."""
+    from tirefilter.cosim.results import read_results
+    from tirefilter.estimators.sensors import CHANNELS, checked_against, first_seconds
+
+    if getattr(estimator, "sensors", None) is None or not results.exists():
+        return
+    r = read_results(results, max_rows=int(SENSOR_CHECK_S * 1000) + 1)  # the first seconds (up to 1 kHz), not all
+    if "t" not in r or not len(r["t"]):
+        return
+    signals = first_seconds(r["t"], {c: r[f"meas_{c}"] for c in CHANNELS if f"meas_{c}" in r}, SENSOR_CHECK_S)
+    estimator.sensors = checked_against(estimator.sensors, signals, f"the first {SENSOR_CHECK_S:g} s")
 
 
 def _run_and_record(run, write_summary, results: Path):
@@ -195,6 +217,11 @@ def _run_and_record(run, write_summary, results: Path):
 def _print_timing(summary, duration: float) -> None:
     print(f"wall time {summary.wall_time_s:.2f} s ({duration / summary.wall_time_s:.0f}x real time)"
           + (f", median step {summary.median_step_us:.1f} us" if summary.median_step_us else ""))
+
+
+def _print_sensors(estimator) -> None:
+    if getattr(estimator, "sensors", None) is not None:
+        print("\n".join(estimator.sensors.describe()))
 
 
 def _print_truth_summary(results: Path) -> None:

@@ -89,12 +89,13 @@ class ResultWriter:
         self.close()
 
 
-def read_results(path: str | Path) -> dict[str, np.ndarray]:
-    """Read a Result CSV into columns of floats (empty cells are NaN)."""
+def read_results(path: str | Path, max_rows: int | None = None) -> dict[str, np.ndarray]:
+    """Read a Result CSV into columns of floats (empty cells are NaN); `max_rows`: only
+    the first rows."""
     path = Path(path)
     with path.open() as f:
         header = f.readline().strip().split(",")
-        data = np.genfromtxt(f, delimiter=",", dtype=float, ndmin=2)
+        data = np.genfromtxt(f, delimiter=",", dtype=float, ndmin=2, max_rows=max_rows)
     if data.size == 0:
         data = np.empty((0, len(header)))
     return {name: data[:, j] for j, name in enumerate(header)}

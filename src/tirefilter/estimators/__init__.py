@@ -41,17 +41,24 @@ def mpf_config_for_scenario(scenario, *, model: str, particles: int | None, over
     s = scenario.sensor_spec
     kw["bias_rw"] = (s.bias_rw_ax, s.bias_rw_ay, s.bias_rw_yaw_rate)
     kw["bias0_std"] = (s.bias0_std_ax, s.bias0_std_ay, s.bias0_std_yaw_rate)
+    # the wandering-offset model where the scenario's road has bank (a flat road has none)
+    from tirefilter.estimators.sensors import DISTURBANCE_RW
+
+    kw["disturbance_rw"] = DISTURBANCE_RW if scenario.inputs.components.get("bank") else (0.0, 0.0, 0.0)
     return _mpf_config(model, particles=particles or est.get("particles"), sample_period=scenario.sample_period,
                        sigma=(s.sigma_ax, s.sigma_ay, s.sigma_yaw_rate),
                        x0_mean=tuple(x0.get("mean", (vx0, 0.0, 0.0))), overrides=overrides, **kw)
 
 
-def mpf_config_for_log(vehicle, t, signals: dict, *, model: str, particles: int | None, overrides: dict):
+def mpf_config_for_log(vehicle, t, signals: dict, *, model: str, particles: int | None, overrides: dict,
+                       sensors=None):
     """MPF options for a recorded log (no scenario, no truth) and the user's `[mpf]` table.
 
     Stiffness starts around the vehicle TOML's nominal values (MPFConfig defaults:
-    `init_center` None = nominal, `init_std` 0.3), the white-noise `sigma` is the vehicle
-    TOML's `sigma_ax, sigma_ay, sigma_yaw_rate`, `sample_period` the median time step of
+    `init_center` None = nominal, `init_std` 0.3), the white noise `sigma` and the bias
+    model come from `sensors` (default `sensors.sensors_for_log`: the vehicle TOML's
+    figures where given, else the noise estimated from the log and the MEMS bias
+    defaults), `sample_period` is the median time step of
     the log, and the initial state mean is taken from the log's first finite samples:
     full model (v^X, 0, r) with v^X from `vx` or else from the undriven axle's wheel speed
     (R_w omega), lateral model (0, r); r is the first yaw-rate sample (0 if none).
@@ -76,9 +83,12 @@ def mpf_config_for_log(vehicle, t, signals: dict, *, model: str, particles: int 
         x0_mean = (vx0 if math.isfinite(vx0) else 20.0, 0.0, r0)
     else:
         x0_mean = (0.0, r0)
+    from tirefilter.estimators.sensors import sensors_for_log
+
     dt = np.diff(np.asarray(t, float))
+    sensors = sensors or sensors_for_log(vehicle, signals)
     return _mpf_config(model, particles=particles, sample_period=float(np.median(dt)) if dt.size else None,
-                       sigma=(vehicle.sigma_ax, vehicle.sigma_ay, vehicle.sigma_yaw_rate), x0_mean=x0_mean,
+                       sigma=sensors.sigma, bias0_std=sensors.bias0_std, bias_rw=sensors.bias_rw, x0_mean=x0_mean,
                        overrides=overrides)
 
 
@@ -120,7 +130,9 @@ def _check_type(source, key: str, value, default, annotation: str) -> None:
 
     if value is None and "None" in annotation:
         return
-    if default is None:
+    if default is None and annotation.startswith("tuple"):
+        ok = isinstance(value, tuple) and all(number(x) for x in value)
+    elif default is None:
         ok = number(value) if ("float" in annotation or "int" in annotation) and "str" not in annotation else True
     elif isinstance(default, bool):
         ok = isinstance(value, bool)
@@ -170,9 +182,13 @@ def with_guard(estimator, config: dict):
 
 
 def build_estimator(name: str, scenario, *, model: str, particles: int | None, config: dict):
-    """The estimator `name` for a co-simulation of `scenario` (None for "none"), with its
-    measurement guard (`with_guard`)."""
-    return with_guard(_build_estimator(name, scenario, model=model, particles=particles, config=config), config)
+    """The estimator `name` for a co-simulation of `scenario` (None for "none"), with the
+    IMU model it assumes as `.sensors` (a `sensors.SensorModel`) and its measurement guard
+    (`with_guard`)."""
+    from tirefilter.estimators.sensors import sensors_for_scenario
+
+    return with_guard(_with_sensors(_build_estimator(name, scenario, model=model, particles=particles, config=config),
+                                    sensors_for_scenario(scenario.sensor_spec)), config)
 
 
 def _build_estimator(name: str, scenario, *, model: str, particles: int | None, config: dict):
@@ -215,26 +231,54 @@ def _build_estimator(name: str, scenario, *, model: str, particles: int | None, 
 def build_log_estimator(name: str, vehicle, t, signals: dict, *, model: str, particles: int | None, config: dict,
                         source="log"):
     """The estimator `name` for replaying a log (None for "none"): `signals` maps the
-    log's signal names that have samples to (n,) arrays, `source` names the log in errors;
-    with its measurement guard (`with_guard`)."""
-    return with_guard(_build_log_estimator(name, vehicle, t, signals, model=model, particles=particles, config=config,
-                                           source=source), config)
+    log's signal names that have samples to (n,) arrays, `source` names the log in errors.
+    The IMU model it assumes (noise from the vehicle TOML or estimated from `signals`, bias
+    model) is its `.sensors` (a `sensors.SensorModel`); with its measurement guard
+    (`with_guard`)."""
+    from tirefilter.estimators.sensors import sensors_for_log
+
+    sensors = sensors_for_log(vehicle, signals)
+    return with_guard(_with_sensors(_build_log_estimator(name, vehicle, t, signals, model=model, particles=particles,
+                                                         config=config, source=source, sensors=sensors), sensors),
+                      config)
+
+
+def _with_sensors(estimator, sensors):
+    """`estimator` with `.sensors`: `sensors` after the estimator's own configuration
+    (which may override the figures, or have no bias model at all)."""
+    if estimator is None:
+        return None
+    cfg = getattr(estimator, "cfg", None)
+    sigma = getattr(cfg, "sigma", None)
+    if sigma is not None:
+        channels = ("ax", "ay", "yaw_rate") if len(sigma) == 3 else ("ay", "yaw_rate")
+    elif getattr(cfg, "sigma_ay", None) is not None:  # the kf (and rls's kf)
+        sigma, channels = (cfg.sigma_ay, cfg.sigma_yaw_rate), ("ay", "yaw_rate")
+    else:
+        channels = ()
+    model = sensors.with_config(sigma, getattr(cfg, "bias0_std", None), getattr(cfg, "bias_rw", None), channels)
+    if not hasattr(cfg, "bias_rw"):
+        model = dataclasses.replace(model, bias0_std=(0.0,) * 3, bias_rw=(0.0,) * 3,
+                                    bias_source=f"the {estimator.name} estimator has no bias model")
+    estimator.sensors = model
+    return estimator
 
 
 def _build_log_estimator(name: str, vehicle, t, signals: dict, *, model: str, particles: int | None, config: dict,
-                         source="log"):
+                         source, sensors):
     if _known(name) == "mpf":
         from tirefilter.estimators.stiffness_mpf import StiffnessMPF
 
         model = resolve_model(model, signals)
         check_model_signals(model, tuple(signals), source, "columns")
         cfg = mpf_config_for_log(vehicle, t, signals, model=model, particles=particles,
-                                 overrides=config.get("mpf", {}))
+                                 overrides=config.get("mpf", {}), sensors=sensors)
         return StiffnessMPF(vehicle, cfg)
     if name in BASELINES:
         model = _baseline_model(name, model, signals)
         check_model_signals(model, tuple(signals), source, "columns")
-        cfg = mpf_config_for_log(vehicle, t, signals, model=model, particles=particles, overrides={})
+        cfg = mpf_config_for_log(vehicle, t, signals, model=model, particles=particles, overrides={},
+                                 sensors=sensors)
         return _baseline(name, vehicle, cfg, config)
     if name in FRICTION_ESTIMATORS:
         import numpy as np
@@ -245,13 +289,13 @@ def _build_log_estimator(name: str, vehicle, t, signals: dict, *, model: str, pa
             from tirefilter.estimators.stiffness_mpf import StiffnessMPF
 
             mpf = StiffnessMPF(vehicle, mpf_config_for_log(vehicle, t, signals, model="lateral", particles=None,
-                                                           overrides=config.get("mpf", {})))
+                                                           overrides=config.get("mpf", {}), sensors=sensors))
         dt = np.diff(np.asarray(t, float))
         return _gpssm(vehicle, config, particles, sample_period=float(np.median(dt)) if dt.size else None,
-                      sigma=(vehicle.sigma_ay, vehicle.sigma_yaw_rate), x0_mean=(0.0, 0.0), tire_shape=None, mpf=mpf)
+                      sigma=sensors.sigma[1:], x0_mean=(0.0, 0.0), tire_shape=None, mpf=mpf)
     if name == "kf":
         check_model_signals(_kf_model(model), tuple(signals), source, "columns")
-        return _kf(vehicle, config)
+        return _kf(vehicle, config, sigma_ay=sensors.sigma[1], sigma_yaw_rate=sensors.sigma[2])
     return None
 
 

@@ -46,6 +46,7 @@ from scipy.linalg import expm
 
 from tirefilter.errors import ConfigError
 from tirefilter.estimators.base import Estimate, Inputs, Measurement, Posterior
+from tirefilter.estimators.sensors import FALLBACK_SIGMA
 from tirefilter.vehicle.params import VehicleParams
 from tirefilter.vehicle.single_track import GRAVITY
 
@@ -163,12 +164,15 @@ class LinearKF:
         self.cfg = cfg = config.validated()
         self.Cf = float(cfg.Cf_y if cfg.Cf_y is not None else vehicle.Cf_y)
         self.Cr = float(cfg.Cr_y if cfg.Cr_y is not None else vehicle.Cr_y)
-        sig = (float(cfg.sigma_ay if cfg.sigma_ay is not None else vehicle.sigma_ay),
-               float(cfg.sigma_yaw_rate if cfg.sigma_yaw_rate is not None else vehicle.sigma_yaw_rate))
+        # the configured noise, else the vehicle's, else the fallback of `sensors` (a replay
+        # passes the figures estimated from the log)
+        sig = tuple(c if c is not None else (v if v is not None else f) for c, v, f in zip(
+            (cfg.sigma_ay, cfg.sigma_yaw_rate), (vehicle.sigma_ay, vehicle.sigma_yaw_rate), FALLBACK_SIGMA[1:]))
         for key, s in zip(("sigma_ay", "sigma_yaw_rate"), sig):
             if not s > 0:
                 raise ConfigError("kf configuration", key,
                                   f"measurement noise must be > 0; the vehicle's is {s!r}, set it here")
+        sig = tuple(map(float, sig))
         self.sigma = sig
         self.R = np.diag(np.square(sig))
         self.Qc = np.diag([cfg.q_vy, cfg.q_r])

@@ -28,6 +28,7 @@ import numpy as np
 from tirefilter.errors import ConfigError
 from tirefilter.estimators.base import Estimate, Inputs, Measurement, Posterior, particle_estimate
 from tirefilter.estimators.baseline_common import gate_open
+from tirefilter.estimators.sensors import DISTURBANCE_RW, MEMS_BIAS0_STD, MEMS_BIAS_RW
 from tirefilter.stats import NiW, effective_sample_size, normalize_log_weights, systematic_resample
 from tirefilter.stats.linalg import chol, chol_solve, logdet_chol, solve_lower
 from tirefilter.stats.student_t import t_conditional, t_logpdf_whitened, t_sample
@@ -83,8 +84,14 @@ class MPFConfig:
     bound_high: float = 3.0
     # sensors
     sigma: tuple[float, float, float] = (0.05, 0.05, 0.0035)  # ax, ay, yaw rate white noise
-    bias_rw: tuple[float, float, float] = (0.0, 0.0, 0.0)  # random-walk std per sqrt(s)
-    bias0_std: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    # IMU bias (eq. (29)-(30)): prior std and random walk per sqrt(s) of ax, ay, yaw rate;
+    # the defaults are the automotive MEMS figures of `sensors` (a scenario or a vehicle
+    # TOML sets its own; all zero: no bias estimation, the paper's Sec. VI)
+    bias_rw: tuple[float, float, float] = MEMS_BIAS_RW
+    bias0_std: tuple[float, float, float] = MEMS_BIAS0_STD
+    # unmodelled offsets that wander (road bank and crown, body roll): a random walk per
+    # sqrt(s) added to the bias's (derivations, Sec. 16); zero: the paper's bias model
+    disturbance_rw: tuple[float, float, float] = DISTURBANCE_RW
     sample_period: float = 0.01  # s, used for the first step and as the bias-RW time base
     max_step: float = 0.02  # s, longest propagation step: longer sample intervals are sub-stepped
 
@@ -107,7 +114,7 @@ class MPFConfig:
                     "plausible_yaw_rate", "restart_alpha", "restart_after"):
             if not getattr(self, key) >= 0:
                 bad(key, f"must be >= 0, got {getattr(self, key)!r}")
-        for key in ("sigma", "bias_rw", "bias0_std", "x0_std", "state_noise"):
+        for key in ("sigma", "bias_rw", "bias0_std", "disturbance_rw", "x0_std", "state_noise"):
             if any(not v >= 0 for v in getattr(self, key)):
                 bad(key, f"noise values must be >= 0, got {getattr(self, key)!r}")
         if min(self.sigma) <= 0:
@@ -149,8 +156,9 @@ class StiffnessMPF:
         self.roll_gain = 1.0 + v.roll_gradient * GRAVITY  # measured a^Y ~ (1 + k g) a^Y
         sig = np.asarray(self.cfg.sigma)[list(self.channels)]
         self.R = np.diag(sig**2)
-        self.bias_on = bool(np.any(np.asarray(self.cfg.bias_rw) > 0) or np.any(np.asarray(self.cfg.bias0_std) > 0))
-        self.q_bias = np.asarray(self.cfg.bias_rw)[list(self.channels)] ** 2
+        rw2 = np.square(self.cfg.bias_rw) + np.square(self.cfg.disturbance_rw)  # per s
+        self.bias_on = bool(np.any(rw2 > 0) or np.any(np.asarray(self.cfg.bias0_std) > 0))
+        self.q_bias = rw2[list(self.channels)]
         q = np.asarray(self.cfg.state_noise, float)[-(3 if self.full else 2):]
         self.state_noise = q if np.any(q > 0) else None
         ref = np.asarray(self.cfg.init_reference if self.cfg.init_reference is not None else self.C_nom, float)

@@ -195,7 +195,8 @@ def _parse(data: dict, file: Path) -> Scenario:
     noise = get_table(data, "sensor_noise", file, default={})
     spec_fields = {f.name for f in dataclasses.fields(SensorSpec)} - {"available"}
     check_known_keys(noise, spec_fields, file, prefix="sensor_noise.")
-    defaults = {"sigma_ax": vehicle.sigma_ax, "sigma_ay": vehicle.sigma_ay, "sigma_yaw_rate": vehicle.sigma_yaw_rate}
+    defaults = {k: getattr(vehicle, k) for k in ("sigma_ax", "sigma_ay", "sigma_yaw_rate")
+                if getattr(vehicle, k) is not None}
     spec_values = {}
     for k in spec_fields:
         lo = None if k.startswith("bias0_") and "std" not in k else 0.0

@@ -28,9 +28,18 @@ class VehicleParams:
     roll_gradient: float = 0.0  # rad of roll per m/s^2 of lateral acceleration
     imu_x: float = 0.0  # m, IMU ahead of the CG
     imu_y: float = 0.0  # m, IMU left of the CG
-    sigma_ax: float = 0.05  # m/s^2, accelerometer white-noise std
-    sigma_ay: float = 0.05  # m/s^2
-    sigma_yaw_rate: float = 0.0035  # rad/s, gyro white-noise std
+    # IMU white-noise std; None (absent): estimated from the data (estimators.sensors)
+    sigma_ax: float | None = None  # m/s^2
+    sigma_ay: float | None = None  # m/s^2
+    sigma_yaw_rate: float | None = None  # rad/s
+    # IMU bias prior std and random walk; None (absent): automotive MEMS defaults
+    # (estimators.sensors); bias estimation is on unless all are 0
+    bias0_std_ax: float | None = None  # m/s^2
+    bias0_std_ay: float | None = None  # m/s^2
+    bias0_std_yaw_rate: float | None = None  # rad/s
+    bias_rw_ax: float | None = None  # m/s^2 per sqrt(s)
+    bias_rw_ay: float | None = None  # m/s^2 per sqrt(s)
+    bias_rw_yaw_rate: float | None = None  # rad/s per sqrt(s)
     # Truth-model details (optional keys, used by the vehicle FMU):
     Cx_undriven: float | None = None  # N, longitudinal stiffness of the other axle (default Cx)
     wheel_inertia_f: float = 3.6  # kg m^2, front axle spin inertia (both wheels)
@@ -119,9 +128,10 @@ def vehicle_from_dict(data: dict, path) -> VehicleParams:
             continue
         kwargs = {} if f.default is MISSING else {"default": f.default}
         lo, lo_open, hi = None, False, None
-        if f.name in _POSITIVE or f.name in ("steering_ratio", "Cx_undriven"):
+        if f.name in _POSITIVE or f.name in ("steering_ratio", "Cx_undriven") or f.name.startswith("sigma"):
             lo, lo_open = 0.0, True
-        elif f.name in ("cg_height", "rolling_resistance", "drag_coefficient", "roll_gradient") or f.name.startswith("sigma"):
+        elif f.name in ("cg_height", "rolling_resistance", "drag_coefficient", "roll_gradient") or f.name.startswith(
+                "bias"):
             lo = 0.0
         if f.name in ("brake_front_share", "awd_front_share"):
             lo, hi = 0.0, 1.0
