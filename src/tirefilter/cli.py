@@ -102,6 +102,23 @@ def cmd_replay(args) -> int:
     return 0
 
 
+def cmd_peer_drive(args) -> int:
+    from tirefilter.peer.drive import DriveSpec, describe, simulate, write_drive
+    from tirefilter.peer.sensors import SensorSpec
+
+    if args.duration <= 0:
+        raise ConfigError("--duration", "", f"must be > 0 s, got {args.duration:g}")
+    spec = DriveSpec(model=args.model, vehicle=args.vehicle, maneuver=args.maneuver, duration=args.duration,
+                     seed=args.seed, speed=args.speed, ay=args.ay, cornering_per_deg=args.cornering_per_deg,
+                     sensors=SensorSpec().scaled(noise=args.noise_scale, bias=args.bias_scale),
+                     roll_gradient_in_vehicle=args.with_roll_gradient, camber=args.camber)
+    drive = simulate(spec)
+    log, vehicle = write_drive(drive, args.out, args.vehicle_toml)
+    print(describe(drive))
+    print(f"log: {log}" + (f"\nvehicle: {vehicle}" if vehicle else ""))
+    return 0
+
+
 def cmd_check_log(args) -> int:
     from tirefilter.replay import check_log
 
@@ -359,6 +376,36 @@ def build_parser() -> argparse.ArgumentParser:
     ck.add_argument("--vehicle", help="vehicle TOML (steering ratio, wheel radius)")
     ck.add_argument("--json", action="store_true", help="machine-readable summary")
     ck.set_defaults(func=cmd_check_log)
+
+    pd = sub.add_parser("peer-drive", help="generate a test drive (Log CSV + vehicle TOML) from the CommonRoad vehicle "
+                        "models (needs the `peer` extra)",
+                        description="Simulate a drive with an independent published vehicle model (CommonRoad "
+                        "vehiclemodels: single-track drift STD or multi-body MB with body roll, Pacejka tires), add "
+                        "a MEMS IMU with biases and noise (on the rolling body for MB) and wheel-speed noise, and "
+                        "write a Log CSV with *_true reference columns and a vehicle TOML of data-sheet values "
+                        "(guessed nominal stiffness, no noise or bias keys).")
+    pd.add_argument("--model", default="std", choices=("std", "mb"), help="peer model (default std)")
+    pd.add_argument("--vehicle", type=int, default=2, choices=(1, 2, 3),
+                    help="peer parameter set: 1 Ford Escort, 2 BMW 320i, 3 VW Vanagon (default 2)")
+    pd.add_argument("--maneuver", default="sine", choices=("sine", "sweep", "steps", "slalom", "mixed"),
+                    help="steering maneuver after the straight start (default sine; mixed: a longer random drive)")
+    pd.add_argument("--duration", type=float, default=40.0, help="seconds (default 40)")
+    pd.add_argument("--seed", type=int, default=0, help="seed of the sensors and of the mixed maneuver")
+    pd.add_argument("--speed", type=float, default=20.0, help="set speed in m/s (default 20)")
+    pd.add_argument("--ay", type=float, default=3.0, help="peak steady-state lateral acceleration, m/s^2 (default 3)")
+    pd.add_argument("--noise-scale", type=float, default=1.0, help="scale of the sensors' white noise (default 1)")
+    pd.add_argument("--bias-scale", type=float, default=1.0, help="scale of the IMU biases (default 1; 0: none)")
+    pd.add_argument("--cornering-per-deg", type=float, default=0.25,
+                    help="rule of thumb for the vehicle TOML's nominal stiffness: cornering coefficient per degree "
+                    "times the static axle load (default 0.25)")
+    pd.add_argument("--camber", default="off", choices=("off", "continuous", "peer"),
+                    help="MB tire camber thrust: off (default; the axle stiffness is the tires'), continuous (the "
+                    "Magic Formula's camber terms), peer (as published: offsets that switch sign with the camber)")
+    pd.add_argument("--with-roll-gradient", action="store_true",
+                    help="also write the MB drive's measured roll gradient into the vehicle TOML")
+    pd.add_argument("--out", required=True, help="Log CSV to write (.csv or .csv.gz)")
+    pd.add_argument("--vehicle-toml", help="vehicle TOML to write (data-sheet values)")
+    pd.set_defaults(func=cmd_peer_drive)
 
     sc = sub.add_parser("scenarios", help="list the scenarios with their schedules")
     sc.add_argument("--json", action="store_true", help="machine-readable list")

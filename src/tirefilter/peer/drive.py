@@ -1,0 +1,241 @@
+"""A peer drive: integrate a peer model under a maneuver, sample it at 100 Hz, add the
+sensors, and write the Log CSV (DESIGN.md "Log CSV") and a vehicle TOML of data-sheet
+values.
+
+Integration: classical Runge-Kutta (RK4) with a fixed step of 1 ms (10 steps per sample;
+the fastest mode, the wheel spin of ~300 1/s at 15 m/s, gives h*lambda ~ 0.3) after 2 s of
+settling at the initial speed (the MB model starts off its static equilibrium). The
+driver: the steering rate input is the profile's rate plus a 20 1/s correction towards
+the profile's steer; the acceleration input holds the set speed (its rate plus 1 1/s
+times the speed error). Both pass the peer's own input constraints.
+
+Log columns: `t, delta, ax, ay, yaw_rate, vx, omega_f, omega_r` (road-wheel steer, the
+IMU's readings with bias and noise, the model's v^X, axle-mean wheel rates with noise),
+then references: `beta_true, vx_true, vy_true, yaw_rate_true, ax_true, ay_true,
+alpha_f_true, alpha_r_true, roll_true, Cf_y_true, Cr_y_true, Cx_true, Fz_f_true, Fz_r_true,
+b_ax_true, b_ay_true, b_yaw_rate_true, Cf_y_eff_true, Cr_y_eff_true` (biases = measured -
+true IMU reading; for the MB model the true IMU lateral reading includes g sin(roll),
+which is no bias). `C*_y_true` is the tires' linear-region stiffness at the actual axle
+load (derivations: "Peer drives"); `C*_y_eff_true` the effective axle stiffness of the
+whole drive (`model.effective_stiffness`, one value repeated), which differs from it where
+the MB model's camber thrust is on (`--camber continuous|peer`; the default is off).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from tirefilter.errors import TirefilterError
+from tirefilter.peer.maneuvers import Profile, make_profile
+from tirefilter.peer.model import VEHICLES, PeerModel, effective_stiffness, load_model
+from tirefilter.peer.sensors import SensorSpec, measure
+
+RATE = 100.0  # Hz, log sample rate
+SUBSTEPS = 10  # RK4 steps per sample (h = 1 ms)
+SETTLE = 2.0  # s of straight driving before t = 0
+K_STEER = 20.0  # 1/s, steering correction towards the profile
+K_SPEED = 1.0  # 1/s, cruise control gain
+# The nominal stiffness a user would guess (vehicle TOML), not the peer's truth: a cornering
+# coefficient of CORNERING_PER_DEG per degree of slip per unit axle load (passenger-car radial
+# tires, rule of thumb 0.15-0.3 /deg), and a slip stiffness of LONGITUDINAL_PER_LOAD times
+# the driven axle's static load.
+CORNERING_PER_DEG = 0.25
+LONGITUDINAL_PER_LOAD = 20.0
+G = 9.81  # m/s^2, for the guessed static loads
+
+LOG_COLUMNS = ("t", "delta", "ax", "ay", "yaw_rate", "vx", "omega_f", "omega_r")
+TRUE_COLUMNS = ("beta", "vx", "vy", "yaw_rate", "ax", "ay", "alpha_f", "alpha_r", "roll", "Cf_y", "Cr_y", "Cx",
+                "Fz_f", "Fz_r")
+
+
+@dataclass(frozen=True)
+class DriveSpec:
+    """What to generate (the options of `tirefilter peer-drive`)."""
+
+    model: str = "std"  # "std" | "mb"
+    vehicle: int = 2  # peer parameter set 1, 2, 3
+    maneuver: str = "sine"
+    duration: float = 40.0  # s
+    seed: int = 0
+    speed: float = 20.0  # m/s, set speed
+    ay: float = 3.0  # m/s^2, peak lateral acceleration in steady state
+    straight: float = 4.0  # s of straight driving at the start
+    sensors: SensorSpec = field(default_factory=SensorSpec)
+    camber: str = "off"  # MB tire camber terms: "continuous" | "peer" | "off" (model.load_model)
+    cornering_per_deg: float = CORNERING_PER_DEG  # the user's guess of the nominal stiffness
+    roll_gradient_in_vehicle: bool = False  # write the MB model's measured roll gradient into the vehicle TOML
+
+
+@dataclass
+class PeerDrive:
+    spec: DriveSpec
+    model: PeerModel
+    columns: dict  # Log CSV columns, (n,) each
+    vehicle: dict  # vehicle TOML values
+    roll_gradient: float  # rad per m/s^2, least-squares roll / a^Y of the drive (0 for STD)
+
+
+def steer_gain(model: PeerModel):
+    """v -> steady-state road-wheel steer per m/s^2 of lateral acceleration, (L + K_us v^2) / v^2,
+    from the peer's static linear stiffness."""
+    p, L = model.p, model.wheelbase
+    Cf, Cr = model.static_stiffness()
+    k_us = p.m * (p.b / Cf - p.a / Cr) / L
+    return lambda v: (L + k_us * v * v) / (v * v)
+
+
+def integrate(model: PeerModel, profile: Profile, rate: float = RATE, substeps: int = SUBSTEPS) -> tuple:
+    """States and inputs at the samples t = k / rate inside the profile: (t (n,), X (n, nx),
+    U (n, 2)). The profile's grid must be h / 2 with h = 1 / (rate substeps)."""
+    h = 1.0 / (rate * substeps)
+    if abs(profile.dt - h / 2) > 1e-12:
+        raise ValueError(f"profile grid {profile.dt} s, expected {h / 2} s")
+    d, dd, v, dv = profile.delta, profile.delta_rate, profile.speed, profile.speed_rate
+    rhs = model.rhs
+
+    def control(j, x):  # j: index on the half-step grid
+        return [dd[j] + K_STEER * (d[j] - x[2]), dv[j] + K_SPEED * (v[j] - x[3])]
+
+    def f(j, x):
+        return np.asarray(rhs(x.tolist(), control(j, x)), float)
+
+    x = model.initial_state(v[0])
+    # settle: straight at the initial set speed (the grid's first point held)
+    settle_u = lambda x: [K_STEER * (d[0] - x[2]), K_SPEED * (v[0] - x[3])]  # noqa: E731
+    g = lambda x: np.asarray(rhs(x.tolist(), settle_u(x)), float)  # noqa: E731
+    for _ in range(int(round(SETTLE / h))):
+        k1 = g(x)
+        k2 = g(x + 0.5 * h * k1)
+        k3 = g(x + 0.5 * h * k2)
+        k4 = g(x + h * k3)
+        x = x + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+    n = int(math.floor(profile.t[-1] * rate + 1e-6)) + 1  # samples up to the profile's end
+    X = np.empty((n, x.size))
+    U = np.empty((n, 2))
+    for k in range(n):
+        X[k] = x
+        U[k] = control(2 * k * substeps, x)
+        if k == n - 1:
+            break
+        for s in range(substeps):
+            j = 2 * (k * substeps + s)
+            k1 = f(j, x)
+            k2 = f(j + 1, x + 0.5 * h * k1)
+            k3 = f(j + 1, x + 0.5 * h * k2)
+            k4 = f(j + 2, x + h * k3)
+            x = x + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+        if not np.all(np.isfinite(x)):
+            raise TirefilterError(f"peer model {model.kind} (vehicle {model.vehicle_id}) diverged "
+                                  f"at t = {k / rate:g} s")
+    return np.arange(n) / rate, X, U
+
+
+def simulate(spec: DriveSpec) -> PeerDrive:
+    """Generate the drive `spec`: integrate, sample, add the sensors."""
+    model = load_model(spec.model, spec.vehicle, spec.camber)
+    maneuver_seed, sensor_seed = np.random.SeedSequence(spec.seed).spawn(2)
+    maneuver_rng = np.random.default_rng(maneuver_seed)
+    profile = make_profile(spec.maneuver, spec.duration, speed=spec.speed, ay=spec.ay, steer_gain=steer_gain(model),
+                           straight=spec.straight, dt=0.5 / (RATE * SUBSTEPS), rng=maneuver_rng)
+    t, X, U = integrate(model, profile)
+    rows = [model.sample(x, u) for x, u in zip(X, U)]
+    true = {key: np.array([r[key] for r in rows]) for key in rows[0]}
+    meas, bias = measure(t, true, spec.sensors, sensor_seed)
+    columns = {"t": t, "delta": true["delta"], "ax": meas["ax"], "ay": meas["ay"], "yaw_rate": meas["yaw_rate"],
+               "vx": true["vx"], "omega_f": meas["omega_f"], "omega_r": meas["omega_r"]}
+    columns.update({f"{name}_true": true[name] for name in TRUE_COLUMNS})
+    columns.update({f"b_{name}_true": bias[:, i] for i, name in enumerate(("ax", "ay", "yaw_rate"))})
+    eff = effective_stiffness(model, true)
+    columns["Cf_y_eff_true"] = np.full(t.size, eff[0])
+    columns["Cr_y_eff_true"] = np.full(t.size, eff[1])
+    turning = np.abs(true["ay"]) > 0.5
+    roll_gradient = (float(-np.sum(true["roll"][turning] * true["ay"][turning]) / np.sum(true["ay"][turning] ** 2))
+                     if spec.model == "mb" and turning.any() else 0.0)  # outward roll is -x[6] for a^Y > 0
+    return PeerDrive(spec, model, columns, vehicle_values(model, spec, roll_gradient), roll_gradient)
+
+
+def vehicle_values(model: PeerModel, spec: DriveSpec, roll_gradient: float = 0.0) -> dict:
+    """The vehicle TOML a user would write from the data sheet: the peer's published mass,
+    yaw inertia, axle distances, wheel radius, centre-of-gravity height and driven axle,
+    and nominal stiffness guessed by the rule of thumb (CORNERING_PER_DEG,
+    LONGITUDINAL_PER_LOAD) from the static axle loads. No sensor noise, no bias keys."""
+    p = model.p
+    L = p.a + p.b
+    Ff, Fr = p.m * G * p.b / L, p.m * G * p.a / L
+    k = spec.cornering_per_deg * 180.0 / math.pi
+    values = {"mass": float(p.m), "yaw_inertia": float(p.I_z), "lf": float(p.a), "lr": float(p.b),
+              "wheel_radius": float(p.R_w), "cg_height": float(p.h_cg), "drive": model.drive,
+              "Cf_y": round(k * Ff, -2), "Cr_y": round(k * Fr, -2),
+              "Cx": round(LONGITUDINAL_PER_LOAD * model.driven_load(Ff, Fr), -2)}
+    if spec.roll_gradient_in_vehicle and roll_gradient > 0:
+        values["roll_gradient"] = round(roll_gradient, 5)
+    return values
+
+
+def vehicle_toml(drive: PeerDrive) -> str:
+    """The vehicle TOML text, with the source of each value."""
+    s, v, p = drive.spec, drive.vehicle, drive.model.p
+    lines = [f"# {VEHICLES[s.vehicle]}: data-sheet values of the CommonRoad vehicle models' parameter set "
+             f"{s.vehicle} (vehiclemodels)",
+             f"# written by `tirefilter peer-drive` for the {s.model.upper()} model; no sensor noise or bias keys.",
+             f'mass = {v["mass"]!r}  # kg',
+             f'yaw_inertia = {v["yaw_inertia"]!r}  # kg m^2',
+             f'lf = {v["lf"]!r}  # m',
+             f'lr = {v["lr"]!r}  # m',
+             f'wheel_radius = {v["wheel_radius"]!r}  # m',
+             f'cg_height = {v["cg_height"]!r}  # m',
+             f'drive = "{v["drive"]}"  # engine-torque split T_se = {float(p.T_se):g}',
+             f'# guessed, not the truth: cornering coefficient {s.cornering_per_deg:g} per degree of slip angle '
+             f'times the static axle load ({s.cornering_per_deg * 180 / math.pi:.3g} per rad)',
+             f'Cf_y = {v["Cf_y"]!r}  # N/rad',
+             f'Cr_y = {v["Cr_y"]!r}  # N/rad',
+             f'Cx = {v["Cx"]!r}  # N per unit slip: guessed, {LONGITUDINAL_PER_LOAD:g} x the driven axle\'s '
+             'static load']
+    if "roll_gradient" in v:
+        lines.append(f'roll_gradient = {v["roll_gradient"]!r}  # rad per m/s^2, measured on this drive '
+                     '(not a data-sheet value)')
+    return "\n".join(lines) + "\n"
+
+
+def write_drive(drive: PeerDrive, log_path: str | Path,
+                vehicle_path: str | Path | None = None) -> tuple[Path, Path | None]:
+    """Write the Log CSV (and the vehicle TOML when `vehicle_path` is given)."""
+    from tirefilter.replay.log import write_log
+
+    log_path = write_log(log_path, drive.columns)
+    if vehicle_path is not None:
+        vehicle_path = Path(vehicle_path)
+        vehicle_path.parent.mkdir(parents=True, exist_ok=True)
+        vehicle_path.write_text(vehicle_toml(drive))
+    return log_path, vehicle_path
+
+
+def describe(drive: PeerDrive) -> str:
+    """A few lines on the drive: truth ranges, stiffness, biases, the guess."""
+    c, s, v = drive.columns, drive.spec, drive.vehicle
+    t = c["t"]
+    cf, cr = c["Cf_y_true"], c["Cr_y_true"]
+    lines = [f"peer drive: {s.model.upper()} model, vehicle {s.vehicle} ({VEHICLES[s.vehicle]}), "
+             f"maneuver {s.maneuver}, {t[-1]:g} s at {RATE:g} Hz, seed {s.seed}",
+             f"  |a^Y| max {np.max(np.abs(c['ay_true'])):.2f} m/s^2, v^X {np.min(c['vx_true']):.1f}-"
+             f"{np.max(c['vx_true']):.1f} m/s, |beta| max {np.degrees(np.max(np.abs(c['beta_true']))):.2f} deg, "
+             f"|alpha_f| max {np.degrees(np.max(np.abs(c['alpha_f_true']))):.2f} deg",
+             f"  true stiffness Cf_y {np.mean(cf):.4g} ({np.min(cf):.4g}-{np.max(cf):.4g}), "
+             f"Cr_y {np.mean(cr):.4g} ({np.min(cr):.4g}-{np.max(cr):.4g}) N/rad; "
+             f"vehicle TOML guess Cf_y {v['Cf_y']:.4g} ({100 * (v['Cf_y'] / np.mean(cf) - 1):+.0f} %), "
+             f"Cr_y {v['Cr_y']:.4g} ({100 * (v['Cr_y'] / np.mean(cr) - 1):+.0f} %)",
+             f"  effective axle stiffness of the drive (least squares on the peer's forces): Cf_y "
+             f"{c['Cf_y_eff_true'][0]:.4g} ({100 * (c['Cf_y_eff_true'][0] / np.mean(cf) - 1):+.1f} %), Cr_y "
+             f"{c['Cr_y_eff_true'][0]:.4g} ({100 * (c['Cr_y_eff_true'][0] / np.mean(cr) - 1):+.1f} %)"
+             + (f", camber {s.camber}" if s.model == "mb" else ""),
+             f"  IMU bias at t = 0: b_ax {c['b_ax_true'][0]:+.3f} m/s^2, b_ay {c['b_ay_true'][0]:+.3f} m/s^2, "
+             f"b_yaw_rate {c['b_yaw_rate_true'][0]:+.4f} rad/s; noise std {s.sensors.sigma[0]:g}, "
+             f"{s.sensors.sigma[1]:g} m/s^2, {s.sensors.sigma[2]:g} rad/s"]
+    if s.model == "mb":
+        lines.append(f"  body roll {drive.roll_gradient:.4f} rad per m/s^2 (the IMU's a^Y reads about "
+                     f"{1 + G * drive.roll_gradient:.3f} x a^Y)")
+    return "\n".join(lines)
