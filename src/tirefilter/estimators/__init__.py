@@ -171,6 +171,15 @@ def check_model_signals(model: str, signals, source, key: str) -> None:
                           f"(available: {', '.join(signals) or 'none'})")
 
 
+def check_tables(config: dict) -> None:
+    """The estimator tables of a `--config` file ([mpf], [kf], ..., [guard]) are tables."""
+    if not isinstance(config, dict):
+        raise ConfigError("--config", "", f"expected tables of options, got {config!r}")
+    for name in (*ESTIMATORS, "guard"):
+        if name in config and not isinstance(config[name], dict):
+            raise ConfigError("--config", name, f"expected a table [{name}] of options, got {config[name]!r}")
+
+
 def with_guard(estimator, config: dict):
     """`estimator` carrying the measurement guard of `config`'s `[guard]` table as
     `estimator.guard` (estimators.guard; the run loop applies it before every step)."""
@@ -187,6 +196,7 @@ def build_estimator(name: str, scenario, *, model: str, particles: int | None, c
     (`with_guard`)."""
     from tirefilter.estimators.sensors import sensors_for_scenario
 
+    check_tables(config)
     return with_guard(_with_sensors(_build_estimator(name, scenario, model=model, particles=particles, config=config),
                                     sensors_for_scenario(scenario.sensor_spec)), config)
 
@@ -237,6 +247,7 @@ def build_log_estimator(name: str, vehicle, t, signals: dict, *, model: str, par
     (`with_guard`)."""
     from tirefilter.estimators.sensors import sensors_for_log
 
+    check_tables(config)
     sensors = sensors_for_log(vehicle, signals)
     return with_guard(_with_sensors(_build_log_estimator(name, vehicle, t, signals, model=model, particles=particles,
                                                          config=config, source=source, sensors=sensors), sensors),
