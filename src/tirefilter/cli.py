@@ -244,20 +244,31 @@ def _print_sensors(estimator) -> None:
 def _print_truth_summary(results: Path) -> None:
     import numpy as np
 
-    from tirefilter.cosim.results import read_results
+    from tirefilter.cosim.results import iter_results
 
-    r = read_results(results)
     rows = [("speed vx [m/s]", "true_vx"), ("lateral acc. ay [m/s^2]", "true_ay"), ("yaw rate [rad/s]", "true_yaw_rate"),
             ("slip angle front [rad]", "true_alpha_f"), ("wheel slip front [-]", "true_lambda_f"),
             ("Cf_y surface mean [N/rad]", "true_Cf_y_mean"), ("Cr_y surface mean [N/rad]", "true_Cr_y_mean")]
+    lo, hi, total, n = {}, {}, {}, 0
+    err = {c: [0.0, 0, np.nan] for c in ("Cf_y", "Cr_y", "Cx")}  # sum, count of finite errors, last error
+    for r in iter_results(results):  # chunk by chunk: a long run's table is not loaded whole
+        n += len(r["t"])
+        for _, col in rows:
+            x = r[col]
+            lo[col] = min(lo.get(col, np.inf), np.min(x))
+            hi[col] = max(hi.get(col, -np.inf), np.max(x))
+            total[col] = total.get(col, 0.0) + float(np.sum(x))
+        for col, e in err.items():
+            pct = 100 * (r[col] - r[f"true_{col}_mean"]) / r[f"true_{col}_mean"]
+            e[0] += float(np.nansum(pct))
+            e[1] += int(np.count_nonzero(np.isfinite(pct)))
+            e[2] = float(pct[-1])
     print(f"{'truth':28s}{'min':>12s}{'mean':>12s}{'max':>12s}")
     for label, col in rows:
-        x = r[col]
-        print(f"{label:28s}{np.min(x):12.4g}{np.mean(x):12.4g}{np.max(x):12.4g}")
-    for col in ("Cf_y", "Cr_y", "Cx"):
-        if np.isfinite(r[col]).any():
-            err = 100 * (r[col] - r[f"true_{col}_mean"]) / r[f"true_{col}_mean"]
-            print(f"{col} error vs surface mean: mean {np.nanmean(err):+.2f}%, final {err[-1]:+.2f}%")
+        print(f"{label:28s}{lo[col]:12.4g}{total[col] / n:12.4g}{hi[col]:12.4g}")
+    for col, (s, k, last) in err.items():
+        if k:
+            print(f"{col} error vs surface mean: mean {s / k:+.2f}%, final {last:+.2f}%")
 
 
 def cmd_scenarios(args) -> int:
