@@ -69,8 +69,9 @@ class RssSampler:
         k = int(np.searchsorted(t, 0.1 * t[-1]))
         import resource
 
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
         return {"wall_s": float(t[-1]), "rss_at_10pct_mb": float(m[k]), "rss_max_after_mb": float(m[k:].max()),
-                "growth_mb": float(m[k:].max() - m[k]), "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
+                "growth_mb": float(m[k:].max() - m[k]), "peak_rss_mb": peak}
 
 
 def write_drive(path: Path, minutes: float, rate: float = 100.0) -> Path:
@@ -116,8 +117,8 @@ def cmd_replay(args) -> None:
                 print(f"| {est} | failed: {res.stderr.strip().splitlines()[-1:]} |", flush=True)
                 continue
             r = json.loads(res.stdout.strip().splitlines()[-1])
-            print(f"| {est} | {args.minutes:g} | {r['wall_s']:.0f} | {r['peak_rss_mb']:.0f} | {r['rss_at_10pct_mb']:.0f} "
-                  f"| {r['rss_max_after_mb']:.0f} | {r['growth_mb']:+.1f} |", flush=True)
+            print(f"| {est} | {args.minutes:g} | {r['wall_s']:.0f} | {r['peak_rss_mb']:.0f} | "
+                  f"{r['rss_at_10pct_mb']:.0f} | {r['rss_max_after_mb']:.0f} | {r['growth_mb']:+.1f} |", flush=True)
 
 
 def cmd_soak(args) -> None:

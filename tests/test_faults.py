@@ -20,8 +20,7 @@ from tirefilter.estimators.guard import GuardConfig, MeasurementGuard, guard_fro
 from tirefilter.replay import replay_log, result_columns
 from tirefilter.replay.log import Log
 from tirefilter.scenarios import load_scenario
-from tirefilter.scenarios.faults import (Fault, FaultInjector, fault_log_columns, fault_sets, fault_windows,
-                                        parse_faults)
+from tirefilter.scenarios.faults import Fault, fault_log_columns, fault_sets, fault_windows, parse_faults
 
 DURATION, SEED, N = 20.0, 2, 100
 RECOVERED_DEG = 0.1  # sideslip RMS error over [end + 5 s, end + 10 s) at most this above the clean replay's
