@@ -30,8 +30,8 @@ DURATION = 40.0  # s, the CI drives: 4 s straight, then a 0.5 Hz steer sine (|a^
 LAST = 20.0  # s, window of the stiffness mean
 STIFFNESS_TOL = 10.0  # %, issue 13 point 6
 BETA_RMSE_TOL = 0.1  # deg, issue 13 point 6
-# Bias estimation on, with the sensor noise the drive has: the settings that show the drive
-# itself is sound while the defaults of issue 13 are pending.
+# Bias estimation on, with the sensor noise the drive has given: the settings issue 13 quotes
+# to show that the drives themselves are sound.
 BIAS_CONFIG = """[mpf]
 bias0_std = [0.3, 0.3, 0.01]
 bias_rw = [0.001, 0.001, 0.0001]
@@ -74,13 +74,16 @@ def _assert_targets(score: dict) -> None:
 
 # --- the estimator on the peer's drives ------------------------------------------------------
 
-@pytest.mark.xfail(strict=True, reason="defaults of issue 13 pending")
-@pytest.mark.parametrize("kind", ["std", "mb"])
+@pytest.mark.parametrize("kind", ["std", "mb-roll", pytest.param("mb", marks=pytest.mark.xfail(
+    strict=True, reason="the roll gain of a^Y (15.6 % on this drive) is not estimated: without roll_gradient in "
+    "the vehicle file the lateral stiffness ends 50-80 % high (benchmarks/README, 'Out of the box')"))])
 def test_default_replay_meets_the_issue_13_targets(drives, tmp_path, kind):
     """`tirefilter replay LOG.csv --vehicle V.toml`, nothing else: lateral stiffness within
-    10 % of the truth (mean over the last 20 s), sideslip RMSE at most 0.1 deg."""
-    _, log, vehicle, _ = drives[kind]
-    _assert_targets(_replay(tmp_path, log, vehicle))
+    10 % of the truth (mean over the last 20 s), sideslip RMSE at most 0.1 deg. The
+    single-track drive with a data-sheet vehicle file; the multi-body drive (IMU on the
+    rolling body) with its roll gradient added to that file, and without it (known to fail)."""
+    _, log, vehicle, with_roll = drives[kind.split("-")[0]]
+    _assert_targets(_replay(tmp_path, log, with_roll if kind == "mb-roll" else vehicle))
 
 
 @pytest.mark.parametrize("kind", ["std", "mb"])

@@ -32,7 +32,7 @@ from tirefilter.viz.density import (ComponentCache, gaussian_marginals, mixture_
 from tirefilter.viz.options import RecordingOptions
 
 REPO = Path(__file__).resolve().parents[1]
-N, K, DURATION = 100, 25, 8.0  # particles, --log-every, seconds of paper-sim
+N, K, DURATION = 100, 25, 12.0  # particles, --log-every, seconds of paper-sim
 VEHICLE = DATA_DIR / "vehicles" / "midsize-suv.toml"
 
 

@@ -271,6 +271,8 @@ def _with_sensors(estimator, sensors):
     if not hasattr(cfg, "bias_rw"):
         model = dataclasses.replace(model, bias0_std=(0.0,) * 3, bias_rw=(0.0,) * 3,
                                     bias_source=f"the {estimator.name} estimator has no bias model")
+    if hasattr(cfg, "disturbance_rw"):
+        model = dataclasses.replace(model, disturbance_rw=tuple(cfg.disturbance_rw))
     estimator.sensors = model
     return estimator
 

@@ -47,6 +47,7 @@ class SensorModel:
     bias_rw: tuple[float, float, float] = MEMS_BIAS_RW
     bias_source: str = "defaults (automotive MEMS)"
     held: tuple[float, float, float] = (math.nan,) * 3  # share of held (repeated) samples per channel
+    disturbance_rw: tuple[float, float, float] = (0.0, 0.0, 0.0)  # wandering offsets (road bank, roll), per sqrt(s)
     warnings: tuple[str, ...] = field(default=())
 
     @property
@@ -68,6 +69,7 @@ class SensorModel:
             "bias_rw": dict(zip(CHANNELS, self.bias_rw)),
             "bias_source": self.bias_source,
             "held_share": dict(zip(CHANNELS, map(num, self.held))),
+            "disturbance_rw": dict(zip(CHANNELS, self.disturbance_rw)),
             "warnings": list(self.warnings),
         }
 
@@ -83,6 +85,10 @@ class SensorModel:
                 f"{_fmt(q)}" for q in self.bias_rw) + f" per sqrt(s) ({self.bias_source})")
         else:
             lines.append(f"IMU bias: not estimated ({self.bias_source})")
+        if any(q > 0 for q in self.disturbance_rw):
+            lines.append("wandering offsets (road bank and crown, body roll): random walk " + ", ".join(
+                f"{c} {_fmt(q)}" for c, q in zip(CHANNELS, self.disturbance_rw) if q > 0)
+                + " per sqrt(s), in the linear tire region")
         return lines + [f"warning: {w}" for w in self.warnings]
 
     def with_config(self, sigma, bias0_std, bias_rw, channels=CHANNELS) -> "SensorModel":
@@ -130,9 +136,10 @@ def _compare(sigma, sigma_data, sources, span: str) -> list[str]:
 
 
 def sensors_for_log(vehicle, signals: dict, span: str = "the log") -> SensorModel:
-    """The IMU model for a replay: the vehicle's figures where given, else the data's."""
+    """The IMU model for a replay: the vehicle's figures where given, else the data's
+    (`vehicle` None: no figures given)."""
     sigma_data, held = noise_from_data(signals, span)
-    given = (vehicle.sigma_ax, vehicle.sigma_ay, vehicle.sigma_yaw_rate)
+    given = (None,) * 3 if vehicle is None else (vehicle.sigma_ax, vehicle.sigma_ay, vehicle.sigma_yaw_rate)
     sigma, sources = [], []
     for g, d in zip(given, sigma_data):
         if g is not None:
@@ -141,8 +148,8 @@ def sensors_for_log(vehicle, signals: dict, span: str = "the log") -> SensorMode
             sigma.append(d), sources.append("data")
         else:
             sigma.append(FALLBACK_SIGMA[len(sigma)]), sources.append("default")
-    b0 = (vehicle.bias0_std_ax, vehicle.bias0_std_ay, vehicle.bias0_std_yaw_rate)
-    rw = (vehicle.bias_rw_ax, vehicle.bias_rw_ay, vehicle.bias_rw_yaw_rate)
+    b0 = (None,) * 3 if vehicle is None else (vehicle.bias0_std_ax, vehicle.bias0_std_ay, vehicle.bias0_std_yaw_rate)
+    rw = (None,) * 3 if vehicle is None else (vehicle.bias_rw_ax, vehicle.bias_rw_ay, vehicle.bias_rw_yaw_rate)
     given_bias = any(v is not None for v in b0 + rw)
     b0 = tuple(d if v is None else float(v) for v, d in zip(b0, MEMS_BIAS0_STD))
     rw = tuple(d if v is None else float(v) for v, d in zip(rw, MEMS_BIAS_RW))

@@ -43,7 +43,15 @@ class MPFConfig:
     """Options of the stiffness MPF (all settable from the `[mpf]` table of --config)."""
 
     particles: int = 500
-    forgetting: float = 0.99  # lambda of eq. (20)
+    forgetting: float = 0.99  # lambda of eq. (20); with adaptive forgetting its value when the data fit
+    # adaptive forgetting (derivations, Sec. 17): lambda_k = clip(1 - (1 - forgetting) z_k, forgetting_min,
+    # forgetting_max), z_k the smoothed normalised innovation of the accelerometers (1 when the data fit the
+    # predictive): a surface change forgets fast, a drive that fits keeps a long memory. "fixed": the paper's
+    forgetting_mode: str = "adaptive"  # "adaptive" | "fixed"
+    forgetting_min: float = 0.97
+    forgetting_max: float = 0.999
+    surprise_time: float = 0.15  # s, time constant of the smoothing of z_k (the innovation)
+    drift_time: float = 1.0  # s, time constant of the smoothing of z'_k (the lean of the sampled w)
     model: str = "full"  # "full" (wheel speeds) | "lateral" (vx given)
     integrator: str = "heun"  # "euler" (the paper) | "heun" (same w, wheel slip held)
     resample_threshold: float = 0.5  # resample when ESS < threshold * N
@@ -103,6 +111,13 @@ class MPFConfig:
             bad("particles", f"N must be an integer >= 1, got {self.particles!r}")
         if not 0.0 < self.forgetting <= 1.0:
             bad("forgetting", f"lambda must be in (0, 1], got {self.forgetting!r}")
+        if self.forgetting_mode not in ("adaptive", "fixed"):
+            bad("forgetting_mode", f"expected adaptive or fixed, got {self.forgetting_mode!r}")
+        if not 0.0 < self.forgetting_min <= self.forgetting_max <= 1.0:
+            bad("forgetting_min", "need 0 < forgetting_min <= forgetting_max <= 1")
+        for key in ("surprise_time", "drift_time"):
+            if not getattr(self, key) > 0:
+                bad(key, f"must be > 0, got {getattr(self, key)!r}")
         if self.model not in ("full", "lateral"):
             bad("model", f"expected full or lateral, got {self.model!r}")
         if self.integrator not in ("euler", "heun"):
@@ -156,9 +171,12 @@ class StiffnessMPF:
         self.roll_gain = 1.0 + v.roll_gradient * GRAVITY  # measured a^Y ~ (1 + k g) a^Y
         sig = np.asarray(self.cfg.sigma)[list(self.channels)]
         self.R = np.diag(sig**2)
-        rw2 = np.square(self.cfg.bias_rw) + np.square(self.cfg.disturbance_rw)  # per s
-        self.bias_on = bool(np.any(rw2 > 0) or np.any(np.asarray(self.cfg.bias0_std) > 0))
-        self.q_bias = rw2[list(self.channels)]
+        ch = list(self.channels)
+        q_sensor, q_road = np.square(self.cfg.bias_rw)[ch], np.square(self.cfg.disturbance_rw)[ch]  # per s
+        self.bias_on = bool(np.any(q_sensor + q_road > 0) or np.any(np.asarray(self.cfg.bias0_std) > 0))
+        # the road offsets wander only where the linear tire model holds: beyond it the
+        # residual is the model's error, not the road's (derivations, Sec. 16)
+        self.q_bias, self.q_bias_nonlinear = q_sensor + q_road, q_sensor
         q = np.asarray(self.cfg.state_noise, float)[-(3 if self.full else 2):]
         self.state_noise = q if np.any(q > 0) else None
         ref = np.asarray(self.cfg.init_reference if self.cfg.init_reference is not None else self.C_nom, float)
@@ -193,6 +211,10 @@ class StiffnessMPF:
         self.resamples = 0
         self.restarts = 0
         self._contradiction_since = None
+        self.surprise = 1.0  # z_k of the adaptive forgetting: 1 while the data fit the predictive
+        self.linear_region = True  # |a^Y| below the gate's linear-region bound at the last sample
+        self.lam = self.cfg.forgetting  # the forgetting factor applied at the next propagation
+        self.drift = np.zeros(self.n_w)  # smoothed whitened w_k - mu_{k|k-1} (adaptive forgetting)
 
     def _draw_prior(self, x0_mean) -> None:
         """Particles from the initial distribution: stiffness statistics (or the carried
@@ -335,17 +357,18 @@ class StiffnessMPF:
             uk[0] = 0.0
 
         # 1. propagate from the previous sample
+        dt = t - self.t_prev if self.t_prev is not None else cfg.sample_period
         if self.t_prev is not None:
-            dt = t - self.t_prev
             if dt <= 0:
                 raise ConfigError("inputs", "t", f"time must increase: {t} after {self.t_prev}")
             self.x = self._propagate(self.x, self.u_prev, self.w_prev, dt, self._at_x)
             if self.state_noise is not None:  # optional regularisation against sample impoverishment
                 self.x = self.x + math.sqrt(dt) * self.state_noise * self.rng.standard_normal(self.x.shape)
             if self.bias_on:
-                self.P = self.P + np.diag(self.q_bias * dt)
+                q = self.q_bias if self.linear_region else self.q_bias_nonlinear
+                self.P = self.P + np.diag(q * dt)
             if self.active:
-                self.stats.forget(cfg.forgetting, nu_min=self.nu0)
+                self.stats.forget(self.lam, nu_min=self.nu0)
         yk = np.array([y.ax, y.ay, y.yaw_rate], float)[list(self.channels)]
         start_logw = None
         if self.t_prev is None:
@@ -374,6 +397,8 @@ class StiffnessMPF:
             Lc = chol(S)
             e = yk[a] - (h + self.b if every else h[:, a] + self.b[:, a]) - np.einsum("nij,nj->ni", Da, mu_w)
             v = solve_lower(Lc, e)
+            if nc and start_logw is None:
+                self._adapt_forgetting(v[:, :nc], nu_w, dt)
             if start_logw is None:
                 self.logw = normalize_log_weights(self.logw + t_logpdf_whitened(v, logdet_chol(Lc), nu_w))
         if start_logw is not None:
@@ -400,6 +425,7 @@ class StiffnessMPF:
         vy = self.x[:, 1 if self.full else 0]
         vy_std = math.sqrt(max(float(q @ (vy - q @ vy) ** 2), 0.0))
         ay_m = y.ay if math.isfinite(y.ay) else 0.0
+        self.linear_region = abs(ay_m) < cfg.gate_ay_max
         alpha = max(abs(float(q @ af)), abs(float(q @ ar)))
         self.active = gate_open(cfg, t=t, t_start=self.t_start, vx=vx_est, delta=uk[0], ay_meas=y.ay, alpha=alpha,
                                 vy_std=vy_std)
@@ -430,6 +456,8 @@ class StiffnessMPF:
         if a.size and self.bias_on:
             self._bias_update(yk, h, D, a)
         if self.active:
+            if nc:
+                self._track_drift(w - mu_w, L11, dt)
             self.stats.update(w, learn)  # eq. (19) with the same w_k that drives the state
             lo = cfg.bound_low * self.C_ref - self.C_nom
             hi = cfg.bound_high * self.C_ref - self.C_nom
@@ -437,6 +465,44 @@ class StiffnessMPF:
         self.w_prev = w
         self._at_x = model_k  # the first stage of the next propagation, at this x and u
         return self._estimate(ess)
+
+    def _adapt_forgetting(self, v: np.ndarray, nu: np.ndarray, dt: float) -> None:
+        """The forgetting factor of the next propagation from how well the accelerometers
+        fit the predictive (derivations, Sec. 17). `v` (N, nc) are the whitened residuals of
+        the weighting, Student-t with nu (N,) dof: E[v^T v] = nc nu / (nu - 2). Their
+        normalised square, averaged with the predictive weights (before this sample's
+        likelihood), is smoothed over `surprise_time` into z_k; lambda_k = 1 - (1 - lambda) z_k,
+        clipped: z = 1 gives the configured lambda, a surface change (z >> 1) forgets fast,
+        a drive that fits better than its noise figures (z < 1) forgets slowly."""
+        cfg = self.cfg
+        if cfg.forgetting_mode == "fixed":
+            return
+        nis = np.sum(v * v, axis=1) * (nu - 2.0) / (nu * v.shape[1])
+        s_k = float(np.exp(self.logw) @ nis)
+        if not math.isfinite(s_k):
+            return
+        self.surprise += -math.expm1(-dt / cfg.surprise_time) * (s_k - self.surprise)
+        self.lam = min(max(1.0 - (1.0 - cfg.forgetting) * self.surprise, cfg.forgetting_min), cfg.forgetting_max)
+
+    def _track_drift(self, dw: np.ndarray, L11: np.ndarray, dt: float) -> None:
+        """The second surprise statistic of the adaptive forgetting (derivations, Sec. 17):
+        w_k - mu_{k|k-1} (N, n_w), whitened by the predictive scale L11 (N, n_w, n_w), has
+        mean zero while the statistics' mean is right, whatever the deviation spread; a
+        stale mean makes it lean one way sample after sample. Its weighted mean over the
+        particles is smoothed into `drift` (n_w,), whose square, scaled by (2 - a) / a for
+        the smoothing a = 1 - exp(-dt / drift_time), is about 1 per component under the
+        model (the per-sample whitened values have unit variance up to nu / (nu - 2))."""
+        cfg = self.cfg
+        if cfg.forgetting_mode == "fixed":
+            return
+        u = solve_lower(chol(L11), dw)
+        ubar = np.exp(self.logw) @ u
+        if not np.all(np.isfinite(ubar)):
+            return
+        a = -math.expm1(-dt / cfg.drift_time)
+        self.drift = self.drift + a * (ubar - self.drift)
+        z = float(self.drift @ self.drift) * (2.0 - a) / (a * len(ubar))
+        self.lam = min(self.lam, max(1.0 - (1.0 - cfg.forgetting) * z, cfg.forgetting_min))
 
     def _informed_start(self, uk, yk) -> np.ndarray:
         """Draw each particle's initial (r, vy) from its prior conditioned on the first yaw

@@ -75,14 +75,20 @@ DRIVES = {0: "front", 1: "rear", 2: "all"}
 
 def _vehicle_parameters():
     """(name, default, unit) of the vehicle TOML keys exposed as `vehicle.<key>`; optional
-    keys without a default (steering_ratio, Cx_undriven) use 0 for "not given"."""
+    keys without a default (steering_ratio, Cx_undriven) use 0 for "not given"; the IMU bias
+    keys default to the automotive MEMS figures (bias estimation on, as in a replay)."""
+    from tirefilter.estimators.sensors import CHANNELS, MEMS_BIAS0_STD, MEMS_BIAS_RW
     from tirefilter.scenarios import DATA_DIR
     from tirefilter.vehicle.params import VehicleParams, load_vehicle
 
     reference = load_vehicle(DATA_DIR / "vehicles" / "midsize-suv.toml")
+    mems = {f"bias0_std_{c}": b for c, b in zip(CHANNELS, MEMS_BIAS0_STD)}
+    mems |= {f"bias_rw_{c}": q for c, q in zip(CHANNELS, MEMS_BIAS_RW)}
     out = []
     for f in fields(VehicleParams):
         value = getattr(reference, f.name)
+        if value is None and f.name in mems:  # bias estimation on, with the MEMS defaults
+            value = mems[f.name]
         if f.name == "drive":
             out.append((f.name, {v: k for k, v in DRIVES.items()}[value]))
         else:

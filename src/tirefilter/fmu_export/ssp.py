@@ -89,8 +89,11 @@ def scenario_run_parameters(scenario, *, seed: int, particles: int | None = None
         x = getattr(v, f.name)
         if f.name == "drive":
             est["vehicle.drive"] = {"front": 0, "rear": 1, "all": 2}[x]
-        else:
-            est[f"vehicle.{f.name}"] = 0.0 if x is None else float(x)
+        elif x is not None:
+            est[f"vehicle.{f.name}"] = float(x)
+        elif f.name in ("steering_ratio", "Cx_undriven"):
+            est[f"vehicle.{f.name}"] = 0.0  # "not given"
+        # other keys the vehicle file leaves out (the IMU bias) keep the FMU's default, as a replay's
     est.update({"particles": int(cfg.particles), "forgetting": float(cfg.forgetting), "seed": int(seed),
                 "estimator_rate": float(scenario.estimator_rate), "model": 1 if model == "full" else 2,
                 "t_first": float(scenario.communication_step)})

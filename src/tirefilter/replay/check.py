@@ -32,6 +32,7 @@ class LogSummary:
     models: dict  # "full" / "lateral" -> {supported, reason}; "auto" -> the model auto picks (or None)
     gates: dict  # the MPF's default linear-region and speed gates and the shares of samples beyond them
     warnings: tuple[str, ...]
+    noise: dict = None  # IMU white noise estimated from the log (and the vehicle's figures): sensors.SensorModel
 
     @property
     def usable(self) -> bool:
@@ -62,6 +63,12 @@ class LogSummary:
         out.append(f"--model auto: {self.models['auto'] or 'none (no model can run on this log)'}")
         ga = self.gates
         out.append(f"|ay| > {ga['ay_max']:g} m/s^2 (MPF linear-region gate): {_pct(ga['share_ay_above'])} of samples")
+        if self.noise:
+            n = self.noise
+            out.append("white noise estimated from the log: " + ", ".join(
+                f"{c} {_g3(n['sigma_from_data'][c])}" + (f" (vehicle file: {_g3(n['sigma'][c])})"
+                                                        if n["sigma_source"][c] == "vehicle file" else "")
+                for c in n["sigma_from_data"]) + " [m/s^2, rad/s]")
         out.append(f"speed < {ga['speed_min']:g} m/s (MPF gate speed): " + (
             f"{_pct(ga['share_speed_below'])} of samples (speed from {ga['speed_from']})" if ga["speed_from"]
             else "n/a (no vx; give a vehicle TOML for the speed from the wheel speeds)"))
@@ -73,18 +80,21 @@ def check_log(path, vehicle=None) -> LogSummary:
     """Read and check the log at `path` (raising LogError when it cannot be used) and
     summarise it. `vehicle` (VehicleParams or a vehicle TOML path) converts a steering-wheel
     angle and gives the wheel radius for a speed from wheel speeds."""
+    from tirefilter.estimators.sensors import sensors_for_log
     from tirefilter.estimators.stiffness_mpf import MPFConfig
 
     vehicle, name = vehicle_arg(vehicle)
     log = read_log(path, vehicle, need_steering_ratio=vehicle is not None, vehicle_name=name)
     dt = np.diff(log.t)
     median = float(np.median(dt)) if dt.size else math.nan
+    noise = sensors_for_log(vehicle, log.signals)
     summary = LogSummary(
         file=str(log.path), rows=log.rows, t_start=float(log.t[0]), t_end=float(log.t[-1]), duration=log.duration,
         median_dt=median, median_rate=1.0 / median if dt.size else math.nan,
         dt_min=float(dt.min()) if dt.size else math.nan, dt_max=float(dt.max()) if dt.size else math.nan,
         gaps=_gaps(log, dt, median), columns=_columns(log), ignored=log.ignored, models=_models(log),
-        gates=_gates(log, vehicle, MPFConfig()), warnings=tuple(_warnings(log)),
+        gates=_gates(log, vehicle, MPFConfig()), warnings=tuple(_warnings(log) + list(noise.warnings)),
+        noise=noise.to_dict(),
     )
     if not summary.usable:
         raise LogError(log.path, "no model can run on this log: " + "; ".join(
@@ -179,6 +189,10 @@ def _warnings(log: Log) -> list[str]:
 
 def _g(x: float) -> str:
     return "-" if x != x else f"{x:.6g}"
+
+
+def _g3(x: float | None) -> str:
+    return "-" if x is None or x != x else f"{x:.3g}"
 
 
 def _pct(x: float | None) -> str:

@@ -226,6 +226,18 @@ def study_scenario(spec: TrialSpec):
                    surface_changes=tuple(t for t in scenario.surface_changes if t < spec.duration))
 
 
+FINAL_WINDOW_S = 100.0  # s: how a drive ends, "mean over the last 100 s" (paper A, Figs. 7-8)
+
+
+def final_error(r: dict, param: str, window: float) -> float:
+    """Mean relative error (%) of `param` against the surface mean over the last `window`
+    seconds of the run (NaN estimates count as infinite errors)."""
+    t = r["t"]
+    last = t >= t[-1] - window
+    err = 100.0 * (r[param][last] - r[f"true_{param}_mean"][last]) / r[f"true_{param}_mean"][last]
+    return float(np.mean(np.where(np.isnan(err), np.inf, err)))
+
+
 def trial_metrics(r: dict, scenario) -> dict:
     """Per stiffness parameter the DESIGN.md metrics (steady-state errors, coverage,
     spread, settling time after the first surface change, and the error of the spread
@@ -243,6 +255,7 @@ def trial_metrics(r: dict, scenario) -> dict:
         if "sigma_pct" in e:
             e["sigma_err"] = e["sigma_pct"] - true_spread
         e["settle"] = settling_time(r, p, scenario.surface_changes[0]) if scenario.surface_changes else math.nan
+        e["final"] = final_error(r, p, FINAL_WINDOW_S)
         out[p] = e
     return out
 

@@ -157,9 +157,10 @@ def _error_table(report, runs, scenario) -> None:
         if label != "all trials" and all(converged(m) for run in runs.values() for m in run.ok()):
             break
         report(f"\n{label}:\n")
-        report("| estimator | N | param | trials | mean err % | worst trial mean abs err % | max abs err % | "
-               "settling s (median / max) | coverage 90% | sigma % | v^Y RMSE m/s |")
-        report("|---|---|---|---|---|---|---|---|---|---|---|")
+        report("| estimator | N | param | trials | mean abs err % | mean err % | worst trial mean abs err % | "
+               "max abs err % | last 100 s: worst trial abs err % | settling s (median / max) | coverage 90% | "
+               "sigma % | v^Y RMSE m/s |")
+        report("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
         for (_, est, n), run in runs.items():
             ok = [m for m in run.ok() if keep(m)]
             for p in PARAMS:
@@ -170,8 +171,11 @@ def _error_table(report, runs, scenario) -> None:
                 settle_txt = "n/a" if np.all(np.isnan(settle)) else f"{np.median(settle):.2f} / {np.max(settle):.2f}"
                 cov = [r.get("coverage90", math.nan) for r in rows]
                 sig = [r.get("sigma_pct", math.nan) for r in rows]
-                report(f"| {est} | {n or '-'} | {p} | {len(rows)} | {np.mean([r['mean'] for r in rows]):+.2f} | "
+                final = [abs(r.get("final", math.nan)) for r in rows]
+                report(f"| {est} | {n or '-'} | {p} | {len(rows)} | {np.mean([r['mean_abs'] for r in rows]):.2f} | "
+                       f"{np.mean([r['mean'] for r in rows]):+.2f} | "
                        f"{max(r['mean_abs'] for r in rows):.2f} | {max(r['max_abs'] for r in rows):.1f} | "
+                       f"{np.nanmax(final) if np.isfinite(final).any() else math.nan:.2f} | "
                        f"{settle_txt} | {_nanmean(cov):.2f} | {_nanmean(sig):.2f} | "
                        f"{np.mean([m['vy_rmse'] for m in ok]):.4f} |")
 
