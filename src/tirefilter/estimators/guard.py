@@ -32,7 +32,6 @@ Per IMU channel c (ax, ay, yaw_rate), at the sample y_k:
 from __future__ import annotations
 
 import math
-from collections import deque
 from dataclasses import asdict, dataclass, replace
 
 from tirefilter.errors import ConfigError
@@ -89,8 +88,9 @@ class _Channel:
 
     def __init__(self, cfg: GuardConfig, jump: float, min_scale: float):
         self.cfg, self.jump, self.min_scale = cfg, jump, min_scale
-        self.recent: deque[float] = deque(maxlen=cfg.window)
-        self.diffs: deque[float] = deque(maxlen=cfg.scale_window)
+        # plain lists, not deques: an estimator FMU's state pickle admits builtins and tirefilter classes only
+        self.recent: list[float] = []  # the last `window` samples
+        self.diffs: list[float] = []  # the last `scale_window` |first differences|
         self.prev = math.nan  # the previous sample (for held values and differences)
         self.scale = min_scale
         self._since_scale = 0
@@ -108,6 +108,8 @@ class _Channel:
             return math.nan
         if math.isfinite(self.prev):
             self.diffs.append(abs(y - self.prev))
+            if len(self.diffs) > self.cfg.scale_window:
+                del self.diffs[0]
             self._since_scale += 1
             if self._since_scale >= 25 and len(self.diffs) >= 10:  # re-estimated every 25 samples
                 self._since_scale = 0
@@ -120,6 +122,8 @@ class _Channel:
                 self.outliers += 1
                 verdict = math.nan
         self.recent.append(y)
+        if len(self.recent) > self.cfg.window:
+            del self.recent[0]
         return verdict
 
 
