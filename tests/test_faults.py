@@ -197,8 +197,8 @@ def test_estimators_stay_finite_and_do_not_restart_on_spikes(drive, name):
 
 
 GAP_REGRESSION = pytest.mark.xfail(strict=True, reason="main's MPF defaults since 8b4dfb3 (bias and wandering "
-                                   "offsets estimated, adaptive forgetting) do not recover from a 1 s gap on paper-sim: "
-                                   "0.67 deg against 0.23 deg clean; the defaults before recovered "
+                                   "offsets estimated, adaptive forgetting) do not recover from a 1 s gap on "
+                                   "paper-sim: 0.67 deg against 0.23 deg clean; the defaults before recovered "
                                    "(benchmarks/README.md, the fault matrix)")
 
 
