@@ -302,7 +302,7 @@ def _reachable(host: str, port: int) -> bool:
 
 @pytest.fixture
 def dashboard(fmu_paths):
-    d = Dashboard(port=0, speed="max", settings=Settings(particles=N_SMALL, seed=SEED))
+    d = Dashboard(port=0, speed="max", settings=Settings(particles=N_SMALL, seed=SEED), data_dir="/")  # tmp files
     yield d
     d.stop()
 
@@ -625,7 +625,8 @@ def test_the_page_in_a_real_browser(fmu_paths, tmp_path):
     from playwright import sync_api  # the test extra (pip); its browser download is never used
     bad = tmp_path / "bad_log.csv"
     bad.write_text("t,ax,ay,yaw_rate,vx\n0.0,0.1,0.2,0.0,20.0\n")  # no steering column
-    d = Dashboard(port=0, speed="2x", settings=Settings(particles=200, seed=SEED))  # still running when paused
+    d = Dashboard(port=0, speed="2x", settings=Settings(particles=200, seed=SEED),  # still running when paused
+                  data_dir="/")  # tmp files
     shots = []
     try:
         with sync_api.sync_playwright() as pw, tempfile.TemporaryDirectory() as profile:

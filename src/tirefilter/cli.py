@@ -56,7 +56,8 @@ def cmd_run(args) -> int:
 
 def cmd_replay(args) -> int:
     from tirefilter.estimators import build_log_estimator, resolve_model
-    from tirefilter.replay import read_log, replay_log
+    from tirefilter.replay import replay_log
+    from tirefilter.replay.stream import scan_log
     from tirefilter.runs import write_summary_json
     from tirefilter.vehicle.params import load_vehicle
 
@@ -66,9 +67,11 @@ def cmd_replay(args) -> int:
         raise ConfigError("--out", "", f"{results}: the Result CSV needs another suffix than .json (the run summary "
                           "goes to its stem + .json)")
     vehicle = load_vehicle(args.vehicle)
-    log = read_log(args.log, vehicle, vehicle_name=args.vehicle)
+    log = scan_log(args.log, vehicle, vehicle_name=args.vehicle)  # a first pass; the replay streams the file
+    for warning in log.plausibility.warnings():
+        print(f"warning: {warning}", file=sys.stderr)
     config = read_toml(args.config) if args.config else {}
-    estimator = build_log_estimator(args.estimator, vehicle, log.t, {s: log.signals[s] for s in log.available},
+    estimator = build_log_estimator(args.estimator, vehicle, log.t, log.signals,
                                     model=args.model, particles=args.particles, config=config, source=log.path)
     _init_state(args, estimator)
     model = getattr(getattr(estimator, "cfg", None), "model", None) or resolve_model(args.model, log.available)
@@ -199,7 +202,7 @@ def _check_sensors(estimator, results: Path) -> None:
 
     if getattr(estimator, "sensors", None) is None or not results.exists():
         return
-    r = read_results(results)
+    r = read_results(results, max_rows=int(SENSOR_CHECK_S * 1000) + 1)  # the first seconds (up to 1 kHz), not all
     if "t" not in r or not len(r["t"]):
         return
     signals = first_seconds(r["t"], {c: r[f"meas_{c}"] for c in CHANNELS if f"meas_{c}" in r}, SENSOR_CHECK_S)
@@ -209,9 +212,17 @@ def _check_sensors(estimator, results: Path) -> None:
 def _run_and_record(run, write_summary, results: Path):
     """`run()` -> (summary, rows); the summary is written by `write_summary` whether the run
     succeeds or fails (then with status "failed"). Returns the summary, None on failure."""
+    from tirefilter.runs import Interrupted
+
     summary = None
     try:
         summary, _ = run()
+    except Interrupted as exc:
+        summary = getattr(exc, "summary", None)
+        at = f" at t = {summary.t_reached:g} s" if summary is not None and summary.t_reached is not None else ""
+        print(f"interrupted by {signal_name(exc.signum)}{at}: {summary.steps if summary else 0} whole rows in "
+              f"{results}, run summary with status \"interrupted\"", file=sys.stderr)
+        raise
     except TirefilterError as exc:
         summary = getattr(exc, "summary", None)
         print(f"error: {exc}\n(rows up to the failure are in {results})", file=sys.stderr)
@@ -235,16 +246,22 @@ def _print_sensors(estimator) -> None:
 def _print_truth_summary(results: Path) -> None:
     import numpy as np
 
-    from tirefilter.cosim.results import read_results
+    from tirefilter.cosim.results import iter_results
 
-    r = read_results(results)
     rows = [("speed vx [m/s]", "true_vx"), ("lateral acc. ay [m/s^2]", "true_ay"), ("yaw rate [rad/s]", "true_yaw_rate"),
             ("slip angle front [rad]", "true_alpha_f"), ("wheel slip front [-]", "true_lambda_f"),
             ("Cf_y surface mean [N/rad]", "true_Cf_y_mean"), ("Cr_y surface mean [N/rad]", "true_Cr_y_mean")]
+    lo, hi, total, n = {}, {}, {}, 0
+    for r in iter_results(results):  # chunk by chunk: a long run's table is not loaded whole
+        n += len(r["t"])
+        for _, col in rows:
+            x = r[col]
+            lo[col] = min(lo.get(col, np.inf), np.min(x))
+            hi[col] = max(hi.get(col, -np.inf), np.max(x))
+            total[col] = total.get(col, 0.0) + float(np.sum(x))
     print(f"{'truth':28s}{'min':>12s}{'mean':>12s}{'max':>12s}")
     for label, col in rows:
-        x = r[col]
-        print(f"{label:28s}{np.min(x):12.4g}{np.mean(x):12.4g}{np.max(x):12.4g}")
+        print(f"{label:28s}{lo[col]:12.4g}{total[col] / n:12.4g}{hi[col]:12.4g}")
 
 
 def _print_metrics(summary) -> None:
@@ -330,14 +347,21 @@ def cmd_bench_stiffness(args) -> int:
                         estimators=_names(args.estimators), workers=args.workers, scheduler=args.scheduler,
                         seed=args.seed, duration=args.duration, plots=not args.no_plots,
                         progress=sys.stderr.isatty() and not args.quiet)
-    run_stiffness_study(opts)
+    from tirefilter.runs import Interrupted
+
+    try:
+        run_stiffness_study(opts)
+    except Interrupted as exc:
+        print(f"interrupted by {signal_name(exc.signum)}: the finished trials are kept in {opts.out}; the same "
+              "command resumes where it stopped", file=sys.stderr)
+        raise
     print(f"report: {opts.out / 'report.md'}")
     return 0
 
 
 def cmd_dashboard(args) -> int:
     serve = import_viewer().serve
-    serve(host=args.host, port=args.port)
+    serve(host=args.host, port=args.port, **({"data_dir": args.data_dir} if args.data_dir else {}))
     return 0
 
 
@@ -426,6 +450,8 @@ def build_parser() -> argparse.ArgumentParser:
     db.add_argument("--port", type=int, default=8080, help="port (default 8080; the next free one if taken)")
     db.add_argument("--host", default="127.0.0.1",
                     help="address to bind (default 127.0.0.1: this machine only; 0.0.0.0 exposes it to the network)")
+    db.add_argument("--data-dir", metavar="DIR", help="the folder the paths typed in the page must lie in "
+                    "('..' and symlinks out of it are refused; default: the working directory)")
     db.set_defaults(func=cmd_dashboard)
 
     fmu = sub.add_parser("fmu", help="FMU tools")
@@ -497,11 +523,27 @@ def main(argv=None) -> int:
     if any(n < 1 for n in (particles if isinstance(particles, list) else [particles or 1])):
         print(f"error: --particles must be at least 1, got {particles}", file=sys.stderr)
         return 2
+    from contextlib import nullcontext
+
+    from tirefilter.runs import Interrupted, interruptible
+
     try:
-        return args.func(args)
+        with interruptible() if args.command in INTERRUPTIBLE else nullcontext():
+            return args.func(args)
+    except Interrupted as exc:
+        return exc.exit_code  # 130 (SIGINT) or 143 (SIGTERM)
     except TirefilterError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
+
+
+INTERRUPTIBLE = ("run", "replay", "bench")  # SIGINT / SIGTERM end them at a row (trial) boundary
+
+
+def signal_name(signum: int) -> str:
+    import signal
+
+    return signal.Signals(signum).name
 
 
 if __name__ == "__main__":

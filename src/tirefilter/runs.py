@@ -9,8 +9,10 @@ from __future__ import annotations
 import dataclasses
 import json
 import platform
+import signal
 import sys
 import time
+from array import array
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -42,10 +44,97 @@ class StepSummary:
     steps: int = 0  # estimator samples (Result-CSV rows)
     wall_time_s: float = 0.0
     median_step_us: float | None = None  # median wall time of Estimator.step after warm-up
-    status: str = "ok"  # "ok" | "failed"
+    status: str = "ok"  # "ok" | "failed" | "interrupted" (SIGINT / SIGTERM, see `interruptible`)
     error: str | None = None
+    t_reached: float | None = None  # s: time of the last row written (set when a run is interrupted)
     results: str | None = None  # the Result CSV
     metrics: dict | None = None  # metrics.run_metrics of the rows written (run.json `metrics`)
+    guard: dict | None = None  # samples the measurement guard marked missing (estimators.guard)
+
+
+class Interrupted(BaseException):
+    """SIGINT or SIGTERM arrived during a run: raised at the next row boundary (after a
+    whole row has been written), never in the middle of one. A BaseException, like
+    KeyboardInterrupt, so that code catching an estimator's failures lets it through."""
+
+    def __init__(self, signum: int):
+        self.signum = signum
+        super().__init__(f"interrupted by {signal.Signals(signum).name}")
+
+    @property
+    def exit_code(self) -> int:
+        return 128 + self.signum  # 130 for SIGINT, 143 for SIGTERM, as a shell reports them
+
+
+_PENDING_SIGNAL: int | None = None  # set by the handlers of `interruptible`
+
+
+@contextmanager
+def interruptible():
+    """While inside, SIGINT and SIGTERM only note the signal; `check_interrupt()` (called by
+    `RunOutputs.write` after every row, and between trials of a study) then raises
+    Interrupted. The previous handlers come back on leaving. Outside such a block nothing
+    changes (library use keeps Python's own KeyboardInterrupt)."""
+    global _PENDING_SIGNAL
+
+    def note(signum, frame):
+        global _PENDING_SIGNAL
+        _PENDING_SIGNAL = signum
+
+    _PENDING_SIGNAL = None
+    old = {s: signal.signal(s, note) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+        _PENDING_SIGNAL = None
+
+
+def check_interrupt() -> None:
+    """Raise Interrupted if a signal arrived inside `interruptible()`."""
+    if _PENDING_SIGNAL is not None:
+        raise Interrupted(_PENDING_SIGNAL)
+
+
+def _scored(column: str) -> bool:
+    """The Result-CSV columns `metrics.run_metrics` reads: the estimates, and the truth or
+    reference columns of the states and the stiffness."""
+    from tirefilter.cosim.results import ESTIMATE_COLUMNS
+
+    return column in ESTIMATE_COLUMNS or column.endswith("_true") or column in SCORED_TRUTH
+
+
+SCORED_TRUTH = {f"true_{n}" for n in ("vx", "vy", "yaw_rate", "beta", "Cf_y", "Cr_y", "Cx", "Cf_y_mean", "Cr_y_mean",
+                                      "Cx_mean")}
+
+
+class _ColumnStore:
+    """Some columns of every row, in float32 chunks: a run's metrics without holding its rows
+    (2 hours at 100 Hz, 25 columns: 72 MB)."""
+
+    CHUNK = 8192
+
+    def __init__(self, names: list[str]):
+        self.names = names
+        self.chunks: list[np.ndarray] = []
+        self.n = 0  # rows in the last chunk
+        self.index: np.ndarray | None = None
+
+    def append(self, row, columns: tuple[str, ...]) -> None:
+        if self.index is None:
+            self.index = np.array([columns.index(c) for c in self.names], int)
+        if not self.chunks or self.n == self.CHUNK:
+            self.chunks.append(np.empty((self.CHUNK, len(self.names)), np.float32))
+            self.n = 0
+        self.chunks[-1][self.n] = np.asarray(row, float)[self.index]
+        self.n += 1
+
+    def columns(self) -> dict[str, np.ndarray]:
+        if not self.chunks:
+            return {}
+        data = np.vstack(self.chunks[:-1] + [self.chunks[-1][:self.n]]).astype(float)
+        return dict(zip(self.names, data.T))
 
 
 class Progress:
@@ -92,17 +181,28 @@ class RunOutputs:
             self.recorder = RerunRecorder(recording, self.columns, estimator, context=context)
         self.writer = ResultWriter(results_csv, self.columns) if results_csv else None
         self.keep_rows = keep_rows
-        self.kept: list[np.ndarray] = []  # every row: the metrics need them, keep_rows hands them back
+        self.kept: list[np.ndarray] = []  # every row, with keep_rows (handed back by kept_rows)
+        self.scored = _ColumnStore([c for c in self.columns if _scored(c)])  # what the metrics read
         self.schedule = schedule  # the scenario (excitation windows, surface changes) of the settled metrics
         self.estimator: Estimator | None = None
         self.bar = Progress(total, progress)
-        self.step_times: list[float] = []
+        self.step_times = array("f")  # s, 4 bytes a step: an hour at 100 Hz is 1.4 MB
         self.rows = 0
         self.last: np.ndarray | None = None
+        self.guard = None  # the estimator's measurement guard, once it has stepped
 
     def step(self, estimator: Estimator, t: float, u: Inputs, y: Measurement) -> Estimate:
-        """`estimator.step(t, u, y)`, timed."""
+        """`estimator.step(t, u, y)`, timed; the measurement first passes the estimator's
+        guard (`estimator.guard`, estimators.guard), reset on the run's first step."""
         self.estimator = estimator
+        guard = getattr(estimator, "guard", None)
+        if guard is not None:
+            if self.guard is None:
+                self.guard = guard
+                guard.reset()
+            y = guard(t, y)
+            if guard.after_gap and getattr(estimator, "t_start", None) is not None:
+                estimator.t_start = t  # learning warms up again after a gap (estimators.guard)
         ts = time.perf_counter()
         est = estimator.step(t, u, y)
         self.step_times.append(time.perf_counter() - ts)
@@ -115,9 +215,12 @@ class RunOutputs:
             self.writer.write(row)
         if self.recorder:
             self.recorder.log_row(row)
-        self.kept.append(np.array(row, float))
+        if self.keep_rows:
+            self.kept.append(np.array(row, float))
+        self.scored.append(row, self.columns)
         self.last = row
         self.rows += 1
+        check_interrupt()  # at a row boundary: the row above is whole in every sink
 
     def progress(self, k: int) -> None:
         self.bar.update(k)
@@ -125,7 +228,8 @@ class RunOutputs:
     def median_step_us(self) -> float | None:
         if not self.step_times:
             return None
-        return float(np.median(self.step_times[min(WARMUP_STEPS, len(self.step_times) - 1):]) * 1e6)
+        times = np.frombuffer(self.step_times, dtype=np.float32)
+        return float(np.median(times[min(WARMUP_STEPS, len(times) - 1):]) * 1e6)
 
     def kept_rows(self) -> np.ndarray | None:
         return np.vstack(self.kept) if self.kept and self.keep_rows else None
@@ -135,9 +239,9 @@ class RunOutputs:
         resample counters (None before the first row)."""
         from tirefilter.metrics import run_metrics
 
-        if not self.kept:
+        if not self.rows:
             return None
-        r = dict(zip(self.columns, np.vstack(self.kept).T))
+        r = self.scored.columns()
         return run_metrics(r, self.schedule, restarts=getattr(self.estimator, "restarts", None),
                            resamples=getattr(self.estimator, "resamples", None))
 
@@ -155,12 +259,19 @@ def run_outputs(summary: StepSummary, columns: tuple[str, ...], **options):
 
     On leaving, whatever happened: the sinks are closed, and the summary gets the steps,
     the wall time and the median step time. An exception marks the summary failed, is
-    given it as `exc.summary` (callers write the summary of a failed run too) and goes on.
+    given it as `exc.summary` (callers write the summary of a failed run too) and goes on;
+    Interrupted marks it "interrupted" with the time of the last row written.
     """
     out = RunOutputs(columns, **options)
     t0 = time.perf_counter()
     try:
         yield out
+    except Interrupted as exc:
+        summary.status = "interrupted"
+        summary.error = str(exc)
+        summary.t_reached = None if out.last is None else float(out.last[0])
+        exc.summary = summary
+        raise
     except Exception as exc:
         summary.status = "failed"
         summary.error = str(exc)
@@ -172,6 +283,8 @@ def run_outputs(summary: StepSummary, columns: tuple[str, ...], **options):
         summary.steps = out.rows
         summary.median_step_us = out.median_step_us()
         summary.metrics = out.metrics()
+        if out.guard is not None:
+            summary.guard = out.guard.counts()
 
 
 def write_summary_json(path: str | Path, summary: StepSummary, *, command: list[str], model: str | None,

@@ -64,8 +64,12 @@ class Dashboard:
     """
 
     def __init__(self, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT, *, settings: Settings | None = None,
-                 speed: str = "1x", publish_hz: float = PUBLISH_HZ, verbose: bool = False):
+                 speed: str = "1x", publish_hz: float = PUBLISH_HZ, verbose: bool = False, data_dir=None):
         import viser
+
+        from tirefilter_viewer.dataroot import DataRoot
+
+        self.data_root = DataRoot(data_dir)  # paths typed in the page stay inside it (default: the working dir)
 
         if speed not in SPEEDS:
             raise ValueError(f"speed {speed!r} is not one of {', '.join(SPEEDS)}")
@@ -324,7 +328,7 @@ class Dashboard:
         self._clear_error()
         self._clear_views()
         self._state = "starting"
-        self._run = LiveRun.open(self._settings())
+        self._run = LiveRun.open(self.data_root.settings(self._settings()))
         self._history = History(self._run.columns)
         n = getattr(getattr(self._run.estimator, "cfg", None), "particles", None)
         self._source_label = f"{self._run.label}, estimator {self._run.name}" + (f" (N = {n})" if n else "")
@@ -375,10 +379,11 @@ class Dashboard:
                 return
 
     def _open_result(self, path: str) -> None:
+        path = str(self.data_root.resolve(path, "Result CSV"))
         data = open_result(path)
         friction = None
         for candidate in friction_files(path):
-            if candidate.is_file():
+            if candidate.is_file() and self.data_root.inside(candidate):
                 friction = friction_from_csv(candidate)
                 break
         self._close_run()
@@ -573,7 +578,7 @@ def _padded(x: np.ndarray) -> tuple[float, float]:
     return lo - pad, hi + pad
 
 
-def serve(host: str = DEFAULT_HOST, port: int = DEFAULT_PORT, *, verbose: bool = True) -> None:
+def serve(host: str = DEFAULT_HOST, port: int = DEFAULT_PORT, *, verbose: bool = True, data_dir=None) -> None:
     """`tirefilter dashboard`: serve until interrupted (Ctrl-C or SIGTERM), then stop cleanly."""
     import signal
 
@@ -583,7 +588,7 @@ def serve(host: str = DEFAULT_HOST, port: int = DEFAULT_PORT, *, verbose: bool =
     signal.signal(signal.SIGTERM, interrupt)
     if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:  # started in the background: Ctrl-C still stops it
         signal.signal(signal.SIGINT, interrupt)
-    dashboard = Dashboard(host=host, port=port, verbose=verbose)
+    dashboard = Dashboard(host=host, port=port, verbose=verbose, data_dir=data_dir)
     print(f"tirefilter dashboard: {dashboard.url}" + ("" if host in ("127.0.0.1", "localhost", "::1") else
           f"  (bound to {host}: reachable from other machines)"), flush=True)
     try:

@@ -89,12 +89,37 @@ class ResultWriter:
         self.close()
 
 
-def read_results(path: str | Path) -> dict[str, np.ndarray]:
-    """Read a Result CSV into columns of floats (empty cells are NaN)."""
+def read_results(path: str | Path, max_rows: int | None = None) -> dict[str, np.ndarray]:
+    """Read a Result CSV into columns of floats (empty cells are NaN); `max_rows`: only
+    the first rows."""
     path = Path(path)
     with path.open() as f:
         header = f.readline().strip().split(",")
-        data = np.genfromtxt(f, delimiter=",", dtype=float, ndmin=2)
+        data = np.genfromtxt(f, delimiter=",", dtype=float, ndmin=2, max_rows=max_rows)
     if data.size == 0:
         data = np.empty((0, len(header)))
     return {name: data[:, j] for j, name in enumerate(header)}
+
+
+def iter_results(path: str | Path, chunk_rows: int = 8192):
+    """A Result CSV chunk by chunk: dicts of columns of floats (empty cells are NaN), at
+    most `chunk_rows` rows each, so that a long run's table is summarised in constant memory."""
+    import csv
+
+    with Path(path).open(newline="") as f:
+        reader = csv.reader(f)
+        header = next(reader, None) or []
+        rows: list[list[str]] = []
+
+        def chunk():
+            data = np.array([[float(c) if c else math.nan for c in r] for r in rows], float).reshape(-1, len(header))
+            return {name: data[:, j] for j, name in enumerate(header)}
+
+        for row in reader:
+            if row:
+                rows.append(row)
+            if len(rows) >= chunk_rows:
+                yield chunk()
+                rows = []
+        if rows:
+            yield chunk()

@@ -93,7 +93,12 @@ def run_scenario(
                          schedule=scenario) as out:
             if estimator is not None:
                 estimator.reset(rng)
-            for s in cosim_samples(scenario, fmu, params, on_step=on_step, coupling=coupling):
+            samples = cosim_samples(scenario, fmu, params, on_step=on_step, coupling=coupling)
+            if scenario.faults:  # sensor faults (scenarios.faults): what the estimator sees, not the truth
+                from tirefilter.scenarios.faults import fault_rng, faulty_samples
+
+                samples = faulty_samples(samples, scenario.faults, fault_rng(seed))
+            for s in samples:
                 est = None
                 if estimator is not None:
                     est = out.step(estimator, s.t, s.inputs, s.meas)

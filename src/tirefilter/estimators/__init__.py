@@ -105,13 +105,53 @@ def _mpf_config(model: str, *, particles: int | None, sample_period: float | Non
 
 
 def apply_overrides(config, overrides: dict, source: str = "--config [mpf]"):
+    if not isinstance(overrides, dict):
+        raise ConfigError(source, "", f"expected a table of options, got {overrides!r}")
     known = {f.name: f for f in dataclasses.fields(config)}
     values = {}
     for key, value in overrides.items():
         if key not in known:
             raise ConfigError(source, key, f"unknown option (known: {', '.join(sorted(known))})")
         values[key] = tuple(value) if isinstance(value, list) else value
-    return dataclasses.replace(config, **values).validated()
+        _check_type(source, key, values[key], getattr(config, key), str(known[key].type))
+    try:
+        return dataclasses.replace(config, **values).validated()
+    except (TypeError, ValueError, OverflowError, ZeroDivisionError) as exc:  # a check the validator lacks
+        raise ConfigError(source, "", f"invalid option values {values!r} ({type(exc).__name__}: {exc})") from None
+
+
+def _check_type(source, key: str, value, default, annotation: str) -> None:
+    """An option's value has its default's kind: a number (not a bool) for a number, a
+    bool for a bool, a string for a string, numbers of the same count for a tuple of them
+    (None where the annotation allows it). NaN and infinity are numbers; the
+    configuration's own `validated()` judges the ranges."""
+    def number(x) -> bool:
+        return isinstance(x, (int, float)) and not isinstance(x, bool)
+
+    if value is None and "None" in annotation:
+        return
+    if default is None and annotation.startswith("tuple"):
+        ok = isinstance(value, tuple) and all(number(x) for x in value)
+    elif default is None:
+        ok = number(value) if ("float" in annotation or "int" in annotation) and "str" not in annotation else True
+    elif isinstance(default, bool):
+        ok = isinstance(value, bool)
+    elif number(default):
+        ok = number(value) and (not isinstance(default, int) or float(value).is_integer()
+                                or "float" in annotation)
+    elif isinstance(default, str):
+        ok = isinstance(value, str)
+    elif isinstance(default, tuple):
+        ok = isinstance(value, tuple) and all(number(x) for x in value) and (
+            len(value) == len(default) or not default or "..." in annotation)
+    else:
+        ok = True
+    if not ok:
+        kind = ("true or false" if isinstance(default, bool) else "a string" if isinstance(default, str) else
+                f"{len(default)} numbers" if isinstance(default, tuple) and default else
+                "numbers" if isinstance(default, tuple) else "an integer" if isinstance(default, int) and
+                "float" not in annotation else "a number")
+        raise ConfigError(source, key, f"expected {kind}, got {value!r}")
 
 
 def resolve_model(model: str, sensors) -> str:
@@ -131,13 +171,34 @@ def check_model_signals(model: str, signals, source, key: str) -> None:
                           f"(available: {', '.join(signals) or 'none'})")
 
 
+def check_tables(config: dict) -> None:
+    """The estimator tables of a `--config` file ([mpf], [kf], ..., [guard]) are tables."""
+    if not isinstance(config, dict):
+        raise ConfigError("--config", "", f"expected tables of options, got {config!r}")
+    for name in (*ESTIMATORS, "guard"):
+        if name in config and not isinstance(config[name], dict):
+            raise ConfigError("--config", name, f"expected a table [{name}] of options, got {config[name]!r}")
+
+
+def with_guard(estimator, config: dict):
+    """`estimator` carrying the measurement guard of `config`'s `[guard]` table as
+    `estimator.guard` (estimators.guard; the run loop applies it before every step)."""
+    if estimator is not None:
+        from tirefilter.estimators.guard import guard_from_config
+
+        estimator.guard = guard_from_config(config)
+    return estimator
+
+
 def build_estimator(name: str, scenario, *, model: str, particles: int | None, config: dict):
     """The estimator `name` for a co-simulation of `scenario` (None for "none"), with the
-    IMU model it assumes as `.sensors` (a `sensors.SensorModel`)."""
+    IMU model it assumes as `.sensors` (a `sensors.SensorModel`) and its measurement guard
+    (`with_guard`)."""
     from tirefilter.estimators.sensors import sensors_for_scenario
 
-    return _with_sensors(_build_estimator(name, scenario, model=model, particles=particles, config=config),
-                         sensors_for_scenario(scenario.sensor_spec))
+    check_tables(config)
+    return with_guard(_with_sensors(_build_estimator(name, scenario, model=model, particles=particles, config=config),
+                                    sensors_for_scenario(scenario.sensor_spec)), config)
 
 
 def _build_estimator(name: str, scenario, *, model: str, particles: int | None, config: dict):
@@ -182,12 +243,15 @@ def build_log_estimator(name: str, vehicle, t, signals: dict, *, model: str, par
     """The estimator `name` for replaying a log (None for "none"): `signals` maps the
     log's signal names that have samples to (n,) arrays, `source` names the log in errors.
     The IMU model it assumes (noise from the vehicle TOML or estimated from `signals`, bias
-    model) is its `.sensors` (a `sensors.SensorModel`)."""
+    model) is its `.sensors` (a `sensors.SensorModel`); with its measurement guard
+    (`with_guard`)."""
     from tirefilter.estimators.sensors import sensors_for_log
 
+    check_tables(config)
     sensors = sensors_for_log(vehicle, signals)
-    return _with_sensors(_build_log_estimator(name, vehicle, t, signals, model=model, particles=particles,
-                                              config=config, source=source, sensors=sensors), sensors)
+    return with_guard(_with_sensors(_build_log_estimator(name, vehicle, t, signals, model=model, particles=particles,
+                                                         config=config, source=source, sensors=sensors), sensors),
+                      config)
 
 
 def _with_sensors(estimator, sensors):

@@ -183,7 +183,11 @@ def _warnings(log: Log) -> list[str]:
                        f"value to hold there")
     for name in set(log.signals) - set(log.available):
         out.append(f"{name} has no samples at all")
-    return out
+    from tirefilter.replay.plausibility import Plausibility
+
+    plausibility = Plausibility()
+    plausibility.add(log)
+    return out + plausibility.warnings()
 
 
 def _g(x: float) -> str:

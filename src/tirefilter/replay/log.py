@@ -59,6 +59,7 @@ class Log:
     derived: dict[str, str] = field(default_factory=dict)
     lines: np.ndarray | None = None  # (n,) int
     references: dict[str, np.ndarray] = field(default_factory=dict)  # true_<name> -> (n,), NaN where missing
+    row0: int = 0  # data rows of the file before this one's first (a chunk of `iter_log_chunks`)
 
     @property
     def rows(self) -> int:
@@ -80,7 +81,16 @@ class Log:
 
     def where(self, k: int) -> dict:
         """LogError location of the 0-based data row k."""
-        return {"row": k + 1, "line": int(self.lines[k]) if self.lines is not None else None}
+        return {"row": self.row0 + k + 1, "line": int(self.lines[k]) if self.lines is not None else None}
+
+    @property
+    def present(self) -> tuple[str, ...]:
+        """The SIGNALS the log has a column for (in SIGNALS order)."""
+        return tuple(s for s in SIGNALS if s in self.signals)
+
+    def chunks(self):
+        """The log in chunks (`iter_log_chunks`); a Log in memory is its own one chunk."""
+        return iter((self,))
 
 
 def read_log(path: str | Path, vehicle=None, *, need_steering_ratio: bool = True, vehicle_name: str | None = None) -> Log:
@@ -91,14 +101,36 @@ def read_log(path: str | Path, vehicle=None, *, need_steering_ratio: bool = True
     is read without `delta` (check-log without a vehicle). `vehicle_name` names the
     vehicle in messages (default: its path, if given one).
     """
+    return next(iter_log_chunks(path, vehicle, chunk_rows=None, need_steering_ratio=need_steering_ratio,
+                                vehicle_name=vehicle_name))
+
+
+CHUNK_ROWS = 8192  # rows per chunk of a streamed log
+
+
+def iter_log_chunks(path: str | Path, vehicle=None, *, chunk_rows: int | None = CHUNK_ROWS,
+                    need_steering_ratio: bool = True, vehicle_name: str | None = None):
+    """Read and check a Log CSV (or .csv.gz) `chunk_rows` data rows at a time (None: all
+    at once), yielding one Log per chunk (`row0` its first data row's offset): the checks
+    and errors of `read_log`, time increasing across chunks too; memory does not grow with
+    the file. Each call reads the file again from its start, so a caller may make a first
+    pass (a scan) and then a second (the replay)."""
     path = Path(path)
     vehicle, name = vehicle_arg(vehicle)
     vehicle_name = vehicle_name or name
-    header, lines, cells = _read_cells(path)
-    _check_columns(path, header)
-    columns = {name: _parse_column(path, name, cells[name], lines) for name in COLUMNS if name in cells}
+    t_prev, row0 = None, 0
+    for header, lines, cells in _iter_cells(path, chunk_rows):
+        if row0 == 0:
+            _check_columns(path, header)
+        log = _chunk_log(path, header, lines, cells, vehicle, vehicle_name, need_steering_ratio, t_prev, row0)
+        t_prev, row0 = float(log.t[-1]), row0 + log.rows
+        yield log
+
+
+def _chunk_log(path, header, lines, cells, vehicle, vehicle_name, need_steering_ratio, t_prev, row0) -> Log:
+    columns = {name: _parse_column(path, name, cells[name], lines, row0) for name in COLUMNS if name in cells}
     t = columns["t"]
-    _check_time(path, t, lines)
+    _check_time(path, t, lines, t_prev, row0)
 
     signals = {name: columns[name] for name in SIGNALS if name in columns}
     derived = {}
@@ -121,8 +153,8 @@ def read_log(path: str | Path, vehicle=None, *, need_steering_ratio: bool = True
             k = int(bad[0])
             value = float(signals["vx"][k])
             raise LogError(path, f"vx = {value!r} m/s is negative: reverse driving is not supported "
-                           f"(cut the log before t = {float(t[k])!r} s)", column="vx", row=k + 1, line=int(lines[k]),
-                           value=value)
+                           f"(cut the log before t = {float(t[k])!r} s)", column="vx", row=row0 + k + 1,
+                           line=int(lines[k]), value=value)
     signals = {name: signals[name] for name in SIGNALS if name in signals}
     references = {}
     for h in header:
@@ -131,9 +163,9 @@ def read_log(path: str | Path, vehicle=None, *, need_steering_ratio: bool = True
             if name in references:
                 raise LogError(path, f"two reference columns of {name[len('true_'):]!r} ({name} and "
                                f"{name[len('true_'):]}_true)", column=h, line=1)
-            references[name] = _parse_column(path, h, cells[h], lines)
+            references[name] = _parse_column(path, h, cells[h], lines, row0)
     ignored = tuple(c for c in header if c not in COLUMNS and reference_name(c) is None)
-    return Log(path, t, signals, columns, header, ignored, derived, lines, references)
+    return Log(path, t, signals, columns, header, ignored, derived, lines, references, row0)
 
 
 def reference_name(column: str) -> str | None:
@@ -165,8 +197,9 @@ def _open(path: Path):
     return path.open(encoding="utf-8-sig", newline="")
 
 
-def _read_cells(path: Path) -> tuple[tuple[str, ...], np.ndarray, dict[str, list[str]]]:
-    """The header, the file line of each data row, and the cells of the known columns."""
+def _iter_cells(path: Path, chunk_rows: int | None):
+    """(header, the file line of each data row, the cells of the known columns) per chunk
+    of `chunk_rows` data rows (None: one chunk)."""
     try:
         with _open(path) as f:
             reader = csv.reader(f)
@@ -180,20 +213,26 @@ def _read_cells(path: Path) -> tuple[tuple[str, ...], np.ndarray, dict[str, list
             known = [(j, h) for j, h in enumerate(header) if h in COLUMNS or reference_name(h) is not None]
             cells: dict[str, list[str]] = {h: [] for _, h in known}
             lines: list[int] = []
+            before = 0  # data rows in the chunks already handed out
             for row in reader:
                 if not row or (len(row) == 1 and not row[0].strip()):
                     continue  # blank line
                 if len(row) != len(header):
                     raise LogError(path, f"{len(row)} cells for the header's {len(header)} columns",
-                                   row=len(lines) + 1, line=reader.line_num)
+                                   row=before + len(lines) + 1, line=reader.line_num)
                 lines.append(reader.line_num)
                 for j, h in known:
                     cells[h].append(row[j])
+                if chunk_rows is not None and len(lines) >= chunk_rows:
+                    yield header, np.asarray(lines), cells
+                    before += len(lines)
+                    cells, lines = {h: [] for _, h in known}, []
+            if lines:
+                yield header, np.asarray(lines), cells
+            elif not before:
+                raise LogError(path, "no data rows after the header", line=2)
     except (OSError, EOFError, UnicodeDecodeError, csv.Error) as exc:
         raise LogError(path, f"cannot be read as a CSV file ({type(exc).__name__}: {exc})") from None
-    if not lines:
-        raise LogError(path, "no data rows after the header", line=2)
-    return header, np.asarray(lines), cells
 
 
 def _check_columns(path: Path, header: tuple[str, ...]) -> None:
@@ -210,7 +249,7 @@ def _check_columns(path: Path, header: tuple[str, ...]) -> None:
                        f"the file has: {', '.join(header)}{hint}")
 
 
-def _parse_column(path: Path, name: str, cells: list[str], lines: np.ndarray) -> np.ndarray:
+def _parse_column(path: Path, name: str, cells: list[str], lines: np.ndarray, row0: int = 0) -> np.ndarray:
     """Floats from cells; an empty cell (or 'nan') is NaN; anything else non-numeric or an
     infinity is an error naming the cell."""
     try:
@@ -221,27 +260,30 @@ def _parse_column(path: Path, name: str, cells: list[str], lines: np.ndarray) ->
             try:
                 x[k] = float(c) if c.strip() else math.nan
             except ValueError:
-                raise LogError(path, f"{c!r} is not a number", column=name, row=k + 1, line=int(lines[k]),
-                               value=c) from None
+                raise LogError(path, f"{c!r} is not a number", column=name, row=row0 + k + 1,
+                               line=int(lines[k]), value=c) from None
     inf = np.flatnonzero(np.isinf(x))
     if inf.size:
         k = int(inf[0])
-        raise LogError(path, f"{cells[k]!r} is not a finite number", column=name, row=k + 1, line=int(lines[k]),
-                       value=cells[k])
+        raise LogError(path, f"{cells[k]!r} is not a finite number", column=name, row=row0 + k + 1,
+                       line=int(lines[k]), value=cells[k])
     return x
 
 
-def _check_time(path: Path, t: np.ndarray, lines: np.ndarray) -> None:
+def _check_time(path: Path, t: np.ndarray, lines: np.ndarray, t_prev: float | None = None, row0: int = 0) -> None:
     missing = np.flatnonzero(np.isnan(t))
     if missing.size:
         k = int(missing[0])
-        raise LogError(path, "missing time (every row needs t)", column="t", row=k + 1, line=int(lines[k]),
+        raise LogError(path, "missing time (every row needs t)", column="t", row=row0 + k + 1, line=int(lines[k]),
                        value=None)
+    if t_prev is not None and not t[0] > t_prev:  # across the chunk boundary
+        raise LogError(path, f"time must increase strictly: t = {float(t[0])!r} s after t = {t_prev!r} s in data row "
+                       f"{row0}", column="t", row=row0 + 1, line=int(lines[0]), value=float(t[0]))
     bad = np.flatnonzero(np.diff(t) <= 0)
     if bad.size:
         k = int(bad[0]) + 1
-        raise LogError(path, f"time must increase strictly: t = {float(t[k])!r} s after t = {float(t[k - 1])!r} s in data row {k}",
-                       column="t", row=k + 1, line=int(lines[k]), value=float(t[k]))
+        raise LogError(path, f"time must increase strictly: t = {float(t[k])!r} s after t = {float(t[k - 1])!r} s in data row {row0 + k}",
+                       column="t", row=row0 + k + 1, line=int(lines[k]), value=float(t[k]))
 
 
 def write_log(path: str | Path, columns: dict[str, np.ndarray]) -> Path:

@@ -41,7 +41,7 @@ class ReplaySummary(StepSummary):
 def result_columns(log: Log) -> tuple[str, ...]:
     """ESTIMATE_COLUMNS, then `meas_<name>` for each signal of the log, then the log's
     reference columns as `true_<name>` (`Log.references`)."""
-    return ESTIMATE_COLUMNS + tuple(f"meas_{s}" for s in SIGNALS if s in log.signals) + tuple(log.references)
+    return ESTIMATE_COLUMNS + tuple(f"meas_{s}" for s in log.present) + tuple(log.references)
 
 
 def log_samples(log: Log) -> Iterator[tuple[int, float, Inputs, Measurement]]:
@@ -74,8 +74,9 @@ def replay_log(
     friction_csv: str | Path | None = None,
     recording=None,
 ) -> tuple[ReplaySummary, np.ndarray | None]:
-    """Run `estimator` (None: the log's signals only) over `log`; returns the summary and,
-    with keep_rows, the result rows (n, len(result_columns(log))).
+    """Run `estimator` (None: the log's signals only) over `log` (a Log, or a
+    replay.stream.LogScan, which streams its file: memory does not grow with its length);
+    returns the summary and, with keep_rows, the result rows (n, len(result_columns(log))).
 
     Rows are written incrementally: when the estimator fails, every row before the
     failure is in the CSV and the recording, and a ReplayError naming the row and its time
@@ -88,8 +89,7 @@ def replay_log(
     _, rng = spawn_seeds(seed)  # the same generator a co-simulation with this seed gives its estimator
     est_name = getattr(estimator, "name", None) if estimator is not None else None
     columns = result_columns(log)
-    present = [s for s in SIGNALS if s in log.signals]
-    data = np.column_stack([log.signals[s] for s in present] + list(log.references.values()))
+    present, references = log.present, tuple(log.references)
     summary = ReplaySummary(log=str(log.path), vehicle=str(vehicle_file) if vehicle_file else None, seed=seed,
                             estimator=est_name or "none", rows=log.rows, duration_s=log.duration,
                             results=str(results_csv) if results_csv else None)
@@ -102,18 +102,20 @@ def replay_log(
                         context=RecordingContext(vehicle=getattr(estimator, "vehicle", None))) as out:
         if estimator is not None:
             estimator.reset(rng)
-        for k, t, u, y in log_samples(log):
-            est = None
-            if estimator is not None:
-                try:
-                    est = out.step(estimator, t, u, y)
-                except Exception as exc:
-                    raise replay_error(log, k, t, est_name, exc) from exc
-            if friction is not None:
-                friction.sample(t)
-            out.write(np.concatenate([estimate_values(t, est), data[k]]))
-            if k % PROGRESS_EVERY == 0:
-                out.progress(k)
+        for chunk in log.chunks():  # a Log is one chunk; a replay.stream.LogScan reads its file chunk by chunk
+            data = np.column_stack([chunk.signals[s] for s in present] + [chunk.references[n] for n in references])
+            for k, t, u, y in log_samples(chunk):
+                est = None
+                if estimator is not None:
+                    try:
+                        est = out.step(estimator, t, u, y)
+                    except Exception as exc:
+                        raise replay_error(chunk, k, t, est_name, exc) from exc
+                if friction is not None:
+                    friction.sample(t)
+                out.write(np.concatenate([estimate_values(t, est), data[k]]))
+                if (chunk.row0 + k) % PROGRESS_EVERY == 0:
+                    out.progress(chunk.row0 + k)
         if friction is not None:
             friction.finish()
         if out.last is not None and estimator is not None:

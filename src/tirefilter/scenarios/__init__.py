@@ -15,6 +15,7 @@ import numpy as np
 
 from tirefilter.config import check_known_keys, get_choice, get_number, get_table, read_toml
 from tirefilter.errors import ConfigError
+from tirefilter.scenarios.faults import parse_faults
 from tirefilter.scenarios.profiles import INPUTS, InputSchedule, SpeedHold, parse_component
 from tirefilter.vehicle.params import PacejkaParams, SensorSpec, VehicleParams, load_vehicle
 from tirefilter.vehicle.single_track import TruthModel
@@ -27,7 +28,7 @@ _TRUTH_KEYS = {
     "roll_gradient": (0.0, 0.05), "load_transfer_time_constant": (1e-3, None),
 }
 _TOP_KEYS = {"name", "description", "source", "duration", "estimator_rate", "communication_step", "vehicle",
-             "sensors", "excitation", "tires", "truth", "sensor_noise", "estimator", "inputs"}
+             "sensors", "excitation", "tires", "truth", "sensor_noise", "estimator", "inputs", "faults"}
 
 
 @dataclass(frozen=True)
@@ -48,6 +49,7 @@ class Scenario:
     file: Path
     vehicle_file: Path
     surface_changes: tuple[float, ...] = field(default=())
+    faults: tuple = field(default=())  # scenarios.faults.Fault: applied to the sensors, not the truth
 
     @property
     def sample_period(self) -> float:
@@ -239,7 +241,7 @@ def _parse(data: dict, file: Path) -> Scenario:
         estimator_rate=rate, communication_step=h, sensors=tuple(sensors),
         excitation=tuple((float(a), float(b)) for a, b in excitation), model=model, sensor_spec=sensor_spec,
         truth=truth, estimator=estimator, inputs=schedule, file=Path(file), vehicle_file=vehicle_file,
-        surface_changes=changes,
+        surface_changes=changes, faults=parse_faults(data.get("faults"), str(file)),
     )
 
 

@@ -25,7 +25,7 @@ import math
 import os
 import threading
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import asdict, dataclass, field, replace
 from multiprocessing import get_context
 from pathlib import Path
@@ -34,6 +34,7 @@ import numpy as np
 
 from tirefilter.errors import ConfigError
 from tirefilter.metrics import run_metrics, settling_time, steady_state_mask, stiffness_errors
+from tirefilter.runs import check_interrupt
 
 PARAMS = ("Cf_y", "Cr_y", "Cx")
 SERIES = ("t", "active", "vx", "vy", "yaw_rate", "true_vy", "true_yaw_rate", "meas_yaw_rate", "true_delta", "ess",
@@ -141,21 +142,28 @@ def run_study(spec: TrialSpec, trials: int, directory: str | Path, *, study_seed
                     from tirefilter.cosim.fmu import VehicleFMU
 
                     fmu = VehicleFMU()
-                store.save(run_trial(spec, i, s, fmu=fmu))
+                store.save(run_trial(spec, i, s, fmu=fmu))  # Interrupted (runs.check_interrupt) leaves it unsaved
                 bar.update()
+                check_interrupt()
         finally:
             if fmu is not None:
                 fmu.close()
     else:
-        with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
+        with ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=_worker_init) as pool:
             futures = [pool.submit(_worker_trial, spec, i, s) for i, s in todo]
             try:
-                for fut in as_completed(futures):
-                    store.save(fut.result())
-                    bar.update()
+                pending = set(futures)
+                while pending:  # polled, so that a signal noted by runs.interruptible stops it promptly
+                    done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
+                    for fut in done:
+                        store.save(fut.result())
+                        bar.update()
+                    check_interrupt()
             except BaseException:
                 for f in futures:
                     f.cancel()
+                for proc in list(getattr(pool, "_processes", {}).values()):  # trials under way are run again on resume
+                    proc.kill()  # they ignore SIGTERM (_worker_init)
                 raise
     bar.close()
     return store
@@ -187,6 +195,15 @@ def _run_on_dask(address: str, spec: TrialSpec, todo, store: StudyRun, bar) -> N
 
 
 _WORKER = threading.local()  # one vehicle FMU per worker thread (pool process or Dask worker thread)
+
+
+def _worker_init() -> None:
+    """Pool workers ignore SIGINT and SIGTERM: the main process decides (a Ctrl-C reaches
+    the whole process group) and terminates them."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
 
 
 def _worker_trial(spec: TrialSpec, index: int, seed: int) -> TrialResult:

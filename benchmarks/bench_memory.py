@@ -1,0 +1,163 @@
+"""Memory of long runs (issue 17): `tirefilter replay` streams the log and the results, so
+its peak memory does not grow with the drive's length; a long co-simulation with the MPF
+does not grow either.
+
+    .venv/bin/python benchmarks/bench_memory.py replay [--minutes 120] [--estimators none kf mpf ...]
+    .venv/bin/python benchmarks/bench_memory.py soak [--minutes 60] [--particles 500]
+
+`replay` writes a synthetic Log CSV of the given length at 100 Hz (a sine-steered drive,
+written chunk by chunk), then replays it with each estimator in a fresh process
+(`tirefilter replay`, as a user runs it) and prints the peak resident memory (ru_maxrss)
+and the resident memory sampled every second: at 10 % of the wall time (after start-up
+and the first pass) and its maximum after that, i.e. the growth during the replay.
+`soak` co-simulates paper-sim stretched to the given length (its square-wave inputs
+repeat) with the MPF, samples the resident memory every second, and prints its value at
+10 % of the wall time, its maximum after that, and the difference.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # small matrices: BLAS threads only contend (30x slower expm)
+
+import argparse
+import json
+import math
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+VEHICLE = REPO / "src/tirefilter/scenarios/data/vehicles/midsize-suv.toml"
+
+
+def rss_mb() -> float:
+    with open("/proc/self/status") as f:
+        for line in f:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    return math.nan
+
+
+class RssSampler:
+    """Resident memory every `period` s in a daemon thread."""
+
+    def __init__(self, period: float = 1.0):
+        self.samples: list[tuple[float, float]] = []
+        self._stop = threading.Event()
+        self._t0 = time.perf_counter()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self):
+        while not self._stop.is_set():
+            self.samples.append((time.perf_counter() - self._t0, rss_mb()))
+            self._stop.wait(1.0)
+
+    def stop(self) -> dict:
+        self._stop.set()
+        self._thread.join()
+        self.samples.append((time.perf_counter() - self._t0, rss_mb()))
+        t = np.array([s[0] for s in self.samples])
+        m = np.array([s[1] for s in self.samples])
+        k = int(np.searchsorted(t, 0.1 * t[-1]))
+        import resource
+
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+        return {"wall_s": float(t[-1]), "rss_at_10pct_mb": float(m[k]), "rss_max_after_mb": float(m[k:].max()),
+                "growth_mb": float(m[k:].max() - m[k]), "peak_rss_mb": peak}
+
+
+def write_drive(path: Path, minutes: float, rate: float = 100.0) -> Path:
+    """A sine-steered drive at 20 m/s with plausible IMU signals, written 60 s at a time."""
+    n_total = int(round(minutes * 60 * rate)) + 1
+    rng = np.random.default_rng(0)
+    with open(path, "w") as f:
+        f.write("t,delta,ax,ay,yaw_rate,vx\n")
+        for start in range(0, n_total, int(60 * rate)):
+            k = np.arange(start, min(n_total, start + int(60 * rate)))
+            t = k / rate
+            delta = 0.02 * np.sin(2 * np.pi * 0.2 * t)
+            vx = 20.0 + 0 * t
+            yaw = vx * delta / 2.9 + 0.003 * rng.standard_normal(t.size)
+            ay = vx * vx * delta / 2.9 + 0.05 * rng.standard_normal(t.size)
+            ax = 0.05 * rng.standard_normal(t.size)
+            f.write("\n".join(f"{a!r},{b!r},{c!r},{d!r},{e!r},{g!r}" for a, b, c, d, e, g in
+                              zip(t.tolist(), delta.tolist(), ax.tolist(), ay.tolist(), yaw.tolist(), vx.tolist())))
+            f.write("\n")
+    return path
+
+
+def one_replay(log: str, estimator: str, out: str) -> dict:
+    """`tirefilter replay` in this process, with the memory sampled."""
+    from tirefilter.cli import main
+
+    sampler = RssSampler()
+    rc = main(["replay", log, "--vehicle", str(VEHICLE), "--estimator", estimator, "--out", out, "--quiet"])
+    return {"rc": rc, **sampler.stop()}
+
+
+def cmd_replay(args) -> None:
+    with tempfile.TemporaryDirectory() as tmp:
+        log = write_drive(Path(tmp) / "drive.csv", args.minutes)
+        size = log.stat().st_size / 1e6
+        print(f"log: {args.minutes:g} min at 100 Hz ({int(args.minutes * 6000) + 1} rows, {size:.0f} MB)", flush=True)
+        print("| estimator | log min | wall s | peak RSS MB | RSS at 10 % MB | max after MB | growth MB |\n"
+              "|---|---|---|---|---|---|---|", flush=True)
+        for est in args.estimators:
+            res = subprocess.run([sys.executable, __file__, "_one", str(log), est, str(Path(tmp) / f"{est}.csv")],
+                                 capture_output=True, text=True)
+            if res.returncode != 0:
+                print(f"| {est} | failed: {res.stderr.strip().splitlines()[-1:]} |", flush=True)
+                continue
+            r = json.loads(res.stdout.strip().splitlines()[-1])
+            print(f"| {est} | {args.minutes:g} | {r['wall_s']:.0f} | {r['peak_rss_mb']:.0f} | "
+                  f"{r['rss_at_10pct_mb']:.0f} | {r['rss_max_after_mb']:.0f} | {r['growth_mb']:+.1f} |", flush=True)
+
+
+def cmd_soak(args) -> None:
+    from dataclasses import replace
+
+    from tirefilter.cosim.run import run_scenario
+    from tirefilter.estimators import build_estimator
+    from tirefilter.scenarios import load_scenario
+
+    scenario = load_scenario("paper-sim")
+    scenario = replace(scenario, duration=60.0 * args.minutes)
+    est = build_estimator("mpf", scenario, model="auto", particles=args.particles, config={})
+    with tempfile.TemporaryDirectory() as tmp:
+        sampler = RssSampler()
+        summary, _ = run_scenario(scenario, estimator=est, seed=0, results_csv=Path(tmp) / "results.csv")
+        r = sampler.stop()
+    print(f"soak: paper-sim stretched to {args.minutes:g} min, mpf N = {est.cfg.particles}, {summary.steps} steps, "
+          f"status {summary.status}, wall {r['wall_s']:.0f} s, restarts {est.restarts}")
+    print(f"RSS at 10 % of the wall time {r['rss_at_10pct_mb']:.1f} MB, max after it {r['rss_max_after_mb']:.1f} MB: "
+          f"growth {r['growth_mb']:+.1f} MB; peak {r['peak_rss_mb']:.1f} MB")
+
+
+def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if argv and argv[0] == "_one":
+        print(json.dumps(one_replay(*argv[1:4])))
+        return 0
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    sub = p.add_subparsers(dest="cmd", required=True)
+    rp = sub.add_parser("replay")
+    rp.add_argument("--minutes", type=float, default=120.0)
+    rp.add_argument("--estimators", nargs="+", default=["none", "kf", "mpf"])
+    sk = sub.add_parser("soak")
+    sk.add_argument("--minutes", type=float, default=60.0)
+    sk.add_argument("--particles", type=int)
+    args = p.parse_args(argv)
+    (cmd_replay if args.cmd == "replay" else cmd_soak)(args)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

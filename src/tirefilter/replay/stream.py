@@ -1,0 +1,86 @@
+"""A log replayed without holding it in memory: a first pass over the file (`scan_log`)
+gathers what building an estimator and the start of a replay need (the sample times, the
+signals present, each signal's first sample, the IMU channels for the white-noise estimate
+of `estimators.sensors`, the plausibility warnings); the replay then reads the file again
+chunk by chunk (`LogScan.chunks`, `log.iter_log_chunks`). What is kept is 32 bytes a row
+(the times and three IMU channels: 23 MB for a 2-hour log at 100 Hz) plus one chunk.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from tirefilter.replay.log import CHUNK_ROWS, SIGNALS, iter_log_chunks, vehicle_arg
+from tirefilter.replay.plausibility import IMU, Plausibility
+
+
+@dataclass
+class LogScan:
+    """What the first pass over a log found; replay_log takes it in place of a Log."""
+
+    path: Path
+    vehicle: object  # VehicleParams or None
+    vehicle_name: str | None
+    chunk_rows: int
+    t: np.ndarray  # (n,) s, every sample time
+    present: tuple[str, ...]  # SIGNALS with a column (in SIGNALS order)
+    first: dict[str, float]  # signal -> its first finite sample (absent: none)
+    header: tuple[str, ...] = ()
+    ignored: tuple[str, ...] = ()
+    references: tuple[str, ...] = ()  # reference columns as `true_<name>` (Log.references), in file order
+    derived: dict = field(default_factory=dict)
+    plausibility: Plausibility = field(default_factory=Plausibility)
+
+    @property
+    def rows(self) -> int:
+        return len(self.t)
+
+    @property
+    def duration(self) -> float:
+        return float(self.t[-1] - self.t[0])
+
+    @property
+    def available(self) -> tuple[str, ...]:
+        return tuple(s for s in SIGNALS if s in self.first)
+
+    imu: dict[str, np.ndarray] = field(default_factory=dict)  # ax, ay, yaw_rate: (n,) each, for the noise estimate
+
+    @property
+    def signals(self) -> dict[str, np.ndarray]:
+        """What `estimators.build_log_estimator` reads of the signals: the IMU channels whole
+        (their white noise is estimated from them, `estimators.sensors`), every other available
+        signal as a one-sample array holding its first finite sample (its presence and first
+        value are all that is used)."""
+        return {s: self.imu[s] if s in self.imu else np.array([self.first[s]]) for s in self.available}
+
+    def chunks(self):
+        """The log again, chunk by chunk."""
+        return iter_log_chunks(self.path, self.vehicle, chunk_rows=self.chunk_rows, vehicle_name=self.vehicle_name)
+
+
+def scan_log(path, vehicle=None, *, vehicle_name: str | None = None, chunk_rows: int = CHUNK_ROWS) -> LogScan:
+    """The first pass over the Log CSV at `path` (every check of `read_log` runs here, so a
+    bad file fails before the replay starts)."""
+    vehicle, name = vehicle_arg(vehicle)
+    vehicle_name = vehicle_name or name
+    times, first, plaus, imu = [], {}, Plausibility(), {c: [] for c in IMU}
+    head = None
+    for chunk in iter_log_chunks(path, vehicle, chunk_rows=chunk_rows, vehicle_name=vehicle_name):
+        head = head or chunk
+        times.append(chunk.t)
+        for c in IMU:
+            if c in chunk.signals:
+                imu[c].append(chunk.signals[c])
+        plaus.add(chunk)
+        for s, x in chunk.signals.items():
+            if s not in first:
+                k = np.flatnonzero(np.isfinite(x))
+                if k.size:
+                    first[s] = float(x[k[0]])
+    return LogScan(path=Path(path), vehicle=vehicle, vehicle_name=vehicle_name, chunk_rows=chunk_rows,
+                   t=np.concatenate(times), present=head.present, first=first, header=head.header,
+                   ignored=head.ignored, references=tuple(head.references), derived=head.derived, plausibility=plaus,
+                   imu={c: np.concatenate(x) for c, x in imu.items() if x})
