@@ -39,8 +39,20 @@ COLUMNS = ("t", "delta", "steering_wheel_angle", "ax", "ay", "yaw_rate", "vx", "
 VX_REVERSE_TOL = 0.1  # m/s: vx below minus this is reverse driving
 
 
+class Timed:
+    """`rows` and `duration` of anything with its sample times `t` (n,)."""
+
+    @property
+    def rows(self) -> int:
+        return len(self.t)
+
+    @property
+    def duration(self) -> float:
+        return float(self.t[-1] - self.t[0])
+
+
 @dataclass(frozen=True)
-class Log:
+class Log(Timed):
     """A log as the estimators see it.
 
     `signals` holds the names of SIGNALS the file provides, directly or derived (`delta`
@@ -60,14 +72,6 @@ class Log:
     lines: np.ndarray | None = None  # (n,) int
     references: dict[str, np.ndarray] = field(default_factory=dict)  # true_<name> -> (n,), NaN where missing
     row0: int = 0  # data rows of the file before this one's first (a chunk of `iter_log_chunks`)
-
-    @property
-    def rows(self) -> int:
-        return len(self.t)
-
-    @property
-    def duration(self) -> float:
-        return float(self.t[-1] - self.t[0])
 
     @property
     def available(self) -> tuple[str, ...]:

@@ -13,12 +13,12 @@ from pathlib import Path
 
 import numpy as np
 
-from tirefilter.replay.log import CHUNK_ROWS, SIGNALS, iter_log_chunks, vehicle_arg
+from tirefilter.replay.log import CHUNK_ROWS, SIGNALS, Timed, iter_log_chunks, vehicle_arg
 from tirefilter.replay.plausibility import IMU, Plausibility
 
 
 @dataclass
-class LogScan:
+class LogScan(Timed):
     """What the first pass over a log found; replay_log takes it in place of a Log."""
 
     path: Path
@@ -33,14 +33,6 @@ class LogScan:
     references: tuple[str, ...] = ()  # reference columns as `true_<name>` (Log.references), in file order
     derived: dict = field(default_factory=dict)
     plausibility: Plausibility = field(default_factory=Plausibility)
-
-    @property
-    def rows(self) -> int:
-        return len(self.t)
-
-    @property
-    def duration(self) -> float:
-        return float(self.t[-1] - self.t[0])
 
     @property
     def available(self) -> tuple[str, ...]:
