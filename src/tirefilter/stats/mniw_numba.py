@@ -298,11 +298,15 @@ def _flat(a, tail: int):
     return a.reshape((-1,) + a.shape[a.ndim - tail:])
 
 
-class NumbaMNIW(MNIW):
-    """`MNIW` with the predictive, update and forgetting compiled (same layout, same answers)."""
+class _Contiguous:
+    """What both compiled statistics share: their arrays (`ARRAYS` and nu) C-contiguous
+    float64, as the kernels take them, from construction, from a numpy reference and after
+    `take`."""
+
+    ARRAYS: tuple[str, ...] = ()
 
     @classmethod
-    def from_reference(cls, ref: MNIW) -> "NumbaMNIW":
+    def from_reference(cls, ref):
         new = cls.__new__(cls)
         new.__dict__.update(ref.__dict__)
         new._own()
@@ -313,11 +317,18 @@ class NumbaMNIW(MNIW):
         self._own()
 
     def _own(self):
-        self.Phi, self.Psi, self.K = (np.ascontiguousarray(a, float) for a in (self.Phi, self.Psi, self.K))
+        for name in self.ARRAYS:
+            setattr(self, name, np.ascontiguousarray(getattr(self, name), float))
         self.nu = np.ascontiguousarray(np.asarray(self.nu, float))
 
-    def take(self, idx) -> "NumbaMNIW":
-        return NumbaMNIW.from_reference(super().take(idx))
+    def take(self, idx):
+        return type(self).from_reference(super().take(idx))
+
+
+class NumbaMNIW(_Contiguous, MNIW):
+    """`MNIW` with the predictive, update and forgetting compiled (same layout, same answers)."""
+
+    ARRAYS = ("Phi", "Psi", "K")
 
     def predictive(self, phi, return_M: bool = False):
         if return_M or np.ndim(self.nu) == 0:
@@ -345,26 +356,10 @@ class NumbaMNIW(MNIW):
                      float(nu_min))
 
 
-class NumbaMNIWRank1(MNIWRank1):
+class NumbaMNIWRank1(_Contiguous, MNIWRank1):
     """`MNIWRank1` with the predictive, update and forgetting compiled."""
 
-    @classmethod
-    def from_reference(cls, ref: MNIWRank1) -> "NumbaMNIWRank1":
-        new = cls.__new__(cls)
-        new.__dict__.update(ref.__dict__)
-        new._own()
-        return new
-
-    def __init__(self, *args, **kwargs):
-        super().__init__(*args, **kwargs)
-        self._own()
-
-    def _own(self):
-        self.M, self.P, self.Lam = (np.ascontiguousarray(a, float) for a in (self.M, self.P, self.Lam))
-        self.nu = np.ascontiguousarray(np.asarray(self.nu, float))
-
-    def take(self, idx) -> "NumbaMNIWRank1":
-        return NumbaMNIWRank1.from_reference(super().take(idx))
+    ARRAYS = ("M", "P", "Lam")
 
     def predictive(self, phi, return_M: bool = False):
         if return_M or np.ndim(self.nu) == 0:
