@@ -259,8 +259,8 @@ class _Settling:
 class _StiffnessAgainst:
     """The figures of one stiffness parameter against one candidate reference column."""
 
-    def __init__(self, p: str, ref: str, has_std: bool, schedule):
-        self.p, self.ref, self.has_std, self.schedule = p, ref, has_std, schedule
+    def __init__(self, p: str, ref: str, has_std: bool):
+        self.p, self.ref, self.has_std = p, ref, has_std
         self.ref_finite = False
         self.abs_err, self.settled_abs = _Sum(), _Sum()
         self.have = self.inside = 0  # samples with an error; of those inside the band
@@ -349,7 +349,7 @@ class RunMetrics:
                 continue
             self.est_finite[p] = False
             refs = [c for c in (f"true_{p}_mean", f"{p}_mean_true", f"true_{p}", f"{p}_true") if c in cols]
-            self.stiffness[p] = [_StiffnessAgainst(p, c, f"{p}_std" in cols, schedule) for c in refs]
+            self.stiffness[p] = [_StiffnessAgainst(p, c, f"{p}_std" in cols) for c in refs]
             if schedule is not None and f"true_{p}_mean" in cols:
                 self.settling[p] = [_Settling(tc) for tc in schedule.surface_changes]
         self.states: dict[str, list[_StateAgainst]] = {}
