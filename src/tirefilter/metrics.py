@@ -184,19 +184,18 @@ def _cov_warning(p: str, cov: float) -> str:
 
 
 class _Sum:
-    """Sum and count of the finite values seen, and the largest |value| (chunk by chunk)."""
+    """Sum and count of the finite values seen (chunk by chunk): `_finite_mean` of them all."""
 
-    __slots__ = ("s", "n", "max")
+    __slots__ = ("s", "n")
 
     def __init__(self):
-        self.s, self.n, self.max = 0.0, 0, -np.inf
+        self.s, self.n = 0.0, 0
 
     def add(self, x: np.ndarray) -> None:
         x = x[np.isfinite(x)]
         if x.size:
             self.s += float(np.sum(x))
             self.n += x.size
-            self.max = max(self.max, float(np.max(np.abs(x))))
 
     def mean(self) -> float | None:
         return self.s / self.n if self.n else None
@@ -209,7 +208,6 @@ class _Runs:
     def __init__(self):
         self.windows: list[list[float]] = []
         self.open = False  # the last sample seen was inside a run
-        self.t_last = None
 
     def add(self, mask: np.ndarray, t: np.ndarray) -> None:
         if not mask.size:
