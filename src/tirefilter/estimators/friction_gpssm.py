@@ -204,6 +204,17 @@ class FrictionGPSSM:
                 "particle_slip_evaluations": int(self.slip_evaluations), "resamples": int(self.resamples),
                 "handover_time": self.handover_time}
 
+    @property
+    def stats(self):
+        """The MNIW statistics (`stats.mniw`); the compiled step's pending update applied."""
+        if getattr(self, "_compiled", None) is not None:
+            self._compiled.flush()
+        return self._stats
+
+    @stats.setter
+    def stats(self, value) -> None:
+        self._stats = value
+
     # ---- initialisation ---------------------------------------------------------------
     def reset(self, rng: np.random.Generator) -> None:
         cfg, N = self.cfg, self.cfg.particles
@@ -212,6 +223,7 @@ class FrictionGPSSM:
             self.mpf.reset(rng)
         batch = (N,) if self.d == 2 else (N, 2)
         Lam0 = np.eye(self.d) * cfg.q0**2 * (self.nu0 - self.d - 1.0)  # E[Q] = q0^2 I
+        self._compiled = None
         self.stats = make_mniw(cfg.stats, batch, self.d, self.basis.S, Lam0, self.nu0, cfg.backend)
         self.x = np.asarray(cfg.x0_mean, float) + rng.standard_normal((N, 2)) * np.asarray(cfg.x0_std, float)
         self.logw = np.full(N, -math.log(N))

@@ -43,7 +43,7 @@ from numba import njit
 from tirefilter.stats.mniw_numba import _factor, _phi1
 
 _JIT = dict(cache=True, nogil=True)
-LANES = 8  # batch elements factorised together (two AVX2 vectors of float64)
+LANES = 16  # batch elements factorised together (four AVX2 vectors of float64)
 LANES_BELOW = 64  # basis size from which LAPACK's dpotrf factorises instead
 
 # columns of `work`
@@ -122,24 +122,51 @@ def _forget_exact(K, Psi, Phi, nu, V, b, lam, nu_min):
 
 
 @njit(**_JIT)
+def _update_forget(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget, lam, nu_min):
+    """Batch element b: the pending update (eq. (27a)-(27c), (28f)) then the forgetting
+    (eq. (29)), in one sweep over K with the reference's operations in the reference's order
+    ((K + phi phi^T) * f, then + (1 - f) V on the diagonal)."""
+    if not pending:
+        if forget:
+            _forget_exact(K, Psi, Phi, nu, V, b, lam, nu_min)
+        return
+    d, m = Psi.shape[1], Psi.shape[2]
+    n, a = b // per, b % per
+    nu[b] += 1.0
+    f = _factor(lam, nu_min, nu[b]) if forget else 1.0
+    for i in range(d):
+        zi = zeta[n, a + i]
+        for k in range(d):
+            Phi[b, i, k] = (Phi[b, i, k] + zi * zeta[n, a + k]) * f
+        for j in range(m):
+            Psi[b, i, j] = (Psi[b, i, j] + zi * phi_p[n, a * m + j]) * f
+    for i in range(m):
+        p = phi_p[n, a * m + i]
+        for j in range(m):
+            K[b, i, j] = (K[b, i, j] + p * phi_p[n, a * m + j]) * f
+        K[b, i, i] += (1.0 - f) * V[i]
+    nu[b] = nu[b] * f
+
+
+@njit(**_JIT)
 def _write_predictive(work, b, per, d, m, Z, w, Lam0, Phi, nu, lam):
-    """loc, scale, dof of batch element b from Z = C^-1 [Psi^T, phi] (lane w) into work
-    (lam: (2, 2) scratch)."""
+    """loc, scale, dof of batch element b into work from Z[m + q, j, w] = (C^-1 [Psi^T, phi])[j, q]
+    (lane w; lam: (2, 2) scratch)."""
     n, a = b // per, b % per
     c = 1.0
     for j in range(m):
-        c += Z[j, d, w] * Z[j, d, w]
+        c += Z[m + d, j, w] * Z[m + d, j, w]
     df = nu[b] - d + 1.0
     f = c / df
     for i in range(d):
         s = 0.0
         for j in range(m):
-            s += Z[j, i, w] * Z[j, d, w]
+            s += Z[m + i, j, w] * Z[m + d, j, w]
         work[n, LOC + a + i] = s
         for k in range(d):
             q = 0.0
             for j in range(m):
-                q += Z[j, i, w] * Z[j, k, w]
+                q += Z[m + i, j, w] * Z[m + k, j, w]
             lam[i, k] = Lam0[i, k] + Phi[b, i, k] - q
     if d == 2:
         work[n, S + 0] = f * lam[0, 0]
@@ -156,15 +183,42 @@ def _write_predictive(work, b, per, d, m, Z, w, Lam0, Phi, nu, lam):
 
 
 @njit(**_JIT)
-def exact_forget_predictive(K, Psi, Phi, nu, V, Lam0, work, per, forget, lam, nu_min):
+def _chol_lanes(A, m, W, inv, acc):
+    """In place over W interleaved lanes, A (n, m, >= W), rows 0..m-1 a symmetric positive
+    definite matrix (lower triangle read), rows m..n-1 right-hand sides b^T: afterwards the
+    lower Cholesky factor C and the rows (C^-1 b)^T (forward substitution is the Cholesky
+    recurrence continued below the matrix). Row-oriented: A[i, j] = (A[i, j] -
+    sum_{k<j} A[i, k] A[j, k]) / A[j, j]; every inner loop runs over lanes (contiguous, SIMD;
+    W is a run-time count so LLVM's loop vectoriser, not the SLP one numba disables, takes it)."""
+    n = A.shape[0]
+    for i in range(n):
+        for j in range(min(i + 1, m)):
+            for w in range(W):
+                acc[w] = A[i, j, w]
+            for k in range(j):
+                for w in range(W):
+                    acc[w] -= A[i, k, w] * A[j, k, w]
+            if i == j:
+                for w in range(W):
+                    v = acc[w]
+                    r = math.sqrt(v) if v > 0.0 else math.nan
+                    A[i, i, w] = r
+                    inv[j, w] = 1.0 / r
+            else:
+                for w in range(W):
+                    A[i, j, w] = acc[w] * inv[j, w]
+
+
+@njit(**_JIT)
+def exact_forget_predictive(K, Psi, Phi, nu, V, Lam0, work, per, forget, lam, nu_min, lanes, pending, zeta, phi_p):
     """Flat batch K (B, m, m) = Sigma + V, Psi (B, d, m), Phi (B, d, d), nu (B,), per batch
-    elements per particle (tensor 1, axle 2). With `forget` first eq. (29) in place, then
-    the predictive St(M phi, c Lambda / (nu - d + 1), nu - d + 1) (eq. (31)-(32)) into work,
-    LANES elements at a time: Cholesky and forward substitution interleaved over lanes."""
+    elements per particle (tensor 1, axle 2). In one pass over each element's statistics:
+    with `pending` the previous step's update (eq. (27), zeta (N, 2) at features phi_p),
+    with `forget` eq. (29), then the predictive St(M phi, c Lambda / (nu - d + 1),
+    nu - d + 1) (eq. (31)-(32)) into work, `lanes` elements at a time (`_chol_lanes`)."""
     nb, d, m = Psi.shape
-    W = LANES
-    A = np.zeros((m, m, W))
-    Z = np.zeros((m, d + 1, W))
+    W = lanes
+    A = np.zeros((m + d + 1, m, W))
     inv = np.empty((m, W))
     acc = np.empty(W)
     lam2 = np.empty((2, 2))
@@ -173,48 +227,22 @@ def exact_forget_predictive(K, Psi, Phi, nu, V, Lam0, work, per, forget, lam, nu
         for w in range(W):
             if w < nw:
                 b = b0 + w
-                if forget:
-                    _forget_exact(K, Psi, Phi, nu, V, b, lam, nu_min)
+                _update_forget(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget, lam, nu_min)
                 for i in range(m):
                     for j in range(i + 1):
                         A[i, j, w] = K[b, i, j]
                 n, a = b // per, b % per
                 for j in range(m):
                     for i in range(d):
-                        Z[j, i, w] = Psi[b, i, j]
-                    Z[j, d, w] = work[n, PHI + a * m + j]
-            else:  # padding lanes: identity, zero right-hand side
-                for i in range(m):
-                    for j in range(i + 1):
+                        A[m + i, j, w] = Psi[b, i, j]
+                    A[m + d, j, w] = work[n, PHI + a * m + j]
+            else:  # padding lanes: identity, zero right-hand sides
+                for i in range(m + d + 1):
+                    for j in range(min(i + 1, m)):
                         A[i, j, w] = 1.0 if i == j else 0.0
-                    for q in range(d + 1):
-                        Z[i, q, w] = 0.0
-        for i in range(m):
-            for j in range(i + 1):
-                for w in range(W):
-                    acc[w] = A[i, j, w]
-                for k in range(j):
-                    for w in range(W):
-                        acc[w] -= A[i, k, w] * A[j, k, w]
-                if i == j:
-                    for w in range(W):
-                        v = acc[w]
-                        r = math.sqrt(v) if v > 0.0 else math.nan
-                        A[i, i, w] = r
-                        inv[i, w] = 1.0 / r
-                else:
-                    for w in range(W):
-                        A[i, j, w] = acc[w] * inv[j, w]
-            for q in range(d + 1):  # forward substitution, row i
-                for w in range(W):
-                    acc[w] = Z[i, q, w]
-                for k in range(i):
-                    for w in range(W):
-                        acc[w] -= A[i, k, w] * Z[k, q, w]
-                for w in range(W):
-                    Z[i, q, w] = acc[w] * inv[i, w]
+        _chol_lanes(A, m, W, inv, acc)
         for w in range(nw):
-            _write_predictive(work, b0 + w, per, d, m, Z, w, Lam0, Phi, nu, lam2)
+            _write_predictive(work, b0 + w, per, d, m, A, w, Lam0, Phi, nu, lam2)
 
 
 @njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
@@ -226,15 +254,14 @@ def _dot(a, b, n):
 
 
 @njit(**_JIT)
-def exact_forget_predictive_lapack(K, Psi, Phi, nu, V, Lam0, work, per, forget, lam, nu_min):
+def exact_forget_predictive_lapack(K, Psi, Phi, nu, V, Lam0, work, per, forget, lam, nu_min, pending, zeta, phi_p):
     """`exact_forget_predictive` with each K factorised by LAPACK's dpotrf (large bases)."""
     nb, d, m = Psi.shape
     Zt = np.empty((d + 1, m))
-    Z = np.empty((m, d + 1, 1))
+    Z = np.empty((m + d + 1, m, 1))
     lam2 = np.empty((2, 2))
     for b in range(nb):
-        if forget:
-            _forget_exact(K, Psi, Phi, nu, V, b, lam, nu_min)
+        _update_forget(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget, lam, nu_min)
         C = np.linalg.cholesky(K[b])
         n, a = b // per, b % per
         for j in range(m):
@@ -245,9 +272,9 @@ def exact_forget_predictive_lapack(K, Psi, Phi, nu, V, Lam0, work, per, forget, 
             inv = 1.0 / C[i, i]
             for q in range(d + 1):
                 Zt[q, i] = (Zt[q, i] - _dot(C[i], Zt[q], i)) * inv
-        for j in range(m):
-            for q in range(d + 1):
-                Z[j, q, 0] = Zt[q, j]
+        for q in range(d + 1):
+            for j in range(m):
+                Z[m + q, j, 0] = Zt[q, j]
         _write_predictive(work, b, per, d, m, Z, 0, Lam0, Phi, nu, lam2)
 
 
@@ -447,12 +474,12 @@ def sample(x, work, logw, z, u, zeta, mu, conditional):
 
 # ---- 6. learning ----------------------------------------------------------------------------------
 @njit(**_JIT)
-def exact_update(K, Psi, Phi, nu, work, zeta, per):
-    """Eq. (27a)-(27c), (28f) in place with zeta (N, 2) and the features in work."""
+def exact_update(K, Psi, Phi, nu, work, zeta, per, col):
+    """Eq. (27a)-(27c), (28f) in place with zeta (N, 2) and the features in work[:, col:]."""
     nb, d, m = Psi.shape
     for b in range(nb):
         n, a = b // per, b % per
-        o = PHI + a * m
+        o = col + a * m
         for i in range(d):
             zi = zeta[n, a + i]
             for k in range(d):
@@ -522,11 +549,13 @@ class CompiledStep:
         size = est.basis.size
         self.work = np.zeros((N, PHI + size * self.per))
         self.zeta = np.zeros((N, 2))
+        self.phi_p = np.zeros((N, size * self.per))  # features of the pending update
+        self.pending = False  # exact statistics: this step's update waits for the next pass
         self.keep = np.ascontiguousarray(est.basis.keep, np.int64)
         self.m1 = int(est.b1.m)
         self.L = float(cfg.L)
         self.exact = cfg.stats == "exact"
-        st = est.stats
+        st = est._stats
         if not isinstance(st, (NumbaMNIW, NumbaMNIWRank1)):
             raise TypeError("the compiled step needs the compiled statistics (backend numba)")
         self.lanes = size < LANES_BELOW
@@ -534,15 +563,21 @@ class CompiledStep:
         self.veh = (float(est.Fz[0]), float(est.Fz[1]), float(v.mass), float(v.lf), float(v.lr),
                     float(v.yaw_inertia))
 
+    def flush(self) -> None:
+        """Apply a pending update of the exact statistics now (before anything reads them)."""
+        if self.pending:
+            self.pending = False
+            exact_update(*self._views(), self.phi_p, self.zeta, self.per, 0)
+
     def _views(self):
-        st = self.est.stats
+        st = self.est._stats
         if self.exact:
             return _flat(st.K, 2), _flat(st.Psi, 2), _flat(st.Phi, 2), st.nu.reshape(-1)
         return _flat(st.M, 2), _flat(st.P, 2), _flat(st.Lam, 2), st.nu.reshape(-1)
 
     def _rows(self):
         """Every per-particle array as (N, k) views, for the resampling copies."""
-        st, N = self.est.stats, self.est.cfg.particles
+        st, N = self.est._stats, self.est.cfg.particles
         arrays = (st.K, st.Psi, st.Phi) if self.exact else (st.M, st.P, st.Lam)
         return tuple(a.reshape(N, -1) for a in arrays) + (st.nu.reshape(N, -1), self.est.x, self.work)
 
@@ -588,11 +623,13 @@ class CompiledStep:
         a1, a2, a3, nu = self._views()
         if self.exact:
             fn = exact_forget_predictive if self.lanes else exact_forget_predictive_lapack
-            fn(a1, a2, a3, nu, est.stats.V, est.stats.Lam0, work, self.per, forget, float(cfg.forgetting),
-               float(est.nu0))
+            args = (a1, a2, a3, nu, est._stats.V, est._stats.Lam0, work, self.per, forget, float(cfg.forgetting),
+                    float(est.nu0)) + ((LANES,) if self.lanes else ()) + (self.pending, self.zeta, self.phi_p)
+            fn(*args)
+            self.pending = False
         else:
             rank1_forget_predictive(a1, a2, a3, nu, work, self.per, forget, float(cfg.forgetting), float(est.nu0),
-                                    bool(est.stats.bounded), float(est.stats.trace0))
+                                    bool(est._stats.bounded), float(est._stats.trace0))
         # 4. weights (eq. (22)), resampling
         have_ay = math.isfinite(y.ay)
         learned = cfg.measurement_friction == "learned"
@@ -614,7 +651,11 @@ class CompiledStep:
         m0, m1, s0, s1, mf, mr = sample(est.x, work, est.logw, z, np.ascontiguousarray(u, float), self.zeta, est.mu,
                                         conditional)
         if est.active:
-            (exact_update if self.exact else rank1_update)(a1, a2, a3, nu, work, self.zeta, self.per)
+            if self.exact:  # applied in the next step's pass over the statistics (or by `flush`)
+                self.phi_p[:] = work[:, PHI:]
+                self.pending = True
+            else:
+                rank1_update(a1, a2, a3, nu, work, self.zeta, self.per)
             v = est.visited
             est.visited = [min(v[0], mf), max(v[1], mf), min(v[2], mr), max(v[3], mr)]
             if self.tensor:
