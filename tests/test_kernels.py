@@ -85,13 +85,18 @@ def test_mniw_kernels_equal(kind, symmetry, m, stats):
     assert_equal_to_rounding(fast.nu, ref.nu, "nu")
 
 
-def _drive(est: FrictionGPSSM, steps: int):
+def _drive(est: FrictionGPSSM, steps: int, snapshot_every: int = 0):
     """A synthetic slalom at 15 m/s, 25 Hz, a^Y and yaw rate from a linear single track
-    with a little noise (no FMU): enough to learn, resample and clip nothing."""
+    with a little noise (no FMU): enough to learn, resample and clip nothing. With
+    `snapshot_every`, `friction()` between steps (the compiled step's pending update and
+    K's upper triangle are then brought up to date mid-run)."""
     rng = np.random.default_rng(5)
     est.reset(np.random.default_rng(9))
     out = []
     for k in range(steps):
+        if snapshot_every and k % snapshot_every == snapshot_every - 1:
+            f = est.friction()
+            out.append((f.mu_f[40], f.mu_r[40], f.mu_f_std[40], f.mu_r_std[40], float(np.sum(f.mu_f))))
         t = 0.04 * k
         delta = 0.03 * math.sin(2 * math.pi * 0.5 * t)
         r = 15.0 * delta / 2.8
@@ -101,18 +106,20 @@ def _drive(est: FrictionGPSSM, steps: int):
     return np.array(out)
 
 
+@pytest.mark.parametrize("snapshots", [0, 4], ids=["", "snapshots"])
 @pytest.mark.parametrize("stats", ["exact", "rank1"])
 @pytest.mark.parametrize("kind,symmetry,m", BASES, ids=BASIS_IDS)
-def test_friction_gpssm_backends_equal(kind, symmetry, m, stats):
-    """A whole filter run (25 steps, N = 16, resampling at every step: threshold 1), numba
-    and numpy backends from the same seed: the same estimates, particles and statistics."""
+def test_friction_gpssm_backends_equal(kind, symmetry, m, stats, snapshots):
+    """A whole filter run (25 steps, N = 19: the compiled factorisation's lanes do not divide
+    it; resampling at every step: threshold 1), numba and numpy backends from the same seed:
+    the same estimates, particles and statistics; `snapshots`: friction curves every 4th step."""
     vehicle = load_scenario("friction-snow").vehicle
     runs = {}
     for backend in ("numpy", "numba"):
-        cfg = GPSSMConfig(particles=16, basis=kind, symmetry=symmetry, basis_functions=m, stats=stats,
+        cfg = GPSSMConfig(particles=19, basis=kind, symmetry=symmetry, basis_functions=m, stats=stats,
                           backend=backend, resample_threshold=1.0)
         est = FrictionGPSSM(vehicle, cfg)
-        runs[backend] = (_drive(est, 25), est)
+        runs[backend] = (_drive(est, 25, snapshots), est)
     (a, fast), (b, ref) = runs["numba"], runs["numpy"]
     assert ref.resamples >= 12 and fast.resamples == ref.resamples
     assert_equal_to_rounding(a, b, "estimates")
@@ -124,6 +131,27 @@ def test_friction_gpssm_backends_equal(kind, symmetry, m, stats):
     fa, fb = fast.friction(), ref.friction()
     assert_equal_to_rounding(fa.mu_f, fb.mu_f, "mu_f")
     assert_equal_to_rounding(fa.mu_r_std, fb.mu_r_std, "mu_r_std")
+
+
+@pytest.mark.parametrize("order", ["sorted", "shuffled"])
+def test_resampling_copies_equal_indexing(order):
+    """The in-place resampling copies (`gather_rows`, `gather_lower`) equal a[idx], for sorted
+    ancestors (systematic resampling: no copy of the arrays) and any other order."""
+    from tirefilter.estimators.gpssm_numba import gather_lower, gather_rows
+
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        idx = np.sort(rng.integers(0, 23, 23))
+        if order == "shuffled":
+            idx = rng.permutation(idx)
+        a, b = rng.standard_normal((23, 5)), rng.standard_normal((23, 2))
+        K = rng.standard_normal((23, 2, 4, 4))
+        want_a, want_b, want_K = a[idx], b[idx], K[idx]
+        gather_rows((a, b), idx)
+        gather_lower(K, idx)
+        assert np.array_equal(a, want_a) and np.array_equal(b, want_b)
+        low = np.tril(np.ones((4, 4), bool))
+        assert np.array_equal(K[..., low], want_K[..., low])
 
 
 def test_backend_is_checked():

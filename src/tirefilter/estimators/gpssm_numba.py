@@ -106,7 +106,7 @@ def front(x, mu, work, propagate, n_sub, h, cd, vx_prev, Fz0, Fz1, mass, lf, lr,
 # ---- 2. forgetting and predictive ---------------------------------------------------------------
 @njit(**_JIT)
 def _forget_exact(K, Psi, Phi, nu, V, b, lam, nu_min):
-    """Eq. (29) for batch element b (`MNIW.forget`)."""
+    """Eq. (29) for batch element b (`MNIW.forget`), K's lower triangle."""
     d, m = Psi.shape[1], Psi.shape[2]
     f = _factor(lam, nu_min, nu[b])
     for i in range(d):
@@ -115,7 +115,7 @@ def _forget_exact(K, Psi, Phi, nu, V, b, lam, nu_min):
         for j in range(m):
             Psi[b, i, j] = Psi[b, i, j] * f
     for i in range(m):
-        for j in range(m):
+        for j in range(i + 1):
             K[b, i, j] *= f
         K[b, i, i] += (1.0 - f) * V[i]
     nu[b] = nu[b] * f
@@ -125,7 +125,9 @@ def _forget_exact(K, Psi, Phi, nu, V, b, lam, nu_min):
 def _update_forget(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget, lam, nu_min):
     """Batch element b: the pending update (eq. (27a)-(27c), (28f)) then the forgetting
     (eq. (29)), in one sweep over K with the reference's operations in the reference's order
-    ((K + phi phi^T) * f, then + (1 - f) V on the diagonal)."""
+    ((K + phi phi^T) * f, then + (1 - f) V on the diagonal). K's lower triangle only: the
+    upper one is restored by `mirror` before anything else reads K (the reference's K is
+    exactly symmetric: p_i p_j = p_j p_i and the forgetting is elementwise)."""
     if not pending:
         if forget:
             _forget_exact(K, Psi, Phi, nu, V, b, lam, nu_min)
@@ -142,7 +144,7 @@ def _update_forget(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget, lam
             Psi[b, i, j] = (Psi[b, i, j] + zi * phi_p[n, a * m + j]) * f
     for i in range(m):
         p = phi_p[n, a * m + i]
-        for j in range(m):
+        for j in range(i + 1):
             K[b, i, j] = (K[b, i, j] + p * phi_p[n, a * m + j]) * f
         K[b, i, i] += (1.0 - f) * V[i]
     nu[b] = nu[b] * f
@@ -258,11 +260,16 @@ def exact_forget_predictive_lapack(K, Psi, Phi, nu, V, Lam0, work, per, forget, 
     """`exact_forget_predictive` with each K factorised by LAPACK's dpotrf (large bases)."""
     nb, d, m = Psi.shape
     Zt = np.empty((d + 1, m))
+    Ks = np.empty((m, m))
     Z = np.empty((m + d + 1, m, 1))
     lam2 = np.empty((2, 2))
     for b in range(nb):
         _update_forget(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget, lam, nu_min)
-        C = np.linalg.cholesky(K[b])
+        for i in range(m):
+            for j in range(i + 1):
+                Ks[i, j] = K[b, i, j]
+                Ks[j, i] = K[b, i, j]
+        C = np.linalg.cholesky(Ks)
         n, a = b // per, b % per
         for j in range(m):
             for i in range(d):
@@ -418,6 +425,40 @@ def gather_rows(arrays, idx):
                 a[i, :] = b[idx[i], :]
 
 
+@njit(**_JIT)
+def _copy_lower(K, i, j):
+    for a in range(K.shape[1]):
+        for r in range(K.shape[2]):
+            K[i, a, r, :r + 1] = K[j, a, r, :r + 1]
+
+
+@njit(**_JIT)
+def gather_lower(K, idx):
+    """K[:] = K[idx] (K (N, per, m, m)) for the lower triangles, in place as `gather_rows`."""
+    n = idx.shape[0]
+    if _sorted(idx):
+        for i in range(n):
+            if idx[i] > i:
+                _copy_lower(K, i, idx[i])
+        for i in range(n - 1, -1, -1):
+            if idx[i] < i:
+                _copy_lower(K, i, idx[i])
+    else:
+        B = K.copy()
+        for i in range(n):
+            K[i] = B[idx[i]]
+
+
+@njit(**_JIT)
+def mirror(K):
+    """K[b] upper triangle = lower triangle transposed, for every b."""
+    nb, m = K.shape[0], K.shape[1]
+    for b in range(nb):
+        for i in range(m):
+            for j in range(i):
+                K[b, j, i] = K[b, i, j]
+
+
 # ---- 5. conditional draw, friction, moments --------------------------------------------------------
 @njit(**_JIT)
 def _chol2_apply(s00, s10, s11, z0, z1):
@@ -475,7 +516,8 @@ def sample(x, work, logw, z, u, zeta, mu, conditional):
 # ---- 6. learning ----------------------------------------------------------------------------------
 @njit(**_JIT)
 def exact_update(K, Psi, Phi, nu, work, zeta, per, col):
-    """Eq. (27a)-(27c), (28f) in place with zeta (N, 2) and the features in work[:, col:]."""
+    """Eq. (27a)-(27c), (28f) in place with zeta (N, 2) and the features in work[:, col:]
+    (K's lower triangle)."""
     nb, d, m = Psi.shape
     for b in range(nb):
         n, a = b // per, b % per
@@ -488,7 +530,7 @@ def exact_update(K, Psi, Phi, nu, work, zeta, per, col):
                 Psi[b, i, j] += zi * work[n, o + j]
         for i in range(m):
             p = work[n, o + i]
-            for j in range(m):
+            for j in range(i + 1):
                 K[b, i, j] += p * work[n, o + j]
         nu[b] += 1.0
 
@@ -551,6 +593,7 @@ class CompiledStep:
         self.zeta = np.zeros((N, 2))
         self.phi_p = np.zeros((N, size * self.per))  # features of the pending update
         self.pending = False  # exact statistics: this step's update waits for the next pass
+        self.stale_upper = False  # the kernels keep K's lower triangle; `flush` mirrors it
         self.keep = np.ascontiguousarray(est.basis.keep, np.int64)
         self.m1 = int(est.b1.m)
         self.L = float(cfg.L)
@@ -568,6 +611,9 @@ class CompiledStep:
         if self.pending:
             self.pending = False
             exact_update(*self._views(), self.phi_p, self.zeta, self.per, 0)
+        if self.stale_upper:
+            self.stale_upper = False
+            mirror(self._views()[0])
 
     def _views(self):
         st = self.est._stats
@@ -578,7 +624,7 @@ class CompiledStep:
     def _rows(self):
         """Every per-particle array as (N, k) views, for the resampling copies."""
         st, N = self.est._stats, self.est.cfg.particles
-        arrays = (st.K, st.Psi, st.Phi) if self.exact else (st.M, st.P, st.Lam)
+        arrays = (st.Psi, st.Phi) if self.exact else (st.M, st.P, st.Lam)
         return tuple(a.reshape(N, -1) for a in arrays) + (st.nu.reshape(N, -1), self.est.x, self.work)
 
     def step(self, t, uk, delta: float, vx: float, y):
@@ -626,7 +672,7 @@ class CompiledStep:
             args = (a1, a2, a3, nu, est._stats.V, est._stats.Lam0, work, self.per, forget, float(cfg.forgetting),
                     float(est.nu0)) + ((LANES,) if self.lanes else ()) + (self.pending, self.zeta, self.phi_p)
             fn(*args)
-            self.pending = False
+            self.pending, self.stale_upper = False, True
         else:
             rank1_forget_predictive(a1, a2, a3, nu, work, self.per, forget, float(cfg.forgetting), float(est.nu0),
                                     bool(est._stats.bounded), float(est._stats.trace0))
@@ -642,6 +688,9 @@ class CompiledStep:
 
             idx = systematic_resample(est.logw, rng)
             gather_rows(self._rows(), idx)
+            if self.exact:
+                K = self.est._stats.K
+                gather_lower(K.reshape((N, self.per) + K.shape[-2:]), idx)
             est.logw[:] = -math.log(N)
             est.resamples += 1
         # 5. zeta (t conditional given the a^Y residual), mu, learning
