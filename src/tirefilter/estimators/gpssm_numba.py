@@ -40,7 +40,10 @@ import math
 import numpy as np
 from numba import njit
 
+from tirefilter.errors import ConfigError
+from tirefilter.stats import systematic_resample
 from tirefilter.stats.mniw_numba import _factor, _phi1
+from tirefilter.stats.student_t import t_draws
 
 _JIT = dict(cache=True, nogil=True)
 LANES = 16  # batch elements factorised together (four AVX2 vectors of float64)
@@ -185,7 +188,7 @@ def _write_predictive(work, b, per, d, m, Z, w, Lam0, Phi, nu, lam):
 
 
 @njit(**_JIT)
-def _chol_lanes(A, m, W, inv, acc):
+def _chol_lanes(A, m, W, inv):
     """In place over W interleaved lanes, A (n, m, >= W), rows 0..m-1 a symmetric positive
     definite matrix (lower triangle read), rows m..n-1 right-hand sides b^T: afterwards the
     lower Cholesky factor C and the rows (C^-1 b)^T (forward substitution is the Cholesky
@@ -195,20 +198,18 @@ def _chol_lanes(A, m, W, inv, acc):
     n = A.shape[0]
     for i in range(n):
         for j in range(min(i + 1, m)):
-            for w in range(W):
-                acc[w] = A[i, j, w]
             for k in range(j):
                 for w in range(W):
-                    acc[w] -= A[i, k, w] * A[j, k, w]
+                    A[i, j, w] -= A[i, k, w] * A[j, k, w]
             if i == j:
                 for w in range(W):
-                    v = acc[w]
+                    v = A[i, i, w]
                     r = math.sqrt(v) if v > 0.0 else math.nan
                     A[i, i, w] = r
                     inv[j, w] = 1.0 / r
             else:
                 for w in range(W):
-                    A[i, j, w] = acc[w] * inv[j, w]
+                    A[i, j, w] *= inv[j, w]
 
 
 @njit(**_JIT)
@@ -222,7 +223,6 @@ def exact_forget_predictive(K, Psi, Phi, nu, V, Lam0, work, per, forget, lam, nu
     W = lanes
     A = np.zeros((m + d + 1, m, W))
     inv = np.empty((m, W))
-    acc = np.empty(W)
     lam2 = np.empty((2, 2))
     for b0 in range(0, nb, W):
         nw = min(W, nb - b0)
@@ -242,7 +242,7 @@ def exact_forget_predictive(K, Psi, Phi, nu, V, Lam0, work, per, forget, lam, nu
                 for i in range(m + d + 1):
                     for j in range(min(i + 1, m)):
                         A[i, j, w] = 1.0 if i == j else 0.0
-        _chol_lanes(A, m, W, inv, acc)
+        _chol_lanes(A, m, W, inv)
         for w in range(nw):
             _write_predictive(work, b0 + w, per, d, m, A, w, Lam0, Phi, nu, lam2)
 
@@ -628,8 +628,6 @@ class CompiledStep:
         return tuple(a.reshape(N, -1) for a in arrays) + (st.nu.reshape(N, -1), self.est.x, self.work)
 
     def step(self, t, uk, delta: float, vx: float, y):
-        from tirefilter.stats.student_t import t_draws
-
         est = self.est
         cfg, N, rng = est.cfg, est.cfg.particles, est.rng
         work, Fz0, Fz1, mass, lf, lr, Iz = self.work, *self.veh
@@ -642,8 +640,6 @@ class CompiledStep:
         else:
             dt = t - est.t_prev
             if dt <= 0:
-                from tirefilter.errors import ConfigError
-
                 raise ConfigError("inputs", "t", f"time must increase: {t} after {est.t_prev}")
             n_sub = max(1, math.ceil(dt / cfg.max_step - 1e-9))
             h = dt / n_sub
@@ -684,8 +680,6 @@ class CompiledStep:
                              math.isfinite(y.yaw_rate), learned)
         est.prediction = (pa, pr_)
         if ess < cfg.resample_threshold * N:
-            from tirefilter.stats import systematic_resample
-
             idx = systematic_resample(est.logw, rng)
             gather_rows(self._rows(), idx)
             if self.exact:
