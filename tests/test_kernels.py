@@ -154,6 +154,22 @@ def test_resampling_copies_equal_indexing(order):
         assert np.array_equal(K[..., low], want_K[..., low])
 
 
+def test_systematic_ancestors_equal_reference():
+    """The compiled systematic resampling equals `stats.systematic_resample` from the same
+    generator state, for peaked, flat and degenerate weights."""
+    from tirefilter.estimators.gpssm_numba import systematic_ancestors
+    from tirefilter.stats import normalize_log_weights, systematic_resample
+
+    rng = np.random.default_rng(4)
+    for scale in (0.0, 1.0, 30.0, 1e4):
+        for n in (1, 7, 200):
+            logw = normalize_log_weights(scale * rng.standard_normal(n))
+            r1, r2 = np.random.default_rng(n), np.random.default_rng(n)
+            want = systematic_resample(logw, r1)
+            got = systematic_ancestors(logw, float(r2.random((1,))[0]))
+            assert np.array_equal(got, want), (scale, n)
+
+
 def test_backend_is_checked():
     from tirefilter.errors import ConfigError
 

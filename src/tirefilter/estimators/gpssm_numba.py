@@ -14,8 +14,9 @@ uniform, the Student-t draws `student_t.t_draws`), so both backends follow one p
      exact statistics `exact_forget_predictive`, rank-one ones `rank1_forget_predictive`;
   3. `weigh`: the Student-t a^Y and Gaussian yaw-rate likelihoods (eq. (22)), the one-step
      prediction, log-sum-exp normalisation and the ESS;
-  4. `gather_rows`: resampling copies, in place (systematic resampling gives sorted
-     ancestors, so only the rows that change are copied);
+  4. `systematic_ancestors`, `gather_rows`, `gather_lower`: systematic resampling (the
+     uniform drawn as `stats.systematic_resample` draws it) and its copies, in place (sorted
+     ancestors: only the rows that change are copied);
   5. `sample`: the conditional Student-t draw of zeta (the locally optimal proposal),
      mu = mu~ + zeta and the weighted moments for the estimate;
   6. `exact_update` / `rank1_update`: eq. (27)/(28).
@@ -41,7 +42,6 @@ import numpy as np
 from numba import njit
 
 from tirefilter.errors import ConfigError
-from tirefilter.stats import systematic_resample
 from tirefilter.stats.mniw_numba import _factor, _phi1
 from tirefilter.stats.student_t import t_draws
 
@@ -429,7 +429,30 @@ def gather_rows(arrays, idx):
 def _copy_lower(K, i, j):
     for a in range(K.shape[1]):
         for r in range(K.shape[2]):
-            K[i, a, r, :r + 1] = K[j, a, r, :r + 1]
+            for c in range(r + 1):
+                K[i, a, r, c] = K[j, a, r, c]
+
+
+@njit(**_JIT)
+def systematic_ancestors(logw, u0):
+    """`stats.systematic_resample` after its uniform draw u0: cdf = cumsum(exp(logw)) with
+    cdf[-1] = 1, points (u0 + j) / N, ancestors by searchsorted(cdf, points, 'right')
+    clipped to N - 1 (points increase, so one merge pass)."""
+    n = logw.shape[0]
+    cdf = np.empty(n)
+    s = 0.0
+    for i in range(n):
+        s += math.exp(logw[i])
+        cdf[i] = s
+    cdf[n - 1] = 1.0
+    idx = np.empty(n, np.int64)
+    k = 0
+    for j in range(n):
+        p = (u0 + j) / n
+        while k < n and cdf[k] <= p:
+            k += 1
+        idx[j] = min(k, n - 1)
+    return idx
 
 
 @njit(**_JIT)
@@ -680,7 +703,7 @@ class CompiledStep:
                              math.isfinite(y.yaw_rate), learned)
         est.prediction = (pa, pr_)
         if ess < cfg.resample_threshold * N:
-            idx = systematic_resample(est.logw, rng)
+            idx = systematic_ancestors(est.logw, float(rng.random((1,))[0]))  # as stats.systematic_resample
             gather_rows(self._rows(), idx)
             if self.exact:
                 K = self.est._stats.K
