@@ -115,12 +115,15 @@ def _forget_exact(K, Psi, Phi, nu, V, b, lam, nu_min):
     for i in range(d):
         for k in range(d):
             Phi[b, i, k] = Phi[b, i, k] * f
+        Pi = Psi[b, i]
         for j in range(m):
-            Psi[b, i, j] = Psi[b, i, j] * f
+            Pi[j] = Pi[j] * f
+    Kb = K[b]
     for i in range(m):
+        Ki = Kb[i]
         for j in range(i + 1):
-            K[b, i, j] *= f
-        K[b, i, i] += (1.0 - f) * V[i]
+            Ki[j] *= f
+        Ki[i] += (1.0 - f) * V[i]
     nu[b] = nu[b] * f
 
 
@@ -139,17 +142,22 @@ def _update_forget(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget, lam
     n, a = b // per, b % per
     nu[b] += 1.0
     f = _factor(lam, nu_min, nu[b]) if forget else 1.0
+    g = 1.0 - f
+    ph = phi_p[n, a * m:(a + 1) * m]
     for i in range(d):
         zi = zeta[n, a + i]
         for k in range(d):
             Phi[b, i, k] = (Phi[b, i, k] + zi * zeta[n, a + k]) * f
+        Pi = Psi[b, i]
         for j in range(m):
-            Psi[b, i, j] = (Psi[b, i, j] + zi * phi_p[n, a * m + j]) * f
+            Pi[j] = (Pi[j] + zi * ph[j]) * f
+    Kb = K[b]
     for i in range(m):
-        p = phi_p[n, a * m + i]
+        p = ph[i]
+        Ki = Kb[i]
         for j in range(i + 1):
-            K[b, i, j] = (K[b, i, j] + p * phi_p[n, a * m + j]) * f
-        K[b, i, i] += (1.0 - f) * V[i]
+            Ki[j] = (Ki[j] + p * ph[j]) * f
+        Ki[i] += g * V[i]
     nu[b] = nu[b] * f
 
 
@@ -197,19 +205,25 @@ def _chol_lanes(A, m, W, inv):
     W is a run-time count so LLVM's loop vectoriser, not the SLP one numba disables, takes it)."""
     n = A.shape[0]
     for i in range(n):
+        Ai = A[i]
         for j in range(min(i + 1, m)):
+            Aij = Ai[j]
+            Aj = A[j]
             for k in range(j):
+                Aik = Ai[k]
+                Ajk = Aj[k]
                 for w in range(W):
-                    A[i, j, w] -= A[i, k, w] * A[j, k, w]
+                    Aij[w] -= Aik[w] * Ajk[w]
+            ij = inv[j]
             if i == j:
                 for w in range(W):
-                    v = A[i, i, w]
+                    v = Aij[w]
                     r = math.sqrt(v) if v > 0.0 else math.nan
-                    A[i, i, w] = r
-                    inv[j, w] = 1.0 / r
+                    Aij[w] = r
+                    ij[w] = 1.0 / r
             else:
                 for w in range(W):
-                    A[i, j, w] *= inv[j, w]
+                    Aij[w] *= ij[w]
 
 
 @njit(**_JIT)
@@ -230,14 +244,22 @@ def exact_forget_predictive(K, Psi, Phi, nu, V, Lam0, work, per, forget, lam, nu
             if w < nw:
                 b = b0 + w
                 _update_forget(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget, lam, nu_min)
+                Kb = K[b]
                 for i in range(m):
+                    Ki = Kb[i]
+                    Ai = A[i]
                     for j in range(i + 1):
-                        A[i, j, w] = K[b, i, j]
+                        Ai[j, w] = Ki[j]
                 n, a = b // per, b % per
+                for i in range(d):
+                    Pi = Psi[b, i]
+                    Ai = A[m + i]
+                    for j in range(m):
+                        Ai[j, w] = Pi[j]
+                ph = work[n, PHI + a * m:PHI + (a + 1) * m]
+                Ai = A[m + d]
                 for j in range(m):
-                    for i in range(d):
-                        A[m + i, j, w] = Psi[b, i, j]
-                    A[m + d, j, w] = work[n, PHI + a * m + j]
+                    Ai[j, w] = ph[j]
             else:  # padding lanes: identity, zero right-hand sides
                 for i in range(m + d + 1):
                     for j in range(min(i + 1, m)):
