@@ -226,3 +226,31 @@ def test_stiffness_mpf_backends_equal(model, bias, restarts):
     assert_equal_to_rounding(pa.log_weights, pb.log_weights, "log-weights")
     for key in ("gamma", "mu", "Lam", "nu", "bias", "bias_cov"):
         assert_equal_to_rounding(pa.stats[key], pb.stats[key], key)
+
+
+def test_friction_gpssm_compiled_state_pickles():
+    """The compiled step's state (a pending update of the exact statistics, K's lower
+    triangle) survives pickling mid-run (the estimator FMU's saved state): the resumed run
+    equals the uninterrupted one."""
+    import pickle
+
+    vehicle = load_scenario("friction-snow").vehicle
+    cfg = GPSSMConfig(particles=19, basis="tensor", symmetry="odd", resample_threshold=1.0)
+    whole, resumed = FrictionGPSSM(vehicle, cfg), FrictionGPSSM(vehicle, cfg)
+    a = _drive(whole, 20)
+    b = _drive(resumed, 12)
+    assert resumed._compiled.pending  # learning: the last update waits for the next step
+    copy = pickle.loads(pickle.dumps(resumed))
+    rng = np.random.default_rng(5)
+    for _ in range(12):  # the measurement noise of the first 12 steps, as _drive drew it
+        rng.standard_normal(2)
+    rest = []
+    for k in range(12, 20):
+        t = 0.04 * k
+        delta = 0.03 * math.sin(2 * math.pi * 0.5 * t)
+        r = 15.0 * delta / 2.8
+        e = copy.step(t, Inputs(delta=delta, vx=15.0),
+                      Measurement(ay=15.0 * r + 0.05 * rng.standard_normal(), yaw_rate=r + 0.003 * rng.standard_normal()))
+        rest.append((e.vy, e.yaw_rate, e.ess, e.Cf_y, e.Cr_y))
+    assert np.array_equal(np.vstack([b, rest]), a)
+    assert np.array_equal(copy.posterior().stats["M"], whole.posterior().stats["M"])
