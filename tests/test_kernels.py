@@ -110,13 +110,14 @@ def _drive(est: FrictionGPSSM, steps: int, snapshot_every: int = 0):
 @pytest.mark.parametrize("stats", ["exact", "rank1"])
 @pytest.mark.parametrize("kind,symmetry,m", BASES, ids=BASIS_IDS)
 def test_friction_gpssm_backends_equal(kind, symmetry, m, stats, snapshots):
-    """A whole filter run (25 steps, N = 19: the compiled factorisation's lanes do not divide
-    it; resampling at every step: threshold 1), numba and numpy backends from the same seed:
-    the same estimates, particles and statistics; `snapshots`: friction curves every 4th step."""
+    """A whole filter run (25 steps, N = 37: more than one block of the compiled
+    factorisation's 32 lanes, the last one partly padding; resampling at every step:
+    threshold 1), numba and numpy backends from the same seed: the same estimates, particles
+    and statistics; `snapshots`: friction curves every 4th step."""
     vehicle = load_scenario("friction-snow").vehicle
     runs = {}
     for backend in ("numpy", "numba"):
-        cfg = GPSSMConfig(particles=19, basis=kind, symmetry=symmetry, basis_functions=m, stats=stats,
+        cfg = GPSSMConfig(particles=37, basis=kind, symmetry=symmetry, basis_functions=m, stats=stats,
                           backend=backend, resample_threshold=1.0)
         est = FrictionGPSSM(vehicle, cfg)
         runs[backend] = (_drive(est, 25, snapshots), est)
