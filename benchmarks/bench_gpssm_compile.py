@@ -11,8 +11,10 @@ the import of numba and the kernels' modules."""
 from __future__ import annotations
 
 import math
+import os
 import time
 
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as bench_cost.py: one BLAS thread
 t0 = time.perf_counter()
 import numpy as np  # noqa: E402
 
