@@ -38,5 +38,6 @@ for basis, symmetry in (("axle", "odd"), ("tensor", "odd"), ("tensor", "none")):
                  Measurement(ay=15.0 * r + 0.05 * rng.standard_normal(), yaw_rate=r + 0.003 * rng.standard_normal()))
         first = first or time.perf_counter() - t1
     est.friction()
-    print(f"{basis} ({symmetry}, {est.basis.size * (2 if basis == 'axle' else 1)} functions): first call {first * 1e3:.0f} ms, "
+    size = est.basis.size * (2 if basis == "axle" else 1)
+    print(f"{basis} ({symmetry}, {size} functions): first call {first * 1e3:.0f} ms, "
           f"60 steps and a friction snapshot {(time.perf_counter() - t1) * 1e3:.0f} ms")

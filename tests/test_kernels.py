@@ -250,8 +250,8 @@ def test_friction_gpssm_compiled_state_pickles():
         t = 0.04 * k
         delta = 0.03 * math.sin(2 * math.pi * 0.5 * t)
         r = 15.0 * delta / 2.8
-        e = copy.step(t, Inputs(delta=delta, vx=15.0),
-                      Measurement(ay=15.0 * r + 0.05 * rng.standard_normal(), yaw_rate=r + 0.003 * rng.standard_normal()))
+        ay, yaw_rate = 15.0 * r + 0.05 * rng.standard_normal(), r + 0.003 * rng.standard_normal()
+        e = copy.step(t, Inputs(delta=delta, vx=15.0), Measurement(ay=ay, yaw_rate=yaw_rate))
         rest.append((e.vy, e.yaw_rate, e.ess, e.Cf_y, e.Cr_y))
     assert np.array_equal(np.vstack([b, rest]), a)
     assert np.array_equal(copy.posterior().stats["M"], whole.posterior().stats["M"])
