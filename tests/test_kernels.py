@@ -85,11 +85,12 @@ def test_mniw_kernels_equal(kind, symmetry, m, stats):
     assert_equal_to_rounding(fast.nu, ref.nu, "nu")
 
 
-def _drive(est: FrictionGPSSM, steps: int, snapshot_every: int = 0):
+def _drive(est: FrictionGPSSM, steps: int, snapshot_every: int = 0, missing: bool = False):
     """A synthetic slalom at 15 m/s, 25 Hz, a^Y and yaw rate from a linear single track
     with a little noise (no FMU): enough to learn, resample and clip nothing. With
     `snapshot_every`, `friction()` between steps (the compiled step's pending update and
-    K's upper triangle are then brought up to date mid-run)."""
+    K's upper triangle are then brought up to date mid-run); `missing`: a^Y missing every
+    7th sample, the yaw rate once."""
     rng = np.random.default_rng(5)
     est.reset(np.random.default_rng(9))
     out = []
@@ -100,8 +101,11 @@ def _drive(est: FrictionGPSSM, steps: int, snapshot_every: int = 0):
         t = 0.04 * k
         delta = 0.03 * math.sin(2 * math.pi * 0.5 * t)
         r = 15.0 * delta / 2.8
-        e = est.step(t, Inputs(delta=delta, vx=15.0),
-                     Measurement(ay=15.0 * r + 0.05 * rng.standard_normal(), yaw_rate=r + 0.003 * rng.standard_normal()))
+        ay, yaw_rate = 15.0 * r + 0.05 * rng.standard_normal(), r + 0.003 * rng.standard_normal()
+        if missing:
+            ay = math.nan if k % 7 == 3 else ay
+            yaw_rate = math.nan if k == 11 else yaw_rate
+        e = est.step(t, Inputs(delta=delta, vx=15.0), Measurement(ay=ay, yaw_rate=yaw_rate))
         out.append((e.vy, e.yaw_rate, e.ess, e.Cf_y, e.Cr_y))
     return np.array(out)
 
@@ -132,6 +136,25 @@ def test_friction_gpssm_backends_equal(kind, symmetry, m, stats, snapshots):
     fa, fb = fast.friction(), ref.friction()
     assert_equal_to_rounding(fa.mu_f, fb.mu_f, "mu_f")
     assert_equal_to_rounding(fa.mu_r_std, fb.mu_r_std, "mu_r_std")
+
+
+@pytest.mark.parametrize("measurement_friction", ["learned", "prior"])
+def test_friction_gpssm_backends_equal_state_noise_and_prior_measurement(measurement_friction):
+    """The compiled step's other branches: state noise (drawn between propagation and the
+    slip angles), the paper's prior-only measurement (zeta drawn from the predictive) and
+    missing samples."""
+    vehicle = load_scenario("friction-snow").vehicle
+    runs = {}
+    for backend in ("numpy", "numba"):
+        cfg = GPSSMConfig(particles=37, backend=backend, resample_threshold=1.0, state_noise=(0.02, 0.002),
+                          measurement_friction=measurement_friction)
+        est = FrictionGPSSM(vehicle, cfg)
+        runs[backend] = (_drive(est, 20, 6, missing=True), est)
+    (a, fast), (b, ref) = runs["numba"], runs["numpy"]
+    assert ref.resamples >= 10 and fast.resamples == ref.resamples
+    assert_equal_to_rounding(a, b, "estimates")
+    assert_equal_to_rounding(fast.posterior().particles, ref.posterior().particles, "particles")
+    assert_equal_to_rounding(fast.posterior().stats["M"], ref.posterior().stats["M"], "M")
 
 
 @pytest.mark.parametrize("order", ["sorted", "shuffled"])

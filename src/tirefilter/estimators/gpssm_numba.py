@@ -62,11 +62,12 @@ def _magic(B, C, D, E, s):
 
 @njit(**_JIT)
 def front(x, mu, work, propagate, n_sub, h, cd, vx_prev, Fz0, Fz1, mass, lf, lr, Iz, delta, vx, L, m, keep,
-          tensor, pB0, pB1, pC, pD0, pD1, pE):
+          keep_r, tensor, pB0, pB1, pC, pD0, pD1, pE):
     """In place: x propagated (`propagate`: n_sub Euler steps of h, eq. (1a)-(1b), friction mu
     held), then work[:, AF:PR + 1] = alpha_f, alpha_r (eq. (4), clipped to [-L, L]),
     mu~_f, mu~_r and work[:, PHI:] the features (tensor: phi_keep; axle: front then rear
-    row). Returns the number of particles with a slip angle outside [-L, L]."""
+    row; tensor: keep = the front function's index j1, keep_r = the rear one's j2). Returns
+    the number of particles with a slip angle outside [-L, L]."""
     n = x.shape[0]
     nk = keep.shape[0]
     pf = np.empty(m)
@@ -95,10 +96,9 @@ def front(x, mu, work, propagate, n_sub, h, cd, vx_prev, Fz0, Fz1, mass, lf, lr,
         work[i, PR] = _magic(pB1, pC, pD1, pE, ar)
         _phi1(af, L, m, pf)
         _phi1(ar, L, m, pr)
-        if tensor:
+        if tensor:  # keep[k] = j1 * m + j2: keep_f = j1, keep_r = j2 (no division per feature)
             for k in range(nk):
-                idx = keep[k]
-                work[i, PHI + k] = pf[idx // m] * pr[idx % m]
+                work[i, PHI + k] = pf[keep[k]] * pr[keep_r[k]]
         else:
             for k in range(nk):
                 work[i, PHI + k] = pf[keep[k]]
@@ -670,7 +670,9 @@ class CompiledStep:
         self.phi_p = np.zeros((N, size * self.per))  # features of the pending update
         self.pending = False  # exact statistics: this step's update waits for the next pass
         self.stale_upper = False  # the kernels keep K's lower triangle; `flush` mirrors it
-        self.keep = np.ascontiguousarray(est.basis.keep, np.int64)
+        keep = np.ascontiguousarray(est.basis.keep, np.int64)
+        m1 = int(est.b1.m)
+        self.keep, self.keep_r = (keep // m1, keep % m1) if est.d == 2 else (keep, keep)
         self.m1 = int(est.b1.m)
         self.L = float(cfg.L)
         self.exact = cfg.stats == "exact"
@@ -723,7 +725,7 @@ class CompiledStep:
             sn = cfg.state_noise
             if sn[0] > 0 or sn[1] > 0:
                 front(est.x, est.mu, work, True, n_sub, h, cd, vx_prev, Fz0, Fz1, mass, lf, lr, Iz, delta, vx,
-                      self.L, self.m1, self.keep, self.tensor, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0)
+                      self.L, self.m1, self.keep, self.keep_r, self.tensor, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0)
                 est.x[:] = est.x + math.sqrt(dt) * np.asarray(sn, float) * rng.standard_normal(est.x.shape)
                 propagate = False
             forget = est.active
@@ -731,7 +733,7 @@ class CompiledStep:
         # 2. slip angles (clipped, counted), features, prior
         p = est.prior
         n_out = front(est.x, est.mu, work, propagate, n_sub, h, cd, vx_prev, Fz0, Fz1, mass, lf, lr, Iz, delta, vx,
-                      self.L, self.m1, self.keep, self.tensor, float(p.B[0]), float(p.B[1]), float(p.C),
+                      self.L, self.m1, self.keep, self.keep_r, self.tensor, float(p.B[0]), float(p.B[1]), float(p.C),
                       float(p.D[0]), float(p.D[1]), float(p.E))
         est.slip_evaluations += N
         if n_out:
