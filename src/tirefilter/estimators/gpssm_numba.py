@@ -3,15 +3,17 @@ path of `FrictionGPSSM.step`, the same arithmetic as the numpy reference in
 `friction_gpssm.py` (tested equal to 1e-12 relative in tests/test_kernels.py with the same
 random numbers, resampling included).
 
-One step is six kernel calls; the random numbers are drawn outside them with the reference's
+One step is seven kernel calls at most; the random numbers are drawn outside them with the reference's
 generator calls, in the reference's order (yaw-rate start or state noise, the resampling
 uniform, the Student-t draws `student_t.t_draws`), so both backends follow one path:
   1. `front`: propagation (eq. (1), Euler sub-steps), slip angles (eq. (4)) clipped to
      [-L, L], the basis (eq. (10b)) by the angle-addition recurrence
      sin((k+1) a) = sin(k a) cos a + cos(k a) sin a (one sin and one cos per slip angle
      instead of one sin per function), the Pacejka prior (Sec. 4);
-  2. forgetting (eq. (29)) and predictive (eq. (31)-(32)) in one pass over the statistics:
-     exact statistics `exact_forget_predictive`, rank-one ones `rank1_forget_predictive`;
+  2. one pass over the statistics: for the exact statistics the previous step's update
+     (eq. (27), kept pending until now), the forgetting (eq. (29)) and the predictive
+     (eq. (31)-(32)), `exact_forget_predictive` (`_lapack` from `LANES_BELOW` functions);
+     for the rank-one ones the forgetting and the predictive, `rank1_forget_predictive`;
   3. `weigh`: the Student-t a^Y and Gaussian yaw-rate likelihoods (eq. (22)), the one-step
      prediction, log-sum-exp normalisation and the ESS;
   4. `systematic_ancestors`, `gather_rows`, `gather_lower`: systematic resampling (the
@@ -19,9 +21,12 @@ uniform, the Student-t draws `student_t.t_draws`), so both backends follow one p
      ancestors: only the rows that change are copied);
   5. `sample`: the conditional Student-t draw of zeta (the locally optimal proposal),
      mu = mu~ + zeta and the weighted moments for the estimate;
-  6. `exact_update` / `rank1_update`: eq. (27)/(28).
+  6. `rank1_update` (rank-one statistics, eq. (27)/(28) as recursive least squares); the exact
+     statistics' update waits for the next step's pass (`CompiledStep.flush` applies it with
+     `exact_update` when the statistics are read in between).
 
-The exact predictive factorises K = Sigma + V (m x m) per batch element, and only forward
+The step keeps only the lower triangle of the exact statistics' K = Sigma + V up to date
+(`flush` mirrors it). The exact predictive factorises K (m x m) per batch element, and only forward
 substitution is needed: with Z = C^-1 [Psi^T, phi] (C C^T = K), Psi K^-1 Psi^T = Z_Psi^T Z_Psi,
 phi^T K^-1 phi = |z_phi|^2 and M phi = Z_Psi^T z_phi. Below `LANES_BELOW` basis functions the
 factorisation runs on `LANES` batch elements at once, one SIMD lane each (the matrices
@@ -673,7 +678,7 @@ class CompiledStep:
         keep = np.ascontiguousarray(est.basis.keep, np.int64)
         m1 = int(est.b1.m)
         self.keep, self.keep_r = (keep // m1, keep % m1) if est.d == 2 else (keep, keep)
-        self.m1 = int(est.b1.m)
+        self.m1 = m1
         self.L = float(cfg.L)
         self.exact = cfg.stats == "exact"
         st = est._stats
