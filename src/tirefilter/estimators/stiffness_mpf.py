@@ -389,6 +389,8 @@ class StiffnessMPF:
         if self.t_prev is not None:
             if dt <= 0:
                 raise ConfigError("inputs", "t", f"time must increase: {t} after {self.t_prev}")
+            if self._nb is not None:  # the usual sample: steps 1-5 in three compiled passes
+                return self._step_compiled(t, uk, y, dt)
             self.x = self._propagate(self.x, self.u_prev, self.w_prev, dt, self._at_x)
             if self.state_noise is not None:  # optional regularisation against sample impoverishment
                 self.x = self.x + math.sqrt(dt) * self.state_noise * self.rng.standard_normal(self.x.shape)
@@ -526,6 +528,116 @@ class StiffnessMPF:
         self.w_prev = w
         self._at_x = model_k  # the first stage of the next propagation, at this x and u
         return self._estimate(ess)
+
+    def _step_compiled(self, t: float, uk: np.ndarray, y: Measurement, dt: float) -> Estimate:
+        """Steps 1-5 of `step` for every sample after the first, by three compiled passes over
+        the particles (`mpf_numba.predict_weigh`, `resample_gate`, `sample_update`) on arrays
+        allocated once (`_MPFWork`), with the random numbers drawn here by the reference's
+        generator calls in the reference's order: the same numbers as the numpy path
+        (tests/test_kernels.py). The rare branches (restarts) go through the reference methods."""
+        cfg, nb, rng, st = self.cfg, self._nb, self.rng, self.stats
+        wk = self._work()
+        if self.state_noise is not None:  # optional regularisation against sample impoverishment
+            noise, noise_scale = rng.standard_normal(self.x.shape), math.sqrt(dt) * self.state_noise
+        else:
+            noise, noise_scale = wk.no_noise, wk.no_scale
+        q = self.q_bias if self.linear_region else self.q_bias_nonlinear
+        ch = self.channels
+        yk = np.array([(y.ax, y.ay, y.yaw_rate)[c] for c in ch], float)
+        if math.isfinite(yk.sum()):
+            a, nc = wk.avail_all, wk.nc_all
+        else:
+            a = np.flatnonzero(np.isfinite(yk))
+            nc = int(sum(ch[j] in (0, 1) for j in a))
+        adaptive = cfg.forgetting_mode == "adaptive"
+        u_prev = self.u_prev
+        self.t_prev, self.u_prev = t, uk
+        innovation, ess, count, nu_common = nb.predict_weigh(
+            self.x, u_prev, self.w_prev, wk.a, wk.B, wk.af, wk.ar, wk.slip, dt, cfg.max_step, wk.heun, noise,
+            noise_scale, self.b, self.P, q * dt, self.bias_on, self.active, self.lam, self.nu0, st.gamma, st.mu,
+            st.Lam, st.nu, uk, yk, a, self.R, self.roll_gain, self._vp, self.full, self.rear_drive, wk.h, wk.D,
+            wk.L11, wk.nu_w, wk.L12, wk.Lc, wk.e, wk.v, wk.ll, wk.ok, self.logw, nc, adaptive, cfg.plausible_beta,
+            cfg.plausible_yaw_rate, cfg.gate_speed)
+        if math.isfinite(innovation):  # adaptive forgetting (`_adapt_forgetting`)
+            self.surprise += -math.expm1(-dt / cfg.surprise_time) * (innovation - self.surprise)
+            self.lam = min(max(1.0 - (1.0 - cfg.forgetting) * self.surprise, cfg.forgetting_min), cfg.forgetting_max)
+        self.w_prev = wk.w
+        self._at_x = (wk.a, wk.B, wk.af, wk.ar, wk.slip if self.full else None)
+        if count == 0:
+            return self._restart(t, uk, y)
+        if count < cfg.particles:  # some particles left the plausible region (`_plausible`)
+            self.logw = normalize_log_weights(np.where(wk.ok, self.logw, -np.inf))
+            ess = -1.0
+        if ess < 0:
+            ess = float(effective_sample_size(self.logw))
+        resample = ess < cfg.resample_threshold * cfg.particles
+        u0 = float(rng.random((1,))[0]) if resample else 0.0
+        vx_est, vy_std, alpha = nb.resample_gate(self.logw, u0, resample, wk.idx, self.x, self.b, self.P, st.gamma,
+                                                 st.mu, st.Lam, st.nu, wk.a, wk.B, wk.slip, *wk.spares(), wk.af, wk.ar,
+                                                 self.full)
+        if resample:
+            self._swap_work(wk)
+            self.resamples += 1
+        vx_est = vx_est if self.full else uk[3]
+        ay_m = y.ay if math.isfinite(y.ay) else 0.0
+        self.linear_region = abs(ay_m) < cfg.gate_ay_max
+        self.active = gate_open(cfg, t=t, t_start=self.t_start, vx=vx_est, delta=uk[0], ay_meas=y.ay, alpha=alpha,
+                                vy_std=vy_std)
+        contradiction = cfg.restart_alpha > 0 and alpha > cfg.restart_alpha and abs(ay_m) < cfg.gate_ay_max
+        self._contradiction_since = (self._contradiction_since or t) if contradiction else None
+        if contradiction and t - self._contradiction_since >= cfg.restart_after:
+            return self._restart(t, uk, y)
+        N = cfg.particles
+        z = rng.standard_normal((N, self.n_w))
+        if nu_common > 0:
+            nu_draw = wk.nu_draw
+            nu_draw.fill(nu_common + nc)
+            chi = rng.chisquare(nu_common + nc, N)
+        else:
+            nu_draw = wk.nu_w[wk.idx] + nc if nc else wk.nu_w[wk.idx]
+            chi = rng.chisquare(nu_draw)
+        use_mask = bool(nc and cfg.outlier_prob < 1)
+        st = self.stats
+        ubar, x_mean, x_std, mbar, var_mean, sigma2, b_mean = nb.sample_update(
+            wk.idx, self.x, self.logw, st.gamma, st.mu, st.Lam, st.nu, self.b, self.P, wk.h, wk.D, wk.L11, wk.nu_w,
+            wk.L12, wk.Lc, wk.v, nc, z, chi, nu_draw, wk.w, use_mask, self._outlier_bound(nc) if use_mask else 0.0,
+            bool(a.size and self.bias_on), self.R, a, yk, self.active, bool(self.active and nc and adaptive),
+            wk.lo, wk.hi)
+        if self.active and nc and adaptive and np.all(np.isfinite(ubar)):  # `_track_drift`
+            ad = -math.expm1(-dt / cfg.drift_time)
+            self.drift = self.drift + ad * (ubar - self.drift)
+            zd = float(self.drift @ self.drift) * (2.0 - ad) / (ad * len(ubar))
+            self.lam = min(self.lam, max(1.0 - (1.0 - cfg.forgetting) * zd, cfg.forgetting_min))
+        return self._estimate_from(ess, x_mean, x_std, mbar, var_mean, sigma2, b_mean)
+
+    def _work(self) -> "_MPFWork":
+        """The fused step's arrays, the particles' own arrays among them: an array that the
+        reference path replaced (first sample, restart, a loaded state) is copied in."""
+        wk = self.__dict__.get("_wk")
+        nx = self.x.shape[1]
+        if wk is None or wk.x.shape != self.x.shape:
+            wk = self._wk = _MPFWork(self, len(self.x), nx, self.n_w, len(self.channels))
+        st = self.stats
+        for name, arr in (("x", self.x), ("b", self.b), ("P", self.P), ("gamma", st.gamma), ("mu", st.mu),
+                          ("Lam", st.Lam), ("nu", st.nu), ("w", self.w_prev)):
+            buf = getattr(wk, name)
+            if arr is not buf:
+                buf[...] = arr
+        self.x, self.b, self.P, self.w_prev = wk.x, wk.b, wk.P, wk.w
+        st.gamma, st.mu, st.Lam, st.nu = wk.gamma, wk.mu, wk.Lam, wk.nu
+        first = self._at_x
+        if first[0] is not wk.a:
+            wk.a[...], wk.B[...] = first[0], first[1]
+            wk.slip[...] = 0.0 if first[4] is None else first[4]
+        return wk
+
+    def _swap_work(self, wk: "_MPFWork") -> None:
+        """After `resample_gate`: the spares hold the resampled particles."""
+        wk.swap()
+        st = self.stats
+        self.x, self.b, self.P = wk.x, wk.b, wk.P
+        st.gamma, st.mu, st.Lam, st.nu = wk.gamma, wk.mu, wk.Lam, wk.nu
+        self._at_x = (wk.a, wk.B, wk.af, wk.ar, wk.slip if self.full else None)
 
     def _sample_compiled(self, mu_w, L11, L12, Lc, v, nu_w, nc, nu_common):
         """Step 3 by `mpf_numba.sample`, with the random numbers drawn as `t_sample` draws them
@@ -753,3 +865,42 @@ class StiffnessMPF:
                          {"gamma": self.stats.gamma.copy(), "mu": self.stats.mu.copy(), "Lam": self.stats.Lam.copy(),
                           "nu": self.stats.nu.copy(), "bias": self.b.copy(), "bias_cov": self.P.copy(),
                           "C_nominal": self.C_nom.copy(), "params": self.params})
+
+
+class _MPFWork:
+    """The arrays of `StiffnessMPF._step_compiled`, allocated once per filter: the
+    particles' own arrays (x, b, P, the NiW statistics, the model's first stage a, B, slip)
+    with a spare of each for resampling, and the weighting's per-particle arrays for all m
+    channels (the first na columns are used when samples are missing)."""
+
+    OWN = ("x", "b", "P", "gamma", "mu", "Lam", "nu", "a", "B", "slip")
+
+    def __init__(self, mpf: "StiffnessMPF", N: int, nx: int, n_w: int, m: int):
+        shapes = dict(x=(N, nx), b=(N, m), P=(N, m, m), gamma=(N,), mu=(N, n_w), Lam=(N, n_w, n_w), nu=(N,),
+                      a=(N, 3), B=(N, 3, n_w), slip=(2, N))
+        for name, shape in shapes.items():
+            setattr(self, name, np.zeros(shape))
+            setattr(self, name + "2", np.zeros(shape))
+        self.af, self.ar, self.nu_w, self.ll, self.nu_draw = (np.zeros(N) for _ in range(5))
+        self.h, self.e, self.v = np.zeros((N, m)), np.zeros((N, m)), np.zeros((N, m))
+        self.D, self.L11 = np.zeros((N, m, n_w)), np.zeros((N, n_w, n_w))
+        self.L12, self.Lc = np.zeros((N, n_w, m)), np.zeros((N, m, m))
+        self.w = np.zeros((N, n_w))
+        self.ok = np.zeros(N, bool)
+        self.idx = np.arange(N)
+        self.no_noise, self.no_scale = np.zeros((0, nx)), np.zeros(nx)
+        self.avail_all = np.arange(m)
+        self.nc_all = sum(c in (0, 1) for c in mpf.channels)
+        self.heun = mpf.cfg.integrator == "heun"
+        cfg = mpf.cfg
+        self.lo = cfg.bound_low * mpf.C_ref - mpf.C_nom
+        self.hi = cfg.bound_high * mpf.C_ref - mpf.C_nom
+
+    def spares(self) -> tuple:
+        return tuple(getattr(self, name + "2") for name in self.OWN)
+
+    def swap(self) -> None:
+        for name in self.OWN:
+            cur, spare = getattr(self, name), getattr(self, name + "2")
+            setattr(self, name, spare)
+            setattr(self, name + "2", cur)
