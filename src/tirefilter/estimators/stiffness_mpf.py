@@ -102,7 +102,7 @@ class MPFConfig:
     disturbance_rw: tuple[float, float, float] = DISTURBANCE_RW
     sample_period: float = 0.01  # s, used for the first step and as the bias-RW time base
     max_step: float = 0.02  # s, longest propagation step: longer sample intervals are sub-stepped
-    backend: str = "numba"  # "numba": the compiled per-stage kernels (mpf_numba.py) | "numpy": the reference
+    backend: str = "numba"  # "numba": the compiled step (mpf_numba.py) | "numpy": the reference
 
     def validated(self) -> "MPFConfig":
         def bad(key, problem):
@@ -277,9 +277,6 @@ class StiffnessMPF:
         a(x, u) + B(x, u) w: returns a (N, 3) = (a^X, a^Y, r') at w = 0, B = d a / d w
         (N, 3, n_w), the slip angles and the wheel slip of eq. (3)-(4) (small-angle form
         of the paper; `slip` given: held from an earlier evaluation)."""
-        if self._nb is not None and slip is None:
-            a, B, af, ar, slip = self._nb.model(x, u, self._vp, self.full, self.rear_drive, self.n_w)
-            return a, B, af, ar, slip if self.full else None
         v = self.vehicle
         if self.full:
             vx, vy, r = x[:, 0], x[:, 1], x[:, 2]
@@ -332,11 +329,6 @@ class StiffnessMPF:
         wheel slip held over the step. `first` = (a, B, slip) at x_k from the measurement
         step. A step longer than `max_step` (a gap in a log) is split into equal
         sub-steps with u and w held."""
-        if self._nb is not None:
-            a, B, _, _, slip = first
-            return self._nb.propagate(x, u, w, a, B, np.zeros((2, len(x))) if slip is None else slip, dt,
-                                      self.cfg.max_step, self.cfg.integrator == "heun", self._vp, self.full,
-                                      self.rear_drive, self.n_w)
         n_sub = max(1, math.ceil(dt / self.cfg.max_step - 1e-9))
         h = dt / n_sub
         for i in range(n_sub):
@@ -398,11 +390,7 @@ class StiffnessMPF:
                 q = self.q_bias if self.linear_region else self.q_bias_nonlinear
                 self.P = self.P + np.diag(q * dt)
             if self.active:
-                if self._nb is not None:
-                    st = self.stats
-                    self._nb.niw_forget(st.gamma, st.Lam, st.nu, self.lam, self.nu0)
-                else:
-                    self.stats.forget(self.lam, nu_min=self.nu0)
+                self.stats.forget(self.lam, nu_min=self.nu0)
         yk = np.array([y.ax, y.ay, y.yaw_rate], float)[list(self.channels)]
         start_logw = None
         if self.t_prev is None:
@@ -415,24 +403,12 @@ class StiffnessMPF:
         nc = int(sum(self.channels[j] in (0, 1) for j in a))  # accelerometer channels lead
         model_k = self._model(self.x, uk)
         af, ar = model_k[2], model_k[3]
-        ess = None
-        if self._nb is not None:  # step 2 below, compiled
-            st = self.stats
-            h, D, L11, nu_w, L12, Lc, e, v, ll, nu_common = self._nb.weights(
-                model_k[0], model_k[1], self.x, st.gamma, st.mu, st.Lam, st.nu, self.b, self.P, self.R, yk, a,
-                self.bias_on, self.roll_gain, self.full, self.n_w)
-            mu_w = st.mu
-            if nc and start_logw is None:
-                self._adapt_forgetting(v[:, :nc], nu_w, dt)
-            if a.size and start_logw is None:
-                self.logw, ess = self._nb.normalise(self.logw + ll)
-        else:
-            h, D = self._measurement(model_k[0], model_k[1], self.x)
-            mu_w, L11, nu_w = self.stats.predictive()
+        h, D = self._measurement(model_k[0], model_k[1], self.x)
+        mu_w, L11, nu_w = self.stats.predictive()
 
         # 2. weights, eq. (36): the joint Student-t of (w, residual) with the common dof
         #    nu~ = nu - n_w + 1 and every block scaled alike (derivations, Sec. 3)
-        if a.size and self._nb is None:
+        if a.size:
             every = a.size == len(self.channels)  # the usual case: no indexing needed
             Da = D if every else D[:, a]
             DL = Da @ L11  # (N, |a|, n_w) = L21
@@ -449,12 +425,10 @@ class StiffnessMPF:
                 self.logw = normalize_log_weights(self.logw + t_logpdf_whitened(v, logdet_chol(Lc), nu_w))
         if start_logw is not None:
             self.logw = normalize_log_weights(start_logw)
-            ess = None
         plausible = self._plausible(uk)
         if plausible is False:
             return self._restart(t, uk, y)
-        if ess is None or plausible is not True:  # (the compiled normalisation gave the ESS too)
-            ess = float(effective_sample_size(self.logw))
+        ess = float(effective_sample_size(self.logw))
         if ess < cfg.resample_threshold * cfg.particles:
             idx = systematic_resample(self.logw, self.rng)
             self.x, self.b, self.P = self.x[idx], self.b[idx], self.P[idx]
@@ -469,15 +443,11 @@ class StiffnessMPF:
             self.resamples += 1
 
         # gate: observability (speed, steering) and linear tire region (Sec. V)
-        if self._nb is not None:
-            vx_est, vy_std, alpha = self._nb.gate_moments(self.logw, self.x, af, ar, self.full)
-            vx_est = vx_est if self.full else uk[3]
-        else:
-            q = np.exp(self.logw)
-            vx_est = float(q @ self.x[:, 0]) if self.full else uk[3]
-            vy = self.x[:, 1 if self.full else 0]
-            vy_std = math.sqrt(max(float(q @ (vy - q @ vy) ** 2), 0.0))
-            alpha = max(abs(float(q @ af)), abs(float(q @ ar)))
+        q = np.exp(self.logw)
+        vx_est = float(q @ self.x[:, 0]) if self.full else uk[3]
+        vy = self.x[:, 1 if self.full else 0]
+        vy_std = math.sqrt(max(float(q @ (vy - q @ vy) ** 2), 0.0))
+        alpha = max(abs(float(q @ af)), abs(float(q @ ar)))
         ay_m = y.ay if math.isfinite(y.ay) else 0.0
         self.linear_region = abs(ay_m) < cfg.gate_ay_max
         self.active = gate_open(cfg, t=t, t_start=self.t_start, vx=vx_est, delta=uk[0], ay_meas=y.ay, alpha=alpha,
@@ -492,15 +462,12 @@ class StiffnessMPF:
         # 3. sample w_k from the conditional given the accelerometer residuals, eq. (39)-(41);
         #    the yaw-rate residual carries no information on w (d row 0) and is left out.
         #    The leading nc x nc block of Lc is the Cholesky factor of their scale matrix.
-        if self._nb is not None:
-            w = self._sample_compiled(mu_w, L11, L12, Lc, v, nu_w, nc, nu_common)
-        elif nc:
+        if nc:
             mu_c, Lam_c, nu_c = t_conditional(mu_w, 0.0, L11, L12[:, :, :nc], None, nu_w, e[:, :nc],
                                               L22_chol=Lc[:, :nc, :nc], x2_white=v[:, :nc])
         else:
             mu_c, Lam_c, nu_c = mu_w, L11, nu_w
-        if self._nb is None:
-            w = t_sample(mu_c, Lam_c, nu_c, self.rng)
+        w = t_sample(mu_c, Lam_c, nu_c, self.rng)
         learn = None
         if nc and cfg.outlier_prob < 1:  # per-particle outlier gate on the accelerometer residuals
             vc = solve_lower(Lc[:, :nc, :nc], e[:, :nc])
@@ -508,23 +475,14 @@ class StiffnessMPF:
 
         # 4. bias, eq. (30), with the predicted statistics (DESIGN.md order)
         if a.size and self.bias_on:
-            if self._nb is not None:
-                st = self.stats
-                self._nb.bias_update(self.b, self.P, self.R, D, a, st.mu, st.Lam, st.nu, yk, h)
-            else:
-                self._bias_update(yk, h, D, a)
+            self._bias_update(yk, h, D, a)
         if self.active:
             if nc:
                 self._track_drift(w - mu_w, L11, dt)  # before the update: mu_w may be the statistics' own array
             lo = cfg.bound_low * self.C_ref - self.C_nom
             hi = cfg.bound_high * self.C_ref - self.C_nom
-            if self._nb is not None:
-                st = self.stats
-                self._nb.niw_update(st.gamma, st.mu, st.Lam, st.nu, w, np.ones(1, bool) if learn is None else learn,
-                                    learn is not None, lo, hi)
-            else:
-                self.stats.update(w, learn)  # eq. (19) with the same w_k that drives the state
-                self.stats.mu = np.clip(self.stats.mu, lo, hi)  # parameter projection (Sec. V)
+            self.stats.update(w, learn)  # eq. (19) with the same w_k that drives the state
+            self.stats.mu = np.clip(self.stats.mu, lo, hi)  # parameter projection (Sec. V)
         self.w_prev = w
         self._at_x = model_k  # the first stage of the next propagation, at this x and u
         return self._estimate(ess)
@@ -639,20 +597,6 @@ class StiffnessMPF:
         st.gamma, st.mu, st.Lam, st.nu = wk.gamma, wk.mu, wk.Lam, wk.nu
         self._at_x = (wk.a, wk.B, wk.af, wk.ar, wk.slip if self.full else None)
 
-    def _sample_compiled(self, mu_w, L11, L12, Lc, v, nu_w, nc, nu_common):
-        """Step 3 by `mpf_numba.sample`, with the random numbers drawn as `t_sample` draws them
-        (`nu_common` > 0: every particle has this nu~, and the chi-square draws share it)."""
-        N = len(mu_w)
-        z = self.rng.standard_normal(mu_w.shape)
-        if nu_common > 0:
-            nu = nu_common + nc
-            chi = self.rng.chisquare(nu, N)
-            nu_draw = np.full(N, nu)
-        else:
-            nu_draw = nu_w + nc if nc else nu_w
-            chi = self.rng.chisquare(nu_draw)
-        return self._nb.sample(mu_w, L11, L12, Lc, v, nu_w, nc, z, chi, nu_draw)
-
     def _adapt_forgetting(self, v: np.ndarray, nu: np.ndarray, dt: float) -> None:
         """The forgetting factor of the next propagation from how well the accelerometers
         fit the predictive (derivations, Sec. 17). `v` (N, nc) are the whitened residuals of
@@ -664,11 +608,8 @@ class StiffnessMPF:
         cfg = self.cfg
         if cfg.forgetting_mode == "fixed":
             return
-        if self._nb is not None:
-            s_k = self._nb.weighted_nis(self.logw, v, nu)
-        else:
-            nis = np.sum(v * v, axis=1) * (nu - 2.0) / (nu * v.shape[1])
-            s_k = float(np.exp(self.logw) @ nis)
+        nis = np.sum(v * v, axis=1) * (nu - 2.0) / (nu * v.shape[1])
+        s_k = float(np.exp(self.logw) @ nis)
         if not math.isfinite(s_k):
             return
         self.surprise += -math.expm1(-dt / cfg.surprise_time) * (s_k - self.surprise)
@@ -737,22 +678,14 @@ class StiffnessMPF:
     def _plausible(self, uk) -> bool:
         """Zero the weight of particles outside the physically possible region; False when
         none is left."""
-        if self._nb is not None:
-            ok, count = self._nb.plausible(self.x, float(uk[3]), self.full, self.cfg.plausible_beta,
-                                           self.cfg.plausible_yaw_rate, self.cfg.gate_speed)
-            if count == len(ok):
-                return True
-            if count == 0:
-                return False
-        else:
-            vx = self.x[:, 0] if self.full else uk[3]
-            vy, r = self.x[:, -2], self.x[:, -1]
-            ok = (np.abs(vy) <= self.cfg.plausible_beta * np.maximum(np.abs(vx), self.cfg.gate_speed)) & (
-                np.abs(r) <= self.cfg.plausible_yaw_rate)
-            if ok.all():
-                return True
-            if not ok.any():
-                return False
+        vx = self.x[:, 0] if self.full else uk[3]
+        vy, r = self.x[:, -2], self.x[:, -1]
+        ok = (np.abs(vy) <= self.cfg.plausible_beta * np.maximum(np.abs(vx), self.cfg.gate_speed)) & (
+            np.abs(r) <= self.cfg.plausible_yaw_rate)
+        if ok.all():
+            return True
+        if not ok.any():
+            return False
         self.logw = normalize_log_weights(np.where(ok, self.logw, -np.inf))
         return None  # some left: the weights changed
 
@@ -789,11 +722,6 @@ class StiffnessMPF:
         self.P = 0.5 * (P + np.swapaxes(P, 1, 2))
 
     def _estimate(self, ess: float) -> Estimate:
-        st = self.stats
-        if self._nb is not None:
-            x_mean, x_std, mbar, var_mean, sigma2, b_mean = self._nb.estimate_moments(
-                self.logw, self.x, st.gamma, st.mu, st.Lam, st.nu, self.b)
-            return self._estimate_from(ess, x_mean, x_std, mbar, var_mean, sigma2, b_mean)
         q = np.exp(self.logw)
         x_mean = q @ self.x
         x_std = np.sqrt(np.maximum(q @ (self.x - x_mean) ** 2, 0.0))
