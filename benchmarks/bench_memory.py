@@ -2,8 +2,9 @@
 its peak memory does not grow with the drive's length; a long co-simulation with the MPF
 does not grow either.
 
-    .venv/bin/python benchmarks/bench_memory.py replay [--minutes 120] [--estimators none kf mpf ...]
-    .venv/bin/python benchmarks/bench_memory.py soak [--minutes 60] [--particles 500]
+    .venv/bin/python benchmarks/bench_memory.py replay [--minutes 120] [--estimators none kf mpf ...] [--backend numba|numpy]
+    .venv/bin/python benchmarks/bench_memory.py soak [--minutes 60] [--particles 500] [--backend numba|numpy]
+    .venv/bin/python benchmarks/bench_memory.py numba
 
 `replay` writes a synthetic Log CSV of the given length at 100 Hz (a sine-steered drive,
 written chunk by chunk), then replays it with each estimator in a fresh process
@@ -12,7 +13,11 @@ and the resident memory sampled every second: at 10 % of the wall time (after st
 and the first pass) and its maximum after that, i.e. the growth during the replay.
 `soak` co-simulates paper-sim stretched to the given length (its square-wave inputs
 repeat) with the MPF, samples the resident memory every second, and prints its value at
-10 % of the wall time, its maximum after that, and the difference.
+10 % of the wall time, its maximum after that, the difference and the MPF's restarts.
+`--backend` sets `backend` of the [mpf] and [augpf] tables (default: each estimator's own).
+`numba` prints the resident memory a fresh process adds by importing numba and loading the
+MPF's compiled kernels (from the cache, compiling them first if there is none): the part
+of an MPF run's peak that does not depend on the run.
 """
 
 from __future__ import annotations
@@ -94,31 +99,43 @@ def write_drive(path: Path, minutes: float, rate: float = 100.0) -> Path:
     return path
 
 
-def one_replay(log: str, estimator: str, out: str) -> dict:
+def backend_config(path: Path, backend: str | None) -> list[str]:
+    """`--config FILE` setting the backend of the particle filters ([] for their defaults)."""
+    if backend is None:
+        return []
+    path.write_text(f'[mpf]\nbackend = "{backend}"\n\n[augpf]\nbackend = "{backend}"\n')
+    return ["--config", str(path)]
+
+
+def one_replay(log: str, estimator: str, out: str, *config: str) -> dict:
     """`tirefilter replay` in this process, with the memory sampled."""
     from tirefilter.cli import main
 
     sampler = RssSampler()
-    rc = main(["replay", log, "--vehicle", str(VEHICLE), "--estimator", estimator, "--out", out, "--quiet"])
-    return {"rc": rc, **sampler.stop()}
+    rc = main(["replay", log, "--vehicle", str(VEHICLE), "--estimator", estimator, "--out", out, "--quiet", *config])
+    summary = json.loads(Path(out).with_suffix(".json").read_text())
+    return {"rc": rc, **sampler.stop(), "restarts": (summary.get("metrics") or {}).get("restarts")}
 
 
 def cmd_replay(args) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         log = write_drive(Path(tmp) / "drive.csv", args.minutes)
         size = log.stat().st_size / 1e6
-        print(f"log: {args.minutes:g} min at 100 Hz ({int(args.minutes * 6000) + 1} rows, {size:.0f} MB)", flush=True)
-        print("| estimator | log min | wall s | peak RSS MB | RSS at 10 % MB | max after MB | growth MB |\n"
-              "|---|---|---|---|---|---|---|", flush=True)
+        config = backend_config(Path(tmp) / "backend.toml", args.backend)
+        print(f"log: {args.minutes:g} min at 100 Hz ({int(args.minutes * 6000) + 1} rows, {size:.0f} MB), "
+              f"backend {args.backend or 'default'}", flush=True)
+        print("| estimator | log min | wall s | peak RSS MB | RSS at 10 % MB | max after MB | growth MB | restarts |\n"
+              "|---|---|---|---|---|---|---|---|", flush=True)
         for est in args.estimators:
-            res = subprocess.run([sys.executable, __file__, "_one", str(log), est, str(Path(tmp) / f"{est}.csv")],
-                                 capture_output=True, text=True)
+            res = subprocess.run([sys.executable, __file__, "_one", str(log), est, str(Path(tmp) / f"{est}.csv"),
+                                  *config], capture_output=True, text=True)
             if res.returncode != 0:
                 print(f"| {est} | failed: {res.stderr.strip().splitlines()[-1:]} |", flush=True)
                 continue
             r = json.loads(res.stdout.strip().splitlines()[-1])
             print(f"| {est} | {args.minutes:g} | {r['wall_s']:.0f} | {r['peak_rss_mb']:.0f} | "
-                  f"{r['rss_at_10pct_mb']:.0f} | {r['rss_max_after_mb']:.0f} | {r['growth_mb']:+.1f} |", flush=True)
+                  f"{r['rss_at_10pct_mb']:.0f} | {r['rss_max_after_mb']:.0f} | {r['growth_mb']:+.1f} | "
+                  f"{r['restarts']} |", flush=True)
 
 
 def cmd_soak(args) -> None:
@@ -130,32 +147,68 @@ def cmd_soak(args) -> None:
 
     scenario = load_scenario("paper-sim")
     scenario = replace(scenario, duration=60.0 * args.minutes)
-    est = build_estimator("mpf", scenario, model="auto", particles=args.particles, config={})
+    config = {"mpf": {"backend": args.backend}} if args.backend else {}
+    est = build_estimator("mpf", scenario, model="auto", particles=args.particles, config=config)
     with tempfile.TemporaryDirectory() as tmp:
         sampler = RssSampler()
         summary, _ = run_scenario(scenario, estimator=est, seed=0, results_csv=Path(tmp) / "results.csv")
         r = sampler.stop()
-    print(f"soak: paper-sim stretched to {args.minutes:g} min, mpf N = {est.cfg.particles}, {summary.steps} steps, "
+    print(f"soak: paper-sim stretched to {args.minutes:g} min, mpf N = {est.cfg.particles} ({est.cfg.backend}), "
+          f"{summary.steps} steps, "
           f"status {summary.status}, wall {r['wall_s']:.0f} s, restarts {est.restarts}")
     print(f"RSS at 10 % of the wall time {r['rss_at_10pct_mb']:.1f} MB, max after it {r['rss_max_after_mb']:.1f} MB: "
           f"growth {r['growth_mb']:+.1f} MB; peak {r['peak_rss_mb']:.1f} MB")
 
 
+def cmd_numba(args) -> None:
+    """The resident memory of importing numba and loading the MPF's kernels, in a fresh process."""
+    code = ("import json, resource, sys\n"
+            "import numpy as np\n"
+            "from bench_memory import rss_mb\n"
+            "from tirefilter.estimators import build_estimator\n"
+            "from tirefilter.estimators.base import Inputs, Measurement\n"
+            "from tirefilter.scenarios import load_scenario\n"
+            "def run(backend):\n"
+            "    est = build_estimator('mpf', load_scenario('paper-sim'), model='auto', particles=500,\n"
+            "                          config={'mpf': {'backend': backend}})\n"
+            "    est.reset(np.random.default_rng(0))\n"
+            "    for k in range(300):\n"
+            "        t = 0.01 * k; d = 0.02 * np.sin(t)\n"
+            "        est.step(t, Inputs(delta=d, omega_f=73.0, omega_r=73.0, vx=22.0),\n"
+            "                 Measurement(ax=0.0, ay=22.0 * 22.0 * d / 2.9, yaw_rate=22.0 * d / 2.9))\n"
+            "run('numpy')\n"
+            "a = rss_mb(); assert 'numba' not in sys.modules\n"
+            "import numba\n"
+            "b = rss_mb()\n"
+            "run('numba')\n"
+            "c = rss_mb()\n"
+            "print(json.dumps([a, b, c, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0]))\n")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         cwd=Path(__file__).parent)
+    a, b, c, peak = json.loads(res.stdout.strip().splitlines()[-1])
+    print(f"RSS after 300 steps of the MPF (N = 500, numpy backend): {a:.1f} MB; after `import numba`: {b:.1f} MB "
+          f"(+{b - a:.1f}); after 300 steps with the numba backend (its kernels loaded): {c:.1f} MB "
+          f"(+{c - a:.1f} in all); peak {peak:.1f} MB")
+
+
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if argv and argv[0] == "_one":
-        print(json.dumps(one_replay(*argv[1:4])))
+        print(json.dumps(one_replay(*argv[1:])))
         return 0
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = p.add_subparsers(dest="cmd", required=True)
     rp = sub.add_parser("replay")
     rp.add_argument("--minutes", type=float, default=120.0)
     rp.add_argument("--estimators", nargs="+", default=["none", "kf", "mpf"])
+    rp.add_argument("--backend", choices=["numba", "numpy"], help="backend of mpf and augpf (default: theirs)")
     sk = sub.add_parser("soak")
     sk.add_argument("--minutes", type=float, default=60.0)
     sk.add_argument("--particles", type=int)
+    sk.add_argument("--backend", choices=["numba", "numpy"], help="the MPF's backend (default: its own)")
+    sub.add_parser("numba")
     args = p.parse_args(argv)
-    (cmd_replay if args.cmd == "replay" else cmd_soak)(args)
+    {"replay": cmd_replay, "soak": cmd_soak, "numba": cmd_numba}[args.cmd](args)
     return 0
 
 

@@ -205,3 +205,30 @@ def test_converges_on_paper_sim(fmu_paths, name, particles, config, tol):
         e = stiffness_errors(r, scenario, param)
         assert abs(e["mean"]) < tol and e["mean_abs"] < 2 * tol, (name, param, e)
     assert np.sqrt(np.mean((r["vy"] - r["true_vy"])[r["t"] > 5] ** 2)) < 0.1
+
+
+def test_augpf_borrows_the_numpy_model_by_default_and_numba_gives_the_same(fmu_paths):
+    """The AUGPF's default backend ("numpy") keeps numba out of the process (its import
+    alone costs ~130 MB, benchmarks/bench_memory.py numba); backend = "numba" borrows the
+    MPF's compiled model and gives the same estimates (1 s of paper-sim, seed 1)."""
+    import subprocess
+    import sys
+
+    code = ("import sys; from dataclasses import replace; from tirefilter.estimators import build_estimator; "
+            "from tirefilter.scenarios import load_scenario; from tirefilter.cosim.run import run_scenario; "
+            "sc = replace(load_scenario('paper-sim'), duration=1.0); "
+            "est = build_estimator('augpf', sc, model='auto', particles=20, config={}); "
+            "s, _ = run_scenario(sc, estimator=est, seed=1); print(est.cfg.backend, s.steps, 'numba' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert out == ["numpy", "101", "False"]
+    scenario = _short(1.0)
+    rows = {}
+    for backend in ("numpy", "numba"):
+        est = build_estimator("augpf", scenario, model="auto", particles=20, config={"augpf": {"backend": backend}})
+        _, r = run_scenario(scenario, estimator=est, seed=1, keep_rows=True)
+        rows[backend] = r[:, :len(ESTIMATE_COLUMNS)]
+    scale = np.nanmax(np.abs(rows["numpy"]), axis=0)  # per column: a std of ~0 is a difference of large numbers
+    assert np.all(np.isnan(rows["numba"]) == np.isnan(rows["numpy"]))
+    assert np.nanmax(np.abs(rows["numba"] - rows["numpy"]) - 1e-9 * scale) <= 0
+    with pytest.raises(Exception, match="backend"):
+        build_estimator("augpf", scenario, model="auto", particles=20, config={"augpf": {"backend": "jax"}})

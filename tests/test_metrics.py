@@ -7,7 +7,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from tirefilter.metrics import DIVERGED_VY, Z90, format_metrics, metrics_line, run_metrics, stiffness_errors
+from tirefilter.metrics import (DIVERGED_VY, Z90, RunMetrics, format_metrics, metrics_line, run_metrics,
+                               stiffness_errors)
 
 T = np.round(np.arange(0, 2001) * 0.01, 10)  # 0 .. 20 s at 100 Hz
 SCHEDULE = SimpleNamespace(excitation=((0.0, 20.0),), surface_changes=(10.0,))
@@ -96,3 +97,99 @@ def test_no_reference_no_figures():
     m = run_metrics(r)
     assert m["stiffness"] == {} and m["state"] == {} and m["diverged"] is None
     assert format_metrics(m) == ["learning gate open 100 % of the time"]
+
+
+# -- the streamed metrics (metrics.RunMetrics, what a run's summary uses) against run_metrics ------
+def _same(a, b, path="m"):
+    """Equal dicts, lists and numbers, floats to a relative 1e-12 (the order of summation)."""
+    if isinstance(a, dict):
+        assert isinstance(b, dict) and list(a) == list(b), path
+        for k in a:
+            _same(a[k], b[k], f"{path}[{k!r}]")
+    elif isinstance(a, list):
+        assert isinstance(b, list) and len(a) == len(b), path
+        for i, (x, y) in enumerate(zip(a, b)):
+            _same(x, y, f"{path}[{i}]")
+    elif isinstance(a, float) and isinstance(b, float):
+        assert a == pytest.approx(b, rel=1e-12, abs=0.0) if np.isfinite(a) else a == b, (path, a, b)
+    else:
+        assert type(a) is type(b) and a == b, (path, a, b)
+
+
+def _streamed(r: dict, schedule, sizes, **counters) -> dict:
+    """RunMetrics fed with `r` in chunks of the given sizes (cycled)."""
+    m = RunMetrics(list(r), schedule)
+    n, k, i = len(r["t"]), 0, 0
+    while k < n:
+        step = sizes[i % len(sizes)]
+        m.update({c: v[k:k + step] for c, v in r.items()})
+        k, i = k + step, i + 1
+    return m.finalize(**counters)
+
+
+def _rough_run(seed: int) -> dict:
+    """60 s at 100 Hz with three stiffness parameters, NaN estimates and references, two
+    surface changes, settling that ends inside and after a chunk, a divergence in bursts and
+    std columns with gaps: every branch of the metrics at once."""
+    rng = np.random.default_rng(seed)
+    t = np.round(np.arange(0, 6001) * 0.01, 10)
+    n = t.size
+    r = {"t": t, "active": (rng.random(n) < 0.7).astype(float)}
+    for p, c0 in (("Cf_y", 8e4), ("Cr_y", 9e4), ("Cx", 2e5)):
+        mean = np.where(t < 20.0, c0, np.where(t < 40.0, 0.5 * c0, 0.8 * c0))
+        tau = rng.uniform(1.0, 4.0)
+        since = np.where(t < 40.0, t - 20.0, t - 40.0)  # s since the last surface change
+        lag = np.where(t < 20.0, 0.7, np.where(t < 40.0, 1.0, 0.5) * np.exp(-since / tau))
+        est = mean * (1 + 0.3 * lag + 0.01 * rng.standard_normal(n))
+        est[(t >= 50.0) & (t < 50.5)] = np.nan  # in the settled window: settled 10.5 s after the change at 40 s
+        std = np.abs(mean * 0.04 * rng.standard_normal(n))
+        std[rng.random(n) < 0.02] = np.nan
+        r.update({p: est, f"true_{p}_mean": mean, f"{p}_std": std,
+                  f"true_{p}": mean * (1 + 0.05 * rng.standard_normal(n))})
+    r["true_Cx_mean"][t > 55.0] = np.nan
+    vy_true = 0.3 * np.sin(t)
+    vy = vy_true + 0.05 * rng.standard_normal(n)
+    vy[(t > 12.0) & (t < 13.0) & (rng.random(n) < 0.5)] += 2.0  # bursts of divergence
+    vy[rng.random(n) < 0.01] = np.nan
+    r.update(vy=vy, true_vy=vy_true, beta=np.arctan2(vy, 20.0), true_beta=np.arctan2(vy_true, 20.0),
+             yaw_rate=0.1 * np.sin(t) + 0.001 * rng.standard_normal(n), true_yaw_rate=0.1 * np.sin(t),
+             vx=np.full(n, 20.0) + 0.1 * rng.standard_normal(n), true_vx=np.full(n, np.nan))
+    return r
+
+
+ROUGH_SCHEDULE = SimpleNamespace(excitation=((0.0, 30.0), (32.0, 60.0)), surface_changes=(20.0, 40.0, 70.0))
+
+
+@pytest.mark.parametrize("sizes", [[1], [7, 1, 300], [8192], [999, 2]])
+def test_streamed_metrics_equal_run_metrics(sizes):
+    cases = [(_run(), SCHEDULE, {"restarts": 0, "resamples": 7}),
+             (_run(vy=np.where((T >= 2.2) & (T < 2.9), -7.2, 0.0), Cf_y_std=np.full(T.size, 1.0)), SCHEDULE,
+              {"restarts": 1}),
+             ({"t": T, "active": np.ones(T.size), "Cf_y": np.full(T.size, 1e5), "vy": np.zeros(T.size)}, None, {}),
+             (_rough_run(1), ROUGH_SCHEDULE, {"restarts": 3, "resamples": 40}),
+             (_rough_run(2), None, {})]
+    est = _run()["Cf_y"].copy()
+    est[(T >= 16.0) & (T < 17.0)] = np.nan
+    cases.append((_run(Cf_y=est), SCHEDULE, {}))
+    log = _run()
+    log["beta_true"] = log.pop("true_beta") + 0.02
+    log["vy_true"] = log.pop("true_vy")
+    log["Cf_y_true"] = log.pop("true_Cf_y_mean")
+    cases.append((log, None, {}))
+    late = _run(Cf_y=_run()["Cf_y"] * np.where(T > 19.0, 1.5, 1.0))  # never settles: inf
+    cases.append((late, SCHEDULE, {}))
+    for r, schedule, counters in cases:
+        expected = run_metrics(r, schedule, **counters)
+        _same(_streamed(r, schedule, sizes, **counters), expected)
+    m = run_metrics(_rough_run(1), ROUGH_SCHEDULE)
+    # the rough run exercises what it is meant to: finite settling times, divergence windows, NaN references
+    assert m["stiffness"]["Cf_y"]["settling_s"] == [pytest.approx(30.5), pytest.approx(10.5)]
+    assert m["stiffness"]["Cx"]["settling_s"] == [float("inf")] * 2  # no reference after 55 s: never settled
+    assert m["stiffness"]["Cf_y"]["settled_missing"] == 50 and len(m["diverged"]["windows"]) > 5
+    assert m["state"].keys() == {"vy", "beta", "yaw_rate"}
+    assert run_metrics(late, SCHEDULE)["stiffness"]["Cf_y"]["settling_s"] == [float("inf")]
+
+
+def test_streamed_metrics_need_the_time_column():
+    with pytest.raises(ValueError, match="column t"):
+        RunMetrics(["Cf_y"])

@@ -141,3 +141,29 @@ def test_imu_bias_is_estimated_on_snow_sine(tmp_path):
                          ("yaw_rate", 1e-3)):
         err = r[f"b_{channel}"][last] - r[f"true_b_{channel}"][last]
         assert np.sqrt(np.mean(err**2)) < tol, channel
+
+
+@pytest.mark.parametrize("backend", ["numpy", "numba"])
+def test_a_gap_draws_vx_again_from_the_undriven_wheels(backend):
+    """Straight at R_w * 60 rad/s for 1 s, then no sample until the wheels read 64 rad/s
+    (the car gained 1.44 m/s in the gap): after a gap longer than `gap_after` the particles'
+    v^X is drawn around R_w omega of the undriven (rear) axle at that sample (derivations,
+    Sec. 20); a shorter step, a disabled gap_after or a missing wheel speed draws nothing
+    and the held inputs keep v^X at the speed before the gap."""
+    vehicle = load_scenario("paper-sim").vehicle  # front drive: the rear axle is undriven
+    R = vehicle.wheel_radius
+
+    def run(t_after, omega_after=64.0, **options):
+        est = StiffnessMPF(vehicle, MPFConfig(particles=200, backend=backend, **options))
+        est.reset(np.random.default_rng(3))
+        for k in range(101):
+            est.step(0.01 * k, Inputs(0.0, 60.0, 60.0), Measurement(0.0, 0.0, 0.0))
+        e = est.step(t_after, Inputs(0.0, 64.0, omega_after), Measurement(0.0, 0.0, 0.0))
+        return e.vx, est.gap_redraws
+
+    vx, n = run(2.0)
+    assert n == 1 and abs(vx - 64.0 * R) < 0.1  # x0_vx_wheel_std = 0.1 m/s
+    for vx, n in (run(1.4), run(2.0, gap_after=0.0), run(2.0, omega_after=math.nan)):
+        assert n == 0 and abs(vx - 60.0 * R) < 0.3, (vx, n)
+    with pytest.raises(ConfigError, match="gap_after"):
+        StiffnessMPF(vehicle, MPFConfig(gap_after=-1.0))

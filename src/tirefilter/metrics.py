@@ -106,6 +106,8 @@ def run_metrics(r: dict, schedule=None, *, restarts: int | None = None, resample
     - restarts and resamples (the estimator's counters, None where it has none), the share
       of samples with the learning gate open (`active`);
     - `warnings`: one line per restart, divergence, NaN estimate or coverage below 50%.
+
+    The reference of `RunMetrics`, which computes the same chunk by chunk (a run's summary).
     """
     t = np.asarray(r["t"], float)
     n = t.size
@@ -141,8 +143,7 @@ def run_metrics(r: dict, schedule=None, *, restarts: int | None = None, resample
                 m["settling_s"] = [settling_time(r, p, tc) for tc in schedule.surface_changes if tc < t[-1]]
         cov = m.get("settled_coverage90", m["coverage90"])
         if cov is not None and cov < 0.5:
-            warnings.append(f"{p}: the 90% band (+-1.645 {p}_std) holds the reference in only {100 * cov:.0f}% "
-                            "of the samples: the posterior is overconfident")
+            warnings.append(_cov_warning(p, cov))
         out["stiffness"][p] = m
     for s, unit in STATES:
         est = r.get(s)
@@ -155,19 +156,8 @@ def run_metrics(r: dict, schedule=None, *, restarts: int | None = None, resample
             out["state"][s] = {"reference": col, "rmse": float(np.sqrt(np.mean(e[ok] ** 2))),
                                "max_abs": float(np.max(np.abs(e[ok]))), "unit": unit}
     out["diverged"] = _divergence(r, t)
-    if out["diverged"] is not None and out["diverged"]["samples"]:
-        d = out["diverged"]
-        spans = ", ".join(f"{a:g}-{b:g} s" for a, b in d["windows"][:3]) + (", ..." if len(d["windows"]) > 3 else "")
-        warnings.append(f"state diverged at {d['samples']} samples ({spans}): |{d['signal']} error| up to "
-                        f"{d['max_abs']:.3g} {d['unit']} (threshold {d['threshold']:g})")
-    out["restarts"] = None if restarts is None else int(restarts)
-    out["resamples"] = None if resamples is None else int(resamples)
-    if restarts:
-        warnings.append(f"the filter restarted {restarts} time{'s' if restarts > 1 else ''} from its prior "
-                        "(every particle implausible): estimates around then are not converged")
     active = r.get("active")
-    out["gate_open_share"] = _finite_mean(np.asarray(active, float)) if active is not None else None
-    out["warnings"] = warnings
+    _finish(out, warnings, restarts, resamples, _finite_mean(np.asarray(active, float)) if active is not None else None)
     return out
 
 
@@ -183,6 +173,278 @@ def _divergence(r: dict, t: np.ndarray) -> dict | None:
                 "share": float(bad.mean()) if bad.size else 0.0,
                 "max_abs": float(np.nanmax(e)) if np.isfinite(e).any() else None, "windows": _windows(bad, t)}
     return None
+
+
+
+# ---- the same metrics streamed: constant memory over a run of any length ------------------------
+
+def _cov_warning(p: str, cov: float) -> str:
+    return (f"{p}: the 90% band (+-1.645 {p}_std) holds the reference in only {100 * cov:.0f}% "
+            "of the samples: the posterior is overconfident")
+
+
+class _Sum:
+    """Sum and count of the finite values seen, and the largest |value| (chunk by chunk)."""
+
+    __slots__ = ("s", "n", "max")
+
+    def __init__(self):
+        self.s, self.n, self.max = 0.0, 0, -np.inf
+
+    def add(self, x: np.ndarray) -> None:
+        x = x[np.isfinite(x)]
+        if x.size:
+            self.s += float(np.sum(x))
+            self.n += x.size
+            self.max = max(self.max, float(np.max(np.abs(x))))
+
+    def mean(self) -> float | None:
+        return self.s / self.n if self.n else None
+
+
+class _Runs:
+    """[t_first, t_last] of each run of True in a mask that arrives chunk by chunk
+    (`_windows` of the whole mask)."""
+
+    def __init__(self):
+        self.windows: list[list[float]] = []
+        self.open = False  # the last sample seen was inside a run
+        self.t_last = None
+
+    def add(self, mask: np.ndarray, t: np.ndarray) -> None:
+        if not mask.size:
+            return
+        m = mask.astype(np.int8)
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], m, [0]])))
+        for a, b in zip(edges[::2], edges[1::2]):
+            if a == 0 and self.open:  # the run goes on from the previous chunk
+                self.windows[-1][1] = float(t[b - 1])
+            else:
+                self.windows.append([float(t[a]), float(t[b - 1])])
+        self.open = bool(mask[-1])
+
+
+class _Settling:
+    """`settling_time` after t_change, streamed: the time of the first sample after the
+    last one outside the tolerance band."""
+
+    def __init__(self, t_change: float, tol: float = 0.05):
+        self.t_change, self.tol = t_change, tol
+        self.outside = False  # any sample after t_change outside the band
+        self.pending = False  # the last sample after t_change was outside
+        self.t_in = None  # time of the first sample after the last outside one
+
+    def add(self, t: np.ndarray, est: np.ndarray, mean: np.ndarray) -> None:
+        after = t >= self.t_change
+        if not after.any():
+            return
+        ta = t[after]
+        rel = np.abs(est[after] - mean[after]) / mean[after]
+        out = np.flatnonzero(~(rel <= self.tol))
+        if out.size:
+            self.outside = True
+            last = out[-1]
+            self.pending = last == ta.size - 1
+            if not self.pending:
+                self.t_in = float(ta[last + 1])
+        elif self.pending:
+            self.pending, self.t_in = False, float(ta[0])
+
+    def value(self) -> float:
+        if not self.outside:
+            return 0.0
+        return float("inf") if self.pending else float(self.t_in - self.t_change)
+
+
+class _StiffnessAgainst:
+    """The figures of one stiffness parameter against one candidate reference column."""
+
+    def __init__(self, p: str, ref: str, has_std: bool, schedule):
+        self.p, self.ref, self.has_std, self.schedule = p, ref, has_std, schedule
+        self.ref_finite = False
+        self.abs_err, self.settled_abs = _Sum(), _Sum()
+        self.have = self.inside = 0  # samples with an error; of those inside the band
+        self.w_have = self.w_inside = self.missing = 0
+        self.final = None
+
+    def add(self, c: dict, settled) -> None:
+        p = self.p
+        est, truth = c[p], c[self.ref]
+        self.ref_finite |= bool(np.isfinite(truth).any())
+        err = 100.0 * (est - truth) / truth
+        have = np.isfinite(err)
+        self.abs_err.add(np.abs(err))
+        if have.any():
+            self.final = float(err[have][-1])
+        self.have += int(np.count_nonzero(have))
+        inside = np.abs(est - truth) <= Z90 * c[f"{p}_std"] if self.has_std else None
+        if inside is not None:
+            self.inside += int(np.count_nonzero(inside & have))
+        if settled is not None:
+            w = settled & np.isfinite(truth)
+            self.missing += int(np.count_nonzero(w & ~have))
+            self.settled_abs.add(np.abs(err[w]))
+            self.w_have += int(np.count_nonzero(w & have))
+            if inside is not None:
+                self.w_inside += int(np.count_nonzero(inside & w & have))
+
+
+class _StateAgainst:
+    """Squared and absolute errors of one state against one candidate reference column,
+    and the samples beyond the divergence threshold."""
+
+    def __init__(self, s: str, ref: str):
+        self.s, self.ref = s, ref
+        self.ref_finite = False
+        self.sq, self.n, self.max = 0.0, 0, -np.inf
+        self.bad, self.max_e = 0, None  # divergence: samples beyond the threshold, nanmax of |e|
+        self.any_ok = False
+        self.bad_runs = _Runs()
+
+    def add(self, c: dict, t: np.ndarray, limit: float | None) -> None:
+        truth = c[self.ref]
+        self.ref_finite |= bool(np.isfinite(truth).any())
+        e = c[self.s] - truth
+        ok = np.isfinite(e)
+        if ok.any():
+            eo = e[ok]
+            self.sq += float(np.sum(eo ** 2))
+            self.n += eo.size
+            self.max = max(self.max, float(np.max(np.abs(eo))))
+        if limit is not None:
+            a = np.abs(e)
+            bad = np.nan_to_num(a, nan=0.0) > limit
+            self.bad += int(np.count_nonzero(bad))
+            self.any_ok |= bool(ok.any())
+            seen = ~np.isnan(a)  # np.nanmax: an infinite error counts
+            if seen.any():
+                m = float(np.max(a[seen]))
+                self.max_e = m if self.max_e is None else max(self.max_e, m)
+            self.bad_runs.add(bad, t)
+
+
+class RunMetrics:
+    """`run_metrics` streamed: `update` with each chunk of rows (the Result-CSV columns as
+    name -> (k,) arrays, the same names in every chunk), `finalize` for the dict that
+    `run_metrics` gives on all the rows at once (equal up to the order of summation: a
+    relative 1e-12). What it keeps does not grow with the run: sums and counts, the last
+    error, the windows of the settled mask and of divergence, and per surface change the
+    state of its settling time (the time of the first sample after the last one outside the
+    5 % band, `settling_time`)."""
+
+    def __init__(self, columns, schedule=None):
+        cols = set(columns)
+        if "t" not in cols:
+            raise ValueError("RunMetrics needs the column t")
+        self.schedule = schedule
+        self.n = 0
+        self.t_last = None
+        self.settled_runs = _Runs() if schedule is not None else None
+        self.active = _Sum() if "active" in cols else None
+        self.stiffness: dict[str, list[_StiffnessAgainst]] = {}
+        self.est_finite: dict[str, bool] = {}
+        self.settling: dict[str, list[_Settling]] = {}
+        for p in PARAMS:
+            if p not in cols:
+                continue
+            self.est_finite[p] = False
+            refs = [c for c in (f"true_{p}_mean", f"{p}_mean_true", f"true_{p}", f"{p}_true") if c in cols]
+            self.stiffness[p] = [_StiffnessAgainst(p, c, f"{p}_std" in cols, schedule) for c in refs]
+            if schedule is not None and f"true_{p}_mean" in cols:
+                self.settling[p] = [_Settling(tc) for tc in schedule.surface_changes]
+        self.states: dict[str, list[_StateAgainst]] = {}
+        for s, _ in STATES:
+            if s in cols:
+                self.states[s] = [_StateAgainst(s, c) for c in (f"true_{s}", f"{s}_true") if c in cols]
+        self._limits = {"vy": DIVERGED_VY, "beta": DIVERGED_BETA}
+
+    def update(self, c: dict) -> None:
+        """Add a chunk of rows: `c` maps the columns given at construction to (k,) arrays."""
+        c = {k: np.asarray(v, float) for k, v in c.items()}
+        t = c["t"]
+        if not t.size:
+            return
+        self.n += t.size
+        self.t_last = float(t[-1])
+        settled = steady_state_mask(t, self.schedule) if self.schedule is not None else None
+        if settled is not None:
+            self.settled_runs.add(settled, t)
+        for p, cands in self.stiffness.items():
+            self.est_finite[p] |= bool(np.isfinite(c[p]).any())
+            for a in cands:
+                a.add(c, settled)
+            for st in self.settling.get(p, ()):
+                st.add(t, c[p], c[f"true_{p}_mean"])
+        for s, cands in self.states.items():
+            for a in cands:
+                a.add(c, t, self._limits.get(s))
+        if self.active is not None:
+            self.active.add(c["active"])
+
+    def finalize(self, *, restarts: int | None = None, resamples: int | None = None) -> dict:
+        """The figures of the rows so far, as `run_metrics` gives them."""
+        sched = self.schedule
+        out: dict = {"samples": int(self.n),
+                     "settled_windows": self.settled_runs.windows if sched is not None else None,
+                     "stiffness": {}, "state": {}}
+        warnings: list[str] = []
+        for p, cands in self.stiffness.items():
+            if not self.est_finite[p]:
+                continue
+            by_ref = {a.ref: a for a in cands if a.ref_finite}
+            a = next((by_ref[c] for c in (f"true_{p}_mean", f"{p}_mean_true", f"true_{p}", f"{p}_true")
+                      if c in by_ref), None)
+            if a is None:
+                continue
+            m = {"reference": a.ref, "mean_abs_pct": a.abs_err.mean(), "final_pct": a.final,
+                 "coverage90": a.inside / a.have if a.has_std and a.have else None}
+            if sched is not None:
+                m.update(settled_mean_abs_pct=a.settled_abs.mean(),
+                         settled_coverage90=a.w_inside / a.w_have if a.has_std and a.w_have else None,
+                         settled_missing=a.missing)
+                if a.missing:
+                    warnings.append(f"{p}: no estimate at {a.missing} samples of the settled window")
+                if p in self.settling:
+                    m["settling_s"] = [st.value() for st in self.settling[p] if st.t_change < self.t_last]
+            cov = m.get("settled_coverage90", m["coverage90"])
+            if cov is not None and cov < 0.5:
+                warnings.append(_cov_warning(p, cov))
+            out["stiffness"][p] = m
+        chosen = {}
+        for s, unit in STATES:
+            cands = [a for a in self.states.get(s, ()) if a.ref_finite]
+            if not cands:
+                continue
+            a = chosen[s] = cands[0]
+            if a.n:
+                out["state"][s] = {"reference": a.ref, "rmse": float(np.sqrt(a.sq / a.n)), "max_abs": a.max,
+                                   "unit": unit}
+        out["diverged"] = None
+        for s, limit, unit in (("vy", DIVERGED_VY, "m/s"), ("beta", DIVERGED_BETA, "rad")):
+            if s in chosen:
+                a = chosen[s]
+                out["diverged"] = {"signal": s, "reference": a.ref, "threshold": limit, "unit": unit,
+                                   "samples": a.bad, "share": a.bad / self.n if self.n else 0.0,
+                                   "max_abs": a.max_e if a.any_ok else None, "windows": a.bad_runs.windows}
+                break
+        _finish(out, warnings, restarts, resamples, self.active.mean() if self.active is not None else None)
+        return out
+
+
+def _finish(out: dict, warnings: list[str], restarts, resamples, gate_open_share) -> None:
+    """The divergence warning, the counters, the gate share and the warnings of `out`."""
+    if out["diverged"] is not None and out["diverged"]["samples"]:
+        d = out["diverged"]
+        spans = ", ".join(f"{a:g}-{b:g} s" for a, b in d["windows"][:3]) + (", ..." if len(d["windows"]) > 3 else "")
+        warnings.append(f"state diverged at {d['samples']} samples ({spans}): |{d['signal']} error| up to "
+                        f"{d['max_abs']:.3g} {d['unit']} (threshold {d['threshold']:g})")
+    out["restarts"] = None if restarts is None else int(restarts)
+    out["resamples"] = None if resamples is None else int(resamples)
+    if restarts:
+        warnings.append(f"the filter restarted {restarts} time{'s' if restarts > 1 else ''} from its prior "
+                        "(every particle implausible): estimates around then are not converged")
+    out["gate_open_share"] = gate_open_share
+    out["warnings"] = warnings
 
 
 def _pct(x) -> str:

@@ -110,45 +110,41 @@ def _scored(column: str) -> bool:
     return column in SCORED_ESTIMATES or column in SCORED_REFERENCES
 
 
-class _ColumnStore:
-    """The scored columns of every row, column by column in chunks: a run's metrics without
-    holding its rows (2 hours at 100 Hz, 12 columns: 69 MB). `columns()` joins one column at
-    a time and lets its chunks go, so the join does not double that."""
+class _ScoredStream:
+    """The scored columns of the rows, gathered CHUNK rows at a time and handed to a
+    `metrics.RunMetrics` chunk by chunk: a run's metrics in constant memory (one chunk of
+    8192 rows, whatever the run's length)."""
 
     CHUNK = 8192
 
-    def __init__(self, names: list[str]):
+    def __init__(self, names: list[str], schedule=None):
+        from tirefilter.metrics import RunMetrics
+
         self.names = names
-        self.chunks: list[np.ndarray] = []  # (len(names), CHUNK) each
-        self.n = 0  # rows in the last chunk
+        self.metrics = RunMetrics(names, schedule) if "t" in names else None
+        self.buf = np.empty((self.CHUNK, len(names)))
+        self.n = 0  # rows in buf
         self.index: np.ndarray | None = None
 
     def append(self, row, columns: tuple[str, ...]) -> None:
+        if self.metrics is None:
+            return
         if self.index is None:
             self.index = np.array([columns.index(c) for c in self.names], int)
-        if not self.chunks or self.n == self.CHUNK:
-            self.chunks.append(np.empty((len(self.names), self.CHUNK)))
-            self.n = 0
-        self.chunks[-1][:, self.n] = np.asarray(row, float)[self.index]
+        self.buf[self.n] = np.asarray(row, float)[self.index]
         self.n += 1
+        if self.n == self.CHUNK:
+            self.flush()
 
-    def columns(self) -> dict[str, np.ndarray]:
-        """The columns so far (the store is emptied: call once, at the end of a run)."""
-        if not self.chunks:
-            return {}
-        self.chunks[-1] = self.chunks[-1][:, :self.n]
-        parts: list[list[np.ndarray]] = [[] for _ in self.names]
-        while self.chunks:  # chunk by chunk into per-column pieces: one chunk is ever copied twice
-            chunk = self.chunks.pop(0)
-            for j, piece in enumerate(chunk):
-                parts[j].append(piece.copy())
-            del chunk
-        self.n = 0
-        out = {}
-        for j, name in enumerate(self.names):
-            out[name] = np.concatenate(parts[j])
-            parts[j] = []  # column j is whole: its pieces go
-        return out
+    def flush(self) -> None:
+        if self.n:
+            self.metrics.update({c: self.buf[:self.n, j] for j, c in enumerate(self.names)})
+            self.n = 0
+
+    def finalize(self, **counters) -> dict:
+        """`RunMetrics.finalize` of the rows so far (the last partial chunk included)."""
+        self.flush()
+        return self.metrics.finalize(**counters)
 
 
 class Progress:
@@ -196,8 +192,8 @@ class RunOutputs:
         self.writer = ResultWriter(results_csv, self.columns) if results_csv else None
         self.keep_rows = keep_rows
         self.kept: list[np.ndarray] = []  # every row, with keep_rows (handed back by kept_rows)
-        self.scored = _ColumnStore([c for c in self.columns if _scored(c)])  # what the metrics read
         self.schedule = schedule  # the scenario (excitation windows, surface changes) of the settled metrics
+        self.scored = _ScoredStream([c for c in self.columns if _scored(c)], schedule)  # what the metrics read
         self.estimator: Estimator | None = None
         self.bar = Progress(total, progress)
         self.step_times = array("f")  # s, 4 bytes a step: an hour at 100 Hz is 1.4 MB
@@ -250,15 +246,12 @@ class RunOutputs:
         return np.vstack(self.kept) if self.kept and self.keep_rows else None
 
     def metrics(self) -> dict | None:
-        """`metrics.run_metrics` of the rows so far, with the estimator's restart and
-        resample counters (None before the first row)."""
-        from tirefilter.metrics import run_metrics
-
-        if not self.rows or self.estimator is None:
+        """`metrics.run_metrics` of the rows so far (streamed: `metrics.RunMetrics`), with the
+        estimator's restart and resample counters (None before the first row)."""
+        if not self.rows or self.estimator is None or self.scored.metrics is None:
             return None
-        r = self.scored.columns()
-        return run_metrics(r, self.schedule, restarts=getattr(self.estimator, "restarts", None),
-                           resamples=getattr(self.estimator, "resamples", None))
+        return self.scored.finalize(restarts=getattr(self.estimator, "restarts", None),
+                                    resamples=getattr(self.estimator, "resamples", None))
 
     def close(self) -> None:
         self.bar.close()

@@ -97,6 +97,9 @@ class AUGPFConfig(GateOptions):
     bias0_std: tuple[float, float, float] = (0.0, 0.0, 0.0)
     sample_period: float = 0.01  # s: the period the random-walk std refers to
     max_step: float = 0.02  # s, longest propagation step (longer gaps are sub-stepped)
+    # the MPF's model maths it borrows: "numpy" (default: the per-particle work here is numpy anyway, and
+    # importing numba and LLVM alone costs ~130 MB of resident memory) | "numba" (its compiled kernels)
+    backend: str = "numpy"
 
     def validated(self) -> "AUGPFConfig":
         def bad(key, problem):
@@ -108,6 +111,8 @@ class AUGPFConfig(GateOptions):
             bad("proposal", f"expected bootstrap or conditional, got {self.proposal!r}")
         if self.integrator not in ("euler", "heun"):
             bad("integrator", f"expected euler or heun, got {self.integrator!r}")
+        if self.backend not in ("numba", "numpy"):
+            bad("backend", f"expected numba or numpy, got {self.backend!r}")
         check_common(self, bad)
         for key in ("mean_rw", "var_rel_std", "init_sigma_spread"):
             if not (getattr(self, key) >= 0 and math.isfinite(getattr(self, key))):
@@ -162,7 +167,7 @@ class AugmentedPF:
         self.cfg = cfg = config.validated()
         # the MPF's model maths (accelerations, propagation, measurement map), as-is
         self._mdl = StiffnessMPF(vehicle, MPFConfig(particles=1, model=cfg.model, integrator=cfg.integrator,
-                                                    max_step=cfg.max_step))
+                                                    max_step=cfg.max_step, backend=cfg.backend))
         self.full = cfg.model == "full"
         self.params = self._mdl.params
         self.C_nom = self._mdl.C_nom

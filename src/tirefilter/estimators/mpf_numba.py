@@ -111,6 +111,71 @@ def _xdot1(x, u3, a, B, w, out, full, n_w):
 
 
 
+@njit(**_JIT)
+def model(x, u, vp, full, rear_drive, n_w):
+    """`StiffnessMPF._model(x, u)` for all particles: a (N, 3), B (N, 3, n_w), af, ar (N,),
+    slip (2, N) (zeros in the lateral model, where the reference returns None). For the
+    reference path's compiled model (the first sample, restarts, gaps) and the AUGPF."""
+    n = x.shape[0]
+    a = np.empty((n, 3))
+    B = np.empty((n, 3, n_w))
+    af = np.empty(n)
+    ar = np.empty(n)
+    slip = np.zeros((2, n))
+    for i in range(n):
+        x2 = x[i, 2] if full else 0.0
+        af[i], ar[i], slip[0, i], slip[1, i] = _model1(x[i, 0], x[i, 1], x2, u[0], u[1], u[2], u[3], False, 0.0,
+                                                       0.0, a[i], B[i], vp, full, rear_drive, n_w)
+    return a, B, af, ar, slip
+
+
+@njit(**_JIT)
+def propagate(x, u, w, a, B, slip, dt, max_step, heun, vp, full, rear_drive, n_w):
+    """`StiffnessMPF._propagate`: x_{k+1} from x_k (N, nx) with w (N, n_w) held, the first
+    stage (a, B, slip) evaluated at x_k; a step longer than max_step is split into equal
+    sub-steps (the model re-evaluated, slip recomputed). The same loop as the propagation
+    in `predict_weigh`; for the reference path and the AUGPF."""
+    n, nx = x.shape
+    n_sub = max(1, math.ceil(dt / max_step - 1e-9))
+    hs = dt / n_sub
+    out = np.empty((n, nx))
+    xi = np.empty(nx)
+    x1 = np.empty(nx)
+    k1 = np.empty(nx)
+    k2 = np.empty(nx)
+    ai = np.empty(3)
+    Bi = np.empty((3, n_w))
+    for i in range(n):
+        for c in range(nx):
+            xi[c] = x[i, c]
+        sf, sr = slip[0, i], slip[1, i]
+        for s in range(n_sub):
+            if s == 0:
+                for c in range(3):
+                    ai[c] = a[i, c]
+                    for j in range(n_w):
+                        Bi[c, j] = B[i, c, j]
+            else:
+                xs2 = xi[2] if full else 0.0
+                _, _, sf, sr = _model1(xi[0], xi[1], xs2, u[0], u[1], u[2], u[3], False, 0.0, 0.0, ai, Bi, vp, full,
+                                       rear_drive, n_w)
+            _xdot1(xi, u[3], ai, Bi, w[i], k1, full, n_w)
+            if not heun:
+                for c in range(nx):
+                    xi[c] = xi[c] + hs * k1[c]
+                continue
+            for c in range(nx):
+                x1[c] = xi[c] + hs * k1[c]
+            xs2 = x1[2] if full else 0.0
+            _model1(x1[0], x1[1], xs2, u[0], u[1], u[2], u[3], full, sf, sr, ai, Bi, vp, full, rear_drive, n_w)
+            _xdot1(x1, u[3], ai, Bi, w[i], k2, full, n_w)
+            for c in range(nx):
+                xi[c] = xi[c] + (0.5 * hs) * (k1[c] + k2[c])
+        for c in range(nx):
+            out[i, c] = xi[c]
+    return out
+
+
 # ---- small dense helpers ---------------------------------------------------------------------
 @njit(inline="always", **_JIT)
 def _chol(S, L, n):

@@ -102,6 +102,7 @@ class MPFConfig:
     disturbance_rw: tuple[float, float, float] = DISTURBANCE_RW
     sample_period: float = 0.01  # s, used for the first step and as the bias-RW time base
     max_step: float = 0.02  # s, longest propagation step: longer sample intervals are sub-stepped
+    gap_after: float = 0.5  # s: a longer time step is a gap: v^X drawn again from the wheel speeds (0: never)
     backend: str = "numba"  # "numba": the compiled step (mpf_numba.py) | "numpy": the reference
 
     def validated(self) -> "MPFConfig":
@@ -147,6 +148,8 @@ class MPFConfig:
             bad("sample_period", "must be > 0")
         if not self.max_step > 0:
             bad("max_step", f"must be > 0, got {self.max_step!r}")
+        if not (self.gap_after >= 0 and math.isfinite(self.gap_after)):
+            bad("gap_after", f"must be finite and >= 0 (0: never), got {self.gap_after!r}")
         if self.backend not in ("numba", "numpy"):
             bad("backend", f"expected numba or numpy, got {self.backend!r}")
         return self
@@ -230,6 +233,7 @@ class StiffnessMPF:
         self.active = False
         self.resamples = 0
         self.restarts = 0
+        self.gap_redraws = 0  # gaps after which v^X was drawn again from the wheel speeds
         self._contradiction_since = None
         self.surprise = 1.0  # z_k of the adaptive forgetting: 1 while the data fit the predictive
         self.linear_region = True  # |a^Y| below the gate's linear-region bound at the last sample
@@ -277,6 +281,9 @@ class StiffnessMPF:
         a(x, u) + B(x, u) w: returns a (N, 3) = (a^X, a^Y, r') at w = 0, B = d a / d w
         (N, 3, n_w), the slip angles and the wheel slip of eq. (3)-(4) (small-angle form
         of the paper; `slip` given: held from an earlier evaluation)."""
+        if self._nb is not None and slip is None:  # (the compiled model: mpf_numba.model)
+            a, B, af, ar, slip = self._nb.model(x, u, self._vp, self.full, self.rear_drive, self.n_w)
+            return a, B, af, ar, slip if self.full else None
         v = self.vehicle
         if self.full:
             vx, vy, r = x[:, 0], x[:, 1], x[:, 2]
@@ -329,6 +336,11 @@ class StiffnessMPF:
         wheel slip held over the step. `first` = (a, B, slip) at x_k from the measurement
         step. A step longer than `max_step` (a gap in a log) is split into equal
         sub-steps with u and w held."""
+        if self._nb is not None:  # (the compiled propagation: mpf_numba.propagate)
+            a, B, _, _, slip = first
+            return self._nb.propagate(x, u, w, a, B, np.zeros((2, len(x))) if slip is None else slip, dt,
+                                      self.cfg.max_step, self.cfg.integrator == "heun", self._vp, self.full,
+                                      self.rear_drive, self.n_w)
         n_sub = max(1, math.ceil(dt / self.cfg.max_step - 1e-9))
         h = dt / n_sub
         for i in range(n_sub):
@@ -362,18 +374,17 @@ class StiffnessMPF:
     # ---- the filter -------------------------------------------------------------------
     def step(self, t: float, u: Inputs, y: Measurement) -> Estimate:
         cfg = self.cfg
-        uk = np.array([u.delta, u.omega_f, u.omega_r, u.vx], float)
+        u_now = np.array([u.delta, u.omega_f, u.omega_r, u.vx], float)
+        uk = u_now
         if self.u_prev is not None:
             # hold the last finite input where a sample is missing
-            uk = np.where(np.isfinite(uk), uk, self.u_prev)
+            uk = np.where(np.isfinite(u_now), u_now, self.u_prev)
         if not self.full and not math.isfinite(uk[3]):
             raise ConfigError("inputs", "vx", f"the lateral model needs vx; none given up to t = {t} s")
         if self.u_prev is None and self.full and self.cfg.x0_vx_from_wheels:
-            omega = uk[1] if self.rear_drive else uk[2]  # the undriven axle hardly slips
-            if math.isfinite(omega):
-                vx0 = self.vehicle.wheel_radius * omega
-                self.x[:, 0] = vx0 + self.cfg.x0_vx_wheel_std * self.rng.standard_normal(len(self.x))
+            self._draw_vx_from_wheels(uk)
         if not math.isfinite(uk[0]):
+            uk = uk.copy() if uk is u_now else uk
             uk[0] = 0.0
 
         # 1. propagate from the previous sample
@@ -381,9 +392,10 @@ class StiffnessMPF:
         if self.t_prev is not None:
             if dt <= 0:
                 raise ConfigError("inputs", "t", f"time must increase: {t} after {self.t_prev}")
-            if self._nb is not None:  # the usual sample: steps 1-5 in three compiled passes
+            if self._nb is not None and not self._gap(dt):  # the usual sample: three compiled passes
                 return self._step_compiled(t, uk, y, dt)
             self.x = self._propagate(self.x, self.u_prev, self.w_prev, dt, self._at_x)
+            self._redraw_after_gap(dt, u_now)  # (a gap: the compiled backend comes this way too)
             if self.state_noise is not None:  # optional regularisation against sample impoverishment
                 self.x = self.x + math.sqrt(dt) * self.state_noise * self.rng.standard_normal(self.x.shape)
             if self.bias_on:
@@ -689,13 +701,48 @@ class StiffnessMPF:
         self.logw = normalize_log_weights(np.where(ok, self.logw, -np.inf))
         return None  # some left: the weights changed
 
+    def _vx_from_wheels(self, uk) -> float:
+        """R_w omega of the undriven axle (it hardly slips): the speed the wheels measure; NaN
+        without that wheel speed."""
+        omega = uk[1] if self.rear_drive else uk[2]
+        return self.vehicle.wheel_radius * omega
+
+    def _draw_vx_from_wheels(self, uk) -> bool:
+        """The particles' v^X drawn around `_vx_from_wheels(uk)` with std `x0_vx_wheel_std`;
+        False (nothing drawn) without the wheel speed."""
+        vx = self._vx_from_wheels(uk)
+        if not math.isfinite(vx):
+            return False
+        self.x[:, 0] = vx + self.cfg.x0_vx_wheel_std * self.rng.standard_normal(len(self.x))
+        return True
+
+    def _gap(self, dt: float) -> bool:
+        """A time step after which `_redraw_after_gap` draws v^X again (full model)."""
+        return self.full and 0 < self.cfg.gap_after < dt
+
+    def _redraw_after_gap(self, dt: float, u_now) -> bool:
+        """After a gap in the data (a time step `dt` longer than `gap_after`), with the
+        particles propagated across it: their v^X drawn again around the speed of the
+        undriven wheels at the sample after the gap (derivations, Sec. 20); `u_now` is that
+        sample's inputs as measured (no held value: without the wheel speed nothing is drawn). Over the gap the
+        filter held its last inputs, so its v^X misses the acceleration it did not see, and
+        through the driven axle's wheel slip that error becomes a longitudinal force error
+        that the weights and the learning take for a wrong state or stiffness. Full model
+        only; True when drawn (counted in `gap_redraws`)."""
+        if not self._gap(dt):
+            return False
+        if not self._draw_vx_from_wheels(u_now):
+            return False
+        self.gap_redraws += 1
+        return True
+
     def _restart(self, t, uk, y) -> Estimate:
         """Every particle has left the plausible region (the state diverged, typically after
         learning an unstable stiffness from a wrong start): draw the particles from the prior
         again, around the current speed and the measured yaw rate, and go on from there."""
         if self.full:
-            omega = uk[1] if self.rear_drive else uk[2]  # the undriven axle
-            vx = self.vehicle.wheel_radius * omega if math.isfinite(omega) else float(np.median(self.x[:, 0]))
+            vx = self._vx_from_wheels(uk)
+            vx = vx if math.isfinite(vx) else float(np.median(self.x[:, 0]))
         r0 = y.yaw_rate if math.isfinite(y.yaw_rate) else 0.0
         self._draw_prior((vx, 0.0, r0) if self.full else (0.0, r0))
         if self.cfg.informed_start:
