@@ -2,6 +2,7 @@
 per stage of `StiffnessMPF.step` so that a change of the model maps onto one kernel:
 
   model       the accelerations a + B w of eq. (1)-(4) (`StiffnessMPF._model`)
+  slip        the wheel slip averaged over the step interval, the first stage (`_slip_over_step`)
   propagate   eq. (9), Euler or Heun with w and the wheel slip held, sub-steps (`_propagate`)
   weights     h, d of eq. (12) and the Student-t log-likelihood of eq. (36) (step 2)
   normalise   log-sum-exp and the ESS (`normalize_log_weights`, `effective_sample_size`)
@@ -31,8 +32,9 @@ _JIT = dict(cache=True, nogil=True)
 @njit(**_JIT)
 def _model1(x0, x1, x2, u0, u1, u2, u3, held, sf, sr, a, B, vp, full, rear_drive, n_w):
     """One particle of `_model`: fills a (3,), B (3, n_w); returns (af, ar, lam_f, lam_r).
-    vp = (m, I, lf, lr, Cf_y, Cr_y, C_nom_fx, C_nom_rx, R_w)."""
+    vp = (m, I, lf, lr, Cf_y, Cr_y, C_nom_fx, C_nom_rx, R_w, undriven_share)."""
     m, I, lf, lr, Cfy, Cry, Cfx, Crx, Rw = vp[0], vp[1], vp[2], vp[3], vp[4], vp[5], vp[6], vp[7], vp[8]
+    s = vp[9]
     if full:
         vx, vy, r = x0, x1, x2
     else:
@@ -56,9 +58,11 @@ def _model1(x0, x1, x2, u0, u1, u2, u3, held, sf, sr, a, B, vp, full, rear_drive
             lam_r = (wr - vx) / max(max(abs(vx), abs(wr)), 1.0)
         Ffx, Frx = Cfx * lam_f, Crx * lam_r
         if rear_drive:
-            B[0, 0] = lam_r * (1.0 / m)
+            B[0, 0] = lam_r * (1.0 / m) + (s * lam_f) * (cd / m)
+            B[1, 0] = (s * lam_f) * (sd / m)
+            B[2, 0] = (s * lam_f) * (lf * sd / I)
         else:
-            B[0, 0] = lam_f * (cd / m)
+            B[0, 0] = lam_f * (cd / m) + (s * lam_r) * (1.0 / m)
             B[1, 0] = lam_f * (sd / m)
             B[2, 0] = lam_f * (lf * sd / I)
         j = 1
@@ -93,6 +97,48 @@ def model(x, u, vp, full, rear_drive, n_w):
         af[i], ar[i], slip[0, i], slip[1, i] = _model1(x[i, 0], x[i, 1], x2, u[0], u[1], u[2], u[3], False, 0.0,
                                                        0.0, a[i], B[i], vp, full, rear_drive, n_w)
     return a, B, af, ar, slip
+
+
+@njit(**_JIT)
+def slip_over_step(x, u0, u1, w, a, B, slip, dt, vp, jw, c_floor, rear_drive, n_w):
+    """`StiffnessMPF._slip_over_step` (full model): the first stage of the propagation from t_k
+    to t_k + dt with the wheel slip averaged over the interval (derivations, Sec. 18).
+
+    x (N, 3) at t_k; u0, u1 (4,) the inputs at t_k and t_k+1; w (N, n_w) held over the step;
+    a (N, 3), B (N, 3, n_w), slip (2, N) of `model(x, u0)`; vp as in `_model1`; jw (2,) the
+    front and rear spin inertia over R_w^2; c_floor (2,) the lowest axle stiffness in the time
+    constant. Returns (a, B, af, ar, slip) (new arrays) at x with the interval slip."""
+    n = x.shape[0]
+    Rw, s, Cfx, Crx = vp[8], vp[9], vp[6], vp[7]
+    a2 = np.empty((n, 3))
+    B2 = np.empty((n, 3, n_w))
+    af = np.empty(n)
+    ar = np.empty(n)
+    out = np.empty((2, n))
+    cn = np.empty(2)
+    for i in range(n):
+        acc0 = 0.0
+        for j in range(n_w):
+            acc0 += B[i, 0, j] * w[i, j]
+        acc0 = a[i, 0] + acc0
+        vx = x[i, 0]
+        vx1 = vx + dt * (x[i, 1] * x[i, 2] + acc0)
+        wx = w[i, 0]
+        if rear_drive:
+            cn[0], cn[1] = Cfx + s * wx, Crx + wx
+        else:
+            cn[0], cn[1] = Cfx + wx, Crx + s * wx
+        for k in range(2):
+            wr1 = Rw * u1[1 + k]
+            slip1 = (wr1 - vx1) / max(max(abs(vx1), abs(wr1)), 1.0)
+            C = max(cn[k], c_floor[k])
+            D = max(max(abs(vx), abs(Rw * u0[1 + k])), 1.0)
+            tau = max(jw[k] * D / C, 1e-12)
+            share = (tau / dt) * -math.expm1(-dt / tau)
+            out[k, i] = slip1 + (slip[k, i] - slip1) * share
+        af[i], ar[i], _, _ = _model1(x[i, 0], x[i, 1], x[i, 2], u0[0], u0[1], u0[2], u0[3], True, out[0, i],
+                                     out[1, i], a2[i], B2[i], vp, True, rear_drive, n_w)
+    return a2, B2, af, ar, out
 
 
 @njit(**_JIT)
