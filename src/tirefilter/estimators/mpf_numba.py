@@ -102,7 +102,7 @@ def model(x, u, vp, full, rear_drive, n_w):
 @njit(**_JIT)
 def slip_over_step(x, u0, u1, w, a, B, slip, dt, vp, jw, c_floor, rear_drive, n_w):
     """`StiffnessMPF._slip_over_step` (full model): the first stage of the propagation from t_k
-    to t_k + dt with the wheel slip averaged over the interval (derivations, Sec. 18).
+    to t_k + dt with the wheel slip averaged over the interval (derivations, Sec. 20).
 
     x (N, 3) at t_k; u0, u1 (4,) the inputs at t_k and t_k+1; w (N, n_w) held over the step;
     a (N, 3), B (N, 3, n_w), slip (2, N) of `model(x, u0)`; vp as in `_model1`; jw (2,) the
