@@ -196,13 +196,7 @@ def test_estimators_stay_finite_and_do_not_restart_on_spikes(drive, name):
         assert np.isfinite(r["Cf_y"]).all() and np.isfinite(r["Cr_y"]).all()
 
 
-GAP_REGRESSION = pytest.mark.xfail(strict=True, reason="main's MPF defaults since 8b4dfb3 (bias and wandering "
-                                   "offsets estimated, adaptive forgetting) do not recover from a 1 s gap on "
-                                   "paper-sim: 0.67 deg against 0.23 deg clean; the defaults before recovered "
-                                   "(benchmarks/README.md, the fault matrix)")
-
-
-@pytest.mark.parametrize("name, fault", [("mpf", "stuck"), pytest.param("mpf", "gap", marks=GAP_REGRESSION),
+@pytest.mark.parametrize("name, fault", [("mpf", "stuck"), ("mpf", "gap"),
                                          ("ekf", "stuck"), ("ekf", "gap")])
 def test_sideslip_recovers_within_5_s_of_the_fault_end(drive, name, fault):
     faults = fault_sets(DURATION)[fault]
