@@ -3,8 +3,9 @@ every sample after the first (`StiffnessMPF._step_compiled`) in three passes ove
 particles, each a loop of straight per-particle arithmetic on arrays the caller allocated
 once and reuses from sample to sample:
 
-  predict_weigh   step 1 and 2: propagation (eq. (9), Euler or Heun with w and the wheel
-                  slip held, sub-steps), state noise, bias prediction (eq. (29)), forgetting
+  predict_weigh   step 1 and 2: the wheel slip over the step (derivations, Sec. 21),
+                  propagation (eq. (9), Euler or Heun with w and the wheel slip held,
+                  sub-steps), state noise, bias prediction (eq. (29)), forgetting
                   (eq. (20)), the model at x_k (eq. (1)-(4): a + B w, also the first stage of
                   the next propagation), plausibility, h, d of eq. (12), the predictive of the
                   NiW (eq. (21)) and the Student-t likelihood of eq. (36), the adaptive
@@ -45,8 +46,9 @@ _JIT = dict(cache=True, nogil=True)
 @njit(inline="always", **_JIT)
 def _model1(x0, x1, x2, u0, u1, u2, u3, held, sf, sr, a, B, vp, full, rear_drive, n_w):
     """One particle of `_model`: fills a (3,), B (3, n_w); returns (af, ar, lam_f, lam_r).
-    vp = (m, I, lf, lr, Cf_y, Cr_y, C_nom_fx, C_nom_rx, R_w)."""
+    vp = (m, I, lf, lr, Cf_y, Cr_y, C_nom_fx, C_nom_rx, R_w, undriven_share)."""
     m, I, lf, lr, Cfy, Cry, Cfx, Crx, Rw = vp[0], vp[1], vp[2], vp[3], vp[4], vp[5], vp[6], vp[7], vp[8]
+    s = vp[9]
     if full:
         vx, vy, r = x0, x1, x2
     else:
@@ -70,9 +72,11 @@ def _model1(x0, x1, x2, u0, u1, u2, u3, held, sf, sr, a, B, vp, full, rear_drive
             lam_r = (wr - vx) / max(max(abs(vx), abs(wr)), 1.0)
         Ffx, Frx = Cfx * lam_f, Crx * lam_r
         if rear_drive:
-            B[0, 0] = lam_r * (1.0 / m)
+            B[0, 0] = lam_r * (1.0 / m) + (s * lam_f) * (cd / m)
+            B[1, 0] = (s * lam_f) * (sd / m)
+            B[2, 0] = (s * lam_f) * (lf * sd / I)
         else:
-            B[0, 0] = lam_f * (cd / m)
+            B[0, 0] = lam_f * (cd / m) + (s * lam_r) * (1.0 / m)
             B[1, 0] = lam_f * (sd / m)
             B[2, 0] = lam_f * (lf * sd / I)
         j = 1
@@ -91,6 +95,60 @@ def _model1(x0, x1, x2, u0, u1, u2, u3, held, sf, sr, a, B, vp, full, rear_drive
     a[2] = (lf * Fy_f - lr * Fry) * (1.0 / I)
     return af, ar, lam_f, lam_r
 
+
+@njit(inline="always", **_JIT)
+def _interval_slip1(vx, vy, r, acc0, wx, slip_f, slip_r, u0, u1, dt, vp, jw, c_floor, rear_drive):
+    """One particle of `slip_over_step`: the front and rear wheel slip averaged over the step
+    from the slips (slip_f, slip_r) at t_k, x = (vx, vy, r), acc0 = a^X + B_0 w at t_k, the
+    driven axle's deviation wx, the inputs u0, u1 (4,) at t_k and t_k+1."""
+    Rw, s, Cfx, Crx = vp[8], vp[9], vp[6], vp[7]
+    vx1 = vx + dt * (vy * r + acc0)
+    if rear_drive:
+        c_f, c_r = Cfx + s * wx, Crx + wx
+    else:
+        c_f, c_r = Cfx + wx, Crx + s * wx
+    out_f = out_r = 0.0
+    for k in range(2):
+        wr1 = Rw * u1[1 + k]
+        slip1 = (wr1 - vx1) / max(max(abs(vx1), abs(wr1)), 1.0)
+        C = max(c_f if k == 0 else c_r, c_floor[k])
+        D = max(max(abs(vx), abs(Rw * u0[1 + k])), 1.0)
+        tau = max(jw[k] * D / C, 1e-12)
+        share = (tau / dt) * -math.expm1(-dt / tau)
+        if k == 0:
+            out_f = slip1 + (slip_f - slip1) * share
+        else:
+            out_r = slip1 + (slip_r - slip1) * share
+    return out_f, out_r
+
+
+@njit(**_JIT)
+def slip_over_step(x, u0, u1, w, a, B, slip, dt, vp, jw, c_floor, rear_drive, n_w):
+    """`StiffnessMPF._slip_over_step` (full model): the first stage of the propagation from t_k
+    to t_k + dt with the wheel slip averaged over the interval (derivations, Sec. 21).
+
+    x (N, 3) at t_k; u0, u1 (4,) the inputs at t_k and t_k+1; w (N, n_w) held over the step;
+    a (N, 3), B (N, 3, n_w), slip (2, N) of `model(x, u0)`; vp as in `_model1`; jw (2,) the
+    front and rear spin inertia over R_w^2; c_floor (2,) the lowest axle stiffness in the time
+    constant. Returns (a, B, af, ar, slip) (new arrays) at x with the interval slip. The same
+    per-particle arithmetic as the first stage in `predict_weigh`; for the reference path and
+    tests/test_kernels.py."""
+    n = x.shape[0]
+    a2 = np.empty((n, 3))
+    B2 = np.empty((n, 3, n_w))
+    af = np.empty(n)
+    ar = np.empty(n)
+    out = np.empty((2, n))
+    for i in range(n):
+        acc0 = 0.0
+        for j in range(n_w):
+            acc0 += B[i, 0, j] * w[i, j]
+        acc0 = a[i, 0] + acc0
+        out[0, i], out[1, i] = _interval_slip1(x[i, 0], x[i, 1], x[i, 2], acc0, w[i, 0], slip[0, i], slip[1, i], u0,
+                                               u1, dt, vp, jw, c_floor, rear_drive)
+        af[i], ar[i], _, _ = _model1(x[i, 0], x[i, 1], x[i, 2], u0[0], u0[1], u0[2], u0[3], True, out[0, i],
+                                     out[1, i], a2[i], B2[i], vp, True, rear_drive, n_w)
+    return a2, B2, af, ar, out
 
 
 @njit(inline="always", **_JIT)
@@ -250,12 +308,15 @@ def _normalise_into(logw, add):
 
 # ---- the three passes --------------------------------------------------------------------------
 @njit(**_JIT)
-def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, noise, noise_scale, b, P, qdt, bias_on,
-                  forget, lam, nu_min, gamma, mu, Lam, nu, uk, y, avail, R, roll_gain, vp, full, rear_drive, h, D, L11,
-                  nu_w, L12, Lc, e, v, ll, ok, logw, nc, want_nis, beta, yaw_max, gate_speed):
-    """Steps 1 and 2 of `StiffnessMPF.step`, in place. Per particle: propagate x (N, nx)
-    (`_propagate`: eq. (9) from the first stage a (N, 3), B (N, 3, n_w), slip (2, N) kept
-    from the last sample, w_prev held, `max_step` sub-steps), add the state noise
+def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise,
+                  noise_scale, b, P, qdt, bias_on, forget, lam, nu_min, gamma, mu, Lam, nu, uk, y, avail, R, roll_gain, vp,
+                  full, rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc, want_nis, beta, yaw_max,
+                  gate_speed):
+    """Steps 1 and 2 of `StiffnessMPF.step`, in place. Per particle: the first stage of the
+    propagation, a (N, 3), B (N, 3, n_w), slip (2, N) kept from the last sample, or with
+    `interval` (full model, slip_hold = "interval") the model at x with the wheel slip averaged
+    over the step (`_slip_over_step`, jw, c_floor as there, towards the slip of uk); propagate
+    x (N, nx) (`_propagate`: eq. (9), w_prev held, `max_step` sub-steps), add the state noise
     noise_scale * noise (the caller's normals; noise of shape (0, nx) when off), predict the
     bias covariance P += diag(qdt) (eq. (29)), forget (`NiW.forget`, eq. (20), when
     `forget`), evaluate the model at x_k with uk (`_model`: a, B, af, ar, slip, the first
@@ -293,13 +354,22 @@ def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, noi
         for c in range(nx):
             xi[c] = x[i, c]
         sf, sr = slip[0, i], slip[1, i]
+        if interval:  # the slip over the step (`_slip_over_step`)
+            acc0 = 0.0
+            for j in range(n_w):
+                acc0 += B[i, 0, j] * w_prev[i, j]
+            acc0 = a[i, 0] + acc0
+            sf, sr = _interval_slip1(xi[0], xi[1], xi[2], acc0, w_prev[i, 0], sf, sr, u_prev, uk, dt, vp, jw, c_floor,
+                                     rear_drive)
+            _model1(xi[0], xi[1], xi[2], u_prev[0], u_prev[1], u_prev[2], u_prev[3], True, sf, sr, ai, Bi, vp, True,
+                    rear_drive, n_w)
+        else:
+            for c in range(3):
+                ai[c] = a[i, c]
+                for j in range(n_w):
+                    Bi[c, j] = B[i, c, j]
         for s in range(n_sub):
-            if s == 0:
-                for c in range(3):
-                    ai[c] = a[i, c]
-                    for j in range(n_w):
-                        Bi[c, j] = B[i, c, j]
-            else:
+            if s > 0:
                 xs2 = xi[2] if full else 0.0
                 _, _, sf, sr = _model1(xi[0], xi[1], xs2, u_prev[0], u_prev[1], u_prev[2], u_prev[3], False, 0.0, 0.0,
                                        ai, Bi, vp, full, rear_drive, n_w)
@@ -425,7 +495,8 @@ def resample_gate(logw, u0, resample, idx, x, b, P, gamma, mu, Lam, nu, a, B, sl
     (x, b, P, the statistics, the model's first stage a, B, slip) copied by idx into their
     spares (x2, ...; the caller swaps), logw uniform; else idx = 0..N-1. The arrays of the
     weighting (h, D, L11, ...) are not copied: `sample_update` reads them through idx.
-    Returns `gate_moments` over the (resampled) particles."""
+    Returns the gate's moments over the (resampled) particles, E[vx] (full model), the std
+    of vy and max(|E[af]|, |E[ar]|), and the posterior mean of mu (n_w,) (the bound restart)."""
     n = logw.shape[0]
     if resample:
         cdf = np.empty(n)
@@ -466,11 +537,17 @@ def resample_gate(logw, u0, resample, idx, x, b, P, gamma, mu, Lam, nu, a, B, sl
         mvy += q * xs[i, iv]
         maf += q * af[idx[i]]
         mar += q * ar[idx[i]]
+    n_w = mu.shape[1]
+    ms = mu2 if resample else mu
+    mbar = np.zeros(n_w)
     s = 0.0
     for i in range(n):
+        q = math.exp(logw[i])
         d = xs[i, iv] - mvy
-        s += math.exp(logw[i]) * (d * d)
-    return mvx, math.sqrt(max(s, 0.0)), max(abs(maf), abs(mar))
+        s += q * (d * d)
+        for j in range(n_w):
+            mbar[j] += q * ms[i, j]
+    return mvx, math.sqrt(max(s, 0.0)), max(abs(maf), abs(mar)), mbar
 
 
 

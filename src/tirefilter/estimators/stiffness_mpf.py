@@ -54,6 +54,13 @@ class MPFConfig:
     drift_time: float = 1.0  # s, time constant of the smoothing of z'_k (the lean of the sampled w)
     model: str = "full"  # "full" (wheel speeds) | "lateral" (vx given)
     integrator: str = "heun"  # "euler" (the paper) | "heun" (same w, wheel slip held)
+    # wheel slip in the propagation from t_k to t_k+1 (derivations, Sec. 21): "interval": its mean over
+    # the interval, the wheel settling (time constant J v^X / (R_w^2 C), a few ms) from the slip at t_k to
+    # the one the wheel speeds at t_k+1 give; "start": the slip at t_k held (the paper)
+    slip_hold: str = "interval"
+    # longitudinal stiffness of the undriven axle: "surface": its nominal scaled as the driven axle's
+    # estimate (one surface under both axles); "nominal": its nominal value (the paper)
+    undriven_stiffness: str = "surface"
     resample_threshold: float = 0.5  # resample when ESS < threshold * N
     # initial stiffness: per-particle means drawn around `init_center` (absolute, per
     # parameter, default nominal) with a relative spread of the reference stiffness
@@ -69,7 +76,7 @@ class MPFConfig:
     x0_std: tuple[float, ...] = (1.0, 0.5, 0.0175)  # full: vx, vy, r (lateral uses vy, r)
     state_noise: tuple[float, ...] = (0.0, 0.0, 0.0)  # additive process noise per sqrt(s), full: vx, vy, r
     x0_vx_from_wheels: bool = True  # full model: centre vx on R_w omega of the undriven axle
-    x0_vx_wheel_std: float = 0.1  # m/s, spread around it (the free-rolling wheel's slip)
+    x0_vx_wheel_std: float = 0.02  # m/s, spread around it (the free-rolling wheel's slip)
     # observability gate (Sec. V) and linear-region gate
     gate_speed: float = 5.0  # m/s
     gate_steer: float = 0.0035  # rad (0.2 deg)
@@ -87,6 +94,9 @@ class MPFConfig:
     plausible_yaw_rate: float = 2.0  # rad/s
     restart_alpha: float = 0.15  # rad: estimated slip beyond this while |a^Y| < gate_ay_max ...
     restart_after: float = 0.5  # s: ... for this long also restarts (0 disables)
+    # a posterior mean pinned at a stiffness bound (within 1% of the reference) for this long restarts
+    # too: the cloud locked onto a wrong start and the projection holds it there (0 disables)
+    restart_at_bound_after: float = 2.0  # s
     # parameter projection (Sec. V): stiffness bounds relative to the reference
     bound_low: float = 0.2
     bound_high: float = 3.0
@@ -124,11 +134,16 @@ class MPFConfig:
             bad("model", f"expected full or lateral, got {self.model!r}")
         if self.integrator not in ("euler", "heun"):
             bad("integrator", f"expected euler or heun, got {self.integrator!r}")
+        if self.slip_hold not in ("interval", "start"):
+            bad("slip_hold", f"expected interval or start, got {self.slip_hold!r}")
+        if self.undriven_stiffness not in ("surface", "nominal"):
+            bad("undriven_stiffness", f"expected surface or nominal, got {self.undriven_stiffness!r}")
         if self.init_distribution not in ("normal", "uniform"):
             bad("init_distribution", f"expected normal or uniform, got {self.init_distribution!r}")
         for key in ("init_std", "init_half_width", "init_sigma", "gate_speed", "gate_steer", "gate_ay_max",
                     "gate_alpha_max", "gate_vy_std", "gate_warmup", "nu0_margin", "plausible_beta",
-                    "plausible_yaw_rate", "restart_alpha", "restart_after"):
+                    "plausible_yaw_rate", "restart_alpha", "restart_after", "restart_at_bound_after",
+                    "x0_vx_wheel_std"):
             if not getattr(self, key) >= 0:
                 bad(key, f"must be >= 0, got {getattr(self, key)!r}")
         for key in ("sigma", "bias_rw", "bias0_std", "disturbance_rw", "x0_std", "state_noise"):
@@ -169,6 +184,9 @@ class StiffnessMPF:
         # nominal axle stiffness: driven axle's Cx is estimated, the other axle's is nominal
         self.C_nom_fx = other if self.rear_drive else v.Cx
         self.C_nom_rx = v.Cx if self.rear_drive else other
+        # "surface": the undriven axle's longitudinal stiffness moves with the driven axle's estimate,
+        # C_u = C_u,nom (1 + w_x / C_x,nom): its force adds share * slip_u * w_x to B's first column
+        self.undriven_share = other / v.Cx if self.cfg.undriven_stiffness == "surface" else 0.0
         self.full = self.cfg.model == "full"
         self.params = ("Cx", "Cf_y", "Cr_y") if self.full else ("Cf_y", "Cr_y")
         self.C_nom = np.array([v.Cx, v.Cf_y, v.Cr_y] if self.full else [v.Cf_y, v.Cr_y])
@@ -193,12 +211,16 @@ class StiffnessMPF:
         self.C_ref, self.C_center = ref, center
         self._carried = None
         self._nb = None
+        # the settling of the wheel slip (slip_hold = "interval"): spin inertia per axle over R_w^2, and the
+        # floor of the axle stiffness in its time constant (the lower projection bound)
+        self._jw = np.array([v.wheel_inertia_f, v.wheel_inertia_r], float) / v.wheel_radius**2
+        self._c_floor = self.cfg.bound_low * np.array([self.C_nom_fx, self.C_nom_rx], float)
         if self.cfg.backend == "numba":  # the compiled stages; the numpy methods stay the reference
             from tirefilter.estimators import mpf_numba
 
             self._nb = mpf_numba
             self._vp = np.array([v.mass, v.yaw_inertia, v.lf, v.lr, v.Cf_y, v.Cr_y, self.C_nom_fx, self.C_nom_rx,
-                                 v.wheel_radius], float)
+                                 v.wheel_radius, self.undriven_share], float)
 
     def __getstate__(self):  # (copies and FMU states: the kernel module is not state)
         return {**self.__dict__, "_nb": None}
@@ -235,6 +257,7 @@ class StiffnessMPF:
         self.restarts = 0
         self.gap_redraws = 0  # gaps after which v^X was drawn again from the wheel speeds
         self._contradiction_since = None
+        self._bound_since = None  # time since which a stiffness mean sits at a projection bound
         self.surprise = 1.0  # z_k of the adaptive forgetting: 1 while the data fit the predictive
         self.linear_region = True  # |a^Y| below the gate's linear-region bound at the last sample
         self.lam = self.cfg.forgetting  # the forgetting factor applied at the next propagation
@@ -303,10 +326,13 @@ class StiffnessMPF:
                 slip = (wr - vx) / np.maximum(np.maximum(np.abs(vx), np.abs(wr)), 1.0)
             lam_f, lam_r = slip
             Ffx, Frx = self.C_nom_fx * lam_f, self.C_nom_rx * lam_r
+            s = self.undriven_share  # d F_undriven / d w_x per unit slip ("surface"; 0: "nominal")
             if self.rear_drive:
-                B[:, 0, 0] = lam_r * (1.0 / m)
+                B[:, 0, 0] = lam_r * (1.0 / m) + (s * lam_f) * (cd / m)
+                B[:, 1, 0] = (s * lam_f) * (sd / m)
+                B[:, 2, 0] = (s * lam_f) * (lf * sd / I)
             else:
-                B[:, 0, 0] = lam_f * (cd / m)
+                B[:, 0, 0] = lam_f * (cd / m) + (s * lam_r) * (1.0 / m)
                 B[:, 1, 0] = lam_f * (sd / m)
                 B[:, 2, 0] = lam_f * (lf * sd / I)
             j = 1
@@ -354,6 +380,39 @@ class StiffnessMPF:
             x = x + (0.5 * h) * (k1 + self._xdot(x1, u, a2, B2, w))
         return x
 
+    def _slip_over_step(self, x, u0, u1, w, first, dt):
+        """The first stage of the propagation from t_k to t_k+1 = t_k + dt with the wheel slip
+        averaged over the interval (slip_hold = "interval", derivations Sec. 21).
+
+        x (N, 3) at t_k, u0 / u1 the inputs at t_k / t_k+1, w (N, n_w) the deviations held over
+        the step, first = (a, B, af, ar, slip) of `_model(x, u0)`. The wheel settles from the
+        slip at t_k, slip_0, towards the one at t_k+1, slip_1 = (R_w omega_k+1 - v^X_k+1) / max(...),
+        with v^X_k+1 = v^X_k + dt (v^Y r + a^X + B_0 w) (its error O(dt^2)), as
+        slip(t) = slip_1 + (slip_0 - slip_1) exp(-(t - t_k) / tau), tau = J D / (R_w^2 C) per axle
+        (J its spin inertia, D = max(|v^X|, |R_w omega_k|, 1), C its stiffness: nominal plus the
+        particle's w where it is estimated, floored at bound_low times nominal); the mean over
+        the interval is slip_1 + (slip_0 - slip_1) (tau / dt) (1 - exp(-dt / tau)). Returns
+        (a, B, af, ar, slip) at x_k with that slip, which `_propagate` then holds."""
+        a, B, _, _, slip0 = first
+        if self._nb is not None:
+            return self._nb.slip_over_step(x, u0, u1, w, a, B, slip0, dt, self._vp, self._jw, self._c_floor,
+                                           self.rear_drive, self.n_w)
+        Rw = self.vehicle.wheel_radius
+        vx = x[:, 0]
+        acc0 = a[:, 0] + np.einsum("nj,nj->n", B[:, 0], w)
+        vx1 = vx + dt * (x[:, 1] * x[:, 2] + acc0)  # eq. (1a), first stage
+        wr1 = Rw * u1[1:3, None]
+        slip1 = (wr1 - vx1) / np.maximum(np.maximum(np.abs(vx1), np.abs(wr1)), 1.0)
+        wx, s = w[:, 0], self.undriven_share
+        C = np.array([self.C_nom_fx + (s * wx if self.rear_drive else wx),
+                      self.C_nom_rx + (wx if self.rear_drive else s * wx)])
+        C = np.maximum(C, self._c_floor[:, None])
+        D = np.maximum(np.maximum(np.abs(vx), np.abs(Rw * u0[1:3, None])), 1.0)
+        tau = np.maximum(self._jw[:, None] * D / C, 1e-12)
+        share = (tau / dt) * -np.expm1(-dt / tau)  # (1 / dt) int_0^dt exp(-t / tau) dt
+        slip = slip1 + (slip0 - slip1) * share
+        return self._model(x, u0, slip)
+
     def _measurement(self, a, B, x):
         """h(x, u) and d(x, u) of eq. (12) for the model's channels, from the model's
         accelerations: the IMU sees the accelerations (a^Y times the roll gain) and the yaw
@@ -394,7 +453,10 @@ class StiffnessMPF:
                 raise ConfigError("inputs", "t", f"time must increase: {t} after {self.t_prev}")
             if self._nb is not None and not self._gap(dt):  # the usual sample: three compiled passes
                 return self._step_compiled(t, uk, y, dt)
-            self.x = self._propagate(self.x, self.u_prev, self.w_prev, dt, self._at_x)
+            first = self._at_x
+            if self.full and cfg.slip_hold == "interval":
+                first = self._slip_over_step(self.x, self.u_prev, uk, self.w_prev, first, dt)
+            self.x = self._propagate(self.x, self.u_prev, self.w_prev, dt, first)
             self._redraw_after_gap(dt, u_now)  # (a gap: the compiled backend comes this way too)
             if self.state_noise is not None:  # optional regularisation against sample impoverishment
                 self.x = self.x + math.sqrt(dt) * self.state_noise * self.rng.standard_normal(self.x.shape)
@@ -470,6 +532,8 @@ class StiffnessMPF:
         self._contradiction_since = (self._contradiction_since or t) if contradiction else None
         if contradiction and t - self._contradiction_since >= cfg.restart_after:
             return self._restart(t, uk, y)
+        if cfg.restart_at_bound_after > 0 and self._pinned_too_long(t, np.exp(self.logw) @ self.stats.mu):
+            return self._restart(t, uk, y)
 
         # 3. sample w_k from the conditional given the accelerometer residuals, eq. (39)-(41);
         #    the yaw-rate residual carries no information on w (d row 0) and is left out.
@@ -499,6 +563,22 @@ class StiffnessMPF:
         self._at_x = model_k  # the first stage of the next propagation, at this x and u
         return self._estimate(ess)
 
+    def _pinned_too_long(self, t: float, mbar: np.ndarray) -> bool:
+        """A posterior mean `mbar` (n_w,) held at a projection bound (Sec. V, within 1% of the
+        reference) since `restart_at_bound_after` s or longer: the cloud has locked onto a wrong
+        stiffness that the projection keeps it at, and the filter starts again."""
+        cfg = self.cfg
+        tol = 0.01 * self.C_ref
+        pinned = bool(np.any((mbar <= cfg.bound_low * self.C_ref - self.C_nom + tol)
+                             | (mbar >= cfg.bound_high * self.C_ref - self.C_nom - tol)))
+        if not pinned:
+            self._bound_since = None
+        elif self._bound_since is None:
+            self._bound_since = t
+        elif t - self._bound_since >= cfg.restart_at_bound_after:
+            return True
+        return False
+
     def _step_compiled(self, t: float, uk: np.ndarray, y: Measurement, dt: float) -> Estimate:
         """Steps 1-5 of `step` for every sample after the first, by three compiled passes over
         the particles (`mpf_numba.predict_weigh`, `resample_gate`, `sample_update`) on arrays
@@ -523,8 +603,8 @@ class StiffnessMPF:
         u_prev = self.u_prev
         self.t_prev, self.u_prev = t, uk
         innovation, ess, count, nu_common = nb.predict_weigh(
-            self.x, u_prev, self.w_prev, wk.a, wk.B, wk.af, wk.ar, wk.slip, dt, cfg.max_step, wk.heun, noise,
-            noise_scale, self.b, self.P, q * dt, self.bias_on, self.active, self.lam, self.nu0, st.gamma, st.mu,
+            self.x, u_prev, self.w_prev, wk.a, wk.B, wk.af, wk.ar, wk.slip, dt, cfg.max_step, wk.heun, wk.interval,
+            self._jw, self._c_floor, noise, noise_scale, self.b, self.P, q * dt, self.bias_on, self.active, self.lam, self.nu0, st.gamma, st.mu,
             st.Lam, st.nu, uk, yk, a, self.R, self.roll_gain, self._vp, self.full, self.rear_drive, wk.h, wk.D,
             wk.L11, wk.nu_w, wk.L12, wk.Lc, wk.e, wk.v, wk.ll, wk.ok, self.logw, nc, adaptive, cfg.plausible_beta,
             cfg.plausible_yaw_rate, cfg.gate_speed)
@@ -542,7 +622,7 @@ class StiffnessMPF:
             ess = float(effective_sample_size(self.logw))
         resample = ess < cfg.resample_threshold * cfg.particles
         u0 = float(rng.random((1,))[0]) if resample else 0.0
-        vx_est, vy_std, alpha = nb.resample_gate(self.logw, u0, resample, wk.idx, self.x, self.b, self.P, st.gamma,
+        vx_est, vy_std, alpha, mbar = nb.resample_gate(self.logw, u0, resample, wk.idx, self.x, self.b, self.P, st.gamma,
                                                  st.mu, st.Lam, st.nu, wk.a, wk.B, wk.slip, *wk.spares(), wk.af, wk.ar,
                                                  self.full)
         if resample:
@@ -556,6 +636,8 @@ class StiffnessMPF:
         contradiction = cfg.restart_alpha > 0 and alpha > cfg.restart_alpha and abs(ay_m) < cfg.gate_ay_max
         self._contradiction_since = (self._contradiction_since or t) if contradiction else None
         if contradiction and t - self._contradiction_since >= cfg.restart_after:
+            return self._restart(t, uk, y)
+        if cfg.restart_at_bound_after > 0 and self._pinned_too_long(t, mbar):
             return self._restart(t, uk, y)
         N = cfg.particles
         z = rng.standard_normal((N, self.n_w))
@@ -750,7 +832,7 @@ class StiffnessMPF:
             self.logw = normalize_log_weights(self._informed_start(uk, yk))
         self.restarts += 1
         self.t_start, self.t_prev, self.u_prev, self.active = t, t, uk, False
-        self._contradiction_since = None
+        self._contradiction_since = self._bound_since = None
         self._at_x = self._model(self.x, uk)
         self.w_prev = self.stats.mu.copy()  # the next propagation uses the prior means
         return self._estimate(float(self.cfg.particles))
@@ -867,6 +949,7 @@ class _MPFWork:
         self.avail_all = np.arange(m)
         self.nc_all = sum(c in (0, 1) for c in mpf.channels)
         self.heun = mpf.cfg.integrator == "heun"
+        self.interval = mpf.full and mpf.cfg.slip_hold == "interval"
         cfg = mpf.cfg
         self.lo = cfg.bound_low * mpf.C_ref - mpf.C_nom
         self.hi = cfg.bound_high * mpf.C_ref - mpf.C_nom
