@@ -489,14 +489,15 @@ def _take_rows(src, dst, idx):
 
 @njit(**_JIT)
 def resample_gate(logw, u0, resample, idx, x, b, P, gamma, mu, Lam, nu, a, B, slip, x2, b2, P2, gamma2, mu2, Lam2,
-                  nu2, a2, B2, slip2, af, ar, full):
+                  nu2, a2, B2, slip2, af, ar, full, pin_lo, pin_hi):
     """Resampling and the gate's moments. `resample`: systematic resampling
     (`systematic_resample` with the caller's uniform u0) into idx, the particles' arrays
     (x, b, P, the statistics, the model's first stage a, B, slip) copied by idx into their
     spares (x2, ...; the caller swaps), logw uniform; else idx = 0..N-1. The arrays of the
     weighting (h, D, L11, ...) are not copied: `sample_update` reads them through idx.
     Returns the gate's moments over the (resampled) particles, E[vx] (full model), the std
-    of vy and max(|E[af]|, |E[ar]|), and the posterior mean of mu (n_w,) (the bound restart)."""
+    of vy and max(|E[af]|, |E[ar]|), and whether the posterior mean of mu lies at or beyond
+    pin_lo or pin_hi (n_w,) in some component (the bound restart, `_pinned`)."""
     n = logw.shape[0]
     if resample:
         cdf = np.empty(n)
@@ -547,14 +548,18 @@ def resample_gate(logw, u0, resample, idx, x, b, P, gamma, mu, Lam, nu, a, B, sl
         s += q * (d * d)
         for j in range(n_w):
             mbar[j] += q * ms[i, j]
-    return mvx, math.sqrt(max(s, 0.0)), max(abs(maf), abs(mar)), mbar
+    pinned = False
+    for j in range(n_w):
+        if mbar[j] <= pin_lo[j] or mbar[j] >= pin_hi[j]:
+            pinned = True
+    return mvx, math.sqrt(max(s, 0.0)), max(abs(maf), abs(mar)), pinned
 
 
 
 
 @njit(**_JIT)
 def sample_update(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z, chi, nu_draw, w,
-                  use_mask, bound, do_bias, R, avail, y, active, drift, lo, hi):
+                  use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom):
     """Steps 3-5 of `StiffnessMPF.step`, in place. Per particle i (its weighting arrays h, D,
     L11, nu_w, L12, Lc, v at row idx[i], the ancestor when resampled):
     - w_i (into w) from the conditional of w given the first nc (accelerometer) residuals,
@@ -566,8 +571,11 @@ def sample_update(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, 
       K^T = S^-1 P_{a,:}, b += K (y_a - h_a - D_a mu - b_a), P -= P_{:,a} K^T, symmetrised;
     - gate open (`active`): the whitened lean chol(L11)^-1 (w_i - mu_i) of `_track_drift`
       (`drift`), then `NiW.update` (eq. (19)) and the projection of mu onto [lo, hi] (Sec. V).
-    Returns (the weighted mean of the whitened lean (n_w,), then `estimate_moments` after the
-    update)."""
+    Then `_track_drift`'s smoothing of the weighted mean lean into drift_state (n_w,) with
+    the factor drift_a, and `_estimate`'s moments after the update into the rows of mom
+    (6, >= max(nx, n_w, m)): x mean, x std, mean of mu, posterior variance of the mean,
+    sigma^2 of eq. (27b), bias mean. Returns the drift statistic z' of `_track_drift`, NaN
+    when not computed (or when the lean is not finite: the reference then keeps its state)."""
     n, n_w = mu.shape
     na = avail.shape[0]
     mch = b.shape[1]
@@ -694,24 +702,33 @@ def sample_update(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, 
             mu[i, j] = min(max(m, lo[j]), hi[j])
         gamma[i] = g_new
         nu[i] = nu[i] + 1.0
-    xm, xs, mbar, vm, s2, bm = estimate_moments(logw, x, gamma, mu, Lam, nu, b)
-    return ub, xm, xs, mbar, vm, s2, bm
+    zd = math.nan
+    if active and drift:
+        finite = True
+        for j in range(n_w):
+            if not math.isfinite(ub[j]):
+                finite = False
+        if finite:
+            dd = 0.0
+            for j in range(n_w):
+                drift_state[j] = drift_state[j] + drift_a * (ub[j] - drift_state[j])
+                dd += drift_state[j] * drift_state[j]
+            zd = dd * (2.0 - drift_a) / (drift_a * n_w)
+    estimate_moments(logw, x, gamma, mu, Lam, nu, b, mom)
+    return zd
 
 
 @njit(**_JIT)
-def estimate_moments(logw, x, gamma, mu, Lam, nu, b):
-    """`_estimate`'s sums: x mean and std, the mean of mu, the posterior variance of the mean
-    (gamma E[Sigma] plus the spread of the particle means), eq. (27b) sigma^2, bias mean."""
+def estimate_moments(logw, x, gamma, mu, Lam, nu, b, mom):
+    """`_estimate`'s sums into the rows of mom (6, >= max(nx, n_w, m)): x mean and std, the
+    mean of mu, the posterior variance of the mean (gamma E[Sigma] plus the spread of the
+    particle means), eq. (27b) sigma^2, bias mean."""
     n, nx = x.shape
     n_w = mu.shape[1]
     mch = b.shape[1]
-    xm = np.zeros(nx)
-    xs = np.zeros(nx)
-    mbar = np.zeros(n_w)
+    mom[:] = 0.0
+    xm, xs, mbar, vm, s2, bm = mom[0], mom[1], mom[2], mom[3], mom[4], mom[5]
     spread = np.zeros(n_w)
-    vm = np.zeros(n_w)
-    s2 = np.zeros(n_w)
-    bm = np.zeros(mch)
     q = np.empty(n)
     for i in range(n):
         q[i] = math.exp(logw[i])
@@ -737,4 +754,3 @@ def estimate_moments(logw, x, gamma, mu, Lam, nu, b):
     for j in range(n_w):
         vm[j] += spread[j]
         s2[j] += spread[j]
-    return xm, xs, mbar, vm, s2, bm

@@ -532,7 +532,7 @@ class StiffnessMPF:
         self._contradiction_since = (self._contradiction_since or t) if contradiction else None
         if contradiction and t - self._contradiction_since >= cfg.restart_after:
             return self._restart(t, uk, y)
-        if cfg.restart_at_bound_after > 0 and self._pinned_too_long(t, np.exp(self.logw) @ self.stats.mu):
+        if cfg.restart_at_bound_after > 0 and self._pinned_too_long(t, self._pinned(np.exp(self.logw) @ self.stats.mu)):
             return self._restart(t, uk, y)
 
         # 3. sample w_k from the conditional given the accelerometer residuals, eq. (39)-(41);
@@ -563,14 +563,22 @@ class StiffnessMPF:
         self._at_x = model_k  # the first stage of the next propagation, at this x and u
         return self._estimate(ess)
 
-    def _pinned_too_long(self, t: float, mbar: np.ndarray) -> bool:
-        """A posterior mean `mbar` (n_w,) held at a projection bound (Sec. V, within 1% of the
-        reference) since `restart_at_bound_after` s or longer: the cloud has locked onto a wrong
-        stiffness that the projection keeps it at, and the filter starts again."""
+    def _pin_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """The deviations (n_w,) at or beyond which a posterior mean counts as held at a
+        projection bound (Sec. V): within 1% of the reference stiffness of it."""
         cfg = self.cfg
         tol = 0.01 * self.C_ref
-        pinned = bool(np.any((mbar <= cfg.bound_low * self.C_ref - self.C_nom + tol)
-                             | (mbar >= cfg.bound_high * self.C_ref - self.C_nom - tol)))
+        return cfg.bound_low * self.C_ref - self.C_nom + tol, cfg.bound_high * self.C_ref - self.C_nom - tol
+
+    def _pinned(self, mbar: np.ndarray) -> bool:
+        lo, hi = self._pin_bounds()
+        return bool(np.any((mbar <= lo) | (mbar >= hi)))
+
+    def _pinned_too_long(self, t: float, pinned: bool) -> bool:
+        """A posterior mean held at a projection bound (`pinned`, `_pinned`) since
+        `restart_at_bound_after` s or longer: the cloud has locked onto a wrong stiffness that
+        the projection keeps it at, and the filter starts again."""
+        cfg = self.cfg
         if not pinned:
             self._bound_since = None
         elif self._bound_since is None:
@@ -622,9 +630,9 @@ class StiffnessMPF:
             ess = float(effective_sample_size(self.logw))
         resample = ess < cfg.resample_threshold * cfg.particles
         u0 = float(rng.random((1,))[0]) if resample else 0.0
-        vx_est, vy_std, alpha, mbar = nb.resample_gate(self.logw, u0, resample, wk.idx, self.x, self.b, self.P, st.gamma,
-                                                 st.mu, st.Lam, st.nu, wk.a, wk.B, wk.slip, *wk.spares(), wk.af, wk.ar,
-                                                 self.full)
+        vx_est, vy_std, alpha, pinned = nb.resample_gate(
+            self.logw, u0, resample, wk.idx, self.x, self.b, self.P, st.gamma, st.mu, st.Lam, st.nu, wk.a, wk.B,
+            wk.slip, *wk.spares, wk.af, wk.ar, self.full, wk.pin_lo, wk.pin_hi)
         if resample:
             self._swap_work(wk)
             self.resamples += 1
@@ -637,7 +645,7 @@ class StiffnessMPF:
         self._contradiction_since = (self._contradiction_since or t) if contradiction else None
         if contradiction and t - self._contradiction_since >= cfg.restart_after:
             return self._restart(t, uk, y)
-        if cfg.restart_at_bound_after > 0 and self._pinned_too_long(t, mbar):
+        if cfg.restart_at_bound_after > 0 and self._pinned_too_long(t, pinned):
             return self._restart(t, uk, y)
         N = cfg.particles
         z = rng.standard_normal((N, self.n_w))
@@ -650,17 +658,20 @@ class StiffnessMPF:
             chi = rng.chisquare(nu_draw)
         use_mask = bool(nc and cfg.outlier_prob < 1)
         st = self.stats
-        ubar, x_mean, x_std, mbar, var_mean, sigma2, b_mean = nb.sample_update(
+        drift = bool(self.active and nc and adaptive)
+        if drift and not (self.drift.flags.c_contiguous and self.drift.dtype == np.float64):
+            self.drift = np.array(self.drift, float)
+        zd = nb.sample_update(
             wk.idx, self.x, self.logw, st.gamma, st.mu, st.Lam, st.nu, self.b, self.P, wk.h, wk.D, wk.L11, wk.nu_w,
             wk.L12, wk.Lc, wk.v, nc, z, chi, nu_draw, wk.w, use_mask, self._outlier_bound(nc) if use_mask else 0.0,
-            bool(a.size and self.bias_on), self.R, a, yk, self.active, bool(self.active and nc and adaptive),
-            wk.lo, wk.hi)
-        if self.active and nc and adaptive and np.all(np.isfinite(ubar)):  # `_track_drift`
-            ad = -math.expm1(-dt / cfg.drift_time)
-            self.drift = self.drift + ad * (ubar - self.drift)
-            zd = float(self.drift @ self.drift) * (2.0 - ad) / (ad * len(ubar))
+            bool(a.size and self.bias_on), self.R, a, yk, self.active, drift, self.drift,
+            -math.expm1(-dt / cfg.drift_time), wk.lo, wk.hi, wk.mom)
+        if zd == zd:  # `_track_drift` (the statistic is NaN when not computed)
             self.lam = min(self.lam, max(1.0 - (1.0 - cfg.forgetting) * zd, cfg.forgetting_min))
-        return self._estimate_from(ess, x_mean, x_std, mbar, var_mean, sigma2, b_mean)
+        nx, m = self.x.shape[1], len(self.channels)
+        r = wk.mom.tolist()
+        return self._estimate_from(ess, r[0][:nx], r[1][:nx], r[2][:self.n_w], r[3][:self.n_w], r[4][:self.n_w],
+                                   r[5][:m])
 
     def _work(self) -> "_MPFWork":
         """The fused step's arrays, the particles' own arrays among them: an array that the
@@ -863,8 +874,11 @@ class StiffnessMPF:
         return self._estimate_from(ess, x_mean, x_std, mbar, var_mean, sigma2, q @ self.b)
 
     def _estimate_from(self, ess, x_mean, x_std, mbar, var_mean, sigma2, b_mean) -> Estimate:
-        C = self.C_nom + mbar
-        vals = dict(zip(self.params, zip(C, np.sqrt(var_mean), np.sqrt(sigma2))))
+        """The Estimate from the moments (sequences of floats: n_w for mbar, var_mean and
+        sigma2): the stiffness C_nom + mbar, the std of its mean and the deviation spread."""
+        root = _sqrt_or_nan
+        vals = {p: (c + mb, root(vm), root(s2)) for p, c, mb, vm, s2 in zip(self.params, self.C_nom.tolist(), mbar,
+                                                                             var_mean, sigma2)}
         bias = dict(zip(("ax", "ay", "yaw_rate") if self.full else ("ay", "yaw_rate"), b_mean))
         return particle_estimate(active=self.active, ess=ess, x_mean=x_mean, x_std=x_std, stiffness=vals, bias=bias,
                                  vx_input=NAN if self.u_prev is None else self.u_prev[3])
@@ -945,6 +959,8 @@ class _MPFWork:
         self.w = np.zeros((N, n_w))
         self.ok = np.zeros(N, bool)
         self.idx = np.arange(N)
+        self.mom = np.zeros((6, max(nx, n_w, m)))
+        self.pin_lo, self.pin_hi = mpf._pin_bounds()
         self.no_noise, self.no_scale = np.zeros((0, nx)), np.zeros(nx)
         self.avail_all = np.arange(m)
         self.nc_all = sum(c in (0, 1) for c in mpf.channels)
@@ -954,11 +970,16 @@ class _MPFWork:
         self.lo = cfg.bound_low * mpf.C_ref - mpf.C_nom
         self.hi = cfg.bound_high * mpf.C_ref - mpf.C_nom
 
-    def spares(self) -> tuple:
-        return tuple(getattr(self, name + "2") for name in self.OWN)
+        self.spares = tuple(getattr(self, name + "2") for name in self.OWN)
 
     def swap(self) -> None:
         for name in self.OWN:
             cur, spare = getattr(self, name), getattr(self, name + "2")
             setattr(self, name, spare)
             setattr(self, name + "2", cur)
+        self.spares = tuple(getattr(self, name + "2") for name in self.OWN)
+
+
+def _sqrt_or_nan(v: float) -> float:
+    """np.sqrt on a float: NaN below zero."""
+    return math.sqrt(v) if v >= 0 else NAN
