@@ -44,11 +44,24 @@ _JIT = dict(cache=True, nogil=True)
 
 # ---- model ---------------------------------------------------------------------------------
 @njit(inline="always", **_JIT)
-def _model1(x0, x1, x2, u0, u1, u2, u3, held, sf, sr, a, B, vp, full, rear_drive, n_w):
+def _steer_consts(u0, vp):
+    """The factors of `_model1` that depend only on the steering angle u0 and the vehicle:
+    (cos, sin, 1 / m, 1 / I, cos / m, sin / m, lf sin / I, -sin / m, lf cos / I, -lr / I),
+    each the reference's parenthesised expression, computed once per sample instead of once
+    per particle and model evaluation (a division costs as much as the rest of a term)."""
+    m, I, lf, lr = vp[0], vp[1], vp[2], vp[3]
+    cd, sd = math.cos(u0), math.sin(u0)
+    return (cd, sd, 1.0 / m, 1.0 / I, cd / m, sd / m, lf * sd / I, -sd / m, lf * cd / I, -lr / I)
+
+
+@njit(inline="always", **_JIT)
+def _model1(x0, x1, x2, u0, u1, u2, u3, k, held, sf, sr, a, B, vp, full, rear_drive, n_w):
     """One particle of `_model`: fills a (3,), B (3, n_w); returns (af, ar, lam_f, lam_r).
-    vp = (m, I, lf, lr, Cf_y, Cr_y, C_nom_fx, C_nom_rx, R_w, undriven_share)."""
-    m, I, lf, lr, Cfy, Cry, Cfx, Crx, Rw = vp[0], vp[1], vp[2], vp[3], vp[4], vp[5], vp[6], vp[7], vp[8]
+    k = `_steer_consts(u0, vp)`; vp = (m, I, lf, lr, Cf_y, Cr_y, C_nom_fx, C_nom_rx, R_w,
+    undriven_share)."""
+    lf, lr, Cfy, Cry, Cfx, Crx, Rw = vp[2], vp[3], vp[4], vp[5], vp[6], vp[7], vp[8]
     s = vp[9]
+    cd, sd, inv_m, inv_I, cd_m, sd_m, lf_sd_I, msd_m, lf_cd_I, mlr_I = k
     if full:
         vx, vy, r = x0, x1, x2
     else:
@@ -56,7 +69,6 @@ def _model1(x0, x1, x2, u0, u1, u2, u3, held, sf, sr, a, B, vp, full, rear_drive
     inv_vx = 1.0 / max(vx, 1.0)
     af = u0 - (vy + lf * r) * inv_vx
     ar = (lr * r - vy) * inv_vx
-    cd, sd = math.cos(u0), math.sin(u0)
     Ffy, Fry = Cfy * af, Cry * ar
     for i in range(3):
         for j in range(n_w):
@@ -72,27 +84,27 @@ def _model1(x0, x1, x2, u0, u1, u2, u3, held, sf, sr, a, B, vp, full, rear_drive
             lam_r = (wr - vx) / max(max(abs(vx), abs(wr)), 1.0)
         Ffx, Frx = Cfx * lam_f, Crx * lam_r
         if rear_drive:
-            B[0, 0] = lam_r * (1.0 / m) + (s * lam_f) * (cd / m)
-            B[1, 0] = (s * lam_f) * (sd / m)
-            B[2, 0] = (s * lam_f) * (lf * sd / I)
+            B[0, 0] = lam_r * inv_m + (s * lam_f) * cd_m
+            B[1, 0] = (s * lam_f) * sd_m
+            B[2, 0] = (s * lam_f) * lf_sd_I
         else:
-            B[0, 0] = lam_f * (cd / m) + (s * lam_r) * (1.0 / m)
-            B[1, 0] = lam_f * (sd / m)
-            B[2, 0] = lam_f * (lf * sd / I)
+            B[0, 0] = lam_f * cd_m + (s * lam_r) * inv_m
+            B[1, 0] = lam_f * sd_m
+            B[2, 0] = lam_f * lf_sd_I
         j = 1
         Fy_f = Ffy * cd + Ffx * sd
-        aX = (Ffx * cd - Ffy * sd + Frx) * (1.0 / m)
+        aX = (Ffx * cd - Ffy * sd + Frx) * inv_m
     else:
         Fy_f = Ffy * cd
         aX = 0.0
-    B[0, j] = af * (-sd / m)
-    B[1, j] = af * (cd / m)
-    B[2, j] = af * (lf * cd / I)
-    B[1, j + 1] = ar * (1.0 / m)
-    B[2, j + 1] = ar * (-lr / I)
+    B[0, j] = af * msd_m
+    B[1, j] = af * cd_m
+    B[2, j] = af * lf_cd_I
+    B[1, j + 1] = ar * inv_m
+    B[2, j + 1] = ar * mlr_I
     a[0] = aX
-    a[1] = (Fy_f + Fry) * (1.0 / m)
-    a[2] = (lf * Fy_f - lr * Fry) * (1.0 / I)
+    a[1] = (Fy_f + Fry) * inv_m
+    a[2] = (lf * Fy_f - lr * Fry) * inv_I
     return af, ar, lam_f, lam_r
 
 
@@ -134,6 +146,7 @@ def slip_over_step(x, u0, u1, w, a, B, slip, dt, vp, jw, c_floor, rear_drive, n_
     per-particle arithmetic as the first stage in `predict_weigh`; for the reference path and
     tests/test_kernels.py."""
     n = x.shape[0]
+    k0 = _steer_consts(u0[0], vp)
     a2 = np.empty((n, 3))
     B2 = np.empty((n, 3, n_w))
     af = np.empty(n)
@@ -146,7 +159,7 @@ def slip_over_step(x, u0, u1, w, a, B, slip, dt, vp, jw, c_floor, rear_drive, n_
         acc0 = a[i, 0] + acc0
         out[0, i], out[1, i] = _interval_slip1(x[i, 0], x[i, 1], x[i, 2], acc0, w[i, 0], slip[0, i], slip[1, i], u0,
                                                u1, dt, vp, jw, c_floor, rear_drive)
-        af[i], ar[i], _, _ = _model1(x[i, 0], x[i, 1], x[i, 2], u0[0], u0[1], u0[2], u0[3], True, out[0, i],
+        af[i], ar[i], _, _ = _model1(x[i, 0], x[i, 1], x[i, 2], u0[0], u0[1], u0[2], u0[3], k0, True, out[0, i],
                                      out[1, i], a2[i], B2[i], vp, True, rear_drive, n_w)
     return a2, B2, af, ar, out
 
@@ -175,6 +188,7 @@ def model(x, u, vp, full, rear_drive, n_w):
     slip (2, N) (zeros in the lateral model, where the reference returns None). For the
     reference path's compiled model (the first sample, restarts, gaps) and the AUGPF."""
     n = x.shape[0]
+    ku = _steer_consts(u[0], vp)
     a = np.empty((n, 3))
     B = np.empty((n, 3, n_w))
     af = np.empty(n)
@@ -182,7 +196,7 @@ def model(x, u, vp, full, rear_drive, n_w):
     slip = np.zeros((2, n))
     for i in range(n):
         x2 = x[i, 2] if full else 0.0
-        af[i], ar[i], slip[0, i], slip[1, i] = _model1(x[i, 0], x[i, 1], x2, u[0], u[1], u[2], u[3], False, 0.0,
+        af[i], ar[i], slip[0, i], slip[1, i] = _model1(x[i, 0], x[i, 1], x2, u[0], u[1], u[2], u[3], ku, False, 0.0,
                                                        0.0, a[i], B[i], vp, full, rear_drive, n_w)
     return a, B, af, ar, slip
 
@@ -194,6 +208,7 @@ def propagate(x, u, w, a, B, slip, dt, max_step, heun, vp, full, rear_drive, n_w
     sub-steps (the model re-evaluated, slip recomputed). The same loop as the propagation
     in `predict_weigh`; for the reference path and the AUGPF."""
     n, nx = x.shape
+    ku = _steer_consts(u[0], vp)
     n_sub = max(1, math.ceil(dt / max_step - 1e-9))
     hs = dt / n_sub
     out = np.empty((n, nx))
@@ -215,7 +230,7 @@ def propagate(x, u, w, a, B, slip, dt, max_step, heun, vp, full, rear_drive, n_w
                         Bi[c, j] = B[i, c, j]
             else:
                 xs2 = xi[2] if full else 0.0
-                _, _, sf, sr = _model1(xi[0], xi[1], xs2, u[0], u[1], u[2], u[3], False, 0.0, 0.0, ai, Bi, vp, full,
+                _, _, sf, sr = _model1(xi[0], xi[1], xs2, u[0], u[1], u[2], u[3], ku, False, 0.0, 0.0, ai, Bi, vp, full,
                                        rear_drive, n_w)
             _xdot1(xi, u[3], ai, Bi, w[i], k1, full, n_w)
             if not heun:
@@ -225,7 +240,7 @@ def propagate(x, u, w, a, B, slip, dt, max_step, heun, vp, full, rear_drive, n_w
             for c in range(nx):
                 x1[c] = xi[c] + hs * k1[c]
             xs2 = x1[2] if full else 0.0
-            _model1(x1[0], x1[1], xs2, u[0], u[1], u[2], u[3], full, sf, sr, ai, Bi, vp, full, rear_drive, n_w)
+            _model1(x1[0], x1[1], xs2, u[0], u[1], u[2], u[3], ku, full, sf, sr, ai, Bi, vp, full, rear_drive, n_w)
             _xdot1(x1, u[3], ai, Bi, w[i], k2, full, n_w)
             for c in range(nx):
                 xi[c] = xi[c] + (0.5 * hs) * (k1[c] + k2[c])
@@ -336,6 +351,8 @@ def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, int
     n_w = mu.shape[1]
     na = avail.shape[0]
     mch = qdt.shape[0]
+    kp = _steer_consts(u_prev[0], vp)  # (once per sample, not per particle)
+    kk = _steer_consts(uk[0], vp)
     n_sub = max(1, math.ceil(dt / max_step - 1e-9))
     hs = dt / n_sub
     xi = np.empty(nx)
@@ -347,6 +364,7 @@ def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, int
     nb = max(na, 1)
     S = np.empty((nb, nb))
     DL = np.empty((nb, n_w))
+    inv_d = np.empty(nb)
     with_noise = noise.shape[0] > 0
     count = 0
     for i in range(n):
@@ -361,7 +379,7 @@ def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, int
             acc0 = a[i, 0] + acc0
             sf, sr = _interval_slip1(xi[0], xi[1], xi[2], acc0, w_prev[i, 0], sf, sr, u_prev, uk, dt, vp, jw, c_floor,
                                      rear_drive)
-            _model1(xi[0], xi[1], xi[2], u_prev[0], u_prev[1], u_prev[2], u_prev[3], True, sf, sr, ai, Bi, vp, True,
+            _model1(xi[0], xi[1], xi[2], u_prev[0], u_prev[1], u_prev[2], u_prev[3], kp, True, sf, sr, ai, Bi, vp, True,
                     rear_drive, n_w)
         else:
             for c in range(3):
@@ -371,7 +389,7 @@ def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, int
         for s in range(n_sub):
             if s > 0:
                 xs2 = xi[2] if full else 0.0
-                _, _, sf, sr = _model1(xi[0], xi[1], xs2, u_prev[0], u_prev[1], u_prev[2], u_prev[3], False, 0.0, 0.0,
+                _, _, sf, sr = _model1(xi[0], xi[1], xs2, u_prev[0], u_prev[1], u_prev[2], u_prev[3], kp, False, 0.0, 0.0,
                                        ai, Bi, vp, full, rear_drive, n_w)
             _xdot1(xi, u_prev[3], ai, Bi, w_prev[i], k1, full, n_w)
             if not heun:
@@ -381,7 +399,7 @@ def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, int
             for c in range(nx):
                 x1[c] = xi[c] + hs * k1[c]
             xs2 = x1[2] if full else 0.0
-            _model1(x1[0], x1[1], xs2, u_prev[0], u_prev[1], u_prev[2], u_prev[3], full, sf, sr, ai, Bi, vp, full,
+            _model1(x1[0], x1[1], xs2, u_prev[0], u_prev[1], u_prev[2], u_prev[3], kp, full, sf, sr, ai, Bi, vp, full,
                     rear_drive, n_w)
             _xdot1(x1, u_prev[3], ai, Bi, w_prev[i], k2, full, n_w)
             for c in range(nx):
@@ -400,7 +418,7 @@ def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, int
                     Lam[i, j, k] = Lam[i, j, k] * f
         # the model at x_k, u_k (`_model`) and the plausible region (`_plausible`)
         xs2 = x[i, 2] if full else 0.0
-        af[i], ar[i], slip[0, i], slip[1, i] = _model1(x[i, 0], x[i, 1], xs2, uk[0], uk[1], uk[2], uk[3], False, 0.0,
+        af[i], ar[i], slip[0, i], slip[1, i] = _model1(x[i, 0], x[i, 1], xs2, uk[0], uk[1], uk[2], uk[3], kk, False, 0.0,
                                                        0.0, a[i], B[i], vp, full, rear_drive, n_w)
         vxp = x[i, 0] if full else uk[3]
         ok[i] = abs(x[i, nx - 2]) <= beta * max(abs(vxp), gate_speed) and abs(x[i, nx - 1]) <= yaw_max
@@ -450,7 +468,21 @@ def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, int
                 if bias_on:
                     noise_qq = noise_qq + P[i, avail[q], avail[q2]]
                 S[q, q2] = s + c * noise_qq
-        _chol(S, Lc[i], na)
+        for j in range(na):  # Lc = chol(S) (`_chol`, written out: no view of Lc[i])
+            Sjj = S[j, j]
+            d = Sjj
+            for k in range(j):
+                d = d - Lc[i, j, k] * Lc[i, j, k]
+            Ljj = math.sqrt(max(d, abs(Sjj) * 1e-14 + 1e-300))
+            Lc[i, j, j] = Ljj
+            inv_d[j] = 1.0 / Ljj
+            for r in range(j + 1, na):
+                acc = S[r, j]
+                for k in range(j):
+                    acc = acc - Lc[i, r, k] * Lc[i, j, k]
+                Lc[i, r, j] = acc * inv_d[j]
+            for r in range(j):
+                Lc[i, r, j] = 0.0
         logdet = 0.0
         vv = 0.0
         for q in range(na):
@@ -462,7 +494,7 @@ def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, int
             acc = e[i, q]
             for k in range(q):
                 acc = acc - Lc[i, q, k] * v[i, k]
-            v[i, q] = acc / Lc[i, q, q]
+            v[i, q] = acc / Lc[i, q, q]  # (a division, as `solve_lower`: the test's equality is to rounding)
             vv += v[i, q] * v[i, q]
             logdet += math.log(Lc[i, q, q])
         logdet *= 2.0
@@ -483,8 +515,15 @@ def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, int
 
 @njit(**_JIT)
 def _take_rows(src, dst, idx):
-    for i in range(idx.shape[0]):
-        dst[i] = src[idx[i]]
+    """dst[i] = src[idx[i]] for C-contiguous arrays of N rows, copied as flat (N, k) rows."""
+    n = idx.shape[0]
+    k = src.size // n
+    s2 = src.reshape((n, k))
+    d2 = dst.reshape((n, k))
+    for i in range(n):
+        r = idx[i]
+        for c in range(k):
+            d2[i, c] = s2[r, c]
 
 
 @njit(**_JIT)
