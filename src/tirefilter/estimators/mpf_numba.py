@@ -324,7 +324,7 @@ def _normalise_into(logw, add):
 # ---- the three passes --------------------------------------------------------------------------
 @njit(**_JIT)
 def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise,
-                  noise_scale, b, P, qdt, bias_on, forget, lam, nu_min, gamma, mu, Lam, nu, uk, y, avail, R, roll_gain, vp,
+                  noise_scale, b, P, q, bias_on, forget, lam, nu_min, gamma, mu, Lam, nu, uk, y, avail, R, roll_gain, vp,
                   full, rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc, want_nis, beta, yaw_max,
                   gate_speed):
     """Steps 1 and 2 of `StiffnessMPF.step`, in place. Per particle: the first stage of the
@@ -333,7 +333,7 @@ def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, int
     over the step (`_slip_over_step`, jw, c_floor as there, towards the slip of uk); propagate
     x (N, nx) (`_propagate`: eq. (9), w_prev held, `max_step` sub-steps), add the state noise
     noise_scale * noise (the caller's normals; noise of shape (0, nx) when off), predict the
-    bias covariance P += diag(qdt) (eq. (29)), forget (`NiW.forget`, eq. (20), when
+    bias covariance P += diag(q dt) (eq. (29)), forget (`NiW.forget`, eq. (20), when
     `forget`), evaluate the model at x_k with uk (`_model`: a, B, af, ar, slip, the first
     stage of the next propagation), mark the plausible particles (`_plausible`: ok), and for
     the channels `avail` (indices into the model's m channels; y (m,)) weigh as `step` does:
@@ -350,7 +350,7 @@ def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, int
     n, nx = x.shape
     n_w = mu.shape[1]
     na = avail.shape[0]
-    mch = qdt.shape[0]
+    mch = q.shape[0]
     kp = _steer_consts(u_prev[0], vp)  # (once per sample, not per particle)
     kk = _steer_consts(uk[0], vp)
     n_sub = max(1, math.ceil(dt / max_step - 1e-9))
@@ -408,7 +408,7 @@ def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, int
             x[i, c] = xi[c] + noise_scale[c] * noise[i, c] if with_noise else xi[c]
         if bias_on:  # eq. (29)
             for c in range(mch):
-                P[i, c, c] = P[i, c, c] + qdt[c]
+                P[i, c, c] = P[i, c, c] + q[c] * dt
         if forget:  # eq. (20), `NiW.forget`
             f = max(lam, min(1.0, nu_min / nu[i])) if nu_min > 0 else lam
             gamma[i] = gamma[i] / f

@@ -435,7 +435,7 @@ class StiffnessMPF:
         cfg = self.cfg
         u_now = np.array([u.delta, u.omega_f, u.omega_r, u.vx], float)
         uk = u_now
-        if self.u_prev is not None:
+        if self.u_prev is not None and not math.isfinite(u.delta + u.omega_f + u.omega_r + u.vx):
             # hold the last finite input where a sample is missing
             uk = np.where(np.isfinite(u_now), u_now, self.u_prev)
         if not self.full and not math.isfinite(uk[3]):
@@ -601,8 +601,9 @@ class StiffnessMPF:
             noise, noise_scale = wk.no_noise, wk.no_scale
         q = self.q_bias if self.linear_region else self.q_bias_nonlinear
         ch = self.channels
-        yk = np.array([(y.ax, y.ay, y.yaw_rate)[c] for c in ch], float)
-        if math.isfinite(yk.sum()):
+        yl = [y.ax, y.ay, y.yaw_rate] if self.full else [y.ay, y.yaw_rate]
+        yk = np.array(yl, float)
+        if math.isfinite(sum(yl)):
             a, nc = wk.avail_all, wk.nc_all
         else:
             a = np.flatnonzero(np.isfinite(yk))
@@ -612,7 +613,7 @@ class StiffnessMPF:
         self.t_prev, self.u_prev = t, uk
         innovation, ess, count, nu_common = nb.predict_weigh(
             self.x, u_prev, self.w_prev, wk.a, wk.B, wk.af, wk.ar, wk.slip, dt, cfg.max_step, wk.heun, wk.interval,
-            self._jw, self._c_floor, noise, noise_scale, self.b, self.P, q * dt, self.bias_on, self.active, self.lam, self.nu0, st.gamma, st.mu,
+            self._jw, self._c_floor, noise, noise_scale, self.b, self.P, q, self.bias_on, self.active, self.lam, self.nu0, st.gamma, st.mu,
             st.Lam, st.nu, uk, yk, a, self.R, self.roll_gain, self._vp, self.full, self.rear_drive, wk.h, wk.D,
             wk.L11, wk.nu_w, wk.L12, wk.Lc, wk.e, wk.v, wk.ll, wk.ok, self.logw, nc, adaptive, cfg.plausible_beta,
             cfg.plausible_yaw_rate, cfg.gate_speed)
