@@ -2,7 +2,8 @@
 its peak memory does not grow with the drive's length; a long co-simulation with the MPF
 does not grow either.
 
-    .venv/bin/python benchmarks/bench_memory.py replay [--minutes 120] [--estimators none kf mpf ...] [--backend numba|numpy]
+    .venv/bin/python benchmarks/bench_memory.py replay [--minutes 120] [--estimators none kf mpf ...]
+                                                       [--backend numba|numpy]
     .venv/bin/python benchmarks/bench_memory.py soak [--minutes 60] [--particles 500] [--backend numba|numpy]
     .venv/bin/python benchmarks/bench_memory.py numba
 

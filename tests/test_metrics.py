@@ -193,3 +193,35 @@ def test_streamed_metrics_equal_run_metrics(sizes):
 def test_streamed_metrics_need_the_time_column():
     with pytest.raises(ValueError, match="column t"):
         RunMetrics(["Cf_y"])
+
+
+def test_a_replay_longer_than_a_chunk_states_the_metrics_of_its_results(tmp_path):
+    """A replay's summary (`runs._ScoredStream`, 8192 rows a chunk) on 12 001 rows: the
+    metrics of `run_metrics` on the Result CSV written, to 1e-12."""
+    import json
+    from pathlib import Path
+
+    from tirefilter.cli import main
+    from tirefilter.cosim.results import read_results
+
+    rng = np.random.default_rng(0)
+    t = np.arange(12001) * 0.01
+    delta = 0.02 * np.sin(2 * np.pi * 0.2 * t)
+    vx = np.full(t.size, 20.0)
+    yaw = vx * delta / 2.9
+    cols = {"t": t, "delta": delta, "ax": 0.05 * rng.standard_normal(t.size),
+            "ay": vx * yaw + 0.05 * rng.standard_normal(t.size), "yaw_rate": yaw + 0.003 * rng.standard_normal(t.size),
+            "vx": vx, "vy_true": 0.01 * np.sin(t), "beta_true": np.arctan2(0.01 * np.sin(t), vx),
+            "Cf_y_true": np.full(t.size, 1.1e5)}
+    log = tmp_path / "drive.csv"
+    with open(log, "w") as f:
+        f.write(",".join(cols) + "\n")
+        for row in zip(*(c.tolist() for c in cols.values())):
+            f.write(",".join(repr(x) for x in row) + "\n")
+    vehicle = Path(__file__).resolve().parents[1] / "src/tirefilter/scenarios/data/vehicles/midsize-suv.toml"
+    out = tmp_path / "out.csv"
+    assert main(["replay", str(log), "--vehicle", str(vehicle), "--estimator", "kf", "--out", str(out), "--quiet"]) == 0
+    m = json.loads(out.with_suffix(".json").read_text())["metrics"]
+    assert m["samples"] == 12001 and {"vy", "beta"} <= set(m["state"])
+    _same(m, json.loads(json.dumps(run_metrics(read_results(out), restarts=m["restarts"],
+                                               resamples=m["resamples"]))))

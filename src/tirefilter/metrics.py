@@ -184,19 +184,18 @@ def _cov_warning(p: str, cov: float) -> str:
 
 
 class _Sum:
-    """Sum and count of the finite values seen, and the largest |value| (chunk by chunk)."""
+    """Sum and count of the finite values seen (chunk by chunk): `_finite_mean` of them all."""
 
-    __slots__ = ("s", "n", "max")
+    __slots__ = ("s", "n")
 
     def __init__(self):
-        self.s, self.n, self.max = 0.0, 0, -np.inf
+        self.s, self.n = 0.0, 0
 
     def add(self, x: np.ndarray) -> None:
         x = x[np.isfinite(x)]
         if x.size:
             self.s += float(np.sum(x))
             self.n += x.size
-            self.max = max(self.max, float(np.max(np.abs(x))))
 
     def mean(self) -> float | None:
         return self.s / self.n if self.n else None
@@ -209,7 +208,6 @@ class _Runs:
     def __init__(self):
         self.windows: list[list[float]] = []
         self.open = False  # the last sample seen was inside a run
-        self.t_last = None
 
     def add(self, mask: np.ndarray, t: np.ndarray) -> None:
         if not mask.size:
@@ -259,8 +257,8 @@ class _Settling:
 class _StiffnessAgainst:
     """The figures of one stiffness parameter against one candidate reference column."""
 
-    def __init__(self, p: str, ref: str, has_std: bool, schedule):
-        self.p, self.ref, self.has_std, self.schedule = p, ref, has_std, schedule
+    def __init__(self, p: str, ref: str, has_std: bool):
+        self.p, self.ref, self.has_std = p, ref, has_std
         self.ref_finite = False
         self.abs_err, self.settled_abs = _Sum(), _Sum()
         self.have = self.inside = 0  # samples with an error; of those inside the band
@@ -349,7 +347,7 @@ class RunMetrics:
                 continue
             self.est_finite[p] = False
             refs = [c for c in (f"true_{p}_mean", f"{p}_mean_true", f"true_{p}", f"{p}_true") if c in cols]
-            self.stiffness[p] = [_StiffnessAgainst(p, c, f"{p}_std" in cols, schedule) for c in refs]
+            self.stiffness[p] = [_StiffnessAgainst(p, c, f"{p}_std" in cols) for c in refs]
             if schedule is not None and f"true_{p}_mean" in cols:
                 self.settling[p] = [_Settling(tc) for tc in schedule.surface_changes]
         self.states: dict[str, list[_StateAgainst]] = {}
