@@ -181,16 +181,16 @@ def test_slip_over_step_kernel_equal(drive, undriven):
 PAPER_SLIP = dict(slip_hold="start", undriven_stiffness="nominal", x0_vx_wheel_std=0.1)
 
 
-def _mpf_drive(est: StiffnessMPF, steps: int):
+def _mpf_drive(est: StiffnessMPF, steps: int, gap: float = 0.05):
     """A steering sine at about 20 m/s, 100 Hz, from a linear single track with noise and a
     little wheel slip (no FMU); a^Y missing every 7th sample, all sensors missing once, and
-    one 50 ms gap (sub-stepped)."""
+    one gap of `gap` s before sample 30 (50 ms: sub-stepped)."""
     rng = np.random.default_rng(5)
     est.reset(np.random.default_rng(9))
     v = est.vehicle
     out, t = [], 0.0
     for k in range(steps):
-        t += 0.05 if k == 30 else 0.01
+        t += gap if k == 30 else 0.01
         delta = 0.02 * math.sin(2 * math.pi * 0.7 * t)
         r = 20.0 * delta / (v.lf + v.lr)
         omega = 20.0 / v.wheel_radius
@@ -206,11 +206,14 @@ def _mpf_drive(est: StiffnessMPF, steps: int):
 @pytest.mark.parametrize("restarts", [False, True], ids=["", "restarts"])
 @pytest.mark.parametrize("bias", [False, True], ids=["no-bias", "bias"])
 @pytest.mark.parametrize("model", ["full", "lateral"])
-def test_stiffness_mpf_backends_equal(model, bias, restarts, paper):
+def test_stiffness_mpf_backends_equal(model, bias, restarts, paper, monkeypatch):
     """80 steps at N = 24 with resampling at every step (threshold 1) and learning from the
     fifth sample: numba and numpy give the same estimates, particles, bias and statistics.
     `restarts`: a plausible yaw rate so small that the cloud leaves it now and then.
-    `paper`: the paper's wheel slip (held from the start of the step) and undriven axle."""
+    `paper`: the paper's wheel slip (held from the start of the step) and undriven axle.
+    The numba filter runs its fused step (`_step_compiled`) on every sample but the first
+    (a restart is decided inside it); the numpy filter never does."""
+    fused = _count_fused_steps(monkeypatch)
     vehicle = load_scenario("paper-sim").vehicle
     noise = dict(bias_rw=(0.01, 0.01, 0.001), bias0_std=(0.1, 0.1, 0.01)) if bias else dict(
         bias_rw=(0.0, 0.0, 0.0), bias0_std=(0.0, 0.0, 0.0))
@@ -222,6 +225,7 @@ def test_stiffness_mpf_backends_equal(model, bias, restarts, paper):
         est = StiffnessMPF(vehicle, cfg)
         runs[backend] = (_mpf_drive(est, 80), est)
     (a, fast), (b, ref) = runs["numba"], runs["numpy"]
+    assert fused[id(ref)] == 0 and fused[id(fast)] == 79  # (a restart is decided inside the fused step)
     assert ref.resamples >= 30 and fast.resamples == ref.resamples
     assert fast.restarts == ref.restarts and (ref.restarts >= 2 if restarts else ref.restarts == 0)
     assert np.isfinite(b[:, :7]).all()
@@ -229,5 +233,41 @@ def test_stiffness_mpf_backends_equal(model, bias, restarts, paper):
     pa, pb = fast.posterior(), ref.posterior()
     assert_equal_to_rounding(pa.particles, pb.particles, "particles")
     assert_equal_to_rounding(pa.log_weights, pb.log_weights, "log-weights")
+    for key in ("gamma", "mu", "Lam", "nu", "bias", "bias_cov"):
+        assert_equal_to_rounding(pa.stats[key], pb.stats[key], key)
+
+
+def _count_fused_steps(monkeypatch) -> dict:
+    """Count the calls of `StiffnessMPF._step_compiled` per filter (id -> calls)."""
+    from collections import Counter
+
+    calls, fused = Counter(), StiffnessMPF._step_compiled
+
+    def counted(self, *args):
+        calls[id(self)] += 1
+        return fused(self, *args)
+
+    monkeypatch.setattr(StiffnessMPF, "_step_compiled", counted)
+    return calls
+
+
+def test_stiffness_mpf_gap_step_takes_the_reference_path(monkeypatch):
+    """A 0.6 s gap (longer than gap_after, 0.5 s) before sample 30: the numba filter runs that
+    step through the numpy reference (v^X drawn again from the wheels), then the fused step
+    again from arrays the reference replaced; both backends stay equal to rounding."""
+    fused = _count_fused_steps(monkeypatch)
+    vehicle = load_scenario("paper-sim").vehicle
+    runs = {}
+    for backend in ("numpy", "numba"):
+        cfg = MPFConfig(particles=24, backend=backend, resample_threshold=1.0, gate_warmup=0.05, gate_vy_std=10.0,
+                        gate_steer=0.0, bias_rw=(0.01, 0.01, 0.001), bias0_std=(0.1, 0.1, 0.01))
+        est = StiffnessMPF(vehicle, cfg)
+        runs[backend] = (_mpf_drive(est, 60, gap=0.6), est)
+    (a, fast), (b, ref) = runs["numba"], runs["numpy"]
+    assert ref.gap_redraws == fast.gap_redraws == 1 and ref.restarts == fast.restarts == 0
+    assert fused[id(ref)] == 0 and fused[id(fast)] == 60 - 2  # not the first sample, not the gap
+    assert_equal_to_rounding(a, b, "estimates")
+    pa, pb = fast.posterior(), ref.posterior()
+    assert_equal_to_rounding(pa.particles, pb.particles, "particles")
     for key in ("gamma", "mu", "Lam", "nu", "bias", "bias_cov"):
         assert_equal_to_rounding(pa.stats[key], pb.stats[key], key)
