@@ -5,7 +5,7 @@ as a log with default settings (so with the replay's bias estimation and noise f
 at N = 100, once per estimator seed: how often the filter diverges (restarts, sideslip RMSE),
 the robustness behind that test's fixed seed.
 
-    .venv/bin/python benchmarks/bench_short_replay.py --seeds 0-23 [--config FILE.toml]
+    .venv/bin/python benchmarks/bench_short_replay.py --seeds 0-23 [--particles N] [--config FILE.toml]
 """
 
 from __future__ import annotations
@@ -32,6 +32,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", default="0-23", help="estimator seeds, FIRST-LAST")
     ap.add_argument("--config", help="estimator configuration TOML (as --config of replay)")
+    ap.add_argument("--particles", type=int, default=N, help=f"N (default {N}, as the test)")
     args = ap.parse_args()
     first, last = (int(s) for s in args.seeds.split("-"))
     config = read_toml(args.config) if args.config else {}
@@ -43,14 +44,14 @@ def main() -> int:
     rows_out = []
     for seed in range(first, last + 1):
         est = build_log_estimator("mpf", vehicle, log.t, {s: log.signals[s] for s in log.available}, model="auto",
-                                  particles=N, config=config, source=args.config or "defaults")
+                                  particles=args.particles, config=config, source=args.config or "defaults")
         _, rows = replay_log(log, estimator=est, seed=seed, keep_rows=True)
         r = dict(zip(result_columns(log), rows.T))
         rmse = float(np.sqrt(np.mean(np.degrees(r["beta"] - log.columns["beta_true"]) ** 2)))
         rows_out.append((seed, est.restarts, rmse))
     bad = [s for s, _, e in rows_out if e > DIVERGED_DEG]
-    print(f"config: {args.config or 'defaults'}; seeds {first}-{last}; N = {N}; first {DURATION:g} s of paper-sim "
-          f"(drive seed {DRIVE_SEED}) replayed")
+    print(f"config: {args.config or 'defaults'}; seeds {first}-{last}; N = {args.particles}; first {DURATION:g} s of "
+          f"paper-sim (drive seed {DRIVE_SEED}) replayed")
     print("per seed (seed, restarts, sideslip RMSE deg): "
           + ", ".join(f"({s}, {k}, {e:.3f})" for s, k, e in rows_out))
     print(f"sideslip RMSE above {DIVERGED_DEG} deg: {len(bad)} of {len(rows_out)} seeds ({', '.join(map(str, bad))}); "
