@@ -21,8 +21,9 @@ thread after 10 warm-up steps, one process, one BLAS thread), fed the same recor
 
 Each estimator's first two calls (numba compilation when the cache is cold, imports; the
 MPF runs its first sample with the numpy reference and compiles its fused step at the
-second) are printed apart: `first call ms` is their sum, the median excludes both. The load average is printed before and after: on a shared machine,
-compare numbers within one run only.
+second) are printed apart: `first call ms` is their sum, the median excludes both. The load
+average is printed before and after: on a shared machine, compare numbers within one run
+only.
 """
 
 from __future__ import annotations

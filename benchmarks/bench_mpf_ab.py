@@ -71,8 +71,9 @@ def main() -> int:
                         cpu[name].append((time.thread_time_ns() - c0) / 1e3)
         med = {k: float(np.median(v)) for k, v in cpu.items()}
         p10 = {k: float(np.percentile(v, 10)) for k, v in cpu.items()}
+        ratio, ratio10 = med["this"] / med["base"], p10["this"] / p10["base"]
         print(f"N = {n}: base {med['base']:.0f} us (p10 {p10['base']:.0f}), this {med['this']:.0f} us "
-              f"(p10 {p10['this']:.0f}); this / base {med['this'] / med['base']:.2f} (p10 {p10['this'] / p10['base']:.2f})")
+              f"(p10 {p10['this']:.0f}); this / base {ratio:.2f} (p10 {ratio10:.2f})")
     print(f"load average after: {os.getloadavg()[0]:.2f}")
     return 0
 

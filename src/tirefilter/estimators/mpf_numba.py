@@ -324,8 +324,8 @@ def _normalise_into(logw, add):
 # ---- the three passes --------------------------------------------------------------------------
 @njit(**_JIT)
 def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise,
-                  noise_scale, b, P, q, bias_on, forget, lam, nu_min, gamma, mu, Lam, nu, uk, y, avail, R, roll_gain, vp,
-                  full, rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc, want_nis, beta, yaw_max,
+                  noise_scale, b, P, q, bias_on, forget, lam, nu_min, gamma, mu, Lam, nu, uk, y, avail, R, roll_gain,
+                  vp, full, rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc, want_nis, beta, yaw_max,
                   gate_speed):
     """Steps 1 and 2 of `StiffnessMPF.step`, in place. Per particle: the first stage of the
     propagation, a (N, 3), B (N, 3, n_w), slip (2, N) kept from the last sample, or with
@@ -389,8 +389,8 @@ def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, int
         for s in range(n_sub):
             if s > 0:
                 xs2 = xi[2] if full else 0.0
-                _, _, sf, sr = _model1(xi[0], xi[1], xs2, u_prev[0], u_prev[1], u_prev[2], u_prev[3], kp, False, 0.0, 0.0,
-                                       ai, Bi, vp, full, rear_drive, n_w)
+                _, _, sf, sr = _model1(xi[0], xi[1], xs2, u_prev[0], u_prev[1], u_prev[2], u_prev[3], kp, False, 0.0,
+                                       0.0, ai, Bi, vp, full, rear_drive, n_w)
             _xdot1(xi, u_prev[3], ai, Bi, w_prev[i], k1, full, n_w)
             if not heun:
                 for c in range(nx):
@@ -418,8 +418,8 @@ def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, int
                     Lam[i, j, k] = Lam[i, j, k] * f
         # the model at x_k, u_k (`_model`) and the plausible region (`_plausible`)
         xs2 = x[i, 2] if full else 0.0
-        af[i], ar[i], slip[0, i], slip[1, i] = _model1(x[i, 0], x[i, 1], xs2, uk[0], uk[1], uk[2], uk[3], kk, False, 0.0,
-                                                       0.0, a[i], B[i], vp, full, rear_drive, n_w)
+        af[i], ar[i], slip[0, i], slip[1, i] = _model1(x[i, 0], x[i, 1], xs2, uk[0], uk[1], uk[2], uk[3], kk, False,
+                                                       0.0, 0.0, a[i], B[i], vp, full, rear_drive, n_w)
         vxp = x[i, 0] if full else uk[3]
         ok[i] = abs(x[i, nx - 2]) <= beta * max(abs(vxp), gate_speed) and abs(x[i, nx - 1]) <= yaw_max
         count += ok[i]

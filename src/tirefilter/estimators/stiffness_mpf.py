@@ -613,10 +613,10 @@ class StiffnessMPF:
         self.t_prev, self.u_prev = t, uk
         innovation, ess, count, nu_common = nb.predict_weigh(
             self.x, u_prev, self.w_prev, wk.a, wk.B, wk.af, wk.ar, wk.slip, dt, cfg.max_step, wk.heun, wk.interval,
-            self._jw, self._c_floor, noise, noise_scale, self.b, self.P, q, self.bias_on, self.active, self.lam, self.nu0, st.gamma, st.mu,
-            st.Lam, st.nu, uk, yk, a, self.R, self.roll_gain, self._vp, self.full, self.rear_drive, wk.h, wk.D,
-            wk.L11, wk.nu_w, wk.L12, wk.Lc, wk.e, wk.v, wk.ll, wk.ok, self.logw, nc, adaptive, cfg.plausible_beta,
-            cfg.plausible_yaw_rate, cfg.gate_speed)
+            self._jw, self._c_floor, noise, noise_scale, self.b, self.P, q, self.bias_on, self.active, self.lam,
+            self.nu0, st.gamma, st.mu, st.Lam, st.nu, uk, yk, a, self.R, self.roll_gain, self._vp, self.full,
+            self.rear_drive, wk.h, wk.D, wk.L11, wk.nu_w, wk.L12, wk.Lc, wk.e, wk.v, wk.ll, wk.ok, self.logw, nc,
+            adaptive, cfg.plausible_beta, cfg.plausible_yaw_rate, cfg.gate_speed)
         if math.isfinite(innovation):  # adaptive forgetting (`_adapt_forgetting`)
             self.surprise += -math.expm1(-dt / cfg.surprise_time) * (innovation - self.surprise)
             self.lam = min(max(1.0 - (1.0 - cfg.forgetting) * self.surprise, cfg.forgetting_min), cfg.forgetting_max)
