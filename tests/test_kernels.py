@@ -271,3 +271,25 @@ def test_stiffness_mpf_gap_step_takes_the_reference_path(monkeypatch):
     assert_equal_to_rounding(pa.particles, pb.particles, "particles")
     for key in ("gamma", "mu", "Lam", "nu", "bias", "bias_cov"):
         assert_equal_to_rounding(pa.stats[key], pb.stats[key], key)
+
+
+def test_stiffness_mpf_bound_restart_in_the_fused_step_equal(monkeypatch):
+    """Narrow projection bounds (0.97-1.03 of nominal) and restart_at_bound_after = 0.05 s:
+    the posterior mean sits at a bound, the fused step restarts the filter after resampling
+    (`resample_gate`'s bound test, then the reference's `_restart`), and the backends stay
+    equal to rounding."""
+    fused = _count_fused_steps(monkeypatch)
+    vehicle = load_scenario("paper-sim").vehicle
+    runs = {}
+    for backend in ("numpy", "numba"):
+        cfg = MPFConfig(particles=24, backend=backend, resample_threshold=1.0, gate_warmup=0.05, gate_vy_std=10.0,
+                        gate_steer=0.0, bound_low=0.97, bound_high=1.03, restart_at_bound_after=0.05)
+        est = StiffnessMPF(vehicle, cfg)
+        runs[backend] = (_mpf_drive(est, 60), est)
+    (a, fast), (b, ref) = runs["numba"], runs["numpy"]
+    assert ref.restarts >= 2 and fast.restarts == ref.restarts and fused[id(fast)] == 59
+    assert_equal_to_rounding(a, b, "estimates")
+    pa, pb = fast.posterior(), ref.posterior()
+    assert_equal_to_rounding(pa.particles, pb.particles, "particles")
+    for key in ("gamma", "mu", "Lam", "nu", "bias", "bias_cov"):
+        assert_equal_to_rounding(pa.stats[key], pb.stats[key], key)
