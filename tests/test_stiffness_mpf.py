@@ -148,7 +148,7 @@ def test_a_gap_draws_vx_again_from_the_undriven_wheels(backend):
     """Straight at R_w * 60 rad/s for 1 s, then no sample until the wheels read 64 rad/s
     (the car gained 1.44 m/s in the gap): after a gap longer than `gap_after` the particles'
     v^X is drawn around R_w omega of the undriven (rear) axle at that sample (derivations,
-    Sec. 20); a shorter step, a disabled gap_after or a missing wheel speed draws nothing
+    Sec. 21); a shorter step, a disabled gap_after or a missing wheel speed draws nothing
     and the held inputs keep v^X at the speed before the gap."""
     vehicle = load_scenario("paper-sim").vehicle  # front drive: the rear axle is undriven
     R = vehicle.wheel_radius

@@ -817,7 +817,7 @@ class StiffnessMPF:
     def _redraw_after_gap(self, dt: float, u_now) -> bool:
         """After a gap in the data (a time step `dt` longer than `gap_after`), with the
         particles propagated across it: their v^X drawn again around the speed of the
-        undriven wheels at the sample after the gap (derivations, Sec. 20); `u_now` is that
+        undriven wheels at the sample after the gap (derivations, Sec. 21); `u_now` is that
         sample's inputs as measured (no held value: without the wheel speed nothing is drawn). Over the gap the
         filter held its last inputs, so its v^X misses the acceleration it did not see, and
         through the driven axle's wheel slip that error becomes a longitudinal force error
