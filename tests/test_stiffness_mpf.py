@@ -222,7 +222,7 @@ def test_interval_slip_predicts_the_speed_across_a_torque_step(fmu_paths):
     """One propagation step from the true state with the true stiffness of the step, on the
     FMU's paper-sim truth (wheel spin dynamics, torque square wave, 5% deviations redrawn
     every sample): the interval slip predicts v^X at t_k+1 far better than the slip of t_k
-    held (derivations, Sec. 21), at the torque switches and on average."""
+    held (derivations, Sec. 22), at the torque switches and on average."""
     scenario, r = _synthetic_steps(600)
     v = scenario.vehicle
     errs = {}

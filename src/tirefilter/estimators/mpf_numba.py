@@ -3,7 +3,7 @@ every sample after the first (`StiffnessMPF._step_compiled`) in three passes ove
 particles, each a loop of straight per-particle arithmetic on arrays the caller allocated
 once and reuses from sample to sample:
 
-  predict_weigh   step 1 and 2: the wheel slip over the step (derivations, Sec. 21),
+  predict_weigh   step 1 and 2: the wheel slip over the step (derivations, Sec. 22),
                   propagation (eq. (9), Euler or Heun with w and the wheel slip held,
                   sub-steps), state noise, bias prediction (eq. (29)), forgetting
                   (eq. (20)), the model at x_k (eq. (1)-(4): a + B w, also the first stage of
@@ -137,7 +137,7 @@ def _interval_slip1(vx, vy, r, acc0, wx, slip_f, slip_r, u0, u1, dt, vp, jw, c_f
 @njit(**_JIT)
 def slip_over_step(x, u0, u1, w, a, B, slip, dt, vp, jw, c_floor, rear_drive, n_w):
     """`StiffnessMPF._slip_over_step` (full model): the first stage of the propagation from t_k
-    to t_k + dt with the wheel slip averaged over the interval (derivations, Sec. 21).
+    to t_k + dt with the wheel slip averaged over the interval (derivations, Sec. 22).
 
     x (N, 3) at t_k; u0, u1 (4,) the inputs at t_k and t_k+1; w (N, n_w) held over the step;
     a (N, 3), B (N, 3, n_w), slip (2, N) of `model(x, u0)`; vp as in `_model1`; jw (2,) the

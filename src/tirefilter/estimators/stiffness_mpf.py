@@ -54,7 +54,7 @@ class MPFConfig:
     drift_time: float = 1.0  # s, time constant of the smoothing of z'_k (the lean of the sampled w)
     model: str = "full"  # "full" (wheel speeds) | "lateral" (vx given)
     integrator: str = "heun"  # "euler" (the paper) | "heun" (same w, wheel slip held)
-    # wheel slip in the propagation from t_k to t_k+1 (derivations, Sec. 21): "interval": its mean over
+    # wheel slip in the propagation from t_k to t_k+1 (derivations, Sec. 22): "interval": its mean over
     # the interval, the wheel settling (time constant J v^X / (R_w^2 C), a few ms) from the slip at t_k to
     # the one the wheel speeds at t_k+1 give; "start": the slip at t_k held (the paper)
     slip_hold: str = "interval"
@@ -382,7 +382,7 @@ class StiffnessMPF:
 
     def _slip_over_step(self, x, u0, u1, w, first, dt):
         """The first stage of the propagation from t_k to t_k+1 = t_k + dt with the wheel slip
-        averaged over the interval (slip_hold = "interval", derivations Sec. 21).
+        averaged over the interval (slip_hold = "interval", derivations Sec. 22).
 
         x (N, 3) at t_k, u0 / u1 the inputs at t_k / t_k+1, w (N, n_w) the deviations held over
         the step, first = (a, B, af, ar, slip) of `_model(x, u0)`. The wheel settles from the
