@@ -17,7 +17,8 @@ thread after 10 warm-up steps, one process, one BLAS thread), fed the same recor
   one step is one `next()` of `particles.SMC` (systematic resampling at ESS < N / 2, as ours);
 - gpssm-*: the friction GP-SSM (exact statistics, the default) on friction-snow (25 Hz, seed 0),
   the per-axle basis (20 odd functions in all), the default odd tensor (50) and the paper's
-  tensor (100), N up to `--gpssm-max`.
+  tensor (100), N up to `--gpssm-max`; `gpssm-axle-rank1` etc. (named explicitly): the same
+  with the rank-one statistics.
 
 Each estimator's first two calls (numba compilation when the cache is cold, imports; the
 MPF runs its first sample with the numpy reference and compiles its fused step at the
@@ -53,6 +54,8 @@ from tirefilter.vehicle.single_track import wheel_slip  # noqa: E402
 PARTICLE_FREE = ("ekf", "rls", "kf")
 GPSSM = {"gpssm-axle": {"basis": "axle"}, "gpssm-tensor": {"basis": "tensor"},
          "gpssm-tensor100": {"basis": "tensor", "symmetry": "none"}}
+# the same with the rank-one statistics (stats = "rank1"), named on request only
+GPSSM.update({f"{k}-rank1": dict(v, stats="rank1") for k, v in list(GPSSM.items())})
 WARMUP = 10
 
 
@@ -146,7 +149,8 @@ def main() -> int:
     ap.add_argument("--particles", type=int, nargs="+", default=[50, 100, 200, 500, 1000, 2000, 5000])
     ap.add_argument("--duration", type=float, default=10.0, help="s of each scenario's samples (default 10)")
     ap.add_argument("--estimators", nargs="+",
-                    default=["mpf", "augpf", "ekf", "rls", "kf", "bootstrap", *GPSSM])
+                    default=["mpf", "augpf", "ekf", "rls", "kf", "bootstrap",
+                             *(k for k in GPSSM if not k.endswith("-rank1"))])
     ap.add_argument("--gpssm-max", type=int, default=1000, help="largest N for the GP-SSM rows (default 1000)")
     ap.add_argument("--figure", type=Path, help="write Fig. 14 here (e.g. benchmarks/figures/stiffness_fig14_cost.png)")
     ap.add_argument("--cpu-figure", action="store_true", help="plot the CPU medians (default: wall)")

@@ -85,34 +85,46 @@ def test_mniw_kernels_equal(kind, symmetry, m, stats):
     assert_equal_to_rounding(fast.nu, ref.nu, "nu")
 
 
-def _drive(est: FrictionGPSSM, steps: int):
+def _drive(est: FrictionGPSSM, steps: int, snapshot_every: int = 0, missing: bool = False):
     """A synthetic slalom at 15 m/s, 25 Hz, a^Y and yaw rate from a linear single track
-    with a little noise (no FMU): enough to learn, resample and clip nothing."""
+    with a little noise (no FMU): enough to learn, resample and clip nothing. With
+    `snapshot_every`, `friction()` between steps (the compiled step's pending update and
+    K's upper triangle are then brought up to date mid-run); `missing`: a^Y missing every
+    7th sample, the yaw rate once."""
     rng = np.random.default_rng(5)
     est.reset(np.random.default_rng(9))
     out = []
     for k in range(steps):
+        if snapshot_every and k % snapshot_every == snapshot_every - 1:
+            f = est.friction()
+            out.append((f.mu_f[40], f.mu_r[40], f.mu_f_std[40], f.mu_r_std[40], float(np.sum(f.mu_f))))
         t = 0.04 * k
         delta = 0.03 * math.sin(2 * math.pi * 0.5 * t)
         r = 15.0 * delta / 2.8
-        e = est.step(t, Inputs(delta=delta, vx=15.0),
-                     Measurement(ay=15.0 * r + 0.05 * rng.standard_normal(), yaw_rate=r + 0.003 * rng.standard_normal()))
+        ay, yaw_rate = 15.0 * r + 0.05 * rng.standard_normal(), r + 0.003 * rng.standard_normal()
+        if missing:
+            ay = math.nan if k % 7 == 3 else ay
+            yaw_rate = math.nan if k == 11 else yaw_rate
+        e = est.step(t, Inputs(delta=delta, vx=15.0), Measurement(ay=ay, yaw_rate=yaw_rate))
         out.append((e.vy, e.yaw_rate, e.ess, e.Cf_y, e.Cr_y))
     return np.array(out)
 
 
+@pytest.mark.parametrize("snapshots", [0, 4], ids=["", "snapshots"])
 @pytest.mark.parametrize("stats", ["exact", "rank1"])
 @pytest.mark.parametrize("kind,symmetry,m", BASES, ids=BASIS_IDS)
-def test_friction_gpssm_backends_equal(kind, symmetry, m, stats):
-    """A whole filter run (25 steps, N = 16, resampling at every step: threshold 1), numba
-    and numpy backends from the same seed: the same estimates, particles and statistics."""
+def test_friction_gpssm_backends_equal(kind, symmetry, m, stats, snapshots):
+    """A whole filter run (25 steps, N = 37: more than one block of the compiled
+    factorisation's 32 lanes, the last one partly padding; resampling at every step:
+    threshold 1), numba and numpy backends from the same seed: the same estimates, particles
+    and statistics; `snapshots`: friction curves every 4th step."""
     vehicle = load_scenario("friction-snow").vehicle
     runs = {}
     for backend in ("numpy", "numba"):
-        cfg = GPSSMConfig(particles=16, basis=kind, symmetry=symmetry, basis_functions=m, stats=stats,
+        cfg = GPSSMConfig(particles=37, basis=kind, symmetry=symmetry, basis_functions=m, stats=stats,
                           backend=backend, resample_threshold=1.0)
         est = FrictionGPSSM(vehicle, cfg)
-        runs[backend] = (_drive(est, 25), est)
+        runs[backend] = (_drive(est, 25, snapshots), est)
     (a, fast), (b, ref) = runs["numba"], runs["numpy"]
     assert ref.resamples >= 12 and fast.resamples == ref.resamples
     assert_equal_to_rounding(a, b, "estimates")
@@ -124,6 +136,62 @@ def test_friction_gpssm_backends_equal(kind, symmetry, m, stats):
     fa, fb = fast.friction(), ref.friction()
     assert_equal_to_rounding(fa.mu_f, fb.mu_f, "mu_f")
     assert_equal_to_rounding(fa.mu_r_std, fb.mu_r_std, "mu_r_std")
+
+
+@pytest.mark.parametrize("measurement_friction", ["learned", "prior"])
+def test_friction_gpssm_backends_equal_state_noise_and_prior_measurement(measurement_friction):
+    """The compiled step's other branches: state noise (drawn between propagation and the
+    slip angles), the paper's prior-only measurement (zeta drawn from the predictive) and
+    missing samples."""
+    vehicle = load_scenario("friction-snow").vehicle
+    runs = {}
+    for backend in ("numpy", "numba"):
+        cfg = GPSSMConfig(particles=37, backend=backend, resample_threshold=1.0, state_noise=(0.02, 0.002),
+                          measurement_friction=measurement_friction)
+        est = FrictionGPSSM(vehicle, cfg)
+        runs[backend] = (_drive(est, 20, 6, missing=True), est)
+    (a, fast), (b, ref) = runs["numba"], runs["numpy"]
+    assert ref.resamples >= 10 and fast.resamples == ref.resamples
+    assert_equal_to_rounding(a, b, "estimates")
+    assert_equal_to_rounding(fast.posterior().particles, ref.posterior().particles, "particles")
+    assert_equal_to_rounding(fast.posterior().stats["M"], ref.posterior().stats["M"], "M")
+
+
+@pytest.mark.parametrize("order", ["sorted", "shuffled"])
+def test_resampling_copies_equal_indexing(order):
+    """The in-place resampling copies (`gather_rows`, `gather_lower`) equal a[idx], for sorted
+    ancestors (systematic resampling: no copy of the arrays) and any other order."""
+    from tirefilter.estimators.gpssm_numba import gather_lower, gather_rows
+
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        idx = np.sort(rng.integers(0, 23, 23))
+        if order == "shuffled":
+            idx = rng.permutation(idx)
+        a, b = rng.standard_normal((23, 5)), rng.standard_normal((23, 2))
+        K = rng.standard_normal((23, 2, 4, 4))
+        want_a, want_b, want_K = a[idx], b[idx], K[idx]
+        gather_rows((a, b), idx)
+        gather_lower(K, idx)
+        assert np.array_equal(a, want_a) and np.array_equal(b, want_b)
+        low = np.tril(np.ones((4, 4), bool))
+        assert np.array_equal(K[..., low], want_K[..., low])
+
+
+def test_systematic_ancestors_equal_reference():
+    """The compiled systematic resampling equals `stats.systematic_resample` from the same
+    generator state, for peaked, flat and degenerate weights."""
+    from tirefilter.estimators.gpssm_numba import systematic_ancestors
+    from tirefilter.stats import normalize_log_weights, systematic_resample
+
+    rng = np.random.default_rng(4)
+    for scale in (0.0, 1.0, 30.0, 1e4):
+        for n in (1, 7, 200):
+            logw = normalize_log_weights(scale * rng.standard_normal(n))
+            r1, r2 = np.random.default_rng(n), np.random.default_rng(n)
+            want = systematic_resample(logw, r1)
+            got = systematic_ancestors(logw, float(r2.random((1,))[0]))
+            assert np.array_equal(got, want), (scale, n)
 
 
 def test_backend_is_checked():
@@ -293,3 +361,31 @@ def test_stiffness_mpf_bound_restart_in_the_fused_step_equal(monkeypatch):
     assert_equal_to_rounding(pa.particles, pb.particles, "particles")
     for key in ("gamma", "mu", "Lam", "nu", "bias", "bias_cov"):
         assert_equal_to_rounding(pa.stats[key], pb.stats[key], key)
+
+
+def test_friction_gpssm_compiled_state_pickles():
+    """The compiled step's state (a pending update of the exact statistics, K's lower
+    triangle) survives pickling mid-run (the estimator FMU's saved state): the resumed run
+    equals the uninterrupted one."""
+    import pickle
+
+    vehicle = load_scenario("friction-snow").vehicle
+    cfg = GPSSMConfig(particles=19, basis="tensor", symmetry="odd", resample_threshold=1.0)
+    whole, resumed = FrictionGPSSM(vehicle, cfg), FrictionGPSSM(vehicle, cfg)
+    a = _drive(whole, 20)
+    b = _drive(resumed, 12)
+    assert resumed._compiled.pending  # learning: the last update waits for the next step
+    copy = pickle.loads(pickle.dumps(resumed))
+    rng = np.random.default_rng(5)
+    for _ in range(12):  # the measurement noise of the first 12 steps, as _drive drew it
+        rng.standard_normal(2)
+    rest = []
+    for k in range(12, 20):
+        t = 0.04 * k
+        delta = 0.03 * math.sin(2 * math.pi * 0.5 * t)
+        r = 15.0 * delta / 2.8
+        ay, yaw_rate = 15.0 * r + 0.05 * rng.standard_normal(), r + 0.003 * rng.standard_normal()
+        e = copy.step(t, Inputs(delta=delta, vx=15.0), Measurement(ay=ay, yaw_rate=yaw_rate))
+        rest.append((e.vy, e.yaw_rate, e.ess, e.Cf_y, e.Cr_y))
+    assert np.array_equal(np.vstack([b, rest]), a)
+    assert np.array_equal(copy.posterior().stats["M"], whole.posterior().stats["M"])

@@ -57,7 +57,7 @@ class GPSSMConfig:
     symmetry: str = "odd"  # "odd": only the basis functions odd in alpha (mu(-a) = -mu(a)) | "none" (the paper)
     s_f: float = 500.0  # SE kernel variance, relative to Q (A | Q ~ MN(0, Q, diag S)); the paper's 500
     stats: str = "exact"  # "exact" (eq. (27)-(29)) | "rank1" (forgetting applied to the prior too)
-    backend: str = "numba"  # "numba" (compiled kernels, stats/mniw_numba.py) | "numpy" (the reference)
+    backend: str = "numba"  # "numba" (compiled step, estimators/gpssm_numba.py) | "numpy" (the reference)
     forgetting: float = 0.99  # lambda of eq. (29) (about 100 samples of memory: 4 s at 25 Hz)
     q0: float = 0.01  # prior guess of the std of w (friction units): Lambda_0 = q0^2 (nu_0 - d - 1) I
     nu0_margin: float = 2.0  # nu_0 = d + 1 + margin
@@ -204,6 +204,17 @@ class FrictionGPSSM:
                 "particle_slip_evaluations": int(self.slip_evaluations), "resamples": int(self.resamples),
                 "handover_time": self.handover_time}
 
+    @property
+    def stats(self):
+        """The MNIW statistics (`stats.mniw`); the compiled step's pending update applied."""
+        if getattr(self, "_compiled", None) is not None:
+            self._compiled.flush()
+        return self._stats
+
+    @stats.setter
+    def stats(self, value) -> None:
+        self._stats = value
+
     # ---- initialisation ---------------------------------------------------------------
     def reset(self, rng: np.random.Generator) -> None:
         cfg, N = self.cfg, self.cfg.particles
@@ -212,6 +223,7 @@ class FrictionGPSSM:
             self.mpf.reset(rng)
         batch = (N,) if self.d == 2 else (N, 2)
         Lam0 = np.eye(self.d) * cfg.q0**2 * (self.nu0 - self.d - 1.0)  # E[Q] = q0^2 I
+        self._compiled = None
         self.stats = make_mniw(cfg.stats, batch, self.d, self.basis.S, Lam0, self.nu0, cfg.backend)
         self.x = np.asarray(cfg.x0_mean, float) + rng.standard_normal((N, 2)) * np.asarray(cfg.x0_std, float)
         self.logw = np.full(N, -math.log(N))
@@ -230,6 +242,11 @@ class FrictionGPSSM:
         self._path = np.zeros((2, len(self.grid), 2))  # (axle, grid bin, [count, sum of the other slip])
         self._slope = (NAN, NAN, NAN, NAN)
         self._dphi0 = self._slope_features()
+        self._compiled = None
+        if cfg.backend == "numba":
+            from tirefilter.estimators.gpssm_numba import CompiledStep
+
+            self._compiled = CompiledStep(self)
 
     def _slope_features(self):
         """d phi / d alpha at alpha = 0 for each axle's curve: (2, size) (tensor: d/d alpha_f of
@@ -303,6 +320,8 @@ class FrictionGPSSM:
         if self.mpf is not None:
             self.mpf_estimate = self.mpf.step(t, u, y)
             self._combined_prior(t)
+        if self._compiled is not None:  # the same step, compiled (estimators/gpssm_numba.py)
+            return self._compiled.step(t, uk, delta, vx, y)
 
         # 1. propagate with the friction drawn at k-1, forget (eq. (29))
         if self.t_prev is None:
@@ -409,10 +428,14 @@ class FrictionGPSSM:
             self.learning_started = True
             self.handover_time = t
 
-    def _estimate(self, ess: float, vx: float) -> Estimate:
-        q = np.exp(self.logw)
-        xm = q @ self.x
-        xs = np.sqrt(np.maximum(q @ (self.x - xm) ** 2, 0.0))
+    def _estimate(self, ess: float, vx: float, moments=None) -> Estimate:
+        """`moments`: (mean vy, mean r, std vy, std r) when the caller has them (compiled step)."""
+        q = np.exp(self.logw) if moments is None or self.cfg.stats == "rank1" else None
+        if moments is None:
+            xm = q @ self.x
+            xs = np.sqrt(np.maximum(q @ (self.x - xm) ** 2, 0.0))
+        else:
+            xm, xs = moments[:2], moments[2:]
         m = self.mpf_estimate
         if m is not None:  # combined: the MPF's stiffness
             stiff = dict(Cf_y=m.Cf_y, Cr_y=m.Cr_y, Cf_y_std=m.Cf_y_std, Cr_y_std=m.Cr_y_std, Cf_y_sigma=m.Cf_y_sigma,

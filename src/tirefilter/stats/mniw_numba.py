@@ -32,11 +32,18 @@ _LAPACK_FROM = 24
 # ---- basis (eq. (10b)) ------------------------------------------------------------------
 @njit(**_JIT)
 def _phi1(x, L, m, out):
-    """out[j - 1] = sin(pi j (x + L) / (2 L)) / sqrt(L), j = 1..m."""
+    """out[j - 1] = sin(pi j (x + L) / (2 L)) / sqrt(L), j = 1..m, by angle addition:
+    sin((j + 1) a) = sin(j a) cos a + cos(j a) sin a, cos((j + 1) a) = cos(j a) cos a -
+    sin(j a) sin a (one sin and one cos for all m; the rounding error grows about linearly
+    in j, a few ulp at m = 20, where the three-term form sin((j + 1) a) = 2 cos a sin(j a) -
+    sin((j - 1) a) loses up to j^2 ulp near a = 0 and pi)."""
     a = (math.pi / (2.0 * L)) * (x + L)
-    s = 1.0 / math.sqrt(L)
+    r = 1.0 / math.sqrt(L)
+    s1, c1 = math.sin(a), math.cos(a)
+    s, c = s1, c1
     for j in range(m):
-        out[j] = math.sin(a * (j + 1)) * s
+        out[j] = s * r
+        s, c = s * c1 + c * s1, c * c1 - s * s1
 
 
 @njit(**_JIT)

@@ -46,11 +46,20 @@ def t_sample(mu, Lam, nu, rng: np.random.Generator, size=None):
     """
     mu = np.asarray(mu, float)
     L = chol(np.asarray(Lam, float))
-    nu = _common(nu)
     shape = mu.shape if size is None else (size,) + mu.shape
+    z, u = t_draws(nu, shape, rng)
+    return mu + np.einsum("...ij,...j->...i", L, z) * np.sqrt(_common(nu) / u)[..., None]
+
+
+def t_draws(nu, shape, rng: np.random.Generator):
+    """The random numbers of `t_sample` for samples of `shape` (..., p): z ~ N(0, I) (shape)
+    and u ~ chi2(nu) (shape[:-1]), batched (one chi-square call for a common nu), drawn by
+    the same generator calls in the same order, so a compiled sampler fed (z, u) follows the
+    reference exactly."""
+    nu = _common(nu)
     z = rng.standard_normal(shape)
     u = rng.chisquare(nu, shape[:-1]) if np.ndim(nu) == 0 else rng.chisquare(np.broadcast_to(nu, shape[:-1]))
-    return mu + np.einsum("...ij,...j->...i", L, z) * np.sqrt(nu / u)[..., None]
+    return z, u
 
 
 def t_conditional(mu1, mu2, L11, L12, L22, nu, x2, *, L22_chol=None, x2_white=None):

@@ -1,0 +1,792 @@
+"""The friction GP-SSM's step compiled (numba, nopython, `cache=True`): the `backend = "numba"`
+path of `FrictionGPSSM.step`, the same arithmetic as the numpy reference in
+`friction_gpssm.py` (tested equal to 1e-12 relative in tests/test_kernels.py with the same
+random numbers, resampling included).
+
+One step is seven kernel calls at most; the random numbers are drawn outside them with the reference's
+generator calls, in the reference's order (yaw-rate start or state noise, the resampling
+uniform, the Student-t draws `student_t.t_draws`), so both backends follow one path:
+  1. `front`: propagation (eq. (1), Euler sub-steps), slip angles (eq. (4)) clipped to
+     [-L, L], the basis (eq. (10b)) by the angle-addition recurrence
+     sin((k+1) a) = sin(k a) cos a + cos(k a) sin a (one sin and one cos per slip angle
+     instead of one sin per function), the Pacejka prior (Sec. 4);
+  2. one pass over the statistics: for the exact statistics the previous step's update
+     (eq. (27), kept pending until now), the forgetting (eq. (29)) and the predictive
+     (eq. (31)-(32)), `exact_forget_predictive` (`_lapack` from `LANES_BELOW` functions);
+     for the rank-one ones the forgetting and the predictive, `rank1_forget_predictive`;
+  3. `weigh`: the Student-t a^Y and Gaussian yaw-rate likelihoods (eq. (22)), the one-step
+     prediction, log-sum-exp normalisation and the ESS;
+  4. `systematic_ancestors`, `gather_rows`, `gather_lower`: systematic resampling (the
+     uniform drawn as `stats.systematic_resample` draws it) and its copies, in place (sorted
+     ancestors: only the rows that change are copied);
+  5. `sample`: the conditional Student-t draw of zeta (the locally optimal proposal),
+     mu = mu~ + zeta and the weighted moments for the estimate;
+  6. `rank1_update` (rank-one statistics, eq. (27)/(28) as recursive least squares); the exact
+     statistics' update waits for the next step's pass (`CompiledStep.flush` applies it with
+     `exact_update` when the statistics are read in between).
+
+The step keeps only the lower triangle of the exact statistics' K = Sigma + V up to date
+(`flush` mirrors it). The exact predictive factorises K (m x m) per batch element, and only forward
+substitution is needed: with Z = C^-1 [Psi^T, phi] (C C^T = K), Psi K^-1 Psi^T = Z_Psi^T Z_Psi,
+phi^T K^-1 phi = |z_phi|^2 and M phi = Z_Psi^T z_phi. Below `LANES_BELOW` basis functions the
+factorisation runs on `LANES` batch elements at once, one SIMD lane each (the matrices
+interleaved as (m, m, LANES), so every inner loop is a vector operation over lanes);
+from `LANES_BELOW` up each matrix goes to LAPACK's dpotrf (numba's np.linalg.cholesky).
+No exact low-rank update of the factor exists under the paper's forgetting
+(docs/derivations.md, Sec. 20): each step refactorises.
+
+Per-particle quantities of the step live in one (N, columns) array `work` (columns below),
+so resampling copies them with the statistics in one call.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from tirefilter.errors import ConfigError
+from tirefilter.stats.mniw_numba import _factor, _phi1
+from tirefilter.stats.student_t import t_draws
+
+_JIT = dict(cache=True, nogil=True)
+LANES = 32  # batch elements factorised together (eight AVX2 vectors of float64; measured best of 8-32)
+LANES_BELOW = 64  # basis size from which LAPACK's dpotrf factorises instead
+
+# columns of `work`
+AF, AR, PF, PR, LOC, S, DOF, SC, SY, E, PHI = 0, 1, 2, 3, 4, 6, 10, 11, 13, 14, 15
+
+
+# ---- 1. propagation, slip, basis, prior -------------------------------------------------------
+@njit(**_JIT)
+def _magic(B, C, D, E, s):
+    Bs = B * s
+    return D * math.sin(C * math.atan(Bs - E * (Bs - math.atan(Bs))))
+
+
+@njit(**_JIT)
+def front(x, mu, work, propagate, n_sub, h, cd, vx_prev, Fz0, Fz1, mass, lf, lr, Iz, delta, vx, L, m, keep,
+          keep_r, tensor, pB0, pB1, pC, pD0, pD1, pE):
+    """In place: x propagated (`propagate`: n_sub Euler steps of h, eq. (1a)-(1b), friction mu
+    held), then work[:, AF:PR + 1] = alpha_f, alpha_r (eq. (4), clipped to [-L, L]),
+    mu~_f, mu~_r and work[:, PHI:] the features (tensor: phi_keep; axle: front then rear
+    row; tensor: keep = the front function's index j1, keep_r = the rear one's j2). Returns
+    the number of particles with a slip angle outside [-L, L]."""
+    n = x.shape[0]
+    nk = keep.shape[0]
+    pf = np.empty(m)
+    pr = np.empty(m)
+    vxc = max(vx, 1.0)
+    out = 0
+    for i in range(n):
+        x0, x1 = x[i, 0], x[i, 1]
+        if propagate:
+            Ff = Fz0 * mu[i, 0] * cd
+            Fr = Fz1 * mu[i, 1]
+            ay = (Ff + Fr) / mass
+            rdot = (lf * Ff - lr * Fr) / Iz
+            for _ in range(n_sub):
+                x0 += h * (ay - vx_prev * x1)
+                x1 += h * rdot
+            x[i, 0], x[i, 1] = x0, x1
+        af = delta - math.atan((x0 + lf * x1) / vxc)
+        ar = -math.atan((x0 - lr * x1) / vxc)
+        if abs(af) > L or abs(ar) > L:
+            out += 1
+        af = min(max(af, -L), L)
+        ar = min(max(ar, -L), L)
+        work[i, AF], work[i, AR] = af, ar
+        work[i, PF] = _magic(pB0, pC, pD0, pE, af)
+        work[i, PR] = _magic(pB1, pC, pD1, pE, ar)
+        _phi1(af, L, m, pf)
+        _phi1(ar, L, m, pr)
+        if tensor:  # keep[k] = j1 * m + j2: keep_f = j1, keep_r = j2 (no division per feature)
+            for k in range(nk):
+                work[i, PHI + k] = pf[keep[k]] * pr[keep_r[k]]
+        else:
+            for k in range(nk):
+                work[i, PHI + k] = pf[keep[k]]
+                work[i, PHI + nk + k] = pr[keep[k]]
+    return out
+
+
+# ---- 2. forgetting and predictive ---------------------------------------------------------------
+@njit(**_JIT)
+def _forget_exact(K, Psi, Phi, nu, V, b, lam, nu_min):
+    """Eq. (29) for batch element b (`MNIW.forget`), K's lower triangle."""
+    d, m = Psi.shape[1], Psi.shape[2]
+    f = _factor(lam, nu_min, nu[b])
+    for i in range(d):
+        for k in range(d):
+            Phi[b, i, k] = Phi[b, i, k] * f
+        Pi = Psi[b, i]
+        for j in range(m):
+            Pi[j] = Pi[j] * f
+    Kb = K[b]
+    for i in range(m):
+        Ki = Kb[i]
+        for j in range(i + 1):
+            Ki[j] *= f
+        Ki[i] += (1.0 - f) * V[i]
+    nu[b] = nu[b] * f
+
+
+@njit(**_JIT)
+def _update_forget(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget, lam, nu_min):
+    """Batch element b: the pending update (eq. (27a)-(27c), (28f)) then the forgetting
+    (eq. (29)), in one sweep over K with the reference's operations in the reference's order
+    ((K + phi phi^T) * f, then + (1 - f) V on the diagonal). K's lower triangle only: the
+    upper one is restored by `mirror` before anything else reads K (the reference's K is
+    exactly symmetric: p_i p_j = p_j p_i and the forgetting is elementwise)."""
+    if not pending:
+        if forget:
+            _forget_exact(K, Psi, Phi, nu, V, b, lam, nu_min)
+        return
+    d, m = Psi.shape[1], Psi.shape[2]
+    n, a = b // per, b % per
+    nu[b] += 1.0
+    f = _factor(lam, nu_min, nu[b]) if forget else 1.0
+    g = 1.0 - f
+    ph = phi_p[n, a * m:(a + 1) * m]
+    for i in range(d):
+        zi = zeta[n, a + i]
+        for k in range(d):
+            Phi[b, i, k] = (Phi[b, i, k] + zi * zeta[n, a + k]) * f
+        Pi = Psi[b, i]
+        for j in range(m):
+            Pi[j] = (Pi[j] + zi * ph[j]) * f
+    Kb = K[b]
+    for i in range(m):
+        p = ph[i]
+        Ki = Kb[i]
+        for j in range(i + 1):
+            Ki[j] = (Ki[j] + p * ph[j]) * f
+        Ki[i] += g * V[i]
+    nu[b] = nu[b] * f
+
+
+@njit(**_JIT)
+def _write_predictive(work, b, per, d, m, Z, w, Lam0, Phi, nu, lam):
+    """loc, scale, dof of batch element b into work from Z[m + q, j, w] = (C^-1 [Psi^T, phi])[j, q]
+    (lane w; lam: (2, 2) scratch)."""
+    n, a = b // per, b % per
+    c = 1.0
+    for j in range(m):
+        c += Z[m + d, j, w] * Z[m + d, j, w]
+    df = nu[b] - d + 1.0
+    f = c / df
+    for i in range(d):
+        s = 0.0
+        for j in range(m):
+            s += Z[m + i, j, w] * Z[m + d, j, w]
+        work[n, LOC + a + i] = s
+        for k in range(d):
+            q = 0.0
+            for j in range(m):
+                q += Z[m + i, j, w] * Z[m + k, j, w]
+            lam[i, k] = Lam0[i, k] + Phi[b, i, k] - q
+    if d == 2:
+        work[n, S + 0] = f * lam[0, 0]
+        work[n, S + 1] = f * (0.5 * (lam[0, 1] + lam[1, 0]))
+        work[n, S + 2] = f * (0.5 * (lam[1, 0] + lam[0, 1]))
+        work[n, S + 3] = f * lam[1, 1]
+        work[n, DOF] = df
+    else:
+        work[n, S + 3 * a] = f * lam[0, 0]
+        if a == 0:
+            work[n, S + 1] = 0.0
+            work[n, S + 2] = 0.0
+            work[n, DOF] = df
+
+
+@njit(**_JIT)
+def _chol_row(A, r, j0, m, W, inv):
+    """Row r of `_chol_lanes` from column j0 on (the columns before j0 are done)."""
+    row = A[r]
+    for j in range(j0, min(r + 1, m)):
+        Arj = row[j]
+        Aj = A[j]
+        for k in range(j):
+            Ark = row[k]
+            Ajk = Aj[k]
+            for w in range(W):
+                Arj[w] -= Ark[w] * Ajk[w]
+        ij = inv[j]
+        if r == j:
+            for w in range(W):
+                v = Arj[w]
+                c = math.sqrt(v) if v > 0.0 else math.nan
+                Arj[w] = c
+                ij[w] = 1.0 / c
+        else:
+            for w in range(W):
+                Arj[w] *= ij[w]
+
+
+@njit(**_JIT)
+def _chol_lanes(A, m, W, inv):
+    """In place over W interleaved lanes, A (n, m, >= W), rows 0..m-1 a symmetric positive
+    definite matrix (lower triangle read), rows m..n-1 right-hand sides b^T: afterwards the
+    lower Cholesky factor C and the rows (C^-1 b)^T (forward substitution is the Cholesky
+    recurrence continued below the matrix). Row-oriented, A[i, j] = (A[i, j] -
+    sum_{k<j} A[i, k] A[j, k]) / A[j, j], two rows at a time where both need column j (each
+    A[j, k] loaded once for both); every inner loop runs over lanes (contiguous, SIMD; W is a
+    run-time count so that LLVM's loop vectoriser, not the SLP one numba disables, takes it)."""
+    n = A.shape[0]
+    i = 0
+    while i + 2 <= n:
+        R0 = A[i]
+        R1 = A[i + 1]
+        jmax = min(i, m)
+        for j in range(jmax):
+            a0 = R0[j]
+            a1 = R1[j]
+            Aj = A[j]
+            for k in range(j):
+                b0 = R0[k]
+                b1 = R1[k]
+                c = Aj[k]
+                for w in range(W):
+                    x = c[w]
+                    a0[w] -= b0[w] * x
+                    a1[w] -= b1[w] * x
+            ij = inv[j]
+            for w in range(W):
+                a0[w] *= ij[w]
+                a1[w] *= ij[w]
+        _chol_row(A, i, jmax, m, W, inv)
+        _chol_row(A, i + 1, jmax, m, W, inv)
+        i += 2
+    if i < n:
+        _chol_row(A, i, 0, m, W, inv)
+
+
+@njit(**_JIT)
+def exact_forget_predictive(K, Psi, Phi, nu, V, Lam0, work, per, forget, lam, nu_min, lanes, pending, zeta, phi_p):
+    """Flat batch K (B, m, m) = Sigma + V, Psi (B, d, m), Phi (B, d, d), nu (B,), per batch
+    elements per particle (tensor 1, axle 2). In one pass over each element's statistics:
+    with `pending` the previous step's update (eq. (27), zeta (N, 2) at features phi_p),
+    with `forget` eq. (29), then the predictive St(M phi, c Lambda / (nu - d + 1),
+    nu - d + 1) (eq. (31)-(32)) into work, `lanes` elements at a time (`_chol_lanes`)."""
+    nb, d, m = Psi.shape
+    W = lanes
+    A = np.zeros((m + d + 1, m, W))
+    inv = np.empty((m, W))
+    lam2 = np.empty((2, 2))
+    for b0 in range(0, nb, W):
+        nw = min(W, nb - b0)
+        for w in range(W):
+            if w < nw:
+                b = b0 + w
+                _update_forget(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget, lam, nu_min)
+                Kb = K[b]
+                for i in range(m):
+                    Ki = Kb[i]
+                    Ai = A[i]
+                    for j in range(i + 1):
+                        Ai[j, w] = Ki[j]
+                n, a = b // per, b % per
+                for i in range(d):
+                    Pi = Psi[b, i]
+                    Ai = A[m + i]
+                    for j in range(m):
+                        Ai[j, w] = Pi[j]
+                ph = work[n, PHI + a * m:PHI + (a + 1) * m]
+                Ai = A[m + d]
+                for j in range(m):
+                    Ai[j, w] = ph[j]
+            else:  # padding lanes: identity, zero right-hand sides
+                for i in range(m + d + 1):
+                    for j in range(min(i + 1, m)):
+                        A[i, j, w] = 1.0 if i == j else 0.0
+        _chol_lanes(A, m, W, inv)
+        for w in range(nw):
+            _write_predictive(work, b0 + w, per, d, m, A, w, Lam0, Phi, nu, lam2)
+
+
+@njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
+def _dot(a, b, n):
+    s = 0.0
+    for k in range(n):
+        s += a[k] * b[k]
+    return s
+
+
+@njit(**_JIT)
+def exact_forget_predictive_lapack(K, Psi, Phi, nu, V, Lam0, work, per, forget, lam, nu_min, pending, zeta, phi_p):
+    """`exact_forget_predictive` with each K factorised by LAPACK's dpotrf (large bases)."""
+    nb, d, m = Psi.shape
+    Zt = np.empty((d + 1, m))
+    Ks = np.empty((m, m))
+    Z = np.empty((m + d + 1, m, 1))
+    lam2 = np.empty((2, 2))
+    for b in range(nb):
+        _update_forget(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget, lam, nu_min)
+        for i in range(m):
+            for j in range(i + 1):
+                Ks[i, j] = K[b, i, j]
+                Ks[j, i] = K[b, i, j]
+        C = np.linalg.cholesky(Ks)
+        n, a = b // per, b % per
+        for j in range(m):
+            for i in range(d):
+                Zt[i, j] = Psi[b, i, j]
+            Zt[d, j] = work[n, PHI + a * m + j]
+        for i in range(m):
+            inv = 1.0 / C[i, i]
+            for q in range(d + 1):
+                Zt[q, i] = (Zt[q, i] - _dot(C[i], Zt[q], i)) * inv
+        for q in range(d + 1):
+            for j in range(m):
+                Z[m + q, j, 0] = Zt[q, j]
+        _write_predictive(work, b, per, d, m, Z, 0, Lam0, Phi, nu, lam2)
+
+
+@njit(**_JIT)
+def rank1_forget_predictive(M, P, Lam, nu, work, per, forget, lam, nu_min, bounded, trace0):
+    """`MNIWRank1.forget` (with `forget`) then `.predictive` over a flat batch, into work."""
+    nb, d, m = M.shape
+    for b in range(nb):
+        if forget:
+            f = _factor(lam, nu_min, nu[b])
+            fP = f
+            if bounded:
+                tr = 0.0
+                for i in range(m):
+                    tr += P[b, i, i]
+                fP = min(1.0, max(f, tr / trace0))
+            s = 1.0 / fP
+            for i in range(m):
+                for j in range(m):
+                    P[b, i, j] *= s
+            for i in range(d):
+                for k in range(d):
+                    Lam[b, i, k] = Lam[b, i, k] * f
+            nu[b] = nu[b] * f
+        n, a = b // per, b % per
+        c = 0.0
+        for i in range(m):
+            s = 0.0
+            for j in range(m):
+                s += P[b, i, j] * work[n, PHI + a * m + j]
+            c += work[n, PHI + a * m + i] * s
+        c = 1.0 + c
+        df = nu[b] - d + 1.0
+        f = c / df
+        for i in range(d):
+            s = 0.0
+            for j in range(m):
+                s += M[b, i, j] * work[n, PHI + a * m + j]
+            work[n, LOC + a + i] = s
+        if d == 2:
+            for i in range(2):
+                for k in range(2):
+                    work[n, S + 2 * i + k] = f * Lam[b, i, k]
+            work[n, DOF] = df
+        else:
+            work[n, S + 3 * a] = f * Lam[b, 0, 0]
+            if a == 0:
+                work[n, S + 1] = 0.0
+                work[n, S + 2] = 0.0
+                work[n, DOF] = df
+
+
+# ---- 3. weights ---------------------------------------------------------------------------------
+@njit(**_JIT)
+def weigh(x, work, logw, c0, c1, ay, yr, R0, R1, have_ay, have_r, learned):
+    """Eq. (22) with zeta integrated out; returns (ESS, predicted a^Y, predicted yaw rate) and
+    writes the normalised log-weights (as `normalize_log_weights`) and, for the learned
+    measurement, work[:, SC:E + 1] = S c, the a^Y marginal's scale and the residual."""
+    n = x.shape[0]
+    lw = np.empty(n)
+    pred_ay = 0.0
+    pred_r = 0.0
+    nu_last = math.nan
+    const = 0.0
+    for i in range(n):
+        h0 = c0 * work[i, PF] + c1 * work[i, PR]
+        lc = work[i, LOC] * c0 + work[i, LOC + 1] * c1
+        l = 0.0
+        if have_ay:
+            if learned:
+                sc0 = work[i, S] * c0 + work[i, S + 1] * c1
+                sc1 = work[i, S + 2] * c0 + work[i, S + 3] * c1
+                nu = work[i, DOF]
+                s_y = (sc0 * c0 + sc1 * c1) + R0 * (nu - 2.0) / nu
+                e = ay - h0 - lc
+                work[i, SC], work[i, SC + 1], work[i, SY], work[i, E] = sc0, sc1, s_y, e
+                if nu != nu_last:
+                    const = math.lgamma(0.5 * (nu + 1.0)) - math.lgamma(0.5 * nu)
+                    nu_last = nu
+                l += const - 0.5 * math.log(nu * math.pi * s_y) - 0.5 * (nu + 1.0) * math.log1p(e * e / (nu * s_y))
+            else:
+                e = ay - h0
+                l += -0.5 * (e * e / R0 + math.log(2 * math.pi * R0))
+        if have_r:
+            er = yr - x[i, 1]
+            l += -0.5 * (er * er / R1 + math.log(2 * math.pi * R1))
+        q = math.exp(logw[i])
+        pred_ay += q * (h0 + lc if learned else h0)
+        pred_r += q * x[i, 1]
+        v = logw[i] + l
+        lw[i] = -math.inf if math.isnan(v) else v
+    mx = -math.inf
+    for i in range(n):
+        mx = max(mx, lw[i])
+    if not math.isfinite(mx):
+        for i in range(n):
+            logw[i] = -math.log(n)
+    else:
+        s = 0.0
+        for i in range(n):
+            s += math.exp(lw[i] - mx)
+        lse = math.log(s)
+        for i in range(n):
+            logw[i] = (lw[i] - mx) - lse
+    s2 = 0.0
+    for i in range(n):
+        s2 += math.exp(2.0 * logw[i])
+    return 1.0 / s2, pred_ay, pred_r
+
+
+# ---- 4. resampling copies -----------------------------------------------------------------------
+@njit(**_JIT)
+def _sorted(idx):
+    for i in range(1, idx.shape[0]):
+        if idx[i] < idx[i - 1]:
+            return False
+    return True
+
+
+@njit(**_JIT)
+def gather_rows(arrays, idx):
+    """a[:] = a[idx] for each (N, k) array, in place. Sorted ancestors (systematic
+    resampling): row i only ever reads a row j with idx[j] == j or one not yet written
+    (ascending pass for idx[i] > i, descending for idx[i] < i), so no copy is needed;
+    otherwise through a copy."""
+    n = idx.shape[0]
+    if _sorted(idx):
+        for a in arrays:
+            for i in range(n):
+                j = idx[i]
+                if j > i:
+                    a[i, :] = a[j, :]
+            for i in range(n - 1, -1, -1):
+                j = idx[i]
+                if j < i:
+                    a[i, :] = a[j, :]
+    else:
+        for a in arrays:
+            b = a.copy()
+            for i in range(n):
+                a[i, :] = b[idx[i], :]
+
+
+@njit(**_JIT)
+def _copy_lower(K, i, j):
+    for a in range(K.shape[1]):
+        for r in range(K.shape[2]):
+            for c in range(r + 1):
+                K[i, a, r, c] = K[j, a, r, c]
+
+
+@njit(**_JIT)
+def systematic_ancestors(logw, u0):
+    """`stats.systematic_resample` after its uniform draw u0: cdf = cumsum(exp(logw)) with
+    cdf[-1] = 1, points (u0 + j) / N, ancestors by searchsorted(cdf, points, 'right')
+    clipped to N - 1 (points increase, so one merge pass)."""
+    n = logw.shape[0]
+    cdf = np.empty(n)
+    s = 0.0
+    for i in range(n):
+        s += math.exp(logw[i])
+        cdf[i] = s
+    cdf[n - 1] = 1.0
+    idx = np.empty(n, np.int64)
+    k = 0
+    for j in range(n):
+        p = (u0 + j) / n
+        while k < n and cdf[k] <= p:
+            k += 1
+        idx[j] = min(k, n - 1)
+    return idx
+
+
+@njit(**_JIT)
+def gather_lower(K, idx):
+    """K[:] = K[idx] (K (N, per, m, m)) for the lower triangles, in place as `gather_rows`."""
+    n = idx.shape[0]
+    if _sorted(idx):
+        for i in range(n):
+            if idx[i] > i:
+                _copy_lower(K, i, idx[i])
+        for i in range(n - 1, -1, -1):
+            if idx[i] < i:
+                _copy_lower(K, i, idx[i])
+    else:
+        B = K.copy()
+        for i in range(n):
+            K[i] = B[idx[i]]
+
+
+@njit(**_JIT)
+def mirror(K):
+    """K[b] upper triangle = lower triangle transposed, for every b."""
+    nb, m = K.shape[0], K.shape[1]
+    for b in range(nb):
+        for i in range(m):
+            for j in range(i):
+                K[b, j, i] = K[b, i, j]
+
+
+# ---- 5. conditional draw, friction, moments --------------------------------------------------------
+@njit(**_JIT)
+def _chol2_apply(s00, s10, s11, z0, z1):
+    """L z for the lower Cholesky factor L of [[s00, s10], [s10, s11]], floored as
+    `stats.linalg.chol`."""
+    l00 = math.sqrt(max(s00, abs(s00) * 1e-14 + 1e-300))
+    l10 = s10 * (1.0 / l00)
+    dd = s11 - l10 * l10
+    l11 = math.sqrt(max(dd, abs(s11) * 1e-14 + 1e-300))
+    return l00 * z0, l10 * z0 + l11 * z1
+
+
+@njit(**_JIT)
+def sample(x, work, logw, z, u, zeta, mu, conditional):
+    """zeta ~ St (the t conditional given the a^Y residual when `conditional`, else the
+    predictive) from z ~ N(0, I), u ~ chi2(dof'), as `student_t.t_sample`; mu = mu~ + zeta.
+    Returns the weighted means and std of x and the mean slip angles."""
+    n = x.shape[0]
+    for i in range(n):
+        l0, l1 = work[i, LOC], work[i, LOC + 1]
+        s00, s01, s10, s11 = work[i, S], work[i, S + 1], work[i, S + 2], work[i, S + 3]
+        nu = work[i, DOF]
+        if conditional:
+            sc0, sc1, s_y, e = work[i, SC], work[i, SC + 1], work[i, SY], work[i, E]
+            g0, g1 = sc0 / s_y, sc1 / s_y
+            l0, l1 = l0 + g0 * e, l1 + g1 * e
+            f = (nu + e * e / s_y) / (nu + 1.0)
+            c00 = f * (s00 - sc0 * g0)
+            c01 = f * (s01 - sc0 * g1)
+            c10 = f * (s10 - sc1 * g0)
+            c11 = f * (s11 - sc1 * g1)
+            s00, s10, s11 = 0.5 * (c00 + c00), 0.5 * (c10 + c01), 0.5 * (c11 + c11)
+            nu = nu + 1.0
+        a0, a1 = _chol2_apply(s00, s10, s11, z[i, 0], z[i, 1])
+        r = math.sqrt(nu / u[i])
+        zeta[i, 0] = l0 + a0 * r
+        zeta[i, 1] = l1 + a1 * r
+        mu[i, 0] = work[i, PF] + zeta[i, 0]
+        mu[i, 1] = work[i, PR] + zeta[i, 1]
+    m0 = m1 = mf = mr = 0.0
+    for i in range(n):
+        q = math.exp(logw[i])
+        m0 += q * x[i, 0]
+        m1 += q * x[i, 1]
+        mf += q * work[i, AF]
+        mr += q * work[i, AR]
+    v0 = v1 = 0.0
+    for i in range(n):
+        q = math.exp(logw[i])
+        v0 += q * (x[i, 0] - m0) ** 2
+        v1 += q * (x[i, 1] - m1) ** 2
+    return m0, m1, math.sqrt(max(v0, 0.0)), math.sqrt(max(v1, 0.0)), mf, mr
+
+
+# ---- 6. learning ----------------------------------------------------------------------------------
+@njit(**_JIT)
+def exact_update(K, Psi, Phi, nu, work, zeta, per, col):
+    """Eq. (27a)-(27c), (28f) in place with zeta (N, 2) and the features in work[:, col:]
+    (K's lower triangle)."""
+    nb, d, m = Psi.shape
+    for b in range(nb):
+        n, a = b // per, b % per
+        o = col + a * m
+        for i in range(d):
+            zi = zeta[n, a + i]
+            for k in range(d):
+                Phi[b, i, k] += zi * zeta[n, a + k]
+            for j in range(m):
+                Psi[b, i, j] += zi * work[n, o + j]
+        for i in range(m):
+            p = work[n, o + i]
+            for j in range(i + 1):
+                K[b, i, j] += p * work[n, o + j]
+        nu[b] += 1.0
+
+
+@njit(**_JIT)
+def rank1_update(M, P, Lam, nu, work, zeta, per):
+    """`MNIWRank1.update` in place (recursive least squares) with the features in work."""
+    nb, d, m = M.shape
+    g = np.empty(m)
+    gs = np.empty(m)
+    e = np.empty(d)
+    for b in range(nb):
+        n, a = b // per, b % per
+        o = PHI + a * m
+        c = 0.0
+        for i in range(m):
+            s = 0.0
+            for j in range(m):
+                s += P[b, i, j] * work[n, o + j]
+            g[i] = s
+            c += work[n, o + i] * s
+        c = 1.0 + c
+        ic = 1.0 / c
+        for i in range(d):
+            s = 0.0
+            for j in range(m):
+                s += M[b, i, j] * work[n, o + j]
+            e[i] = zeta[n, a + i] - s
+        for j in range(m):
+            gs[j] = g[j] * ic
+        for i in range(d):
+            for j in range(m):
+                M[b, i, j] += e[i] * gs[j]
+            for k in range(d):
+                Lam[b, i, k] += e[i] * e[k] * ic
+        for i in range(m):
+            for j in range(m):
+                P[b, i, j] -= g[i] * gs[j]
+        nu[b] += 1.0
+
+
+# ---- the step ------------------------------------------------------------------------------------
+def _flat(a, tail: int):
+    return a.reshape((-1,) + a.shape[a.ndim - tail:])
+
+
+class CompiledStep:
+    """The compiled step of one `FrictionGPSSM` (built at its `reset`): the work array and
+    flat views of the statistics' arrays (the statistics are updated in place)."""
+
+    def __init__(self, est):
+        from tirefilter.stats.mniw_numba import NumbaMNIW, NumbaMNIWRank1
+
+        cfg, N = est.cfg, est.cfg.particles
+        self.est = est
+        self.tensor = est.d == 2
+        self.per = 1 if self.tensor else 2
+        size = est.basis.size
+        self.work = np.zeros((N, PHI + size * self.per))
+        self.zeta = np.zeros((N, 2))
+        self.phi_p = np.zeros((N, size * self.per))  # features of the pending update
+        self.pending = False  # exact statistics: this step's update waits for the next pass
+        self.stale_upper = False  # the kernels keep K's lower triangle; `flush` mirrors it
+        keep = np.ascontiguousarray(est.basis.keep, np.int64)
+        m1 = int(est.b1.m)
+        self.keep, self.keep_r = (keep // m1, keep % m1) if est.d == 2 else (keep, keep)
+        self.m1 = m1
+        self.L = float(cfg.L)
+        self.exact = cfg.stats == "exact"
+        st = est._stats
+        if not isinstance(st, (NumbaMNIW, NumbaMNIWRank1)):
+            raise TypeError("the compiled step needs the compiled statistics (backend numba)")
+        self.lanes = size < LANES_BELOW
+        v = est.vehicle
+        self.veh = (float(est.Fz[0]), float(est.Fz[1]), float(v.mass), float(v.lf), float(v.lr),
+                    float(v.yaw_inertia))
+
+    def flush(self) -> None:
+        """Apply a pending update of the exact statistics now (before anything reads them)."""
+        if self.pending:
+            self.pending = False
+            exact_update(*self._views(), self.phi_p, self.zeta, self.per, 0)
+        if self.stale_upper:
+            self.stale_upper = False
+            mirror(self._views()[0])
+
+    def _views(self):
+        st = self.est._stats
+        if self.exact:
+            return _flat(st.K, 2), _flat(st.Psi, 2), _flat(st.Phi, 2), st.nu.reshape(-1)
+        return _flat(st.M, 2), _flat(st.P, 2), _flat(st.Lam, 2), st.nu.reshape(-1)
+
+    def _rows(self):
+        """Every per-particle array as (N, k) views, for the resampling copies."""
+        st, N = self.est._stats, self.est.cfg.particles
+        arrays = (st.Psi, st.Phi) if self.exact else (st.M, st.P, st.Lam)
+        return tuple(a.reshape(N, -1) for a in arrays) + (st.nu.reshape(N, -1), self.est.x, self.work)
+
+    def step(self, t, uk, delta: float, vx: float, y):
+        est = self.est
+        cfg, N, rng = est.cfg, est.cfg.particles, est.rng
+        work, Fz0, Fz1, mass, lf, lr, Iz = self.work, *self.veh
+        # 1. propagate with the friction drawn at k-1 (eq. (1)), forget (eq. (29), fused into 2.)
+        forget = False
+        propagate, n_sub, h, cd, vx_prev = False, 0, 0.0, 1.0, 0.0
+        if est.t_prev is None:
+            if math.isfinite(y.yaw_rate):
+                est.x[:, 1] = y.yaw_rate + math.sqrt(est.R[1]) * rng.standard_normal(N)
+        else:
+            dt = t - est.t_prev
+            if dt <= 0:
+                raise ConfigError("inputs", "t", f"time must increase: {t} after {est.t_prev}")
+            n_sub = max(1, math.ceil(dt / cfg.max_step - 1e-9))
+            h = dt / n_sub
+            cd, vx_prev, propagate = math.cos(est.u_prev[0]), float(est.u_prev[1]), True
+            sn = cfg.state_noise
+            if sn[0] > 0 or sn[1] > 0:
+                front(est.x, est.mu, work, True, n_sub, h, cd, vx_prev, Fz0, Fz1, mass, lf, lr, Iz, delta, vx,
+                      self.L, self.m1, self.keep, self.keep_r, self.tensor, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0)
+                est.x[:] = est.x + math.sqrt(dt) * np.asarray(sn, float) * rng.standard_normal(est.x.shape)
+                propagate = False
+            forget = est.active
+        est.active = bool(vx > cfg.gate_speed and est.learning_started)
+        # 2. slip angles (clipped, counted), features, prior
+        p = est.prior
+        n_out = front(est.x, est.mu, work, propagate, n_sub, h, cd, vx_prev, Fz0, Fz1, mass, lf, lr, Iz, delta, vx,
+                      self.L, self.m1, self.keep, self.keep_r, self.tensor, float(p.B[0]), float(p.B[1]), float(p.C),
+                      float(p.D[0]), float(p.D[1]), float(p.E))
+        est.slip_evaluations += N
+        if n_out:
+            est.clipped += n_out
+            est.clipped_steps += 1
+        # 3. forgetting and predictive
+        a1, a2, a3, nu = self._views()
+        if self.exact:
+            fn = exact_forget_predictive if self.lanes else exact_forget_predictive_lapack
+            args = (a1, a2, a3, nu, est._stats.V, est._stats.Lam0, work, self.per, forget, float(cfg.forgetting),
+                    float(est.nu0)) + ((LANES,) if self.lanes else ()) + (self.pending, self.zeta, self.phi_p)
+            fn(*args)
+            self.pending, self.stale_upper = False, True
+        else:
+            rank1_forget_predictive(a1, a2, a3, nu, work, self.per, forget, float(cfg.forgetting), float(est.nu0),
+                                    bool(est._stats.bounded), float(est._stats.trace0))
+        # 4. weights (eq. (22)), resampling
+        have_ay = math.isfinite(y.ay)
+        learned = cfg.measurement_friction == "learned"
+        ess, pa, pr_ = weigh(est.x, work, est.logw, Fz0 * math.cos(delta) / mass, Fz1 / mass, float(y.ay),
+                             float(y.yaw_rate), float(est.R[0]), float(est.R[1]), have_ay,
+                             math.isfinite(y.yaw_rate), learned)
+        est.prediction = (pa, pr_)
+        if ess < cfg.resample_threshold * N:
+            idx = systematic_ancestors(est.logw, float(rng.random((1,))[0]))  # as stats.systematic_resample
+            gather_rows(self._rows(), idx)
+            if self.exact:
+                K = self.est._stats.K
+                gather_lower(K.reshape((N, self.per) + K.shape[-2:]), idx)
+            est.logw[:] = -math.log(N)
+            est.resamples += 1
+        # 5. zeta (t conditional given the a^Y residual), mu, learning
+        conditional = have_ay and learned
+        dof = work[:, DOF] + 1.0 if conditional else work[:, DOF]
+        z, u = t_draws(dof, (N, 2), rng)
+        m0, m1, s0, s1, mf, mr = sample(est.x, work, est.logw, z, np.ascontiguousarray(u, float), self.zeta, est.mu,
+                                        conditional)
+        if est.active:
+            if self.exact:  # applied in the next step's pass over the statistics (or by `flush`)
+                self.phi_p[:] = work[:, PHI:]
+                self.pending = True
+            else:
+                rank1_update(a1, a2, a3, nu, work, self.zeta, self.per)
+            v = est.visited
+            est.visited = [min(v[0], mf), max(v[1], mf), min(v[2], mr), max(v[3], mr)]
+            if self.tensor:
+                jf, jr = est._bin(mf), est._bin(mr)
+                est._path[0, jf] += (1.0, mr)
+                est._path[1, jr] += (1.0, mf)
+        est.t_prev, est.u_prev, est.last_t = t, uk, t
+        return est._estimate(ess, vx, (m0, m1, s0, s1))
