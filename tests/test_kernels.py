@@ -389,3 +389,35 @@ def test_friction_gpssm_compiled_state_pickles():
         rest.append((e.vy, e.yaw_rate, e.ess, e.Cf_y, e.Cr_y))
     assert np.array_equal(np.vstack([b, rest]), a)
     assert np.array_equal(copy.posterior().stats["M"], whole.posterior().stats["M"])
+
+
+def test_stiffness_mpf_fused_state_pickles():
+    """The fused step's arrays (`_MPFWork`: the particles' arrays, their spares, the model's
+    first stage) survive pickling mid-run (the estimator FMU's saved state, Dask): the
+    resumed filter continues exactly as the uninterrupted one."""
+    import pickle
+
+    vehicle = load_scenario("paper-sim").vehicle
+    cfg = MPFConfig(particles=24, resample_threshold=1.0, gate_warmup=0.05, gate_vy_std=10.0, gate_steer=0.0)
+    whole = StiffnessMPF(vehicle, cfg)
+    a = _mpf_drive(whole, 40)
+    part = StiffnessMPF(vehicle, cfg)
+    b = _mpf_drive(part, 25)
+    copy = pickle.loads(pickle.dumps(part))
+    assert copy.x is copy._wk.x and copy.stats.mu is copy._wk.mu  # still the work arrays, not copies of them
+    # the samples 25-39 of `_mpf_drive`, after the first 25 (their noise drawn in the same order)
+    rng, v, t, rest = np.random.default_rng(5), vehicle, 0.0, []
+    for k in range(40):
+        t += 0.05 if k == 30 else 0.01
+        delta = 0.02 * math.sin(2 * math.pi * 0.7 * t)
+        r = 20.0 * delta / (v.lf + v.lr)
+        omega = 20.0 / v.wheel_radius
+        ay = math.nan if k % 7 == 3 else 20.0 * r + 0.05 * rng.standard_normal()
+        y = Measurement() if k == 40 else Measurement(ax=0.2 + 0.05 * rng.standard_normal(), ay=ay,
+                                                       yaw_rate=r + 0.003 * rng.standard_normal())
+        if k >= 25:
+            e = copy.step(t, Inputs(delta=delta, omega_f=omega * 1.01, omega_r=omega, vx=20.0), y)
+            rest.append((e.vx, e.vy, e.yaw_rate, e.Cf_y, e.Cr_y, e.Cf_y_std, e.Cr_y_sigma, e.b_ay, e.b_yaw_rate,
+                         e.ess))
+    assert np.array_equal(np.vstack([b, rest]), a)
+    assert np.array_equal(copy.posterior().stats["Lam"], whole.posterior().stats["Lam"])
