@@ -23,6 +23,10 @@ from tirefilter.scenarios import load_scenario
 from tirefilter.scenarios.faults import Fault, fault_log_columns, fault_sets, fault_windows, parse_faults
 
 DURATION, SEED, N = 20.0, 2, 100
+# the MPF at its default N: at N = 100 this replay diverges and restarts on about a third of the estimator
+# seeds (17 of 48 with main's defaults, 18 of 48 with the interval wheel slip), at N = 500 on none of 24
+# (benchmarks/bench_short_replay.py), so a test at N = 100 passes or fails by its seed
+MPF_N = 500
 RECOVERED_DEG = 0.1  # sideslip RMS error over [end + 5 s, end + 10 s) at most this above the clean replay's
 
 
@@ -176,7 +180,7 @@ def _replay(drive, name, faults):
     log, vehicle = drive
     flog = faulty_log(log, faults, SEED)[0] if faults else log
     est = build_log_estimator(name, vehicle, flog.t, {s: flog.signals[s] for s in flog.available}, model="auto",
-                              particles=20 if name == "gpssm" else N, config={}, source="test")  # gpssm: cost
+                              particles={"gpssm": 20, "mpf": MPF_N}.get(name, N), config={}, source="test")  # gpssm: cost
     summary, rows = replay_log(flog, estimator=est, seed=SEED, keep_rows=True)
     r = dict(zip(result_columns(flog), rows.T))
     err = np.degrees(r["beta"] - flog.columns["beta_true"])

@@ -106,3 +106,21 @@ def test_bench_stiffness_command_writes_tables_and_plots(tmp_path, capsys):
     assert "report:" in text
     assert main(["bench", "stiffness", "--out", str(out), "--estimators", "nope"]) == 1
     assert "unknown estimator" in capsys.readouterr().err
+
+
+def test_bench_stiffness_config_reaches_every_trial(tmp_path, capsys):
+    """`--config` gives the trials its estimator tables: recorded in the spec, used by the
+    filter (a different result from the defaults on the same seed), and a folder of one
+    configuration refuses another."""
+    cfg = tmp_path / "paper.toml"
+    cfg.write_text('[mpf]\nslip_hold = "start"\nundriven_stiffness = "nominal"\n')
+    args = ["bench", "stiffness", "--part", "accuracy", "--trials", "1", "--duration", "3", "--particles", "30",
+            "--estimators", "mpf", "--workers", "1", "--quiet", "--no-plots"]
+    assert main(args + ["--out", str(tmp_path / "paper"), "--config", str(cfg)]) == 0
+    assert main(args + ["--out", str(tmp_path / "default")]) == 0
+    spec = json.loads((tmp_path / "paper/accuracy/paper-sim/mpf-N30-3s/spec.json").read_text())
+    assert spec["spec"]["config"] == {"mpf": {"slip_hold": "start", "undriven_stiffness": "nominal"}}
+    runs = [np.load(tmp_path / d / "accuracy/paper-sim/mpf-N30-3s/trial-0.npz")["vx"] for d in ("paper", "default")]
+    assert runs[0].shape == runs[1].shape and not np.array_equal(runs[0], runs[1])
+    assert main(args + ["--out", str(tmp_path / "paper")]) == 1
+    assert "another configuration" in capsys.readouterr().err

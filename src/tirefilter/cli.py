@@ -346,7 +346,8 @@ def cmd_bench_stiffness(args) -> int:
                         scenarios=tuple(args.scenario) if args.scenario else None,
                         estimators=_names(args.estimators), workers=args.workers, scheduler=args.scheduler,
                         seed=args.seed, duration=args.duration, plots=not args.no_plots,
-                        progress=sys.stderr.isatty() and not args.quiet)
+                        progress=sys.stderr.isatty() and not args.quiet,
+                        config=read_toml(args.config) if args.config else {})
     from tirefilter.runs import Interrupted
 
     try:
@@ -486,6 +487,8 @@ def build_parser() -> argparse.ArgumentParser:
                          "(the dask extra; docs/dask.md)")
     st.add_argument("--seed", type=int, default=0, help="seed of the study's SeedSequence")
     st.add_argument("--duration", type=float, help="shorten every trial to this many seconds")
+    st.add_argument("--config", metavar="FILE.toml",
+                    help="estimator options for every trial, as `run --config` takes them ([mpf] slip_hold = ...)")
     st.add_argument("--out", default="runs/bench-stiffness", help="output folder (default runs/bench-stiffness)")
     st.add_argument("--no-plots", action="store_true", help="tables only")
     st.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -66,6 +66,8 @@ class ResultWriter:
     def write(self, values) -> None:
         if len(values) != len(self.columns):
             raise ValueError(f"row has {len(values)} values for {len(self.columns)} columns")
+        if isinstance(values, np.ndarray):  # Python floats format faster than numpy scalars (issue 14)
+            values = values.tolist()
         self._pending.append(",".join(map(_cell, values)))
         self.rows += 1
         if len(self._pending) >= self._flush_every:

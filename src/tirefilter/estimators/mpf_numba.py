@@ -1,20 +1,35 @@
-"""Compiled (numba, nopython, cached) kernels of the stiffness MPF's per-particle work, one
-per stage of `StiffnessMPF.step` so that a change of the model maps onto one kernel:
+"""Compiled (numba, nopython, cached) kernels of the stiffness MPF: `StiffnessMPF.step` for
+every sample after the first (`StiffnessMPF._step_compiled`) in three passes over the
+particles, each a loop of straight per-particle arithmetic on arrays the caller allocated
+once and reuses from sample to sample:
 
-  model       the accelerations a + B w of eq. (1)-(4) (`StiffnessMPF._model`)
-  propagate   eq. (9), Euler or Heun with w and the wheel slip held, sub-steps (`_propagate`)
-  weights     h, d of eq. (12) and the Student-t log-likelihood of eq. (36) (step 2)
-  normalise   log-sum-exp and the ESS (`normalize_log_weights`, `effective_sample_size`)
-  sample      the conditional Student-t of eq. (39)-(41) and its draw (`t_conditional`, `t_sample`)
-  bias        the per-particle Kalman update of eq. (30) (`_bias_update`)
-  niw         NiW update (19) with the mask and the projection of Sec. V, forgetting (20)
-  moments     the weighted means of the gate and of eq. (26)-(27) (`_estimate`)
+  predict_weigh   step 1 and 2: the wheel slip over the step (derivations, Sec. 22),
+                  propagation (eq. (9), Euler or Heun with w and the wheel slip held,
+                  sub-steps), state noise, bias prediction (eq. (29)), forgetting
+                  (eq. (20)), the model at x_k (eq. (1)-(4): a + B w, also the first stage of
+                  the next propagation), plausibility, h, d of eq. (12), the predictive of the
+                  NiW (eq. (21)) and the Student-t likelihood of eq. (36), the adaptive
+                  forgetting's innovation, log-sum-exp and the ESS
+  resample_gate   systematic resampling (ancestor indices and the copies of the particles'
+                  arrays) and the weighted moments of the gate (Sec. V)
+  sample_update   step 3-5: the conditional Student-t of eq. (39)-(41) and its draw, the
+                  outlier mask, the bias Kalman update (eq. (30)), the drift of the adaptive
+                  forgetting, the NiW update (eq. (19)) with the projection of Sec. V, and the
+                  moments of eq. (26)-(27)
 
-The numpy methods of `StiffnessMPF` are the readable reference; each kernel computes the
-same expressions in the same order, one particle at a time, and consumes random numbers
-drawn by the caller with the reference's calls, so both backends follow the same path
-(tests/test_kernels.py: equal to 1e-12 relative, full and lateral models, bias on and off,
-resampling and restarts). Kernels compile on first use and are cached beside this file.
+Why three passes and not one kernel per stage: at N = 500 a stage does a few hundred
+nanoseconds of arithmetic per particle, and a dozen numba calls per sample with their
+argument checks, fresh output arrays and re-reads of the model's outputs cost as much
+(benchmarks/README.md, "Compiled kernels"). The per-particle code is written inline in the
+loops: views of per-particle rows (x[i]) passed to helper functions cost a reference count
+each and measured slower.
+
+The numpy methods of `StiffnessMPF` are the readable reference; the kernels compute the
+same expressions in the same order, one particle at a time, and consume random numbers
+drawn by the caller with the reference's generator calls, so both backends follow the same
+path (tests/test_kernels.py: equal to 1e-12 relative, full and lateral models, bias on and
+off, resampling, missing samples, sub-steps and restarts). The kernels compile on first use
+and are cached beside this file.
 """
 
 from __future__ import annotations
@@ -27,12 +42,26 @@ from numba import njit
 _JIT = dict(cache=True, nogil=True)
 
 
-# ---- model and propagation -----------------------------------------------------------------
-@njit(**_JIT)
-def _model1(x0, x1, x2, u0, u1, u2, u3, held, sf, sr, a, B, vp, full, rear_drive, n_w):
+# ---- model ---------------------------------------------------------------------------------
+@njit(inline="always", **_JIT)
+def _steer_consts(u0, vp):
+    """The factors of `_model1` that depend only on the steering angle u0 and the vehicle:
+    (cos, sin, 1 / m, 1 / I, cos / m, sin / m, lf sin / I, -sin / m, lf cos / I, -lr / I),
+    each the reference's parenthesised expression, computed once per sample instead of once
+    per particle and model evaluation (a division costs as much as the rest of a term)."""
+    m, I, lf, lr = vp[0], vp[1], vp[2], vp[3]
+    cd, sd = math.cos(u0), math.sin(u0)
+    return (cd, sd, 1.0 / m, 1.0 / I, cd / m, sd / m, lf * sd / I, -sd / m, lf * cd / I, -lr / I)
+
+
+@njit(inline="always", **_JIT)
+def _model1(x0, x1, x2, u0, u1, u2, u3, k, held, sf, sr, a, B, vp, full, rear_drive, n_w):
     """One particle of `_model`: fills a (3,), B (3, n_w); returns (af, ar, lam_f, lam_r).
-    vp = (m, I, lf, lr, Cf_y, Cr_y, C_nom_fx, C_nom_rx, R_w)."""
-    m, I, lf, lr, Cfy, Cry, Cfx, Crx, Rw = vp[0], vp[1], vp[2], vp[3], vp[4], vp[5], vp[6], vp[7], vp[8]
+    k = `_steer_consts(u0, vp)`; vp = (m, I, lf, lr, Cf_y, Cr_y, C_nom_fx, C_nom_rx, R_w,
+    undriven_share)."""
+    lf, lr, Cfy, Cry, Cfx, Crx, Rw = vp[2], vp[3], vp[4], vp[5], vp[6], vp[7], vp[8]
+    s = vp[9]
+    cd, sd, inv_m, inv_I, cd_m, sd_m, lf_sd_I, msd_m, lf_cd_I, mlr_I = k
     if full:
         vx, vy, r = x0, x1, x2
     else:
@@ -40,7 +69,6 @@ def _model1(x0, x1, x2, u0, u1, u2, u3, held, sf, sr, a, B, vp, full, rear_drive
     inv_vx = 1.0 / max(vx, 1.0)
     af = u0 - (vy + lf * r) * inv_vx
     ar = (lr * r - vy) * inv_vx
-    cd, sd = math.cos(u0), math.sin(u0)
     Ffy, Fry = Cfy * af, Cry * ar
     for i in range(3):
         for j in range(n_w):
@@ -56,46 +84,87 @@ def _model1(x0, x1, x2, u0, u1, u2, u3, held, sf, sr, a, B, vp, full, rear_drive
             lam_r = (wr - vx) / max(max(abs(vx), abs(wr)), 1.0)
         Ffx, Frx = Cfx * lam_f, Crx * lam_r
         if rear_drive:
-            B[0, 0] = lam_r * (1.0 / m)
+            B[0, 0] = lam_r * inv_m + (s * lam_f) * cd_m
+            B[1, 0] = (s * lam_f) * sd_m
+            B[2, 0] = (s * lam_f) * lf_sd_I
         else:
-            B[0, 0] = lam_f * (cd / m)
-            B[1, 0] = lam_f * (sd / m)
-            B[2, 0] = lam_f * (lf * sd / I)
+            B[0, 0] = lam_f * cd_m + (s * lam_r) * inv_m
+            B[1, 0] = lam_f * sd_m
+            B[2, 0] = lam_f * lf_sd_I
         j = 1
         Fy_f = Ffy * cd + Ffx * sd
-        aX = (Ffx * cd - Ffy * sd + Frx) * (1.0 / m)
+        aX = (Ffx * cd - Ffy * sd + Frx) * inv_m
     else:
         Fy_f = Ffy * cd
         aX = 0.0
-    B[0, j] = af * (-sd / m)
-    B[1, j] = af * (cd / m)
-    B[2, j] = af * (lf * cd / I)
-    B[1, j + 1] = ar * (1.0 / m)
-    B[2, j + 1] = ar * (-lr / I)
+    B[0, j] = af * msd_m
+    B[1, j] = af * cd_m
+    B[2, j] = af * lf_cd_I
+    B[1, j + 1] = ar * inv_m
+    B[2, j + 1] = ar * mlr_I
     a[0] = aX
-    a[1] = (Fy_f + Fry) * (1.0 / m)
-    a[2] = (lf * Fy_f - lr * Fry) * (1.0 / I)
+    a[1] = (Fy_f + Fry) * inv_m
+    a[2] = (lf * Fy_f - lr * Fry) * inv_I
     return af, ar, lam_f, lam_r
 
 
+@njit(inline="always", **_JIT)
+def _interval_slip1(vx, vy, r, acc0, wx, slip_f, slip_r, u0, u1, dt, vp, jw, c_floor, rear_drive):
+    """One particle of `slip_over_step`: the front and rear wheel slip averaged over the step
+    from the slips (slip_f, slip_r) at t_k, x = (vx, vy, r), acc0 = a^X + B_0 w at t_k, the
+    driven axle's deviation wx, the inputs u0, u1 (4,) at t_k and t_k+1."""
+    Rw, s, Cfx, Crx = vp[8], vp[9], vp[6], vp[7]
+    vx1 = vx + dt * (vy * r + acc0)
+    if rear_drive:
+        c_f, c_r = Cfx + s * wx, Crx + wx
+    else:
+        c_f, c_r = Cfx + wx, Crx + s * wx
+    out_f = out_r = 0.0
+    for k in range(2):
+        wr1 = Rw * u1[1 + k]
+        slip1 = (wr1 - vx1) / max(max(abs(vx1), abs(wr1)), 1.0)
+        C = max(c_f if k == 0 else c_r, c_floor[k])
+        D = max(max(abs(vx), abs(Rw * u0[1 + k])), 1.0)
+        tau = max(jw[k] * D / C, 1e-12)
+        share = (tau / dt) * -math.expm1(-dt / tau)
+        if k == 0:
+            out_f = slip1 + (slip_f - slip1) * share
+        else:
+            out_r = slip1 + (slip_r - slip1) * share
+    return out_f, out_r
+
+
 @njit(**_JIT)
-def model(x, u, vp, full, rear_drive, n_w):
-    """`StiffnessMPF._model(x, u)` for all particles: a (N, 3), B (N, 3, n_w), af, ar (N,),
-    slip (2, N) (zeros in the lateral model, where the reference returns None)."""
+def slip_over_step(x, u0, u1, w, a, B, slip, dt, vp, jw, c_floor, rear_drive, n_w):
+    """`StiffnessMPF._slip_over_step` (full model): the first stage of the propagation from t_k
+    to t_k + dt with the wheel slip averaged over the interval (derivations, Sec. 22).
+
+    x (N, 3) at t_k; u0, u1 (4,) the inputs at t_k and t_k+1; w (N, n_w) held over the step;
+    a (N, 3), B (N, 3, n_w), slip (2, N) of `model(x, u0)`; vp as in `_model1`; jw (2,) the
+    front and rear spin inertia over R_w^2; c_floor (2,) the lowest axle stiffness in the time
+    constant. Returns (a, B, af, ar, slip) (new arrays) at x with the interval slip. The same
+    per-particle arithmetic as the first stage in `predict_weigh`; for the reference path and
+    tests/test_kernels.py."""
     n = x.shape[0]
-    a = np.empty((n, 3))
-    B = np.empty((n, 3, n_w))
+    k0 = _steer_consts(u0[0], vp)
+    a2 = np.empty((n, 3))
+    B2 = np.empty((n, 3, n_w))
     af = np.empty(n)
     ar = np.empty(n)
-    slip = np.zeros((2, n))
+    out = np.empty((2, n))
     for i in range(n):
-        x2 = x[i, 2] if full else 0.0
-        af[i], ar[i], slip[0, i], slip[1, i] = _model1(x[i, 0], x[i, 1], x2, u[0], u[1], u[2], u[3], False, 0.0,
-                                                       0.0, a[i], B[i], vp, full, rear_drive, n_w)
-    return a, B, af, ar, slip
+        acc0 = 0.0
+        for j in range(n_w):
+            acc0 += B[i, 0, j] * w[i, j]
+        acc0 = a[i, 0] + acc0
+        out[0, i], out[1, i] = _interval_slip1(x[i, 0], x[i, 1], x[i, 2], acc0, w[i, 0], slip[0, i], slip[1, i], u0,
+                                               u1, dt, vp, jw, c_floor, rear_drive)
+        af[i], ar[i], _, _ = _model1(x[i, 0], x[i, 1], x[i, 2], u0[0], u0[1], u0[2], u0[3], k0, True, out[0, i],
+                                     out[1, i], a2[i], B2[i], vp, True, rear_drive, n_w)
+    return a2, B2, af, ar, out
 
 
-@njit(**_JIT)
+@njit(inline="always", **_JIT)
 def _xdot1(x, u3, a, B, w, out, full, n_w):
     s0 = s1 = s2 = 0.0
     for j in range(n_w):
@@ -112,14 +181,36 @@ def _xdot1(x, u3, a, B, w, out, full, n_w):
         out[1] = acc2
 
 
+
+@njit(**_JIT)
+def model(x, u, vp, full, rear_drive, n_w):
+    """`StiffnessMPF._model(x, u)` for all particles: a (N, 3), B (N, 3, n_w), af, ar (N,),
+    slip (2, N) (zeros in the lateral model, where the reference returns None). For the
+    reference path's compiled model (the first sample, restarts, gaps) and the AUGPF."""
+    n = x.shape[0]
+    ku = _steer_consts(u[0], vp)
+    a = np.empty((n, 3))
+    B = np.empty((n, 3, n_w))
+    af = np.empty(n)
+    ar = np.empty(n)
+    slip = np.zeros((2, n))
+    for i in range(n):
+        x2 = x[i, 2] if full else 0.0
+        af[i], ar[i], slip[0, i], slip[1, i] = _model1(x[i, 0], x[i, 1], x2, u[0], u[1], u[2], u[3], ku, False, 0.0,
+                                                       0.0, a[i], B[i], vp, full, rear_drive, n_w)
+    return a, B, af, ar, slip
+
+
 @njit(**_JIT)
 def propagate(x, u, w, a, B, slip, dt, max_step, heun, vp, full, rear_drive, n_w):
     """`StiffnessMPF._propagate`: x_{k+1} from x_k (N, nx) with w (N, n_w) held, the first
-    stage (a, B, slip) evaluated at x_k by the measurement step; a step longer than
-    max_step is split into equal sub-steps (the model re-evaluated, slip recomputed)."""
+    stage (a, B, slip) evaluated at x_k; a step longer than max_step is split into equal
+    sub-steps (the model re-evaluated, slip recomputed). The same loop as the propagation
+    in `predict_weigh`; for the reference path and the AUGPF."""
     n, nx = x.shape
+    ku = _steer_consts(u[0], vp)
     n_sub = max(1, math.ceil(dt / max_step - 1e-9))
-    h = dt / n_sub
+    hs = dt / n_sub
     out = np.empty((n, nx))
     xi = np.empty(nx)
     x1 = np.empty(nx)
@@ -138,28 +229,28 @@ def propagate(x, u, w, a, B, slip, dt, max_step, heun, vp, full, rear_drive, n_w
                     for j in range(n_w):
                         Bi[c, j] = B[i, c, j]
             else:
-                x2 = xi[2] if full else 0.0
-                _, _, sf, sr = _model1(xi[0], xi[1], x2, u[0], u[1], u[2], u[3], False, 0.0, 0.0, ai, Bi, vp, full,
+                xs2 = xi[2] if full else 0.0
+                _, _, sf, sr = _model1(xi[0], xi[1], xs2, u[0], u[1], u[2], u[3], ku, False, 0.0, 0.0, ai, Bi, vp, full,
                                        rear_drive, n_w)
             _xdot1(xi, u[3], ai, Bi, w[i], k1, full, n_w)
             if not heun:
                 for c in range(nx):
-                    xi[c] = xi[c] + h * k1[c]
+                    xi[c] = xi[c] + hs * k1[c]
                 continue
             for c in range(nx):
-                x1[c] = xi[c] + h * k1[c]
-            x2 = x1[2] if full else 0.0
-            _model1(x1[0], x1[1], x2, u[0], u[1], u[2], u[3], full, sf, sr, ai, Bi, vp, full, rear_drive, n_w)
+                x1[c] = xi[c] + hs * k1[c]
+            xs2 = x1[2] if full else 0.0
+            _model1(x1[0], x1[1], xs2, u[0], u[1], u[2], u[3], ku, full, sf, sr, ai, Bi, vp, full, rear_drive, n_w)
             _xdot1(x1, u[3], ai, Bi, w[i], k2, full, n_w)
             for c in range(nx):
-                xi[c] = xi[c] + (0.5 * h) * (k1[c] + k2[c])
+                xi[c] = xi[c] + (0.5 * hs) * (k1[c] + k2[c])
         for c in range(nx):
             out[i, c] = xi[c]
     return out
 
 
 # ---- small dense helpers ---------------------------------------------------------------------
-@njit(**_JIT)
+@njit(inline="always", **_JIT)
 def _chol(S, L, n):
     """`stats.linalg.chol` of the leading n x n block of S into L (same pivot floor)."""
     for j in range(n):
@@ -178,40 +269,165 @@ def _chol(S, L, n):
             L[i, j] = 0.0
 
 
-# ---- weights (eq. (12), (36)) ------------------------------------------------------------------
+
+
+@njit(inline="always", **_JIT)
+def _t_const(nn, p):
+    """The log-Gamma terms of `t_logpdf_whitened` for nn dof in p dimensions."""
+    return math.lgamma(0.5 * (nn + p)) - math.lgamma(0.5 * nn) - 0.5 * p * math.log(nn * math.pi)
+
+
+
 @njit(**_JIT)
-def weights(a, B, x, gamma, mu, Lam, nu, b, P, R, y, avail, bias_on, roll_gain, full, n_w):
-    """Step 2 of `StiffnessMPF.step` for the available channels `avail` (indices into the
-    model's channels): h, D of `_measurement`, the predictive L11 of the NiW (eq. (21)),
-    L12 = (D_a L11)^T, S = D_a L11 D_a^T + (nu~ - 2) / nu~ (R + P)_aa, its factor Lc, the
-    residual e = y_a - h_a - b_a - D_a mu and v = Lc^-1 e, and the Student-t log-likelihood
-    (`t_logpdf_whitened`; when all particles share one nu~ its log-Gamma terms are computed
-    once, as the reference does). Last: that common nu~, or 0 when the particles differ."""
-    n = x.shape[0]
-    mch = 3 if full else 2
+def _common_dof(nu_w):
+    """nu~ when every particle has it, else 0 (the reference's `_common`)."""
+    n = nu_w.shape[0]
+    if n == 0:
+        return 0.0
+    for i in range(n):
+        if nu_w[i] != nu_w[0]:
+            return 0.0
+    return nu_w[0] if nu_w[0] > 0 else 0.0
+
+
+
+@njit(**_JIT)
+def _normalise_into(logw, add):
+    """logw := normalised (logw + add), NaN as -inf, uniform when all are -inf
+    (`normalize_log_weights`); returns the ESS (`effective_sample_size`)."""
+    n = logw.shape[0]
+    out = logw
+    m = -np.inf
+    for i in range(n):
+        li = logw[i] + add[i]
+        if math.isnan(li):
+            li = -np.inf
+        out[i] = li
+        if li > m:
+            m = li
+    if not math.isfinite(m):
+        out[:] = -math.log(n)
+        return float(n)
+    s = 0.0
+    for i in range(n):
+        out[i] = out[i] - m
+        s += math.exp(out[i])
+    lse = math.log(s)
+    s2 = 0.0
+    for i in range(n):
+        out[i] = out[i] - lse
+        s2 += math.exp(2.0 * out[i])
+    return 1.0 / s2
+
+
+
+# ---- the three passes --------------------------------------------------------------------------
+@njit(**_JIT)
+def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise,
+                  noise_scale, b, P, q, bias_on, forget, lam, nu_min, gamma, mu, Lam, nu, uk, y, avail, R, roll_gain,
+                  vp, full, rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc, want_nis, beta, yaw_max,
+                  gate_speed):
+    """Steps 1 and 2 of `StiffnessMPF.step`, in place. Per particle: the first stage of the
+    propagation, a (N, 3), B (N, 3, n_w), slip (2, N) kept from the last sample, or with
+    `interval` (full model, slip_hold = "interval") the model at x with the wheel slip averaged
+    over the step (`_slip_over_step`, jw, c_floor as there, towards the slip of uk); propagate
+    x (N, nx) (`_propagate`: eq. (9), w_prev held, `max_step` sub-steps), add the state noise
+    noise_scale * noise (the caller's normals; noise of shape (0, nx) when off), predict the
+    bias covariance P += diag(q dt) (eq. (29)), forget (`NiW.forget`, eq. (20), when
+    `forget`), evaluate the model at x_k with uk (`_model`: a, B, af, ar, slip, the first
+    stage of the next propagation), mark the plausible particles (`_plausible`: ok), and for
+    the channels `avail` (indices into the model's m channels; y (m,)) weigh as `step` does:
+    h, D of `_measurement`, L11 = (1 + gamma) / nu~ Lam, L12 = (D_a L11)^T,
+    S = D_a L11 D_a^T + (nu~ - 2) / nu~ (R + P)_aa (P only with `bias_on`), Lc = chol(S),
+    e = y_a - h_a - b_a - D_a mu, v = Lc^-1 e and ll, the Student-t log-density
+    (`t_logpdf_whitened`; its log-Gamma terms once per distinct nu~).
+    Then: the adaptive forgetting's innovation (`_adapt_forgetting`: the predictive-weighted
+    normalised |v_acc|^2 over the first nc channels; NaN unless `want_nis` and nc) and
+    logw := normalised logw + ll (when any channel is available).
+    Returns (innovation, ESS (-1: no channel, logw unchanged), number of plausible
+    particles, nu~ common to all particles or 0). The caller zeroes the weights of the
+    implausible particles when some (not all) are, as `_plausible` does."""
+    n, nx = x.shape
+    n_w = mu.shape[1]
     na = avail.shape[0]
-    h = np.empty((n, mch))
-    D = np.zeros((n, mch, n_w))
-    L11 = np.empty((n, n_w, n_w))
-    nu_w = np.empty(n)
-    L12 = np.empty((n, n_w, na))
-    Lc = np.zeros((n, na, na))
-    e = np.empty((n, na))
-    v = np.empty((n, na))
-    ll = np.zeros(n)
-    S = np.empty((na, na))
-    DL = np.empty((na, n_w))
+    mch = q.shape[0]
+    kp = _steer_consts(u_prev[0], vp)  # (once per sample, not per particle)
+    kk = _steer_consts(uk[0], vp)
+    n_sub = max(1, math.ceil(dt / max_step - 1e-9))
+    hs = dt / n_sub
+    xi = np.empty(nx)
+    x1 = np.empty(nx)
+    k1 = np.empty(nx)
+    k2 = np.empty(nx)
+    ai = np.empty(3)
+    Bi = np.empty((3, n_w))
+    nb = max(na, 1)
+    S = np.empty((nb, nb))
+    DL = np.empty((nb, n_w))
+    inv_d = np.empty(nb)
+    with_noise = noise.shape[0] > 0
+    count = 0
+    for i in range(n):
+        # 1. propagation (`_propagate`), the first stage from the last sample
+        for c in range(nx):
+            xi[c] = x[i, c]
+        sf, sr = slip[0, i], slip[1, i]
+        if interval:  # the slip over the step (`_slip_over_step`)
+            acc0 = 0.0
+            for j in range(n_w):
+                acc0 += B[i, 0, j] * w_prev[i, j]
+            acc0 = a[i, 0] + acc0
+            sf, sr = _interval_slip1(xi[0], xi[1], xi[2], acc0, w_prev[i, 0], sf, sr, u_prev, uk, dt, vp, jw, c_floor,
+                                     rear_drive)
+            _model1(xi[0], xi[1], xi[2], u_prev[0], u_prev[1], u_prev[2], u_prev[3], kp, True, sf, sr, ai, Bi, vp, True,
+                    rear_drive, n_w)
+        else:
+            for c in range(3):
+                ai[c] = a[i, c]
+                for j in range(n_w):
+                    Bi[c, j] = B[i, c, j]
+        for s in range(n_sub):
+            if s > 0:
+                xs2 = xi[2] if full else 0.0
+                _, _, sf, sr = _model1(xi[0], xi[1], xs2, u_prev[0], u_prev[1], u_prev[2], u_prev[3], kp, False, 0.0,
+                                       0.0, ai, Bi, vp, full, rear_drive, n_w)
+            _xdot1(xi, u_prev[3], ai, Bi, w_prev[i], k1, full, n_w)
+            if not heun:
+                for c in range(nx):
+                    xi[c] = xi[c] + hs * k1[c]
+                continue
+            for c in range(nx):
+                x1[c] = xi[c] + hs * k1[c]
+            xs2 = x1[2] if full else 0.0
+            _model1(x1[0], x1[1], xs2, u_prev[0], u_prev[1], u_prev[2], u_prev[3], kp, full, sf, sr, ai, Bi, vp, full,
+                    rear_drive, n_w)
+            _xdot1(x1, u_prev[3], ai, Bi, w_prev[i], k2, full, n_w)
+            for c in range(nx):
+                xi[c] = xi[c] + (0.5 * hs) * (k1[c] + k2[c])
+        for c in range(nx):
+            x[i, c] = xi[c] + noise_scale[c] * noise[i, c] if with_noise else xi[c]
+        if bias_on:  # eq. (29)
+            for c in range(mch):
+                P[i, c, c] = P[i, c, c] + q[c] * dt
+        if forget:  # eq. (20), `NiW.forget`
+            f = max(lam, min(1.0, nu_min / nu[i])) if nu_min > 0 else lam
+            gamma[i] = gamma[i] / f
+            nu[i] = nu[i] * f
+            for j in range(n_w):
+                for k in range(n_w):
+                    Lam[i, j, k] = Lam[i, j, k] * f
+        # the model at x_k, u_k (`_model`) and the plausible region (`_plausible`)
+        xs2 = x[i, 2] if full else 0.0
+        af[i], ar[i], slip[0, i], slip[1, i] = _model1(x[i, 0], x[i, 1], xs2, uk[0], uk[1], uk[2], uk[3], kk, False,
+                                                       0.0, 0.0, a[i], B[i], vp, full, rear_drive, n_w)
+        vxp = x[i, 0] if full else uk[3]
+        ok[i] = abs(x[i, nx - 2]) <= beta * max(abs(vxp), gate_speed) and abs(x[i, nx - 1]) <= yaw_max
+        count += ok[i]
     p = float(na)
-    cst = 0.0
-    const_nu = nu[0] - n_w + 1.0 if n else 0.0
+    last, cn = -1.0, 0.0
     for i in range(n):
-        if nu[i] != nu[0]:
-            const_nu = 0.0
-            break
-    if const_nu > 0:
-        cst = math.lgamma(0.5 * (const_nu + p)) - math.lgamma(0.5 * const_nu) - 0.5 * p * math.log(const_nu * math.pi)
-    for i in range(n):
-        r = x[i, x.shape[1] - 1]
+        # 2. h, D (`_measurement`), the predictive (eq. (21)) and the weight (eq. (36))
+        r = x[i, nx - 1]
         if full:
             h[i, 0] = a[i, 0]
             h[i, 1] = roll_gain * a[i, 1]
@@ -219,11 +435,13 @@ def weights(a, B, x, gamma, mu, Lam, nu, b, P, R, y, avail, bias_on, roll_gain, 
             for j in range(n_w):
                 D[i, 0, j] = B[i, 0, j]
                 D[i, 1, j] = B[i, 1, j] * roll_gain
+                D[i, 2, j] = 0.0
         else:
             h[i, 0] = roll_gain * a[i, 1]
             h[i, 1] = r
             for j in range(n_w):
                 D[i, 0, j] = roll_gain * B[i, 1, j]
+                D[i, 1, j] = 0.0
         dof = nu[i] - n_w + 1.0
         nu_w[i] = dof
         f = (1.0 + gamma[i]) / dof
@@ -246,11 +464,25 @@ def weights(a, B, x, gamma, mu, Lam, nu, b, P, R, y, avail, bias_on, roll_gain, 
                 s = 0.0
                 for k in range(n_w):
                     s += DL[q, k] * D[i, avail[q2], k]
-                noise = R[avail[q], avail[q2]]
+                noise_qq = R[avail[q], avail[q2]]
                 if bias_on:
-                    noise = noise + P[i, avail[q], avail[q2]]
-                S[q, q2] = s + c * noise
-        _chol(S, Lc[i], na)
+                    noise_qq = noise_qq + P[i, avail[q], avail[q2]]
+                S[q, q2] = s + c * noise_qq
+        for j in range(na):  # Lc = chol(S) (`_chol`, written out: no view of Lc[i])
+            Sjj = S[j, j]
+            d = Sjj
+            for k in range(j):
+                d = d - Lc[i, j, k] * Lc[i, j, k]
+            Ljj = math.sqrt(max(d, abs(Sjj) * 1e-14 + 1e-300))
+            Lc[i, j, j] = Ljj
+            inv_d[j] = 1.0 / Ljj
+            for r in range(j + 1, na):
+                acc = S[r, j]
+                for k in range(j):
+                    acc = acc - Lc[i, r, k] * Lc[i, j, k]
+                Lc[i, r, j] = acc * inv_d[j]
+            for r in range(j):
+                Lc[i, r, j] = 0.0
         logdet = 0.0
         vv = 0.0
         for q in range(na):
@@ -262,181 +494,244 @@ def weights(a, B, x, gamma, mu, Lam, nu, b, P, R, y, avail, bias_on, roll_gain, 
             acc = e[i, q]
             for k in range(q):
                 acc = acc - Lc[i, q, k] * v[i, k]
-            v[i, q] = acc / Lc[i, q, q]
+            v[i, q] = acc / Lc[i, q, q]  # (a division, as `solve_lower`: the test's equality is to rounding)
             vv += v[i, q] * v[i, q]
             logdet += math.log(Lc[i, q, q])
         logdet *= 2.0
-        if const_nu > 0:
-            cn, nn = cst, const_nu
-        else:
-            nn = dof
-            cn = math.lgamma(0.5 * (nn + p)) - math.lgamma(0.5 * nn) - 0.5 * p * math.log(nn * math.pi)
-        ll[i] = cn - 0.5 * logdet - 0.5 * (nn + p) * math.log1p(vv / nn)
-    return h, D, L11, nu_w, L12, Lc, e, v, ll, const_nu
+        if dof != last:
+            last, cn = dof, _t_const(dof, p)
+        ll[i] = cn - 0.5 * logdet - 0.5 * (dof + p) * math.log1p(vv / dof)
+    innovation = math.nan
+    if want_nis and nc:
+        innovation = 0.0
+        for i in range(n):
+            vv = 0.0
+            for q in range(nc):
+                vv += v[i, q] * v[i, q]
+            innovation += math.exp(logw[i]) * (vv * (nu_w[i] - 2.0) / (nu_w[i] * nc))
+    ess = _normalise_into(logw, ll) if na else -1.0
+    return innovation, ess, count, _common_dof(nu_w)
 
 
 @njit(**_JIT)
-def weighted_nis(logw, v, nu):
-    """sum_i q_i |v_i|^2 (nu_i - 2) / (nu_i nc) for v (N, nc): the predictive-weighted normalised
-    innovation of `StiffnessMPF._adapt_forgetting`."""
-    n, nc = v.shape
-    s = 0.0
+def _take_rows(src, dst, idx):
+    """dst[i] = src[idx[i]] for C-contiguous arrays of N rows, copied as flat (N, k) rows."""
+    n = idx.shape[0]
+    k = src.size // n
+    s2 = src.reshape((n, k))
+    d2 = dst.reshape((n, k))
     for i in range(n):
-        vv = 0.0
-        for q in range(nc):
-            vv += v[i, q] * v[i, q]
-        s += math.exp(logw[i]) * (vv * (nu[i] - 2.0) / (nu[i] * nc))
-    return s
+        r = idx[i]
+        for c in range(k):
+            d2[i, c] = s2[r, c]
 
 
 @njit(**_JIT)
-def normalise(logw):
-    """(normalised log-weights, ESS): `normalize_log_weights` then `effective_sample_size`."""
+def resample_gate(logw, u0, resample, idx, x, b, P, gamma, mu, Lam, nu, a, B, slip, x2, b2, P2, gamma2, mu2, Lam2,
+                  nu2, a2, B2, slip2, af, ar, full, pin_lo, pin_hi):
+    """Resampling and the gate's moments. `resample`: systematic resampling
+    (`systematic_resample` with the caller's uniform u0) into idx, the particles' arrays
+    (x, b, P, the statistics, the model's first stage a, B, slip) copied by idx into their
+    spares (x2, ...; the caller swaps), logw uniform; else idx = 0..N-1. The arrays of the
+    weighting (h, D, L11, ...) are not copied: `sample_update` reads them through idx.
+    Returns the gate's moments over the (resampled) particles, E[vx] (full model), the std
+    of vy and max(|E[af]|, |E[ar]|), and whether the posterior mean of mu lies at or beyond
+    pin_lo or pin_hi (n_w,) in some component (the bound restart, `_pinned`)."""
     n = logw.shape[0]
-    out = np.empty(n)
-    m = -np.inf
+    if resample:
+        cdf = np.empty(n)
+        acc = 0.0
+        for i in range(n):
+            acc += math.exp(logw[i])
+            cdf[i] = acc
+        cdf[n - 1] = 1.0
+        j = 0
+        for k in range(n):
+            u = (u0 + k) / n
+            while j < n - 1 and cdf[j] <= u:  # searchsorted(cdf, u, side="right"), clipped
+                j += 1
+            idx[k] = j
+        _take_rows(x, x2, idx)
+        _take_rows(b, b2, idx)
+        _take_rows(P, P2, idx)
+        _take_rows(gamma, gamma2, idx)
+        _take_rows(mu, mu2, idx)
+        _take_rows(Lam, Lam2, idx)
+        _take_rows(nu, nu2, idx)
+        _take_rows(a, a2, idx)
+        _take_rows(B, B2, idx)
+        for k in range(n):
+            slip2[0, k] = slip[0, idx[k]]
+            slip2[1, k] = slip[1, idx[k]]
+        logw[:] = -math.log(n)
+        xs = x2
+    else:
+        for k in range(n):
+            idx[k] = k
+        xs = x
+    iv = 1 if full else 0
+    mvx = mvy = maf = mar = 0.0
     for i in range(n):
-        li = logw[i]
-        if math.isnan(li):
-            li = -np.inf
-        out[i] = li
-        if li > m:
-            m = li
-    if not math.isfinite(m):
-        out[:] = -math.log(n)
-        return out, float(n)
+        q = math.exp(logw[i])
+        mvx += q * xs[i, 0]
+        mvy += q * xs[i, iv]
+        maf += q * af[idx[i]]
+        mar += q * ar[idx[i]]
+    n_w = mu.shape[1]
+    ms = mu2 if resample else mu
+    mbar = np.zeros(n_w)
     s = 0.0
     for i in range(n):
-        out[i] = out[i] - m
-        s += math.exp(out[i])
-    lse = math.log(s)
-    s2 = 0.0
-    for i in range(n):
-        out[i] = out[i] - lse
-        s2 += math.exp(2.0 * out[i])
-    return out, 1.0 / s2
+        q = math.exp(logw[i])
+        d = xs[i, iv] - mvy
+        s += q * (d * d)
+        for j in range(n_w):
+            mbar[j] += q * ms[i, j]
+    pinned = False
+    for j in range(n_w):
+        if mbar[j] <= pin_lo[j] or mbar[j] >= pin_hi[j]:
+            pinned = True
+    return mvx, math.sqrt(max(s, 0.0)), max(abs(maf), abs(mar)), pinned
 
 
-# ---- conditional sampling (eq. (39)-(41)) ---------------------------------------------------------
+
+
 @njit(**_JIT)
-def sample(mu, L11, L12, Lc, v, nu_w, nc, z, chi, nu_draw):
-    """w ~ St(mu_c, Lam_c, nu~ + nc), the conditional of w given the first nc (accelerometer)
-    residuals: M = Lc^-1 L21, mu_c = mu + M^T v, Lam_c = (nu~ + v^T v) / (nu~ + nc) (L11 - M^T M)
-    (`t_conditional` with `L22_chol`, `x2_white`), then `t_sample`'s draw with the caller's
-    standard normals z (N, n_w) and chi-square draws chi (N,) of nu_draw (N,) degrees."""
+def sample_update(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z, chi, nu_draw, w,
+                  use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom):
+    """Steps 3-5 of `StiffnessMPF.step`, in place. Per particle i (its weighting arrays h, D,
+    L11, nu_w, L12, Lc, v at row idx[i], the ancestor when resampled):
+    - w_i (into w) from the conditional of w given the first nc (accelerometer) residuals,
+      eq. (39)-(41) (`t_conditional` with `L22_chol`, `x2_white`): M = Lc^-1 L21,
+      mu_c = mu + M^T v, Lam_c = (nu~ + v^T v) / (nu~ + nc) (L11 - M^T M), and `t_sample`'s
+      draw mu_c + chol(Lam_c) z sqrt(nu_draw / chi) with the caller's z (N, n_w), chi (N,);
+    - the outlier mask (`use_mask`): learn while |v_acc|^2 < bound;
+    - the bias update (`_bias_update`, eq. (30), `do_bias`): S = P_aa + R_aa + D_a E[Sigma] D_a^T,
+      K^T = S^-1 P_{a,:}, b += K (y_a - h_a - D_a mu - b_a), P -= P_{:,a} K^T, symmetrised;
+    - gate open (`active`): the whitened lean chol(L11)^-1 (w_i - mu_i) of `_track_drift`
+      (`drift`), then `NiW.update` (eq. (19)) and the projection of mu onto [lo, hi] (Sec. V).
+    Then `_track_drift`'s smoothing of the weighted mean lean into drift_state (n_w,) with
+    the factor drift_a, and `_estimate`'s moments after the update into the rows of mom
+    (6, >= max(nx, n_w, m)): x mean, x std, mean of mu, posterior variance of the mean,
+    sigma^2 of eq. (27b), bias mean. Returns the drift statistic z' of `_track_drift`, NaN
+    when not computed (or when the lean is not finite: the reference then keeps its state)."""
     n, n_w = mu.shape
-    w = np.empty((n, n_w))
-    M = np.empty((nc, n_w))
-    Lam = np.empty((n_w, n_w))
+    na = avail.shape[0]
+    mch = b.shape[1]
+    M = np.empty((max(nc, 1), n_w))
+    Lm = np.empty((n_w, n_w))
     L = np.zeros((n_w, n_w))
     mc = np.empty(n_w)
+    ub = np.zeros(n_w)
+    ui = np.empty(n_w)
+    nb = max(na, 1)
+    S = np.empty((nb, nb))
+    Lb = np.zeros((nb, nb))
+    Kt = np.empty((nb, mch))
+    DE = np.empty((nb, n_w))
+    innov = np.empty(nb)
+    Pn = np.empty((mch, mch))
     for i in range(n):
+        s = idx[i]
+        # 3. the conditional Student-t and its draw
         for k in range(n_w):  # M = solve_lower(Lc, L21): column k of L21 is row k of L12
             for q in range(nc):
-                acc = L12[i, k, q]
+                acc = L12[s, k, q]
                 for j in range(q):
-                    acc = acc - Lc[i, q, j] * M[j, k]
-                M[q, k] = acc / Lc[i, q, q]
+                    acc = acc - Lc[s, q, j] * M[j, k]
+                M[q, k] = acc / Lc[s, q, q]
         vv = 0.0
         for q in range(nc):
-            vv += v[i, q] * v[i, q]
+            vv += v[s, q] * v[s, q]
         for k in range(n_w):
-            s = 0.0
+            t = 0.0
             for q in range(nc):
-                s += M[q, k] * v[i, q]
-            mc[k] = mu[i, k] + s
-        sc = (nu_w[i] + vv) / (nu_w[i] + nc)
+                t += M[q, k] * v[s, q]
+            mc[k] = mu[i, k] + t
+        sc = (nu_w[s] + vv) / (nu_w[s] + nc)
         for j in range(n_w):
             for k in range(n_w):
                 g = 0.0
                 for q in range(nc):
                     g += M[q, j] * M[q, k]
-                Lam[j, k] = sc * (L11[i, j, k] - g)
-        _chol(Lam, L, n_w)
+                Lm[j, k] = sc * (L11[s, j, k] - g)
+        _chol(Lm, L, n_w)
         f = math.sqrt(nu_draw[i] / chi[i])
         for j in range(n_w):
-            s = 0.0
+            t = 0.0
             for k in range(j + 1):
-                s += L[j, k] * z[i, k]
-            w[i, j] = mc[j] + s * f
-    return w
-
-
-# ---- bias (eq. (30)) ----------------------------------------------------------------------------
-@njit(**_JIT)
-def bias_update(b, P, R, D, avail, mu, Lam, nu, y, h):
-    """In place, `_bias_update`: S = P_aa + R_aa + D_a E[Sigma] D_a^T, K^T = S^-1 P_{a,:},
-    b += K (y_a - h_a - D_a mu - b_a), P -= P_{:,a} K^T, symmetrised."""
-    n, mch = b.shape
-    n_w = mu.shape[1]
-    na = avail.shape[0]
-    S = np.empty((na, na))
-    Lc = np.zeros((na, na))
-    Kt = np.empty((na, mch))
-    DE = np.empty((na, n_w))
-    innov = np.empty(na)
-    Pn = np.empty((mch, mch))
-    for i in range(n):
-        den = nu[i] - n_w - 1.0
-        for q in range(na):
-            for k in range(n_w):
-                s = 0.0
-                for j in range(n_w):
-                    s += D[i, avail[q], j] * (Lam[i, j, k] / den)
-                DE[q, k] = s
-        for q in range(na):
-            for q2 in range(na):
-                s = 0.0
+                t += L[j, k] * z[i, k]
+            w[i, j] = mc[j] + t * f
+        learn = True
+        if use_mask:
+            learn = vv < bound
+        # 4. bias, eq. (30), with the predicted statistics
+        if do_bias:
+            den = nu[i] - n_w - 1.0
+            for q in range(na):
                 for k in range(n_w):
-                    s += DE[q, k] * D[i, avail[q2], k]
-                S[q, q2] = P[i, avail[q], avail[q2]] + R[avail[q], avail[q2]] + s
-        _chol(S, Lc, na)
-        for c in range(mch):  # Kt[:, c] = S^-1 P[a, c]
+                    t = 0.0
+                    for j in range(n_w):
+                        t += D[s, avail[q], j] * (Lam[i, j, k] / den)
+                    DE[q, k] = t
             for q in range(na):
-                acc = P[i, avail[q], c]
-                for j in range(q):
-                    acc = acc - Lc[q, j] * Kt[j, c]
-                Kt[q, c] = acc / Lc[q, q]
-            for q in range(na - 1, -1, -1):
-                acc = Kt[q, c]
-                for j in range(q + 1, na):
-                    acc = acc - Lc[j, q] * Kt[j, c]
-                Kt[q, c] = acc / Lc[q, q]
-        for q in range(na):
-            ch = avail[q]
-            s = 0.0
-            for j in range(n_w):
-                s += D[i, ch, j] * mu[i, j]
-            innov[q] = y[ch] - h[i, ch] - s - b[i, ch]
-        for c in range(mch):
-            s = 0.0
-            for q in range(na):
-                s += Kt[q, c] * innov[q]
-            b[i, c] = b[i, c] + s
-        for c in range(mch):  # Pn = P - P_{:,a} K^T (from the old P), then 0.5 (Pn + Pn^T)
-            for c2 in range(mch):
-                s = 0.0
+                for q2 in range(na):
+                    t = 0.0
+                    for k in range(n_w):
+                        t += DE[q, k] * D[s, avail[q2], k]
+                    S[q, q2] = P[i, avail[q], avail[q2]] + R[avail[q], avail[q2]] + t
+            _chol(S, Lb, na)
+            for c in range(mch):  # Kt[:, c] = S^-1 P[a, c]
                 for q in range(na):
-                    s += P[i, avail[q], c] * Kt[q, c2]
-                Pn[c, c2] = P[i, c, c2] - s
-        for c in range(mch):
-            for c2 in range(mch):
-                P[i, c, c2] = 0.5 * (Pn[c, c2] + Pn[c2, c])
-
-
-# ---- NiW (eq. (19), (20)) and the projection of Sec. V ----------------------------------------
-@njit(**_JIT)
-def niw_update(gamma, mu, Lam, nu, w, learn, use_mask, lo, hi):
-    """In place, `NiW.update(w, mask)` then the clip of mu to [lo, hi]."""
-    n, n_w = mu.shape
-    for i in range(n):
-        if use_mask and not learn[i]:
+                    acc = P[i, avail[q], c]
+                    for j in range(q):
+                        acc = acc - Lb[q, j] * Kt[j, c]
+                    Kt[q, c] = acc / Lb[q, q]
+                for q in range(na - 1, -1, -1):
+                    acc = Kt[q, c]
+                    for j in range(q + 1, na):
+                        acc = acc - Lb[j, q] * Kt[j, c]
+                    Kt[q, c] = acc / Lb[q, q]
+            for q in range(na):
+                ch = avail[q]
+                t = 0.0
+                for j in range(n_w):
+                    t += D[s, ch, j] * mu[i, j]
+                innov[q] = y[ch] - h[s, ch] - t - b[i, ch]
+            for c in range(mch):
+                t = 0.0
+                for q in range(na):
+                    t += Kt[q, c] * innov[q]
+                b[i, c] = b[i, c] + t
+            for c in range(mch):  # Pn = P - P_{:,a} K^T (from the old P), then 0.5 (Pn + Pn^T)
+                for c2 in range(mch):
+                    t = 0.0
+                    for q in range(na):
+                        t += P[i, avail[q], c] * Kt[q, c2]
+                    Pn[c, c2] = P[i, c, c2] - t
+            for c in range(mch):
+                for c2 in range(mch):
+                    P[i, c, c2] = 0.5 * (Pn[c, c2] + Pn[c2, c])
+        if not active:
+            continue
+        # 5. the drift of the adaptive forgetting, then the NiW update and the projection
+        if drift:  # u = chol(L11)^-1 (w - mu), before the update
+            _chol(L11[s], L, n_w)
+            for j in range(n_w):
+                acc = w[i, j] - mu[i, j]
+                for k in range(j):
+                    acc = acc - L[j, k] * ui[k]
+                ui[j] = acc / L[j, j]
+            q_i = math.exp(logw[i])
+            for j in range(n_w):
+                ub[j] += q_i * ui[j]
+        if not learn:
             for j in range(n_w):
                 mu[i, j] = min(max(mu[i, j], lo[j]), hi[j])
             continue
-        g = gamma[i]
-        g_new = g / (1.0 + g)
-        inv = 1.0 + g
+        g0 = gamma[i]
+        g_new = g0 / (1.0 + g0)
+        inv = 1.0 + g0
         for j in range(n_w):
             zj = w[i, j] - mu[i, j]
             for k in range(n_w):
@@ -446,55 +741,33 @@ def niw_update(gamma, mu, Lam, nu, w, learn, use_mask, lo, hi):
             mu[i, j] = min(max(m, lo[j]), hi[j])
         gamma[i] = g_new
         nu[i] = nu[i] + 1.0
-
-
-@njit(**_JIT)
-def niw_forget(gamma, Lam, nu, lam, nu_min):
-    """In place, `NiW.forget(lam, nu_min)`."""
-    n, n_w, _ = Lam.shape
-    for i in range(n):
-        f = max(lam, min(1.0, nu_min / nu[i])) if nu_min > 0 else lam
-        gamma[i] = gamma[i] / f
-        nu[i] = nu[i] * f
+    zd = math.nan
+    if active and drift:
+        finite = True
         for j in range(n_w):
-            for k in range(n_w):
-                Lam[i, j, k] = Lam[i, j, k] * f
-
-
-# ---- weighted moments ---------------------------------------------------------------------------
-@njit(**_JIT)
-def gate_moments(logw, x, af, ar, full):
-    """(E[vx] (full model), std of vy, max(|E[af]|, |E[ar]|)) under the weights exp(logw)."""
-    n = x.shape[0]
-    iv = 1 if full else 0
-    mvx = mvy = maf = mar = 0.0
-    for i in range(n):
-        q = math.exp(logw[i])
-        mvx += q * x[i, 0]
-        mvy += q * x[i, iv]
-        maf += q * af[i]
-        mar += q * ar[i]
-    s = 0.0
-    for i in range(n):
-        d = x[i, iv] - mvy
-        s += math.exp(logw[i]) * (d * d)
-    return mvx, math.sqrt(max(s, 0.0)), max(abs(maf), abs(mar))
+            if not math.isfinite(ub[j]):
+                finite = False
+        if finite:
+            dd = 0.0
+            for j in range(n_w):
+                drift_state[j] = drift_state[j] + drift_a * (ub[j] - drift_state[j])
+                dd += drift_state[j] * drift_state[j]
+            zd = dd * (2.0 - drift_a) / (drift_a * n_w)
+    estimate_moments(logw, x, gamma, mu, Lam, nu, b, mom)
+    return zd
 
 
 @njit(**_JIT)
-def estimate_moments(logw, x, gamma, mu, Lam, nu, b):
-    """`_estimate`'s sums: x mean and std, the mean of mu, the posterior variance of the mean
-    (gamma E[Sigma] plus the spread of the particle means), eq. (27b) sigma^2, bias mean."""
+def estimate_moments(logw, x, gamma, mu, Lam, nu, b, mom):
+    """`_estimate`'s sums into the rows of mom (6, >= max(nx, n_w, m)): x mean and std, the
+    mean of mu, the posterior variance of the mean (gamma E[Sigma] plus the spread of the
+    particle means), eq. (27b) sigma^2, bias mean."""
     n, nx = x.shape
     n_w = mu.shape[1]
     mch = b.shape[1]
-    xm = np.zeros(nx)
-    xs = np.zeros(nx)
-    mbar = np.zeros(n_w)
+    mom[:] = 0.0
+    xm, xs, mbar, vm, s2, bm = mom[0], mom[1], mom[2], mom[3], mom[4], mom[5]
     spread = np.zeros(n_w)
-    vm = np.zeros(n_w)
-    s2 = np.zeros(n_w)
-    bm = np.zeros(mch)
     q = np.empty(n)
     for i in range(n):
         q[i] = math.exp(logw[i])
@@ -520,18 +793,3 @@ def estimate_moments(logw, x, gamma, mu, Lam, nu, b):
     for j in range(n_w):
         vm[j] += spread[j]
         s2[j] += spread[j]
-    return xm, xs, mbar, vm, s2, bm
-
-
-@njit(**_JIT)
-def plausible(x, vx_lateral, full, beta, yaw_max, gate_speed):
-    """`StiffnessMPF._plausible`'s test per particle: (ok (N,) bool, how many are ok)."""
-    n = x.shape[0]
-    ok = np.empty(n, np.bool_)
-    count = 0
-    for i in range(n):
-        vx = x[i, 0] if full else vx_lateral
-        vy, r = x[i, x.shape[1] - 2], x[i, x.shape[1] - 1]
-        ok[i] = abs(vy) <= beta * max(abs(vx), gate_speed) and abs(r) <= yaw_max
-        count += ok[i]
-    return ok, count

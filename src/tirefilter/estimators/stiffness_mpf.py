@@ -54,6 +54,13 @@ class MPFConfig:
     drift_time: float = 1.0  # s, time constant of the smoothing of z'_k (the lean of the sampled w)
     model: str = "full"  # "full" (wheel speeds) | "lateral" (vx given)
     integrator: str = "heun"  # "euler" (the paper) | "heun" (same w, wheel slip held)
+    # wheel slip in the propagation from t_k to t_k+1 (derivations, Sec. 22): "interval": its mean over
+    # the interval, the wheel settling (time constant J v^X / (R_w^2 C), a few ms) from the slip at t_k to
+    # the one the wheel speeds at t_k+1 give; "start": the slip at t_k held (the paper)
+    slip_hold: str = "interval"
+    # longitudinal stiffness of the undriven axle: "surface": its nominal scaled as the driven axle's
+    # estimate (one surface under both axles); "nominal": its nominal value (the paper)
+    undriven_stiffness: str = "surface"
     resample_threshold: float = 0.5  # resample when ESS < threshold * N
     # initial stiffness: per-particle means drawn around `init_center` (absolute, per
     # parameter, default nominal) with a relative spread of the reference stiffness
@@ -69,7 +76,7 @@ class MPFConfig:
     x0_std: tuple[float, ...] = (1.0, 0.5, 0.0175)  # full: vx, vy, r (lateral uses vy, r)
     state_noise: tuple[float, ...] = (0.0, 0.0, 0.0)  # additive process noise per sqrt(s), full: vx, vy, r
     x0_vx_from_wheels: bool = True  # full model: centre vx on R_w omega of the undriven axle
-    x0_vx_wheel_std: float = 0.1  # m/s, spread around it (the free-rolling wheel's slip)
+    x0_vx_wheel_std: float = 0.02  # m/s, spread around it (the free-rolling wheel's slip)
     # observability gate (Sec. V) and linear-region gate
     gate_speed: float = 5.0  # m/s
     gate_steer: float = 0.0035  # rad (0.2 deg)
@@ -87,6 +94,9 @@ class MPFConfig:
     plausible_yaw_rate: float = 2.0  # rad/s
     restart_alpha: float = 0.15  # rad: estimated slip beyond this while |a^Y| < gate_ay_max ...
     restart_after: float = 0.5  # s: ... for this long also restarts (0 disables)
+    # a posterior mean pinned at a stiffness bound (within 1% of the reference) for this long restarts
+    # too: the cloud locked onto a wrong start and the projection holds it there (0 disables)
+    restart_at_bound_after: float = 2.0  # s
     # parameter projection (Sec. V): stiffness bounds relative to the reference
     bound_low: float = 0.2
     bound_high: float = 3.0
@@ -103,7 +113,7 @@ class MPFConfig:
     sample_period: float = 0.01  # s, used for the first step and as the bias-RW time base
     max_step: float = 0.02  # s, longest propagation step: longer sample intervals are sub-stepped
     gap_after: float = 0.5  # s: a longer time step is a gap: v^X drawn again from the wheel speeds (0: never)
-    backend: str = "numba"  # "numba": the compiled per-stage kernels (mpf_numba.py) | "numpy": the reference
+    backend: str = "numba"  # "numba": the compiled step (mpf_numba.py) | "numpy": the reference
 
     def validated(self) -> "MPFConfig":
         def bad(key, problem):
@@ -124,11 +134,16 @@ class MPFConfig:
             bad("model", f"expected full or lateral, got {self.model!r}")
         if self.integrator not in ("euler", "heun"):
             bad("integrator", f"expected euler or heun, got {self.integrator!r}")
+        if self.slip_hold not in ("interval", "start"):
+            bad("slip_hold", f"expected interval or start, got {self.slip_hold!r}")
+        if self.undriven_stiffness not in ("surface", "nominal"):
+            bad("undriven_stiffness", f"expected surface or nominal, got {self.undriven_stiffness!r}")
         if self.init_distribution not in ("normal", "uniform"):
             bad("init_distribution", f"expected normal or uniform, got {self.init_distribution!r}")
         for key in ("init_std", "init_half_width", "init_sigma", "gate_speed", "gate_steer", "gate_ay_max",
                     "gate_alpha_max", "gate_vy_std", "gate_warmup", "nu0_margin", "plausible_beta",
-                    "plausible_yaw_rate", "restart_alpha", "restart_after"):
+                    "plausible_yaw_rate", "restart_alpha", "restart_after", "restart_at_bound_after",
+                    "x0_vx_wheel_std"):
             if not getattr(self, key) >= 0:
                 bad(key, f"must be >= 0, got {getattr(self, key)!r}")
         for key in ("sigma", "bias_rw", "bias0_std", "disturbance_rw", "x0_std", "state_noise"):
@@ -169,6 +184,9 @@ class StiffnessMPF:
         # nominal axle stiffness: driven axle's Cx is estimated, the other axle's is nominal
         self.C_nom_fx = other if self.rear_drive else v.Cx
         self.C_nom_rx = v.Cx if self.rear_drive else other
+        # "surface": the undriven axle's longitudinal stiffness moves with the driven axle's estimate,
+        # C_u = C_u,nom (1 + w_x / C_x,nom): its force adds share * slip_u * w_x to B's first column
+        self.undriven_share = other / v.Cx if self.cfg.undriven_stiffness == "surface" else 0.0
         self.full = self.cfg.model == "full"
         self.params = ("Cx", "Cf_y", "Cr_y") if self.full else ("Cf_y", "Cr_y")
         self.C_nom = np.array([v.Cx, v.Cf_y, v.Cr_y] if self.full else [v.Cf_y, v.Cr_y])
@@ -193,12 +211,16 @@ class StiffnessMPF:
         self.C_ref, self.C_center = ref, center
         self._carried = None
         self._nb = None
+        # the settling of the wheel slip (slip_hold = "interval"): spin inertia per axle over R_w^2, and the
+        # floor of the axle stiffness in its time constant (the lower projection bound)
+        self._jw = np.array([v.wheel_inertia_f, v.wheel_inertia_r], float) / v.wheel_radius**2
+        self._c_floor = self.cfg.bound_low * np.array([self.C_nom_fx, self.C_nom_rx], float)
         if self.cfg.backend == "numba":  # the compiled stages; the numpy methods stay the reference
             from tirefilter.estimators import mpf_numba
 
             self._nb = mpf_numba
             self._vp = np.array([v.mass, v.yaw_inertia, v.lf, v.lr, v.Cf_y, v.Cr_y, self.C_nom_fx, self.C_nom_rx,
-                                 v.wheel_radius], float)
+                                 v.wheel_radius, self.undriven_share], float)
 
     def __getstate__(self):  # (copies and FMU states: the kernel module is not state)
         return {**self.__dict__, "_nb": None}
@@ -235,6 +257,7 @@ class StiffnessMPF:
         self.restarts = 0
         self.gap_redraws = 0  # gaps after which v^X was drawn again from the wheel speeds
         self._contradiction_since = None
+        self._bound_since = None  # time since which a stiffness mean sits at a projection bound
         self.surprise = 1.0  # z_k of the adaptive forgetting: 1 while the data fit the predictive
         self.linear_region = True  # |a^Y| below the gate's linear-region bound at the last sample
         self.lam = self.cfg.forgetting  # the forgetting factor applied at the next propagation
@@ -281,7 +304,7 @@ class StiffnessMPF:
         a(x, u) + B(x, u) w: returns a (N, 3) = (a^X, a^Y, r') at w = 0, B = d a / d w
         (N, 3, n_w), the slip angles and the wheel slip of eq. (3)-(4) (small-angle form
         of the paper; `slip` given: held from an earlier evaluation)."""
-        if self._nb is not None and slip is None:
+        if self._nb is not None and slip is None:  # (the compiled model: mpf_numba.model)
             a, B, af, ar, slip = self._nb.model(x, u, self._vp, self.full, self.rear_drive, self.n_w)
             return a, B, af, ar, slip if self.full else None
         v = self.vehicle
@@ -303,10 +326,13 @@ class StiffnessMPF:
                 slip = (wr - vx) / np.maximum(np.maximum(np.abs(vx), np.abs(wr)), 1.0)
             lam_f, lam_r = slip
             Ffx, Frx = self.C_nom_fx * lam_f, self.C_nom_rx * lam_r
+            s = self.undriven_share  # d F_undriven / d w_x per unit slip ("surface"; 0: "nominal")
             if self.rear_drive:
-                B[:, 0, 0] = lam_r * (1.0 / m)
+                B[:, 0, 0] = lam_r * (1.0 / m) + (s * lam_f) * (cd / m)
+                B[:, 1, 0] = (s * lam_f) * (sd / m)
+                B[:, 2, 0] = (s * lam_f) * (lf * sd / I)
             else:
-                B[:, 0, 0] = lam_f * (cd / m)
+                B[:, 0, 0] = lam_f * (cd / m) + (s * lam_r) * (1.0 / m)
                 B[:, 1, 0] = lam_f * (sd / m)
                 B[:, 2, 0] = lam_f * (lf * sd / I)
             j = 1
@@ -336,7 +362,7 @@ class StiffnessMPF:
         wheel slip held over the step. `first` = (a, B, slip) at x_k from the measurement
         step. A step longer than `max_step` (a gap in a log) is split into equal
         sub-steps with u and w held."""
-        if self._nb is not None:
+        if self._nb is not None:  # (the compiled propagation: mpf_numba.propagate)
             a, B, _, _, slip = first
             return self._nb.propagate(x, u, w, a, B, np.zeros((2, len(x))) if slip is None else slip, dt,
                                       self.cfg.max_step, self.cfg.integrator == "heun", self._vp, self.full,
@@ -353,6 +379,39 @@ class StiffnessMPF:
             a2, B2, *_ = self._model(x1, u, slip)
             x = x + (0.5 * h) * (k1 + self._xdot(x1, u, a2, B2, w))
         return x
+
+    def _slip_over_step(self, x, u0, u1, w, first, dt):
+        """The first stage of the propagation from t_k to t_k+1 = t_k + dt with the wheel slip
+        averaged over the interval (slip_hold = "interval", derivations Sec. 22).
+
+        x (N, 3) at t_k, u0 / u1 the inputs at t_k / t_k+1, w (N, n_w) the deviations held over
+        the step, first = (a, B, af, ar, slip) of `_model(x, u0)`. The wheel settles from the
+        slip at t_k, slip_0, towards the one at t_k+1, slip_1 = (R_w omega_k+1 - v^X_k+1) / max(...),
+        with v^X_k+1 = v^X_k + dt (v^Y r + a^X + B_0 w) (its error O(dt^2)), as
+        slip(t) = slip_1 + (slip_0 - slip_1) exp(-(t - t_k) / tau), tau = J D / (R_w^2 C) per axle
+        (J its spin inertia, D = max(|v^X|, |R_w omega_k|, 1), C its stiffness: nominal plus the
+        particle's w where it is estimated, floored at bound_low times nominal); the mean over
+        the interval is slip_1 + (slip_0 - slip_1) (tau / dt) (1 - exp(-dt / tau)). Returns
+        (a, B, af, ar, slip) at x_k with that slip, which `_propagate` then holds."""
+        a, B, _, _, slip0 = first
+        if self._nb is not None:
+            return self._nb.slip_over_step(x, u0, u1, w, a, B, slip0, dt, self._vp, self._jw, self._c_floor,
+                                           self.rear_drive, self.n_w)
+        Rw = self.vehicle.wheel_radius
+        vx = x[:, 0]
+        acc0 = a[:, 0] + np.einsum("nj,nj->n", B[:, 0], w)
+        vx1 = vx + dt * (x[:, 1] * x[:, 2] + acc0)  # eq. (1a), first stage
+        wr1 = Rw * u1[1:3, None]
+        slip1 = (wr1 - vx1) / np.maximum(np.maximum(np.abs(vx1), np.abs(wr1)), 1.0)
+        wx, s = w[:, 0], self.undriven_share
+        C = np.array([self.C_nom_fx + (s * wx if self.rear_drive else wx),
+                      self.C_nom_rx + (wx if self.rear_drive else s * wx)])
+        C = np.maximum(C, self._c_floor[:, None])
+        D = np.maximum(np.maximum(np.abs(vx), np.abs(Rw * u0[1:3, None])), 1.0)
+        tau = np.maximum(self._jw[:, None] * D / C, 1e-12)
+        share = (tau / dt) * -np.expm1(-dt / tau)  # (1 / dt) int_0^dt exp(-t / tau) dt
+        slip = slip1 + (slip0 - slip1) * share
+        return self._model(x, u0, slip)
 
     def _measurement(self, a, B, x):
         """h(x, u) and d(x, u) of eq. (12) for the model's channels, from the model's
@@ -376,7 +435,7 @@ class StiffnessMPF:
         cfg = self.cfg
         u_now = np.array([u.delta, u.omega_f, u.omega_r, u.vx], float)
         uk = u_now
-        if self.u_prev is not None:
+        if self.u_prev is not None and not math.isfinite(u.delta + u.omega_f + u.omega_r + u.vx):
             # hold the last finite input where a sample is missing
             uk = np.where(np.isfinite(u_now), u_now, self.u_prev)
         if not self.full and not math.isfinite(uk[3]):
@@ -392,19 +451,20 @@ class StiffnessMPF:
         if self.t_prev is not None:
             if dt <= 0:
                 raise ConfigError("inputs", "t", f"time must increase: {t} after {self.t_prev}")
-            self.x = self._propagate(self.x, self.u_prev, self.w_prev, dt, self._at_x)
-            self._redraw_after_gap(dt, u_now)  # (a compiled step calls it between its propagation and weights)
+            if self._nb is not None and not self._gap(dt):  # the usual sample: three compiled passes
+                return self._step_compiled(t, uk, y, dt)
+            first = self._at_x
+            if self.full and cfg.slip_hold == "interval":
+                first = self._slip_over_step(self.x, self.u_prev, uk, self.w_prev, first, dt)
+            self.x = self._propagate(self.x, self.u_prev, self.w_prev, dt, first)
+            self._redraw_after_gap(dt, u_now)  # (a gap: the compiled backend comes this way too)
             if self.state_noise is not None:  # optional regularisation against sample impoverishment
                 self.x = self.x + math.sqrt(dt) * self.state_noise * self.rng.standard_normal(self.x.shape)
             if self.bias_on:
                 q = self.q_bias if self.linear_region else self.q_bias_nonlinear
                 self.P = self.P + np.diag(q * dt)
             if self.active:
-                if self._nb is not None:
-                    st = self.stats
-                    self._nb.niw_forget(st.gamma, st.Lam, st.nu, self.lam, self.nu0)
-                else:
-                    self.stats.forget(self.lam, nu_min=self.nu0)
+                self.stats.forget(self.lam, nu_min=self.nu0)
         yk = np.array([y.ax, y.ay, y.yaw_rate], float)[list(self.channels)]
         start_logw = None
         if self.t_prev is None:
@@ -417,24 +477,12 @@ class StiffnessMPF:
         nc = int(sum(self.channels[j] in (0, 1) for j in a))  # accelerometer channels lead
         model_k = self._model(self.x, uk)
         af, ar = model_k[2], model_k[3]
-        ess = None
-        if self._nb is not None:  # step 2 below, compiled
-            st = self.stats
-            h, D, L11, nu_w, L12, Lc, e, v, ll, nu_common = self._nb.weights(
-                model_k[0], model_k[1], self.x, st.gamma, st.mu, st.Lam, st.nu, self.b, self.P, self.R, yk, a,
-                self.bias_on, self.roll_gain, self.full, self.n_w)
-            mu_w = st.mu
-            if nc and start_logw is None:
-                self._adapt_forgetting(v[:, :nc], nu_w, dt)
-            if a.size and start_logw is None:
-                self.logw, ess = self._nb.normalise(self.logw + ll)
-        else:
-            h, D = self._measurement(model_k[0], model_k[1], self.x)
-            mu_w, L11, nu_w = self.stats.predictive()
+        h, D = self._measurement(model_k[0], model_k[1], self.x)
+        mu_w, L11, nu_w = self.stats.predictive()
 
         # 2. weights, eq. (36): the joint Student-t of (w, residual) with the common dof
         #    nu~ = nu - n_w + 1 and every block scaled alike (derivations, Sec. 3)
-        if a.size and self._nb is None:
+        if a.size:
             every = a.size == len(self.channels)  # the usual case: no indexing needed
             Da = D if every else D[:, a]
             DL = Da @ L11  # (N, |a|, n_w) = L21
@@ -451,12 +499,10 @@ class StiffnessMPF:
                 self.logw = normalize_log_weights(self.logw + t_logpdf_whitened(v, logdet_chol(Lc), nu_w))
         if start_logw is not None:
             self.logw = normalize_log_weights(start_logw)
-            ess = None
         plausible = self._plausible(uk)
         if plausible is False:
             return self._restart(t, uk, y)
-        if ess is None or plausible is not True:  # (the compiled normalisation gave the ESS too)
-            ess = float(effective_sample_size(self.logw))
+        ess = float(effective_sample_size(self.logw))
         if ess < cfg.resample_threshold * cfg.particles:
             idx = systematic_resample(self.logw, self.rng)
             self.x, self.b, self.P = self.x[idx], self.b[idx], self.P[idx]
@@ -471,15 +517,11 @@ class StiffnessMPF:
             self.resamples += 1
 
         # gate: observability (speed, steering) and linear tire region (Sec. V)
-        if self._nb is not None:
-            vx_est, vy_std, alpha = self._nb.gate_moments(self.logw, self.x, af, ar, self.full)
-            vx_est = vx_est if self.full else uk[3]
-        else:
-            q = np.exp(self.logw)
-            vx_est = float(q @ self.x[:, 0]) if self.full else uk[3]
-            vy = self.x[:, 1 if self.full else 0]
-            vy_std = math.sqrt(max(float(q @ (vy - q @ vy) ** 2), 0.0))
-            alpha = max(abs(float(q @ af)), abs(float(q @ ar)))
+        q = np.exp(self.logw)
+        vx_est = float(q @ self.x[:, 0]) if self.full else uk[3]
+        vy = self.x[:, 1 if self.full else 0]
+        vy_std = math.sqrt(max(float(q @ (vy - q @ vy) ** 2), 0.0))
+        alpha = max(abs(float(q @ af)), abs(float(q @ ar)))
         ay_m = y.ay if math.isfinite(y.ay) else 0.0
         self.linear_region = abs(ay_m) < cfg.gate_ay_max
         self.active = gate_open(cfg, t=t, t_start=self.t_start, vx=vx_est, delta=uk[0], ay_meas=y.ay, alpha=alpha,
@@ -490,19 +532,18 @@ class StiffnessMPF:
         self._contradiction_since = (self._contradiction_since or t) if contradiction else None
         if contradiction and t - self._contradiction_since >= cfg.restart_after:
             return self._restart(t, uk, y)
+        if cfg.restart_at_bound_after > 0 and self._pinned_too_long(t, self._pinned(np.exp(self.logw) @ self.stats.mu)):
+            return self._restart(t, uk, y)
 
         # 3. sample w_k from the conditional given the accelerometer residuals, eq. (39)-(41);
         #    the yaw-rate residual carries no information on w (d row 0) and is left out.
         #    The leading nc x nc block of Lc is the Cholesky factor of their scale matrix.
-        if self._nb is not None:
-            w = self._sample_compiled(mu_w, L11, L12, Lc, v, nu_w, nc, nu_common)
-        elif nc:
+        if nc:
             mu_c, Lam_c, nu_c = t_conditional(mu_w, 0.0, L11, L12[:, :, :nc], None, nu_w, e[:, :nc],
                                               L22_chol=Lc[:, :nc, :nc], x2_white=v[:, :nc])
         else:
             mu_c, Lam_c, nu_c = mu_w, L11, nu_w
-        if self._nb is None:
-            w = t_sample(mu_c, Lam_c, nu_c, self.rng)
+        w = t_sample(mu_c, Lam_c, nu_c, self.rng)
         learn = None
         if nc and cfg.outlier_prob < 1:  # per-particle outlier gate on the accelerometer residuals
             vc = solve_lower(Lc[:, :nc, :nc], e[:, :nc])
@@ -510,40 +551,157 @@ class StiffnessMPF:
 
         # 4. bias, eq. (30), with the predicted statistics (DESIGN.md order)
         if a.size and self.bias_on:
-            if self._nb is not None:
-                st = self.stats
-                self._nb.bias_update(self.b, self.P, self.R, D, a, st.mu, st.Lam, st.nu, yk, h)
-            else:
-                self._bias_update(yk, h, D, a)
+            self._bias_update(yk, h, D, a)
         if self.active:
             if nc:
                 self._track_drift(w - mu_w, L11, dt)  # before the update: mu_w may be the statistics' own array
             lo = cfg.bound_low * self.C_ref - self.C_nom
             hi = cfg.bound_high * self.C_ref - self.C_nom
-            if self._nb is not None:
-                st = self.stats
-                self._nb.niw_update(st.gamma, st.mu, st.Lam, st.nu, w, np.ones(1, bool) if learn is None else learn,
-                                    learn is not None, lo, hi)
-            else:
-                self.stats.update(w, learn)  # eq. (19) with the same w_k that drives the state
-                self.stats.mu = np.clip(self.stats.mu, lo, hi)  # parameter projection (Sec. V)
+            self.stats.update(w, learn)  # eq. (19) with the same w_k that drives the state
+            self.stats.mu = np.clip(self.stats.mu, lo, hi)  # parameter projection (Sec. V)
         self.w_prev = w
         self._at_x = model_k  # the first stage of the next propagation, at this x and u
         return self._estimate(ess)
 
-    def _sample_compiled(self, mu_w, L11, L12, Lc, v, nu_w, nc, nu_common):
-        """Step 3 by `mpf_numba.sample`, with the random numbers drawn as `t_sample` draws them
-        (`nu_common` > 0: every particle has this nu~, and the chi-square draws share it)."""
-        N = len(mu_w)
-        z = self.rng.standard_normal(mu_w.shape)
-        if nu_common > 0:
-            nu = nu_common + nc
-            chi = self.rng.chisquare(nu, N)
-            nu_draw = np.full(N, nu)
+    def _pin_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """The deviations (n_w,) at or beyond which a posterior mean counts as held at a
+        projection bound (Sec. V): within 1% of the reference stiffness of it."""
+        cfg = self.cfg
+        tol = 0.01 * self.C_ref
+        return cfg.bound_low * self.C_ref - self.C_nom + tol, cfg.bound_high * self.C_ref - self.C_nom - tol
+
+    def _pinned(self, mbar: np.ndarray) -> bool:
+        lo, hi = self._pin_bounds()
+        return bool(np.any((mbar <= lo) | (mbar >= hi)))
+
+    def _pinned_too_long(self, t: float, pinned: bool) -> bool:
+        """A posterior mean held at a projection bound (`pinned`, `_pinned`) since
+        `restart_at_bound_after` s or longer: the cloud has locked onto a wrong stiffness that
+        the projection keeps it at, and the filter starts again."""
+        cfg = self.cfg
+        if not pinned:
+            self._bound_since = None
+        elif self._bound_since is None:
+            self._bound_since = t
+        elif t - self._bound_since >= cfg.restart_at_bound_after:
+            return True
+        return False
+
+    def _step_compiled(self, t: float, uk: np.ndarray, y: Measurement, dt: float) -> Estimate:
+        """Steps 1-5 of `step` for every sample after the first, by three compiled passes over
+        the particles (`mpf_numba.predict_weigh`, `resample_gate`, `sample_update`) on arrays
+        allocated once (`_MPFWork`), with the random numbers drawn here by the reference's
+        generator calls in the reference's order: the same numbers as the numpy path
+        (tests/test_kernels.py). The rare branches (restarts) go through the reference methods."""
+        cfg, nb, rng, st = self.cfg, self._nb, self.rng, self.stats
+        wk = self._work()
+        if self.state_noise is not None:  # optional regularisation against sample impoverishment
+            noise, noise_scale = rng.standard_normal(self.x.shape), math.sqrt(dt) * self.state_noise
         else:
-            nu_draw = nu_w + nc if nc else nu_w
-            chi = self.rng.chisquare(nu_draw)
-        return self._nb.sample(mu_w, L11, L12, Lc, v, nu_w, nc, z, chi, nu_draw)
+            noise, noise_scale = wk.no_noise, wk.no_scale
+        q = self.q_bias if self.linear_region else self.q_bias_nonlinear
+        ch = self.channels
+        yl = [y.ax, y.ay, y.yaw_rate] if self.full else [y.ay, y.yaw_rate]
+        yk = np.array(yl, float)
+        if math.isfinite(sum(yl)):
+            a, nc = wk.avail_all, wk.nc_all
+        else:
+            a = np.flatnonzero(np.isfinite(yk))
+            nc = int(sum(ch[j] in (0, 1) for j in a))
+        adaptive = cfg.forgetting_mode == "adaptive"
+        u_prev = self.u_prev
+        self.t_prev, self.u_prev = t, uk
+        innovation, ess, count, nu_common = nb.predict_weigh(
+            self.x, u_prev, self.w_prev, wk.a, wk.B, wk.af, wk.ar, wk.slip, dt, cfg.max_step, wk.heun, wk.interval,
+            self._jw, self._c_floor, noise, noise_scale, self.b, self.P, q, self.bias_on, self.active, self.lam,
+            self.nu0, st.gamma, st.mu, st.Lam, st.nu, uk, yk, a, self.R, self.roll_gain, self._vp, self.full,
+            self.rear_drive, wk.h, wk.D, wk.L11, wk.nu_w, wk.L12, wk.Lc, wk.e, wk.v, wk.ll, wk.ok, self.logw, nc,
+            adaptive, cfg.plausible_beta, cfg.plausible_yaw_rate, cfg.gate_speed)
+        if math.isfinite(innovation):  # adaptive forgetting (`_adapt_forgetting`)
+            self.surprise += -math.expm1(-dt / cfg.surprise_time) * (innovation - self.surprise)
+            self.lam = min(max(1.0 - (1.0 - cfg.forgetting) * self.surprise, cfg.forgetting_min), cfg.forgetting_max)
+        self.w_prev = wk.w
+        self._at_x = (wk.a, wk.B, wk.af, wk.ar, wk.slip if self.full else None)
+        if count == 0:
+            return self._restart(t, uk, y)
+        if count < cfg.particles:  # some particles left the plausible region (`_plausible`)
+            self.logw = normalize_log_weights(np.where(wk.ok, self.logw, -np.inf))
+            ess = -1.0
+        if ess < 0:
+            ess = float(effective_sample_size(self.logw))
+        resample = ess < cfg.resample_threshold * cfg.particles
+        u0 = float(rng.random((1,))[0]) if resample else 0.0
+        vx_est, vy_std, alpha, pinned = nb.resample_gate(
+            self.logw, u0, resample, wk.idx, self.x, self.b, self.P, st.gamma, st.mu, st.Lam, st.nu, wk.a, wk.B,
+            wk.slip, *wk.spares, wk.af, wk.ar, self.full, wk.pin_lo, wk.pin_hi)
+        if resample:
+            self._swap_work(wk)
+            self.resamples += 1
+        vx_est = vx_est if self.full else uk[3]
+        ay_m = y.ay if math.isfinite(y.ay) else 0.0
+        self.linear_region = abs(ay_m) < cfg.gate_ay_max
+        self.active = gate_open(cfg, t=t, t_start=self.t_start, vx=vx_est, delta=uk[0], ay_meas=y.ay, alpha=alpha,
+                                vy_std=vy_std)
+        contradiction = cfg.restart_alpha > 0 and alpha > cfg.restart_alpha and abs(ay_m) < cfg.gate_ay_max
+        self._contradiction_since = (self._contradiction_since or t) if contradiction else None
+        if contradiction and t - self._contradiction_since >= cfg.restart_after:
+            return self._restart(t, uk, y)
+        if cfg.restart_at_bound_after > 0 and self._pinned_too_long(t, pinned):
+            return self._restart(t, uk, y)
+        N = cfg.particles
+        z = rng.standard_normal((N, self.n_w))
+        if nu_common > 0:
+            nu_draw = wk.nu_draw
+            nu_draw.fill(nu_common + nc)
+            chi = rng.chisquare(nu_common + nc, N)
+        else:
+            nu_draw = wk.nu_w[wk.idx] + nc if nc else wk.nu_w[wk.idx]
+            chi = rng.chisquare(nu_draw)
+        use_mask = bool(nc and cfg.outlier_prob < 1)
+        st = self.stats
+        drift = bool(self.active and nc and adaptive)
+        if drift and not (self.drift.flags.c_contiguous and self.drift.dtype == np.float64):
+            self.drift = np.array(self.drift, float)
+        zd = nb.sample_update(
+            wk.idx, self.x, self.logw, st.gamma, st.mu, st.Lam, st.nu, self.b, self.P, wk.h, wk.D, wk.L11, wk.nu_w,
+            wk.L12, wk.Lc, wk.v, nc, z, chi, nu_draw, wk.w, use_mask, self._outlier_bound(nc) if use_mask else 0.0,
+            bool(a.size and self.bias_on), self.R, a, yk, self.active, drift, self.drift,
+            -math.expm1(-dt / cfg.drift_time), wk.lo, wk.hi, wk.mom)
+        if zd == zd:  # `_track_drift` (the statistic is NaN when not computed)
+            self.lam = min(self.lam, max(1.0 - (1.0 - cfg.forgetting) * zd, cfg.forgetting_min))
+        nx, m = self.x.shape[1], len(self.channels)
+        r = wk.mom.tolist()
+        return self._estimate_from(ess, r[0][:nx], r[1][:nx], r[2][:self.n_w], r[3][:self.n_w], r[4][:self.n_w],
+                                   r[5][:m])
+
+    def _work(self) -> "_MPFWork":
+        """The fused step's arrays, the particles' own arrays among them: an array that the
+        reference path replaced (first sample, restart, a loaded state) is copied in."""
+        wk = self.__dict__.get("_wk")
+        nx = self.x.shape[1]
+        if wk is None or wk.x.shape != self.x.shape:
+            wk = self._wk = _MPFWork(self, len(self.x), nx, self.n_w, len(self.channels))
+        st = self.stats
+        for name, arr in (("x", self.x), ("b", self.b), ("P", self.P), ("gamma", st.gamma), ("mu", st.mu),
+                          ("Lam", st.Lam), ("nu", st.nu), ("w", self.w_prev)):
+            buf = getattr(wk, name)
+            if arr is not buf:
+                buf[...] = arr
+        self.x, self.b, self.P, self.w_prev = wk.x, wk.b, wk.P, wk.w
+        st.gamma, st.mu, st.Lam, st.nu = wk.gamma, wk.mu, wk.Lam, wk.nu
+        first = self._at_x
+        if first[0] is not wk.a:
+            wk.a[...], wk.B[...] = first[0], first[1]
+            wk.slip[...] = 0.0 if first[4] is None else first[4]
+        return wk
+
+    def _swap_work(self, wk: "_MPFWork") -> None:
+        """After `resample_gate`: the spares hold the resampled particles."""
+        wk.swap()
+        st = self.stats
+        self.x, self.b, self.P = wk.x, wk.b, wk.P
+        st.gamma, st.mu, st.Lam, st.nu = wk.gamma, wk.mu, wk.Lam, wk.nu
+        self._at_x = (wk.a, wk.B, wk.af, wk.ar, wk.slip if self.full else None)
 
     def _adapt_forgetting(self, v: np.ndarray, nu: np.ndarray, dt: float) -> None:
         """The forgetting factor of the next propagation from how well the accelerometers
@@ -556,11 +714,8 @@ class StiffnessMPF:
         cfg = self.cfg
         if cfg.forgetting_mode == "fixed":
             return
-        if self._nb is not None:
-            s_k = self._nb.weighted_nis(self.logw, v, nu)
-        else:
-            nis = np.sum(v * v, axis=1) * (nu - 2.0) / (nu * v.shape[1])
-            s_k = float(np.exp(self.logw) @ nis)
+        nis = np.sum(v * v, axis=1) * (nu - 2.0) / (nu * v.shape[1])
+        s_k = float(np.exp(self.logw) @ nis)
         if not math.isfinite(s_k):
             return
         self.surprise += -math.expm1(-dt / cfg.surprise_time) * (s_k - self.surprise)
@@ -629,22 +784,14 @@ class StiffnessMPF:
     def _plausible(self, uk) -> bool:
         """Zero the weight of particles outside the physically possible region; False when
         none is left."""
-        if self._nb is not None:
-            ok, count = self._nb.plausible(self.x, float(uk[3]), self.full, self.cfg.plausible_beta,
-                                           self.cfg.plausible_yaw_rate, self.cfg.gate_speed)
-            if count == len(ok):
-                return True
-            if count == 0:
-                return False
-        else:
-            vx = self.x[:, 0] if self.full else uk[3]
-            vy, r = self.x[:, -2], self.x[:, -1]
-            ok = (np.abs(vy) <= self.cfg.plausible_beta * np.maximum(np.abs(vx), self.cfg.gate_speed)) & (
-                np.abs(r) <= self.cfg.plausible_yaw_rate)
-            if ok.all():
-                return True
-            if not ok.any():
-                return False
+        vx = self.x[:, 0] if self.full else uk[3]
+        vy, r = self.x[:, -2], self.x[:, -1]
+        ok = (np.abs(vy) <= self.cfg.plausible_beta * np.maximum(np.abs(vx), self.cfg.gate_speed)) & (
+            np.abs(r) <= self.cfg.plausible_yaw_rate)
+        if ok.all():
+            return True
+        if not ok.any():
+            return False
         self.logw = normalize_log_weights(np.where(ok, self.logw, -np.inf))
         return None  # some left: the weights changed
 
@@ -663,6 +810,10 @@ class StiffnessMPF:
         self.x[:, 0] = vx + self.cfg.x0_vx_wheel_std * self.rng.standard_normal(len(self.x))
         return True
 
+    def _gap(self, dt: float) -> bool:
+        """A time step after which `_redraw_after_gap` draws v^X again (full model)."""
+        return self.full and 0 < self.cfg.gap_after < dt
+
     def _redraw_after_gap(self, dt: float, u_now) -> bool:
         """After a gap in the data (a time step `dt` longer than `gap_after`), with the
         particles propagated across it: their v^X drawn again around the speed of the
@@ -672,7 +823,7 @@ class StiffnessMPF:
         through the driven axle's wheel slip that error becomes a longitudinal force error
         that the weights and the learning take for a wrong state or stiffness. Full model
         only; True when drawn (counted in `gap_redraws`)."""
-        if not (self.full and 0 < self.cfg.gap_after < dt):
+        if not self._gap(dt):
             return False
         if not self._draw_vx_from_wheels(u_now):
             return False
@@ -693,7 +844,7 @@ class StiffnessMPF:
             self.logw = normalize_log_weights(self._informed_start(uk, yk))
         self.restarts += 1
         self.t_start, self.t_prev, self.u_prev, self.active = t, t, uk, False
-        self._contradiction_since = None
+        self._contradiction_since = self._bound_since = None
         self._at_x = self._model(self.x, uk)
         self.w_prev = self.stats.mu.copy()  # the next propagation uses the prior means
         return self._estimate(float(self.cfg.particles))
@@ -712,11 +863,6 @@ class StiffnessMPF:
         self.P = 0.5 * (P + np.swapaxes(P, 1, 2))
 
     def _estimate(self, ess: float) -> Estimate:
-        st = self.stats
-        if self._nb is not None:
-            x_mean, x_std, mbar, var_mean, sigma2, b_mean = self._nb.estimate_moments(
-                self.logw, self.x, st.gamma, st.mu, st.Lam, st.nu, self.b)
-            return self._estimate_from(ess, x_mean, x_std, mbar, var_mean, sigma2, b_mean)
         q = np.exp(self.logw)
         x_mean = q @ self.x
         x_std = np.sqrt(np.maximum(q @ (self.x - x_mean) ** 2, 0.0))
@@ -729,8 +875,11 @@ class StiffnessMPF:
         return self._estimate_from(ess, x_mean, x_std, mbar, var_mean, sigma2, q @ self.b)
 
     def _estimate_from(self, ess, x_mean, x_std, mbar, var_mean, sigma2, b_mean) -> Estimate:
-        C = self.C_nom + mbar
-        vals = dict(zip(self.params, zip(C, np.sqrt(var_mean), np.sqrt(sigma2))))
+        """The Estimate from the moments (sequences of floats: n_w for mbar, var_mean and
+        sigma2): the stiffness C_nom + mbar, the std of its mean and the deviation spread."""
+        root = _sqrt_or_nan
+        vals = {p: (c + mb, root(vm), root(s2)) for p, c, mb, vm, s2 in zip(self.params, self.C_nom.tolist(), mbar,
+                                                                             var_mean, sigma2)}
         bias = dict(zip(("ax", "ay", "yaw_rate") if self.full else ("ay", "yaw_rate"), b_mean))
         return particle_estimate(active=self.active, ess=ess, x_mean=x_mean, x_std=x_std, stiffness=vals, bias=bias,
                                  vx_input=NAN if self.u_prev is None else self.u_prev[3])
@@ -788,3 +937,50 @@ class StiffnessMPF:
                          {"gamma": self.stats.gamma.copy(), "mu": self.stats.mu.copy(), "Lam": self.stats.Lam.copy(),
                           "nu": self.stats.nu.copy(), "bias": self.b.copy(), "bias_cov": self.P.copy(),
                           "C_nominal": self.C_nom.copy(), "params": self.params})
+
+
+class _MPFWork:
+    """The arrays of `StiffnessMPF._step_compiled`, allocated once per filter: the
+    particles' own arrays (x, b, P, the NiW statistics, the model's first stage a, B, slip)
+    with a spare of each for resampling, and the weighting's per-particle arrays for all m
+    channels (the first na columns are used when samples are missing)."""
+
+    OWN = ("x", "b", "P", "gamma", "mu", "Lam", "nu", "a", "B", "slip")
+
+    def __init__(self, mpf: "StiffnessMPF", N: int, nx: int, n_w: int, m: int):
+        shapes = dict(x=(N, nx), b=(N, m), P=(N, m, m), gamma=(N,), mu=(N, n_w), Lam=(N, n_w, n_w), nu=(N,),
+                      a=(N, 3), B=(N, 3, n_w), slip=(2, N))
+        for name, shape in shapes.items():
+            setattr(self, name, np.zeros(shape))
+            setattr(self, name + "2", np.zeros(shape))
+        self.af, self.ar, self.nu_w, self.ll, self.nu_draw = (np.zeros(N) for _ in range(5))
+        self.h, self.e, self.v = np.zeros((N, m)), np.zeros((N, m)), np.zeros((N, m))
+        self.D, self.L11 = np.zeros((N, m, n_w)), np.zeros((N, n_w, n_w))
+        self.L12, self.Lc = np.zeros((N, n_w, m)), np.zeros((N, m, m))
+        self.w = np.zeros((N, n_w))
+        self.ok = np.zeros(N, bool)
+        self.idx = np.arange(N)
+        self.mom = np.zeros((6, max(nx, n_w, m)))
+        self.pin_lo, self.pin_hi = mpf._pin_bounds()
+        self.no_noise, self.no_scale = np.zeros((0, nx)), np.zeros(nx)
+        self.avail_all = np.arange(m)
+        self.nc_all = sum(c in (0, 1) for c in mpf.channels)
+        self.heun = mpf.cfg.integrator == "heun"
+        self.interval = mpf.full and mpf.cfg.slip_hold == "interval"
+        cfg = mpf.cfg
+        self.lo = cfg.bound_low * mpf.C_ref - mpf.C_nom
+        self.hi = cfg.bound_high * mpf.C_ref - mpf.C_nom
+
+        self.spares = tuple(getattr(self, name + "2") for name in self.OWN)
+
+    def swap(self) -> None:
+        for name in self.OWN:
+            cur, spare = getattr(self, name), getattr(self, name + "2")
+            setattr(self, name, spare)
+            setattr(self, name + "2", cur)
+        self.spares = tuple(getattr(self, name + "2") for name in self.OWN)
+
+
+def _sqrt_or_nan(v: float) -> float:
+    """np.sqrt on a float: NaN below zero."""
+    return math.sqrt(v) if v >= 0 else NAN

@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 import os
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -54,6 +54,7 @@ class StudyOptions:
     duration: float | None = None  # shorten every trial (quick looks, tests)
     plots: bool = True
     progress: bool = False
+    config: dict = field(default_factory=dict)  # estimator tables for every trial, as `--config` gives them
 
 
 class Report:
@@ -104,7 +105,7 @@ def run_stiffness_study(opts: StudyOptions) -> Report:
 
 def _spec(opts: StudyOptions, scenario: str, estimator: str, n: int) -> TrialSpec:
     return TrialSpec(scenario, estimator, particles=None if estimator in PARTICLE_FREE else n, model="auto",
-                     duration=opts.duration)
+                     duration=opts.duration, config=opts.config)
 
 
 def _trials_part(part, opts, report, scenarios, estimators, particles, trials) -> None:
