@@ -243,7 +243,8 @@ def test_slip_over_step_kernel_equal(drive, undriven):
         assert 1e-4 < tau < dt  # the settling is fast: the interval mean lies near the end slip
 
 
-# the paper's wheel slip and undriven axle; x0_vx_wheel_std the earlier default: with 0.02 this drive
+# the paper's wheel slip and undriven axle (the other variant: the interval slip and the surface-scaled
+# undriven axle); x0_vx_wheel_std the earlier default: with 0.02 this drive
 # amplifies the rounding differences of the two backends to 1e-10 of v^Y by step 80 (same path, not a
 # different computation: it is 1e-16 with 0.1)
 PAPER_SLIP = dict(slip_hold="start", undriven_stiffness="nominal", x0_vx_wheel_std=0.1)
@@ -289,7 +290,7 @@ def test_stiffness_mpf_backends_equal(model, bias, restarts, paper, monkeypatch)
     for backend in ("numpy", "numba"):
         cfg = MPFConfig(particles=24, model=model, backend=backend, resample_threshold=1.0, gate_warmup=0.05,
                         gate_vy_std=10.0, gate_steer=0.0, plausible_yaw_rate=0.02 if restarts else 2.0, **noise,
-                        **(PAPER_SLIP if paper else {}))
+                        **(PAPER_SLIP if paper else dict(undriven_stiffness="surface")))
         est = StiffnessMPF(vehicle, cfg)
         runs[backend] = (_mpf_drive(est, 80), est)
     (a, fast), (b, ref) = runs["numba"], runs["numpy"]

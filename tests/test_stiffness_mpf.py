@@ -181,16 +181,16 @@ def test_bad_slip_and_restart_options_are_rejected(options, match):
 
 
 def test_defaults_and_the_papers_variant():
-    """The interval slip, the undriven axle on the surface, a 0.02 m/s v^X start spread and the
-    bound restart are the defaults; the paper's eq. (9) (slip of t_k held) and nominal
-    undriven axle stay reachable."""
+    """The interval slip, a 0.02 m/s v^X start spread and the bound restart are the defaults,
+    with the paper's nominal undriven axle; the paper's eq. (9) (slip of t_k held) and the
+    surface-scaled undriven axle are options."""
     cfg = MPFConfig()
     assert (cfg.slip_hold, cfg.undriven_stiffness, cfg.x0_vx_wheel_std, cfg.restart_at_bound_after) == (
-        "interval", "surface", 0.02, 2.0)
+        "interval", "nominal", 0.02, 2.0)
     vehicle = load_scenario("paper-sim").vehicle
-    paper = StiffnessMPF(vehicle, MPFConfig(slip_hold="start", undriven_stiffness="nominal"))
-    assert paper.undriven_share == 0.0
-    assert StiffnessMPF(vehicle).undriven_share == pytest.approx(vehicle.Cx_undriven / vehicle.Cx)
+    assert StiffnessMPF(vehicle).undriven_share == 0.0
+    surface = StiffnessMPF(vehicle, MPFConfig(slip_hold="start", undriven_stiffness="surface"))
+    assert surface.undriven_share == pytest.approx(vehicle.Cx_undriven / vehicle.Cx)
 
 
 @pytest.mark.parametrize("backend", ["numpy", "numba"])
@@ -199,7 +199,7 @@ def test_undriven_axle_on_the_surface_is_linear_in_w(drive, backend):
     """a + B w of `_model` equals the accelerations of eq. (1) computed by hand with the
     driven axle at C_x,nom + w_x and the undriven one at C_u,nom (1 + w_x / C_x,nom)."""
     v = replace(load_scenario("paper-sim").vehicle, drive=drive)
-    est = StiffnessMPF(v, MPFConfig(backend=backend))
+    est = StiffnessMPF(v, MPFConfig(backend=backend, undriven_stiffness="surface"))
     rng = np.random.default_rng(4)
     n = 7
     x = np.column_stack([20 + rng.normal(0, 1, n), rng.normal(0, 0.3, n), rng.normal(0, 0.1, n)])

@@ -58,9 +58,10 @@ class MPFConfig:
     # the interval, the wheel settling (time constant J v^X / (R_w^2 C), a few ms) from the slip at t_k to
     # the one the wheel speeds at t_k+1 give; "start": the slip at t_k held (the paper)
     slip_hold: str = "interval"
-    # longitudinal stiffness of the undriven axle: "surface": its nominal scaled as the driven axle's
-    # estimate (one surface under both axles); "nominal": its nominal value (the paper)
-    undriven_stiffness: str = "surface"
+    # longitudinal stiffness of the undriven axle: "nominal": its nominal value (the paper); "surface": its
+    # nominal scaled as the driven axle's estimate (one surface under both axles: right where Cx is learned,
+    # harmful where it is not, derivations Sec. 22)
+    undriven_stiffness: str = "nominal"
     resample_threshold: float = 0.5  # resample when ESS < threshold * N
     # initial stiffness: per-particle means drawn around `init_center` (absolute, per
     # parameter, default nominal) with a relative spread of the reference stiffness
