@@ -523,17 +523,8 @@ class StiffnessMPF:
         vy = self.x[:, 1 if self.full else 0]
         vy_std = math.sqrt(max(float(q @ (vy - q @ vy) ** 2), 0.0))
         alpha = max(abs(float(q @ af)), abs(float(q @ ar)))
-        ay_m = y.ay if math.isfinite(y.ay) else 0.0
-        self.linear_region = abs(ay_m) < cfg.gate_ay_max
-        self.active = gate_open(cfg, t=t, t_start=self.t_start, vx=vx_est, delta=uk[0], ay_meas=y.ay, alpha=alpha,
-                                vy_std=vy_std)
-        # a large slip angle with a small measured a^Y contradicts any tire: the state has
-        # locked onto a wrong sideslip (the sampled w explains the accelerations regardless)
-        contradiction = cfg.restart_alpha > 0 and alpha > cfg.restart_alpha and abs(ay_m) < cfg.gate_ay_max
-        self._contradiction_since = (self._contradiction_since or t) if contradiction else None
-        if contradiction and t - self._contradiction_since >= cfg.restart_after:
-            return self._restart(t, uk, y)
-        if cfg.restart_at_bound_after > 0 and self._pinned_too_long(t, self._pinned(np.exp(self.logw) @ self.stats.mu)):
+        pinned = cfg.restart_at_bound_after > 0 and self._pinned(q @ self.stats.mu)
+        if self._gate_or_restart(t, uk, y, vx_est, alpha, vy_std, pinned):
             return self._restart(t, uk, y)
 
         # 3. sample w_k from the conditional given the accelerometer residuals, eq. (39)-(41);
@@ -570,6 +561,24 @@ class StiffnessMPF:
         cfg = self.cfg
         tol = 0.01 * self.C_ref
         return cfg.bound_low * self.C_ref - self.C_nom + tol, cfg.bound_high * self.C_ref - self.C_nom - tol
+
+    def _gate_or_restart(self, t: float, uk: np.ndarray, y: Measurement, vx_est: float, alpha: float,
+                         vy_std: float, pinned: bool) -> bool:
+        """Opens or closes the learning gate (observability and the linear tire region, Sec. V)
+        and says whether the cloud must restart: a large slip angle with a small measured a^Y
+        for `restart_after` s (no tire explains that: the state has locked onto a wrong
+        sideslip, which the sampled w explains regardless), or a stiffness mean `pinned` at a
+        projection bound for `restart_at_bound_after` s."""
+        cfg = self.cfg
+        ay_m = y.ay if math.isfinite(y.ay) else 0.0
+        self.linear_region = abs(ay_m) < cfg.gate_ay_max
+        self.active = gate_open(cfg, t=t, t_start=self.t_start, vx=vx_est, delta=uk[0], ay_meas=y.ay, alpha=alpha,
+                                vy_std=vy_std)
+        contradiction = cfg.restart_alpha > 0 and alpha > cfg.restart_alpha and abs(ay_m) < cfg.gate_ay_max
+        self._contradiction_since = (self._contradiction_since or t) if contradiction else None
+        if contradiction and t - self._contradiction_since >= cfg.restart_after:
+            return True
+        return cfg.restart_at_bound_after > 0 and self._pinned_too_long(t, pinned)
 
     def _pinned(self, mbar: np.ndarray) -> bool:
         lo, hi = self._pin_bounds()
@@ -639,15 +648,7 @@ class StiffnessMPF:
             self._swap_work(wk)
             self.resamples += 1
         vx_est = vx_est if self.full else uk[3]
-        ay_m = y.ay if math.isfinite(y.ay) else 0.0
-        self.linear_region = abs(ay_m) < cfg.gate_ay_max
-        self.active = gate_open(cfg, t=t, t_start=self.t_start, vx=vx_est, delta=uk[0], ay_meas=y.ay, alpha=alpha,
-                                vy_std=vy_std)
-        contradiction = cfg.restart_alpha > 0 and alpha > cfg.restart_alpha and abs(ay_m) < cfg.gate_ay_max
-        self._contradiction_since = (self._contradiction_since or t) if contradiction else None
-        if contradiction and t - self._contradiction_since >= cfg.restart_after:
-            return self._restart(t, uk, y)
-        if cfg.restart_at_bound_after > 0 and self._pinned_too_long(t, pinned):
+        if self._gate_or_restart(t, uk, y, vx_est, alpha, vy_std, pinned):
             return self._restart(t, uk, y)
         N = cfg.particles
         z = rng.standard_normal((N, self.n_w))
