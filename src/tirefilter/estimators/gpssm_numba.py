@@ -47,7 +47,7 @@ import numpy as np
 from numba import njit
 
 from tirefilter.errors import ConfigError
-from tirefilter.stats.mniw_numba import _factor, _phi1
+from tirefilter.stats.mniw_numba import _factor, _phi1, _rank1_forget1
 from tirefilter.stats.student_t import t_draws
 
 _JIT = dict(cache=True, nogil=True)
@@ -349,21 +349,7 @@ def rank1_forget_predictive(M, P, Lam, nu, work, per, forget, lam, nu_min, bound
     nb, d, m = M.shape
     for b in range(nb):
         if forget:
-            f = _factor(lam, nu_min, nu[b])
-            fP = f
-            if bounded:
-                tr = 0.0
-                for i in range(m):
-                    tr += P[b, i, i]
-                fP = min(1.0, max(f, tr / trace0))
-            s = 1.0 / fP
-            for i in range(m):
-                for j in range(m):
-                    P[b, i, j] *= s
-            for i in range(d):
-                for k in range(d):
-                    Lam[b, i, k] = Lam[b, i, k] * f
-            nu[b] = nu[b] * f
+            _rank1_forget1(P, Lam, nu, b, lam, nu_min, bounded, trace0)
         n, a = b // per, b % per
         c = 0.0
         for i in range(m):

@@ -274,28 +274,34 @@ def rank1_update(M, P, Lam, nu, zeta, phi):
         nu[b] += 1.0
 
 
+@njit(inline="always", **_JIT)
+def _rank1_forget1(P, Lam, nu, b, lam, nu_min, bounded, trace0):
+    """`rank1_forget` of batch entry b."""
+    m = P.shape[1]
+    d = Lam.shape[1]
+    f = _factor(lam, nu_min, nu[b])
+    fP = f
+    if bounded:
+        tr = 0.0
+        for i in range(m):
+            tr += P[b, i, i]
+        fP = min(1.0, max(f, tr / trace0))
+    s = 1.0 / fP
+    for i in range(m):
+        for j in range(m):
+            P[b, i, j] *= s
+    for i in range(d):
+        for k in range(d):
+            Lam[b, i, k] = Lam[b, i, k] * f
+    nu[b] = nu[b] * f
+
+
 @njit(**_JIT)
 def rank1_forget(P, Lam, nu, lam, nu_min, bounded, trace0):
     """In place: P / f_P, Lambda f, nu f with f = max(lambda, min(1, nu_min / nu)) and, bounded,
     f_P = min(1, max(f, trace(P) / trace0)) (`MNIWRank1.forget`)."""
-    nb, m, _ = P.shape
-    d = Lam.shape[1]
-    for b in range(nb):
-        f = _factor(lam, nu_min, nu[b])
-        fP = f
-        if bounded:
-            tr = 0.0
-            for i in range(m):
-                tr += P[b, i, i]
-            fP = min(1.0, max(f, tr / trace0))
-        s = 1.0 / fP
-        for i in range(m):
-            for j in range(m):
-                P[b, i, j] *= s
-        for i in range(d):
-            for k in range(d):
-                Lam[b, i, k] = Lam[b, i, k] * f
-        nu[b] = nu[b] * f
+    for b in range(P.shape[0]):
+        _rank1_forget1(P, Lam, nu, b, lam, nu_min, bounded, trace0)
 
 
 # ---- the statistics classes ----------------------------------------------------------------
