@@ -250,14 +250,12 @@ def test_slip_over_step_kernel_equal(drive, undriven):
 PAPER_SLIP = dict(slip_hold="start", undriven_stiffness="nominal", x0_vx_wheel_std=0.1)
 
 
-def _mpf_drive(est: StiffnessMPF, steps: int, gap: float = 0.05):
+def _mpf_samples(vehicle, steps: int, gap: float = 0.05):
     """A steering sine at about 20 m/s, 100 Hz, from a linear single track with noise and a
-    little wheel slip (no FMU); a^Y missing every 7th sample, all sensors missing once, and
-    one gap of `gap` s before sample 30 (50 ms: sub-stepped)."""
-    rng = np.random.default_rng(5)
-    est.reset(np.random.default_rng(9))
-    v = est.vehicle
-    out, t = [], 0.0
+    little wheel slip (no FMU): (t, Inputs, Measurement) per sample; a^Y missing every 7th
+    sample, all sensors missing once, and one gap of `gap` s before sample 30 (50 ms:
+    sub-stepped)."""
+    rng, v, t = np.random.default_rng(5), vehicle, 0.0
     for k in range(steps):
         t += gap if k == 30 else 0.01
         delta = 0.02 * math.sin(2 * math.pi * 0.7 * t)
@@ -266,9 +264,17 @@ def _mpf_drive(est: StiffnessMPF, steps: int, gap: float = 0.05):
         ay = math.nan if k % 7 == 3 else 20.0 * r + 0.05 * rng.standard_normal()
         y = Measurement() if k == 40 else Measurement(ax=0.2 + 0.05 * rng.standard_normal(), ay=ay,
                                                        yaw_rate=r + 0.003 * rng.standard_normal())
-        e = est.step(t, Inputs(delta=delta, omega_f=omega * 1.01, omega_r=omega, vx=20.0), y)
-        out.append((e.vx, e.vy, e.yaw_rate, e.Cf_y, e.Cr_y, e.Cf_y_std, e.Cr_y_sigma, e.b_ay, e.b_yaw_rate, e.ess))
-    return np.array(out)
+        yield t, Inputs(delta=delta, omega_f=omega * 1.01, omega_r=omega, vx=20.0), y
+
+
+def _mpf_outputs(e) -> tuple:
+    return e.vx, e.vy, e.yaw_rate, e.Cf_y, e.Cr_y, e.Cf_y_std, e.Cr_y_sigma, e.b_ay, e.b_yaw_rate, e.ess
+
+
+def _mpf_drive(est: StiffnessMPF, steps: int, gap: float = 0.05):
+    """`est` reset and stepped through `_mpf_samples`: its outputs per sample."""
+    est.reset(np.random.default_rng(9))
+    return np.array([_mpf_outputs(est.step(t, u, y)) for t, u, y in _mpf_samples(est.vehicle, steps, gap)])
 
 
 @pytest.mark.parametrize("paper", [False, True], ids=["", "paper-slip"])
@@ -407,18 +413,6 @@ def test_stiffness_mpf_fused_state_pickles():
     copy = pickle.loads(pickle.dumps(part))
     assert copy.x is copy._wk.x and copy.stats.mu is copy._wk.mu  # still the work arrays, not copies of them
     # the samples 25-39 of `_mpf_drive`, after the first 25 (their noise drawn in the same order)
-    rng, v, t, rest = np.random.default_rng(5), vehicle, 0.0, []
-    for k in range(40):
-        t += 0.05 if k == 30 else 0.01
-        delta = 0.02 * math.sin(2 * math.pi * 0.7 * t)
-        r = 20.0 * delta / (v.lf + v.lr)
-        omega = 20.0 / v.wheel_radius
-        ay = math.nan if k % 7 == 3 else 20.0 * r + 0.05 * rng.standard_normal()
-        y = Measurement() if k == 40 else Measurement(ax=0.2 + 0.05 * rng.standard_normal(), ay=ay,
-                                                       yaw_rate=r + 0.003 * rng.standard_normal())
-        if k >= 25:
-            e = copy.step(t, Inputs(delta=delta, omega_f=omega * 1.01, omega_r=omega, vx=20.0), y)
-            rest.append((e.vx, e.vy, e.yaw_rate, e.Cf_y, e.Cr_y, e.Cf_y_std, e.Cr_y_sigma, e.b_ay, e.b_yaw_rate,
-                         e.ess))
+    rest = [_mpf_outputs(copy.step(t, u, y)) for k, (t, u, y) in enumerate(_mpf_samples(vehicle, 40)) if k >= 25]
     assert np.array_equal(np.vstack([b, rest]), a)
     assert np.array_equal(copy.posterior().stats["Lam"], whole.posterior().stats["Lam"])
