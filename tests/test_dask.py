@@ -11,6 +11,7 @@ import pytest
 
 from tirefilter.cli import main
 from tirefilter.errors import ConfigError
+from tirefilter.study import montecarlo
 from tirefilter.study.montecarlo import TrialSpec, run_study
 
 distributed = pytest.importorskip("dask.distributed")
@@ -54,6 +55,7 @@ def test_bench_stiffness_cli_on_dask_writes_the_same_tables(tmp_path, cluster):
     assert table(tmp_path / "d") and table(tmp_path / "d") == table(tmp_path / "l")
 
 
-def test_no_scheduler_is_a_clear_error(tmp_path):
+def test_no_scheduler_is_a_clear_error(tmp_path, monkeypatch):
+    monkeypatch.setattr(montecarlo, "DASK_CONNECT_TIMEOUT_S", 2.0)  # nothing answers at port 9: no need to wait 20 s
     with pytest.raises(ConfigError, match="scheduler"):
         run_study(SPEC, 1, tmp_path / "x", scheduler="tcp://127.0.0.1:9")

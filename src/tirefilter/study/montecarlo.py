@@ -169,6 +169,9 @@ def run_study(spec: TrialSpec, trials: int, directory: str | Path, *, study_seed
     return store
 
 
+DASK_CONNECT_TIMEOUT_S = 20.0  # s: how long `--scheduler ADDRESS` waits for the scheduler to answer
+
+
 def _run_on_dask(address: str, spec: TrialSpec, todo, store: StudyRun, bar) -> None:
     """The trials `todo` on the Dask cluster at `address`, saved as they come back."""
     try:
@@ -176,7 +179,7 @@ def _run_on_dask(address: str, spec: TrialSpec, todo, store: StudyRun, bar) -> N
     except ImportError:
         raise ConfigError("--scheduler", "", "needs dask.distributed: pip install 'tirefilter[dask]'") from None
     try:
-        client = Client(address, timeout="20s", set_as_default=False)
+        client = Client(address, timeout=f"{DASK_CONNECT_TIMEOUT_S}s", set_as_default=False)
     except OSError as exc:
         raise ConfigError("--scheduler", "", f"no Dask scheduler at {address!r} ({exc})") from None
     try:
