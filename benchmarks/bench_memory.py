@@ -114,8 +114,10 @@ def one_replay(log: str, estimator: str, out: str, *config: str) -> dict:
 
     sampler = RssSampler()
     rc = main(["replay", log, "--vehicle", str(VEHICLE), "--estimator", estimator, "--out", out, "--quiet", *config])
-    summary = json.loads(Path(out).with_suffix(".json").read_text())
-    return {"rc": rc, **sampler.stop(), "restarts": (summary.get("metrics") or {}).get("restarts")}
+    memory = sampler.stop()
+    summary_path = Path(out).with_suffix(".json")
+    summary = json.loads(summary_path.read_text()) if summary_path.is_file() else {}  # a failed replay may write none
+    return {"rc": rc, **memory, "restarts": (summary.get("metrics") or {}).get("restarts")}
 
 
 def cmd_replay(args) -> None:

@@ -122,7 +122,7 @@ class _ScoredStream:
 
         self.names = names
         self.metrics = RunMetrics(names, schedule) if "t" in names else None
-        self.buf = np.empty((self.CHUNK, len(names)))
+        self.buf = np.empty((len(names), self.CHUNK))  # a column per row of buf: contiguous for the metrics
         self.n = 0  # rows in buf
         self.index: np.ndarray | None = None
 
@@ -131,14 +131,14 @@ class _ScoredStream:
             return
         if self.index is None:
             self.index = np.array([columns.index(c) for c in self.names], int)
-        self.buf[self.n] = np.asarray(row, float)[self.index]
+        self.buf[:, self.n] = np.asarray(row, float)[self.index]
         self.n += 1
         if self.n == self.CHUNK:
             self.flush()
 
     def flush(self) -> None:
         if self.n:
-            self.metrics.update({c: self.buf[:self.n, j] for j, c in enumerate(self.names)})
+            self.metrics.update({c: self.buf[j, :self.n] for j, c in enumerate(self.names)})
             self.n = 0
 
     def finalize(self, **counters) -> dict:

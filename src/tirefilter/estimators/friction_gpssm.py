@@ -223,7 +223,7 @@ class FrictionGPSSM:
             self.mpf.reset(rng)
         batch = (N,) if self.d == 2 else (N, 2)
         Lam0 = np.eye(self.d) * cfg.q0**2 * (self.nu0 - self.d - 1.0)  # E[Q] = q0^2 I
-        self._compiled = None
+        self._compiled = None  # before the statistics change: an old compiled step must not flush into them
         self.stats = make_mniw(cfg.stats, batch, self.d, self.basis.S, Lam0, self.nu0, cfg.backend)
         self.x = np.asarray(cfg.x0_mean, float) + rng.standard_normal((N, 2)) * np.asarray(cfg.x0_std, float)
         self.logw = np.full(N, -math.log(N))
@@ -242,7 +242,6 @@ class FrictionGPSSM:
         self._path = np.zeros((2, len(self.grid), 2))  # (axle, grid bin, [count, sum of the other slip])
         self._slope = (NAN, NAN, NAN, NAN)
         self._dphi0 = self._slope_features()
-        self._compiled = None
         if cfg.backend == "numba":
             from tirefilter.estimators.gpssm_numba import CompiledStep
 

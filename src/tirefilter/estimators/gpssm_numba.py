@@ -47,7 +47,7 @@ import numpy as np
 from numba import njit
 
 from tirefilter.errors import ConfigError
-from tirefilter.stats.mniw_numba import _factor, _phi1, _rank1_forget1
+from tirefilter.stats.mniw_numba import _factor, _phi1, _rank1_forget1, exact_update
 from tirefilter.stats.student_t import t_draws
 
 _JIT = dict(cache=True, nogil=True)
@@ -582,27 +582,6 @@ def sample(x, work, logw, z, u, zeta, mu, conditional):
 
 # ---- 6. learning ----------------------------------------------------------------------------------
 @njit(**_JIT)
-def exact_update(K, Psi, Phi, nu, work, zeta, per, col):
-    """Eq. (27a)-(27c), (28f) in place with zeta (N, 2) and the features in work[:, col:]
-    (K's lower triangle)."""
-    nb, d, m = Psi.shape
-    for b in range(nb):
-        n, a = b // per, b % per
-        o = col + a * m
-        for i in range(d):
-            zi = zeta[n, a + i]
-            for k in range(d):
-                Phi[b, i, k] += zi * zeta[n, a + k]
-            for j in range(m):
-                Psi[b, i, j] += zi * work[n, o + j]
-        for i in range(m):
-            p = work[n, o + i]
-            for j in range(i + 1):
-                K[b, i, j] += p * work[n, o + j]
-        nu[b] += 1.0
-
-
-@njit(**_JIT)
 def rank1_update(M, P, Lam, nu, work, zeta, per):
     """`MNIWRank1.update` in place (recursive least squares) with the features in work."""
     nb, d, m = M.shape
@@ -679,7 +658,10 @@ class CompiledStep:
         """Apply a pending update of the exact statistics now (before anything reads them)."""
         if self.pending:
             self.pending = False
-            exact_update(*self._views(), self.phi_p, self.zeta, self.per, 0)
+            K, Psi, Phi, nu = self._views()
+            d, m = Psi.shape[1:]  # per particle and step: `per` batch rows of d outputs and m features
+            exact_update(Phi, Psi, K, nu, self.zeta.reshape(-1, d), self.phi_p.reshape(-1, m))
+            self.stale_upper = True  # the reference's update writes both triangles; the lower one is kept
         if self.stale_upper:
             self.stale_upper = False
             mirror(self._views()[0])
