@@ -165,9 +165,10 @@ class AugmentedPF:
 
         self.vehicle = vehicle
         self.cfg = cfg = config.validated()
-        # the MPF's model maths (accelerations, propagation, measurement map), as-is
+        # the MPF's model maths (accelerations, propagation, measurement map); the AUGPF calls
+        # `_propagate` directly, with the wheel slip of the step's start (the paper's model)
         self._mdl = StiffnessMPF(vehicle, MPFConfig(particles=1, model=cfg.model, integrator=cfg.integrator,
-                                                    max_step=cfg.max_step, backend=cfg.backend))
+                                                    max_step=cfg.max_step, backend=cfg.backend, slip_hold="start"))
         self.full = cfg.model == "full"
         self.params = self._mdl.params
         self.C_nom = self._mdl.C_nom
@@ -229,9 +230,9 @@ class AugmentedPF:
         if not self.full and not math.isfinite(uk[3]):
             raise ConfigError("inputs", "vx", f"the lateral model needs vx; none given up to t = {t} s")
         if self.u_prev is None and self.full and cfg.x0_vx_from_wheels:
-            omega = uk[1] if self._mdl.rear_drive else uk[2]  # the undriven axle hardly slips
-            if math.isfinite(omega):
-                self.x[:, 0] = self.vehicle.wheel_radius * omega + cfg.x0_vx_wheel_std * rng.standard_normal(len(self.x))
+            vx = self._mdl._vx_from_wheels(uk)
+            if math.isfinite(vx):
+                self.x[:, 0] = vx + cfg.x0_vx_wheel_std * rng.standard_normal(len(self.x))
         if not math.isfinite(uk[0]):
             uk[0] = 0.0
 
@@ -341,8 +342,8 @@ class AugmentedPF:
         from the prior again around the current speed (undriven wheel) and the measured yaw
         rate, as the MPF does; the next propagation uses the prior means."""
         if self.full:
-            omega = uk[1] if self._mdl.rear_drive else uk[2]
-            vx = self.vehicle.wheel_radius * omega if math.isfinite(omega) else float(np.median(self.x[:, 0]))
+            vx = self._mdl._vx_from_wheels(uk)
+            vx = vx if math.isfinite(vx) else float(np.median(self.x[:, 0]))
         r0 = y.yaw_rate if math.isfinite(y.yaw_rate) else 0.0
         self._draw_prior((vx, 0.0, r0) if self.full else (0.0, r0))
         self.restarts += 1

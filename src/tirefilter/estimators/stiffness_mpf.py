@@ -631,6 +631,7 @@ class StiffnessMPF:
             self.surprise += -math.expm1(-dt / cfg.surprise_time) * (innovation - self.surprise)
             self.lam = min(max(1.0 - (1.0 - cfg.forgetting) * self.surprise, cfg.forgetting_min), cfg.forgetting_max)
         self.w_prev = wk.w
+        # af, ar in the order before any resampling: the next propagation reads only a, B and slip
         self._at_x = (wk.a, wk.B, wk.af, wk.ar, wk.slip if self.full else None)
         if count == 0:
             return self._restart(t, uk, y)
