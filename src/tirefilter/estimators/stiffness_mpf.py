@@ -628,8 +628,7 @@ class StiffnessMPF:
             self.rear_drive, wk.h, wk.D, wk.L11, wk.nu_w, wk.L12, wk.Lc, wk.e, wk.v, wk.ll, wk.ok, self.logw, nc,
             adaptive, cfg.plausible_beta, cfg.plausible_yaw_rate, cfg.gate_speed)
         if math.isfinite(innovation):  # adaptive forgetting (`_adapt_forgetting`)
-            self.surprise += -math.expm1(-dt / cfg.surprise_time) * (innovation - self.surprise)
-            self.lam = min(max(1.0 - (1.0 - cfg.forgetting) * self.surprise, cfg.forgetting_min), cfg.forgetting_max)
+            self._smooth_surprise(innovation, dt)
         self.w_prev = wk.w
         # af, ar in the order before any resampling: the next propagation reads only a, B and slip
         self._at_x = (wk.a, wk.B, wk.af, wk.ar, wk.slip if self.full else None)
@@ -671,7 +670,7 @@ class StiffnessMPF:
             bool(a.size and self.bias_on), self.R, a, yk, self.active, drift, self.drift,
             -math.expm1(-dt / cfg.drift_time), wk.lo, wk.hi, wk.mom)
         if zd == zd:  # `_track_drift` (the statistic is NaN when not computed)
-            self.lam = min(self.lam, max(1.0 - (1.0 - cfg.forgetting) * zd, cfg.forgetting_min))
+            self._cap_forgetting(zd)
         nx, m = self.x.shape[1], len(self.channels)
         r = wk.mom.tolist()
         return self._estimate_from(ess, r[0][:nx], r[1][:nx], r[2][:self.n_w], r[3][:self.n_w], r[4][:self.n_w],
@@ -719,10 +718,19 @@ class StiffnessMPF:
             return
         nis = np.sum(v * v, axis=1) * (nu - 2.0) / (nu * v.shape[1])
         s_k = float(np.exp(self.logw) @ nis)
-        if not math.isfinite(s_k):
-            return
+        if math.isfinite(s_k):
+            self._smooth_surprise(s_k, dt)
+
+    def _smooth_surprise(self, s_k: float, dt: float) -> None:
+        """z_k: s_k smoothed over `surprise_time`; lambda_k = 1 - (1 - lambda) z_k, clipped."""
+        cfg = self.cfg
         self.surprise += -math.expm1(-dt / cfg.surprise_time) * (s_k - self.surprise)
         self.lam = min(max(1.0 - (1.0 - cfg.forgetting) * self.surprise, cfg.forgetting_min), cfg.forgetting_max)
+
+    def _cap_forgetting(self, z: float) -> None:
+        """lambda_k no larger than 1 - (1 - lambda) z (the drift statistic z, `_track_drift`)."""
+        cfg = self.cfg
+        self.lam = min(self.lam, max(1.0 - (1.0 - cfg.forgetting) * z, cfg.forgetting_min))
 
     def _track_drift(self, dw: np.ndarray, L11: np.ndarray, dt: float) -> None:
         """The second surprise statistic of the adaptive forgetting (derivations, Sec. 17):
@@ -741,8 +749,7 @@ class StiffnessMPF:
             return
         a = -math.expm1(-dt / cfg.drift_time)
         self.drift = self.drift + a * (ubar - self.drift)
-        z = float(self.drift @ self.drift) * (2.0 - a) / (a * len(ubar))
-        self.lam = min(self.lam, max(1.0 - (1.0 - cfg.forgetting) * z, cfg.forgetting_min))
+        self._cap_forgetting(float(self.drift @ self.drift) * (2.0 - a) / (a * len(ubar)))
 
     def _informed_start(self, uk, yk) -> np.ndarray:
         """Draw each particle's initial (r, vy) from its prior conditioned on the first yaw
