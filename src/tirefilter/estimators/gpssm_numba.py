@@ -48,6 +48,7 @@ from numba import njit
 
 from tirefilter.errors import ConfigError
 from tirefilter.stats.mniw_numba import _factor, _phi1, _rank1_forget1, exact_update
+from tirefilter.stats.particles_numba import systematic_into
 from tirefilter.stats.student_t import t_draws
 
 _JIT = dict(cache=True, nogil=True)
@@ -479,23 +480,10 @@ def _copy_lower(K, i, j):
 
 @njit(**_JIT)
 def systematic_ancestors(logw, u0):
-    """`stats.systematic_resample` after its uniform draw u0: cdf = cumsum(exp(logw)) with
-    cdf[-1] = 1, points (u0 + j) / N, ancestors by searchsorted(cdf, points, 'right')
-    clipped to N - 1 (points increase, so one merge pass)."""
-    n = logw.shape[0]
-    cdf = np.empty(n)
-    s = 0.0
-    for i in range(n):
-        s += math.exp(logw[i])
-        cdf[i] = s
-    cdf[n - 1] = 1.0
-    idx = np.empty(n, np.int64)
-    k = 0
-    for j in range(n):
-        p = (u0 + j) / n
-        while k < n and cdf[k] <= p:
-            k += 1
-        idx[j] = min(k, n - 1)
+    """`stats.systematic_resample` after its uniform draw u0 (`systematic_into`), into a new
+    array."""
+    idx = np.empty(logw.shape[0], np.int64)
+    systematic_into(logw, u0, idx)
     return idx
 
 

@@ -39,6 +39,8 @@ import math
 import numpy as np
 from numba import njit
 
+from tirefilter.stats.particles_numba import systematic_into
+
 _JIT = dict(cache=True, nogil=True)
 
 
@@ -539,18 +541,7 @@ def resample_gate(logw, u0, resample, idx, x, b, P, gamma, mu, Lam, nu, a, B, sl
     pin_lo or pin_hi (n_w,) in some component (the bound restart, `_pinned`)."""
     n = logw.shape[0]
     if resample:
-        cdf = np.empty(n)
-        acc = 0.0
-        for i in range(n):
-            acc += math.exp(logw[i])
-            cdf[i] = acc
-        cdf[n - 1] = 1.0
-        j = 0
-        for k in range(n):
-            u = (u0 + k) / n
-            while j < n - 1 and cdf[j] <= u:  # searchsorted(cdf, u, side="right"), clipped
-                j += 1
-            idx[k] = j
+        systematic_into(logw, u0, idx)
         _take_rows(x, x2, idx)
         _take_rows(b, b2, idx)
         _take_rows(P, P2, idx)
