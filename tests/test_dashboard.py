@@ -646,13 +646,14 @@ def test_the_page_in_a_real_browser(fmu_paths, tmp_path):
                 wait_for(lambda: _chart_has_line(page, 0), timeout=20, what="a line in the Cf_y chart")
                 shots.append(tmp_path / "running.png")
                 page.screenshot(path=shots[-1])
-                _check_layout(page, tmp_path)
 
+                # paused before the slow layout checks, so that a slow machine cannot let the run finish first
                 page.get_by_role("button", name="Pause", exact=True).click()
                 page.get_by_text(re.compile(r"^paused · ")).wait_for(timeout=10000)
                 t_paused = d.status()["t"]
                 time.sleep(0.3)
                 assert d.status()["t"] == t_paused
+                _check_layout(page, tmp_path)
 
                 n_input = page.get_by_label("Particles N", exact=True)
                 n_input.fill("100")
