@@ -420,7 +420,8 @@ def test_friction_fmu_validates_and_equals_python_estimator(friction_fmu, fricti
         host.initialize(params)
         for k in range(len(stream)):
             host.step(FRICTION_H, dict(zip(IN_NAMES, stream[k])))
-            got.append([host.get(names)[n] for n in names])
+            values = host.get(names)
+            got.append([values[n] for n in names])
             e = est.step(k * FRICTION_H, Inputs(*stream[k, :4]), Measurement(*stream[k, 4:]))
             if k % 25 == 0:  # friction_period 1 s = 25 samples
                 c = est.friction()
@@ -441,7 +442,8 @@ def test_friction_fmu_state_restores(friction_fmu, friction_snow):
         out = []
         for k in range(k0, k1):
             host.step(FRICTION_H, dict(zip(IN_NAMES, stream[k])))
-            out.append([host.get(names)[n] for n in names])
+            values = host.get(names)
+            out.append([values[n] for n in names])
         return np.array(out)
 
     with FMUHost(friction_fmu) as host:

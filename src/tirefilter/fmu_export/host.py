@@ -83,18 +83,21 @@ class FMUHost:
                 self.slave.setString(vr, [str(value)])
 
     def get(self, names) -> dict:
-        out = {}
+        """The values of the variables `names`, read with one call per variable type."""
+        if self.fmi == "2":
+            getters = {"Real": self.slave.getReal, "Integer": self.slave.getInteger,
+                       "Boolean": self.slave.getBoolean, "String": self.slave.getString}
+        else:
+            getters = {"Float64": self.slave.getFloat64, "Int32": self.slave.getInt32,
+                       "Boolean": self.slave.getBoolean, "String": self.slave.getString}
+        groups: dict[str, list] = {}
         for name in names:
-            v = self.vars[name]
-            vr = [v.valueReference]
-            if self.fmi == "2":
-                get = {"Real": self.slave.getReal, "Integer": self.slave.getInteger,
-                       "Boolean": self.slave.getBoolean, "String": self.slave.getString}[v.type]
-            else:
-                get = {"Float64": self.slave.getFloat64, "Int32": self.slave.getInt32,
-                       "Boolean": self.slave.getBoolean, "String": self.slave.getString}[v.type]
-            out[name] = get(vr)[0]
-        return out
+            groups.setdefault(self.vars[name].type, []).append(name)
+        out = {}
+        for kind, group in groups.items():
+            values = getters[kind]([self.vars[name].valueReference for name in group])
+            out.update(zip(group, values))
+        return {name: out[name] for name in names}
 
     def initialize(self, parameters: dict, start_time: float = 0.0) -> None:
         try:
