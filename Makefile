@@ -6,6 +6,8 @@ VENV := .venv
 BIN := $(VENV)/bin
 SCENARIO ?= paper-sim
 OUT ?= runs/$(SCENARIO)
+# pytest-xdist workers for make test; the two browser tests share one (their xdist_group)
+TEST_WORKERS ?= 2
 
 .PHONY: setup fmu run test bench clean
 
@@ -24,7 +26,7 @@ run: fmu
 	$(BIN)/tirefilter run --scenario $(SCENARIO) --out $(OUT) --rrd $(OUT)/$(SCENARIO).rrd
 
 test: fmu
-	$(BIN)/python -m pytest tests
+	$(BIN)/python -m pytest tests -n $(TEST_WORKERS) --dist loadgroup
 
 bench: fmu
 	$(BIN)/python benchmarks/bench_cosim.py

@@ -36,6 +36,7 @@ def _short_scenario(tmp_path: Path, duration: float = 4.0) -> Path:
     return path
 
 
+@pytest.mark.xdist_group("browser")  # one browser at a time (make test runs two workers)
 @pytest.mark.skipif(not CHROMIUM.is_file(), reason="/usr/bin/chromium is absent (Debian package `chromium`; "
                     ".ci/run installs it)")
 def test_every_tab_of_the_layout_renders_without_errors_or_empty_views(fmu_paths, tmp_path):

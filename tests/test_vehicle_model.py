@@ -29,7 +29,7 @@ def _numpy_trajectory(scenario, inputs, x0, h, substeps):
     return np.array(out)
 
 
-@pytest.mark.parametrize("name,duration", [("paper-sim", 60.0), ("friction-snow", 30.0)])
+@pytest.mark.parametrize("name,duration", [("paper-sim", 34.0), ("friction-snow", 30.0)])  # the cut at 30 s included
 def test_fmu_matches_numpy_integration(fmu_paths, name, duration):
     """Noise off: FMU (C, RK4 at 1 ms) and numpy model agree to 1e-6 relative."""
     scenario = load_scenario(name)
