@@ -363,10 +363,7 @@ def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, int
     k2 = np.empty(nx)
     ai = np.empty(3)
     Bi = np.empty((3, n_w))
-    nb = max(na, 1)
-    S = np.empty((nb, nb))
-    DL = np.empty((nb, n_w))
-    inv_d = np.empty(nb)
+    DL = np.empty((max(na, 1), n_w))
     with_noise = noise.shape[0] > 0
     count = 0
     for i in range(n):
@@ -461,38 +458,45 @@ def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, int
                 DL[q, k] = s
                 L12[i, k, q] = s
         c = (dof - 2.0) / dof
-        for q in range(na):
-            for q2 in range(na):
+        for q in range(na):  # S (its lower triangle) into Lc[i], factorised there in place below
+            for q2 in range(q + 1):
                 s = 0.0
                 for k in range(n_w):
                     s += DL[q, k] * D[i, avail[q2], k]
                 noise_qq = R[avail[q], avail[q2]]
                 if bias_on:
                     noise_qq = noise_qq + P[i, avail[q], avail[q2]]
-                S[q, q2] = s + c * noise_qq
-        for j in range(na):  # Lc = chol(S) (`_chol`, written out: no view of Lc[i])
-            Sjj = S[j, j]
-            d = Sjj
-            for k in range(j):
-                d = d - Lc[i, j, k] * Lc[i, j, k]
-            Ljj = math.sqrt(max(d, abs(Sjj) * 1e-14 + 1e-300))
-            Lc[i, j, j] = Ljj
-            inv_d[j] = 1.0 / Ljj
-            for r in range(j + 1, na):
-                acc = S[r, j]
-                for k in range(j):
-                    acc = acc - Lc[i, r, k] * Lc[i, j, k]
-                Lc[i, r, j] = acc * inv_d[j]
-            for r in range(j):
-                Lc[i, r, j] = 0.0
-        logdet = 0.0
-        vv = 0.0
+                Lc[i, q, q2] = s + c * noise_qq
         for q in range(na):
             ch = avail[q]
             s = 0.0
             for j in range(n_w):
                 s += D[i, ch, j] * mu[i, j]
             e[i, q] = y[ch] - (h[i, ch] + b[i, ch]) - s
+    # Lc = chol(S) in place (`_chol`), then v = Lc^-1 e and the weight: each in its own short loop
+    # over the particles, whose latency chains (square roots, divisions, logarithms) the CPU then
+    # overlaps across particles (in one long loop body it cannot: benchmarks/README.md)
+    for i in range(n if na else 0):
+        for j in range(na):
+            Sjj = Lc[i, j, j]
+            d = Sjj
+            for k in range(j):
+                d = d - Lc[i, j, k] * Lc[i, j, k]
+            Ljj = math.sqrt(max(d, abs(Sjj) * 1e-14 + 1e-300))
+            Lc[i, j, j] = Ljj
+            inv = 1.0 / Ljj
+            for r in range(j + 1, na):
+                acc = Lc[i, r, j]
+                for k in range(j):
+                    acc = acc - Lc[i, r, k] * Lc[i, j, k]
+                Lc[i, r, j] = acc * inv
+            for r in range(j):
+                Lc[i, r, j] = 0.0
+    for i in range(n if na else 0):
+        dof = nu_w[i]
+        logdet = 0.0
+        vv = 0.0
+        for q in range(na):
             acc = e[i, q]
             for k in range(q):
                 acc = acc - Lc[i, q, k] * v[i, k]
