@@ -366,18 +366,20 @@ def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, int
     DL = np.empty((max(na, 1), n_w))
     with_noise = noise.shape[0] > 0
     count = 0
+    if interval:  # the slip over the step (`_slip_over_step`) into slip, in a short loop of its own
+        for i in range(n):
+            acc0 = 0.0
+            for j in range(n_w):
+                acc0 += B[i, 0, j] * w_prev[i, j]
+            acc0 = a[i, 0] + acc0
+            slip[0, i], slip[1, i] = _interval_slip1(x[i, 0], x[i, 1], x[i, 2], acc0, w_prev[i, 0], slip[0, i],
+                                                     slip[1, i], u_prev, uk, dt, vp, jw, c_floor, rear_drive)
     for i in range(n):
         # 1. propagation (`_propagate`), the first stage from the last sample
         for c in range(nx):
             xi[c] = x[i, c]
         sf, sr = slip[0, i], slip[1, i]
-        if interval:  # the slip over the step (`_slip_over_step`)
-            acc0 = 0.0
-            for j in range(n_w):
-                acc0 += B[i, 0, j] * w_prev[i, j]
-            acc0 = a[i, 0] + acc0
-            sf, sr = _interval_slip1(xi[0], xi[1], xi[2], acc0, w_prev[i, 0], sf, sr, u_prev, uk, dt, vp, jw, c_floor,
-                                     rear_drive)
+        if interval:
             _model1(xi[0], xi[1], xi[2], u_prev[0], u_prev[1], u_prev[2], u_prev[3], kp, True, sf, sr, ai, Bi, vp, True,
                     rear_drive, n_w)
         else:
@@ -614,9 +616,6 @@ def sample_update(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, 
     na = avail.shape[0]
     mch = b.shape[1]
     M = np.empty((max(nc, 1), n_w))
-    Lm = np.empty((n_w, n_w))
-    L = np.zeros((n_w, n_w))
-    mc = np.empty(n_w)
     ub = np.zeros(n_w)
     ui = np.empty(n_w)
     nb = max(na, 1)
@@ -626,9 +625,13 @@ def sample_update(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, 
     DE = np.empty((nb, n_w))
     innov = np.empty(nb)
     Pn = np.empty((mch, mch))
+    Lw = np.empty((n, n_w, n_w))  # the conditional scale Lam_c, factorised in place
+    learn = np.ones(n, np.bool_)
     for i in range(n):
         s = idx[i]
-        # 3. the conditional Student-t and its draw
+        # 3. the conditional Student-t and its draw: Lam_c and mu_c (into w), then each of
+        # chol(Lam_c) and the draw in a short loop of its own over the particles (the CPU
+        # overlaps the square roots and divisions of successive particles)
         for k in range(n_w):  # M = solve_lower(Lc, L21): column k of L21 is row k of L12
             for q in range(nc):
                 acc = L12[s, k, q]
@@ -642,85 +645,111 @@ def sample_update(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, 
             t = 0.0
             for q in range(nc):
                 t += M[q, k] * v[s, q]
-            mc[k] = mu[i, k] + t
+            w[i, k] = mu[i, k] + t
         sc = (nu_w[s] + vv) / (nu_w[s] + nc)
         for j in range(n_w):
-            for k in range(n_w):
+            for k in range(j + 1):
                 g = 0.0
                 for q in range(nc):
                     g += M[q, j] * M[q, k]
-                Lm[j, k] = sc * (L11[s, j, k] - g)
-        _chol(Lm, L, n_w)
+                Lw[i, j, k] = sc * (L11[s, j, k] - g)
+        if use_mask:  # the outlier mask: learn while |v_acc|^2 < bound
+            learn[i] = vv < bound
+    for i in range(n):  # chol(Lam_c) in place (`_chol`)
+        for j in range(n_w):
+            Sjj = Lw[i, j, j]
+            d = Sjj
+            for k in range(j):
+                d = d - Lw[i, j, k] * Lw[i, j, k]
+            Ljj = math.sqrt(max(d, abs(Sjj) * 1e-14 + 1e-300))
+            Lw[i, j, j] = Ljj
+            for r in range(j + 1, n_w):
+                acc = Lw[i, r, j]
+                for k in range(j):
+                    acc = acc - Lw[i, r, k] * Lw[i, j, k]
+                Lw[i, r, j] = acc * (1.0 / Ljj)
+    for i in range(n):  # the draw mu_c + chol(Lam_c) z sqrt(nu_draw / chi)
         f = math.sqrt(nu_draw[i] / chi[i])
         for j in range(n_w):
             t = 0.0
             for k in range(j + 1):
-                t += L[j, k] * z[i, k]
-            w[i, j] = mc[j] + t * f
-        learn = True
-        if use_mask:
-            learn = vv < bound
+                t += Lw[i, j, k] * z[i, k]
+            w[i, j] = w[i, j] + t * f
+    for i in range(n if do_bias else 0):
+        s = idx[i]
         # 4. bias, eq. (30), with the predicted statistics
-        if do_bias:
-            den = nu[i] - n_w - 1.0
-            for q in range(na):
-                for k in range(n_w):
-                    t = 0.0
-                    for j in range(n_w):
-                        t += D[s, avail[q], j] * (Lam[i, j, k] / den)
-                    DE[q, k] = t
-            for q in range(na):
-                for q2 in range(na):
-                    t = 0.0
-                    for k in range(n_w):
-                        t += DE[q, k] * D[s, avail[q2], k]
-                    S[q, q2] = P[i, avail[q], avail[q2]] + R[avail[q], avail[q2]] + t
-            _chol(S, Lb, na)
-            for c in range(mch):  # Kt[:, c] = S^-1 P[a, c]
-                for q in range(na):
-                    acc = P[i, avail[q], c]
-                    for j in range(q):
-                        acc = acc - Lb[q, j] * Kt[j, c]
-                    Kt[q, c] = acc / Lb[q, q]
-                for q in range(na - 1, -1, -1):
-                    acc = Kt[q, c]
-                    for j in range(q + 1, na):
-                        acc = acc - Lb[j, q] * Kt[j, c]
-                    Kt[q, c] = acc / Lb[q, q]
-            for q in range(na):
-                ch = avail[q]
+        den = nu[i] - n_w - 1.0
+        for q in range(na):
+            for k in range(n_w):
                 t = 0.0
                 for j in range(n_w):
-                    t += D[s, ch, j] * mu[i, j]
-                innov[q] = y[ch] - h[s, ch] - t - b[i, ch]
-            for c in range(mch):
+                    t += D[s, avail[q], j] * (Lam[i, j, k] / den)
+                DE[q, k] = t
+        for q in range(na):
+            for q2 in range(na):
+                t = 0.0
+                for k in range(n_w):
+                    t += DE[q, k] * D[s, avail[q2], k]
+                S[q, q2] = P[i, avail[q], avail[q2]] + R[avail[q], avail[q2]] + t
+        _chol(S, Lb, na)
+        for c in range(mch):  # Kt[:, c] = S^-1 P[a, c]
+            for q in range(na):
+                acc = P[i, avail[q], c]
+                for j in range(q):
+                    acc = acc - Lb[q, j] * Kt[j, c]
+                Kt[q, c] = acc / Lb[q, q]
+            for q in range(na - 1, -1, -1):
+                acc = Kt[q, c]
+                for j in range(q + 1, na):
+                    acc = acc - Lb[j, q] * Kt[j, c]
+                Kt[q, c] = acc / Lb[q, q]
+        for q in range(na):
+            ch = avail[q]
+            t = 0.0
+            for j in range(n_w):
+                t += D[s, ch, j] * mu[i, j]
+            innov[q] = y[ch] - h[s, ch] - t - b[i, ch]
+        for c in range(mch):
+            t = 0.0
+            for q in range(na):
+                t += Kt[q, c] * innov[q]
+            b[i, c] = b[i, c] + t
+        for c in range(mch):  # Pn = P - P_{:,a} K^T (from the old P), then 0.5 (Pn + Pn^T)
+            for c2 in range(mch):
                 t = 0.0
                 for q in range(na):
-                    t += Kt[q, c] * innov[q]
-                b[i, c] = b[i, c] + t
-            for c in range(mch):  # Pn = P - P_{:,a} K^T (from the old P), then 0.5 (Pn + Pn^T)
-                for c2 in range(mch):
-                    t = 0.0
-                    for q in range(na):
-                        t += P[i, avail[q], c] * Kt[q, c2]
-                    Pn[c, c2] = P[i, c, c2] - t
-            for c in range(mch):
-                for c2 in range(mch):
-                    P[i, c, c2] = 0.5 * (Pn[c, c2] + Pn[c2, c])
-        if not active:
-            continue
-        # 5. the drift of the adaptive forgetting, then the NiW update and the projection
-        if drift:  # u = chol(L11)^-1 (w - mu), before the update
-            _chol(L11[s], L, n_w)
-            for j in range(n_w):
-                acc = w[i, j] - mu[i, j]
+                    t += P[i, avail[q], c] * Kt[q, c2]
+                Pn[c, c2] = P[i, c, c2] - t
+        for c in range(mch):
+            for c2 in range(mch):
+                P[i, c, c2] = 0.5 * (Pn[c, c2] + Pn[c2, c])
+    # 5. the drift of the adaptive forgetting (u = chol(L11)^-1 (w - mu), before the update: chol(L11) in
+    # place of Lam_c's factor, then the solve), then the NiW update and the projection, each in a loop of its own
+    for i in range(n if active and drift else 0):
+        s = idx[i]
+        for j in range(n_w):
+            Sjj = L11[s, j, j]
+            d = Sjj
+            for k in range(j):
+                d = d - Lw[i, j, k] * Lw[i, j, k]
+            Ljj = math.sqrt(max(d, abs(Sjj) * 1e-14 + 1e-300))
+            Lw[i, j, j] = Ljj
+            for r in range(j + 1, n_w):
+                acc = L11[s, r, j]
                 for k in range(j):
-                    acc = acc - L[j, k] * ui[k]
-                ui[j] = acc / L[j, j]
-            q_i = math.exp(logw[i])
-            for j in range(n_w):
-                ub[j] += q_i * ui[j]
-        if not learn:
+                    acc = acc - Lw[i, r, k] * Lw[i, j, k]
+                Lw[i, r, j] = acc * (1.0 / Ljj)
+    for i in range(n if active and drift else 0):
+        for j in range(n_w):
+            acc = w[i, j] - mu[i, j]
+            for k in range(j):
+                acc = acc - Lw[i, j, k] * ui[k]
+            ui[j] = acc / Lw[i, j, j]
+        q_i = math.exp(logw[i])
+        for j in range(n_w):
+            ub[j] += q_i * ui[j]
+    for i in range(n if active else 0):
+        if not learn[i]:
             for j in range(n_w):
                 mu[i, j] = min(max(mu[i, j], lo[j]), hi[j])
             continue
