@@ -6,7 +6,7 @@ The filter (this checkout's defaults, as `tirefilter run` builds them) steps thr
 first `--duration` s of recorded paper-sim samples (seed 0); at every step after the warm-up
 each call of a compiled pass (`mpf_numba.<name>`) and each draw of the generator is timed
 (the thread's CPU time, ns), and the rest of `step()` is the Python around them. Printed:
-the median per step of each, over the steps (a pass that does not run at a step, such as the
+the median and 10th percentile per step of each, over the steps (a pass that does not run at a step, such as the
 resampling copies, counts at the steps where it runs, with its share of steps).
 
 Then `--repeat` calls of each pass alone on one saved state of the filter (the minimum: what
@@ -87,10 +87,12 @@ def main() -> int:
         if k == len(samples) // 2:
             saved = copy.deepcopy(est)
     keys = sorted({key for d in per_step for key in d}, key=lambda k: (k != "step()", k))
-    print(f"N = {args.particles}, {len(per_step)} steps: median CPU us per step (steps where it ran)")
+    print(f"N = {args.particles}, {len(per_step)} steps: CPU us per step, median and 10th percentile over the "
+          "steps where it ran")
     for key in keys:
         vals = [d[key] / 1e3 for d in per_step if key in d]
-        print(f"  {key:24s} {np.median(vals):8.1f} us  ({len(vals) / len(per_step):4.0%} of steps)")
+        print(f"  {key:24s} {np.median(vals):8.1f} {np.percentile(vals, 10):8.1f}  "
+              f"({len(vals) / len(per_step):4.0%} of steps)")
     # each pass alone on the saved state (the minimum over repeats)
     print(f"each pass alone on one saved state, minimum of {args.repeat} calls (us):")
     captured: dict[str, tuple] = {}

@@ -536,7 +536,7 @@ def _take_rows(src, dst, idx):
 
 @njit(**_JIT)
 def resample_gate(logw, u0, resample, idx, x, b, P, gamma, mu, Lam, nu, a, B, slip, x2, b2, P2, gamma2, mu2, Lam2,
-                  nu2, a2, B2, slip2, af, ar, full, pin_lo, pin_hi):
+                  nu2, a2, B2, slip2, af, ar, full, pin_lo, pin_hi, qw):
     """Resampling and the gate's moments. `resample`: systematic resampling
     (`systematic_resample` with the caller's uniform u0) into idx, the particles' arrays
     (x, b, P, the statistics, the model's first stage a, B, slip) copied by idx into their
@@ -544,7 +544,8 @@ def resample_gate(logw, u0, resample, idx, x, b, P, gamma, mu, Lam, nu, a, B, sl
     weighting (h, D, L11, ...) are not copied: `sample_update` reads them through idx.
     Returns the gate's moments over the (resampled) particles, E[vx] (full model), the std
     of vy and max(|E[af]|, |E[ar]|), and whether the posterior mean of mu lies at or beyond
-    pin_lo or pin_hi (n_w,) in some component (the bound restart, `_pinned`)."""
+    pin_lo or pin_hi (n_w,) in some component (the bound restart, `_pinned`). The weights
+    exp(logw) after resampling go into qw (N,), for `sample_update`."""
     n = logw.shape[0]
     if resample:
         systematic_into(logw, u0, idx)
@@ -570,6 +571,7 @@ def resample_gate(logw, u0, resample, idx, x, b, P, gamma, mu, Lam, nu, a, B, sl
     mvx = mvy = maf = mar = 0.0
     for i in range(n):
         q = math.exp(logw[i])
+        qw[i] = q
         mvx += q * xs[i, 0]
         mvy += q * xs[i, iv]
         maf += q * af[idx[i]]
@@ -579,7 +581,7 @@ def resample_gate(logw, u0, resample, idx, x, b, P, gamma, mu, Lam, nu, a, B, sl
     mbar = np.zeros(n_w)
     s = 0.0
     for i in range(n):
-        q = math.exp(logw[i])
+        q = qw[i]
         d = xs[i, iv] - mvy
         s += q * (d * d)
         for j in range(n_w):
@@ -595,7 +597,7 @@ def resample_gate(logw, u0, resample, idx, x, b, P, gamma, mu, Lam, nu, a, B, sl
 
 @njit(**_JIT)
 def sample_update(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z, chi, nu_draw, w,
-                  use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom):
+                  use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw):
     """Steps 3-5 of `StiffnessMPF.step`, in place. Per particle i (its weighting arrays h, D,
     L11, nu_w, L12, Lc, v at row idx[i], the ancestor when resampled):
     - w_i (into w) from the conditional of w given the first nc (accelerometer) residuals,
@@ -611,7 +613,8 @@ def sample_update(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, 
     the factor drift_a, and `_estimate`'s moments after the update into the rows of mom
     (6, >= max(nx, n_w, m)): x mean, x std, mean of mu, posterior variance of the mean,
     sigma^2 of eq. (27b), bias mean. Returns the drift statistic z' of `_track_drift`, NaN
-    when not computed (or when the lean is not finite: the reference then keeps its state)."""
+    when not computed (or when the lean is not finite: the reference then keeps its state).
+    The weights exp(logw) are read from qw (N,), as `resample_gate` left them."""
     n, n_w = mu.shape
     na = avail.shape[0]
     mch = b.shape[1]
@@ -745,7 +748,7 @@ def sample_update(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, 
             for k in range(j):
                 acc = acc - Lw[i, j, k] * ui[k]
             ui[j] = acc / Lw[i, j, j]
-        q_i = math.exp(logw[i])
+        q_i = qw[i]
         for j in range(n_w):
             ub[j] += q_i * ui[j]
     for i in range(n if active else 0):
@@ -777,7 +780,7 @@ def sample_update(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, 
                 drift_state[j] = drift_state[j] + drift_a * (ub[j] - drift_state[j])
                 dd += drift_state[j] * drift_state[j]
             zd = dd * (2.0 - drift_a) / (drift_a * n_w)
-    estimate_moments(logw, x, gamma, mu, Lam, nu, b, mom)
+    _moments(qw, x, gamma, mu, Lam, nu, b, mom)
     return zd
 
 
@@ -786,15 +789,22 @@ def estimate_moments(logw, x, gamma, mu, Lam, nu, b, mom):
     """`_estimate`'s sums into the rows of mom (6, >= max(nx, n_w, m)): x mean and std, the
     mean of mu, the posterior variance of the mean (gamma E[Sigma] plus the spread of the
     particle means), eq. (27b) sigma^2, bias mean."""
+    q = np.empty(logw.shape[0])
+    for i in range(logw.shape[0]):
+        q[i] = math.exp(logw[i])
+    _moments(q, x, gamma, mu, Lam, nu, b, mom)
+
+
+@njit(**_JIT)
+def _moments(q, x, gamma, mu, Lam, nu, b, mom):
+    """`estimate_moments` with the weights q = exp(logw) (N,) given."""
     n, nx = x.shape
     n_w = mu.shape[1]
     mch = b.shape[1]
     mom[:] = 0.0
     xm, xs, mbar, vm, s2, bm = mom[0], mom[1], mom[2], mom[3], mom[4], mom[5]
     spread = np.zeros(n_w)
-    q = np.empty(n)
     for i in range(n):
-        q[i] = math.exp(logw[i])
         for c in range(nx):
             xm[c] += q[i] * x[i, c]
         for j in range(n_w):

@@ -643,7 +643,7 @@ class StiffnessMPF:
         u0 = float(rng.random((1,))[0]) if resample else 0.0
         vx_est, vy_std, alpha, pinned = nb.resample_gate(
             self.logw, u0, resample, wk.idx, self.x, self.b, self.P, st.gamma, st.mu, st.Lam, st.nu, wk.a, wk.B,
-            wk.slip, *wk.spares, wk.af, wk.ar, self.full, wk.pin_lo, wk.pin_hi)
+            wk.slip, *wk.spares, wk.af, wk.ar, self.full, wk.pin_lo, wk.pin_hi, wk.q)
         if resample:
             self._swap_work(wk)
             self.resamples += 1
@@ -668,7 +668,7 @@ class StiffnessMPF:
             wk.idx, self.x, self.logw, st.gamma, st.mu, st.Lam, st.nu, self.b, self.P, wk.h, wk.D, wk.L11, wk.nu_w,
             wk.L12, wk.Lc, wk.v, nc, z, chi, nu_draw, wk.w, use_mask, self._outlier_bound(nc) if use_mask else 0.0,
             bool(a.size and self.bias_on), self.R, a, yk, self.active, drift, self.drift,
-            -math.expm1(-dt / cfg.drift_time), wk.lo, wk.hi, wk.mom)
+            -math.expm1(-dt / cfg.drift_time), wk.lo, wk.hi, wk.mom, wk.q)
         if zd == zd:  # `_track_drift` (the statistic is NaN when not computed)
             self._cap_forgetting(zd)
         nx, m = self.x.shape[1], len(self.channels)
@@ -963,7 +963,7 @@ class _MPFWork:
         for name, shape in shapes.items():
             setattr(self, name, np.zeros(shape))
             setattr(self, name + "2", np.zeros(shape))
-        self.af, self.ar, self.nu_w, self.ll, self.nu_draw = (np.zeros(N) for _ in range(5))
+        self.af, self.ar, self.nu_w, self.ll, self.nu_draw, self.q = (np.zeros(N) for _ in range(6))
         self.h, self.e, self.v = np.zeros((N, m)), np.zeros((N, m)), np.zeros((N, m))
         self.D, self.L11 = np.zeros((N, m, n_w)), np.zeros((N, n_w, n_w))
         self.L12, self.Lc = np.zeros((N, n_w, m)), np.zeros((N, m, m))
