@@ -323,107 +323,13 @@ def _normalise_into(logw, add):
 
 
 
-# ---- the three passes --------------------------------------------------------------------------
-@njit(**_JIT)
-def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise,
-                  noise_scale, b, P, q, bias_on, forget, lam, nu_min, gamma, mu, Lam, nu, uk, y, avail, R, roll_gain,
-                  vp, full, rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc, want_nis, beta, yaw_max,
-                  gate_speed):
-    """Steps 1 and 2 of `StiffnessMPF.step`, in place. Per particle: the first stage of the
-    propagation, a (N, 3), B (N, 3, n_w), slip (2, N) kept from the last sample, or with
-    `interval` (full model, slip_hold = "interval") the model at x with the wheel slip averaged
-    over the step (`_slip_over_step`, jw, c_floor as there, towards the slip of uk); propagate
-    x (N, nx) (`_propagate`: eq. (9), w_prev held, `max_step` sub-steps), add the state noise
-    noise_scale * noise (the caller's normals; noise of shape (0, nx) when off), predict the
-    bias covariance P += diag(q dt) (eq. (29)), forget (`NiW.forget`, eq. (20), when
-    `forget`), evaluate the model at x_k with uk (`_model`: a, B, af, ar, slip, the first
-    stage of the next propagation), mark the plausible particles (`_plausible`: ok), and for
-    the channels `avail` (indices into the model's m channels; y (m,)) weigh as `step` does:
-    h, D of `_measurement`, L11 = (1 + gamma) / nu~ Lam, L12 = (D_a L11)^T,
-    S = D_a L11 D_a^T + (nu~ - 2) / nu~ (R + P)_aa (P only with `bias_on`), Lc = chol(S),
-    e = y_a - h_a - b_a - D_a mu, v = Lc^-1 e and ll, the Student-t log-density
-    (`t_logpdf_whitened`; its log-Gamma terms once per distinct nu~).
-    Then: the adaptive forgetting's innovation (`_adapt_forgetting`: the predictive-weighted
-    normalised |v_acc|^2 over the first nc channels; NaN unless `want_nis` and nc) and
-    logw := normalised logw + ll (when any channel is available).
-    Returns (innovation, ESS (-1: no channel, logw unchanged), number of plausible
-    particles, nu~ common to all particles or 0). The caller zeroes the weights of the
-    implausible particles when some (not all) are, as `_plausible` does."""
+@njit(inline="always", **_JIT)
+def _weigh(x, a, B, full, roll_gain, h, D, nu, nu_w, gamma, Lam, L11, avail, L12, R, bias_on, P, Lc, mu, y, b, e, v, ll,
+           n_w, na):
+    """Step 2 of `predict_weigh` (its arguments, n_w and na the sizes): per particle h, D, nu~ (nu_w),
+    L11, L12, Lc = chol(S), e, v and the Student-t log-density ll."""
     n, nx = x.shape
-    n_w = mu.shape[1]
-    na = avail.shape[0]
-    mch = q.shape[0]
-    kp = _steer_consts(u_prev[0], vp)  # (once per sample, not per particle)
-    kk = _steer_consts(uk[0], vp)
-    n_sub = max(1, math.ceil(dt / max_step - 1e-9))
-    hs = dt / n_sub
-    xi = np.empty(nx)
-    x1 = np.empty(nx)
-    k1 = np.empty(nx)
-    k2 = np.empty(nx)
-    ai = np.empty(3)
-    Bi = np.empty((3, n_w))
     DL = np.empty((max(na, 1), n_w))
-    with_noise = noise.shape[0] > 0
-    count = 0
-    if interval:  # the slip over the step (`_slip_over_step`) into slip, in a short loop of its own
-        for i in range(n):
-            acc0 = 0.0
-            for j in range(n_w):
-                acc0 += B[i, 0, j] * w_prev[i, j]
-            acc0 = a[i, 0] + acc0
-            slip[0, i], slip[1, i] = _interval_slip1(x[i, 0], x[i, 1], x[i, 2], acc0, w_prev[i, 0], slip[0, i],
-                                                     slip[1, i], u_prev, uk, dt, vp, jw, c_floor, rear_drive)
-    for i in range(n):
-        # 1. propagation (`_propagate`), the first stage from the last sample
-        for c in range(nx):
-            xi[c] = x[i, c]
-        sf, sr = slip[0, i], slip[1, i]
-        if interval:
-            _model1(xi[0], xi[1], xi[2], u_prev[0], u_prev[1], u_prev[2], u_prev[3], kp, True, sf, sr, ai, Bi, vp, True,
-                    rear_drive, n_w)
-        else:
-            for c in range(3):
-                ai[c] = a[i, c]
-                for j in range(n_w):
-                    Bi[c, j] = B[i, c, j]
-        for s in range(n_sub):
-            if s > 0:
-                xs2 = xi[2] if full else 0.0
-                _, _, sf, sr = _model1(xi[0], xi[1], xs2, u_prev[0], u_prev[1], u_prev[2], u_prev[3], kp, False, 0.0,
-                                       0.0, ai, Bi, vp, full, rear_drive, n_w)
-            _xdot1(xi, u_prev[3], ai, Bi, w_prev[i], k1, full, n_w)
-            if not heun:
-                for c in range(nx):
-                    xi[c] = xi[c] + hs * k1[c]
-                continue
-            for c in range(nx):
-                x1[c] = xi[c] + hs * k1[c]
-            xs2 = x1[2] if full else 0.0
-            _model1(x1[0], x1[1], xs2, u_prev[0], u_prev[1], u_prev[2], u_prev[3], kp, full, sf, sr, ai, Bi, vp, full,
-                    rear_drive, n_w)
-            _xdot1(x1, u_prev[3], ai, Bi, w_prev[i], k2, full, n_w)
-            for c in range(nx):
-                xi[c] = xi[c] + (0.5 * hs) * (k1[c] + k2[c])
-        for c in range(nx):
-            x[i, c] = xi[c] + noise_scale[c] * noise[i, c] if with_noise else xi[c]
-        if bias_on:  # eq. (29)
-            for c in range(mch):
-                P[i, c, c] = P[i, c, c] + q[c] * dt
-        if forget:  # eq. (20), `NiW.forget`
-            f = max(lam, min(1.0, nu_min / nu[i])) if nu_min > 0 else lam
-            gamma[i] = gamma[i] / f
-            nu[i] = nu[i] * f
-            for j in range(n_w):
-                for k in range(n_w):
-                    Lam[i, j, k] = Lam[i, j, k] * f
-        # the model at x_k, u_k (`_model`) and the plausible region (`_plausible`)
-        xs2 = x[i, 2] if full else 0.0
-        af[i], ar[i], slip[0, i], slip[1, i] = _model1(x[i, 0], x[i, 1], xs2, uk[0], uk[1], uk[2], uk[3], kk, False,
-                                                       0.0, 0.0, a[i], B[i], vp, full, rear_drive, n_w)
-        vxp = x[i, 0] if full else uk[3]
-        ok[i] = abs(x[i, nx - 2]) <= beta * max(abs(vxp), gate_speed) and abs(x[i, nx - 1]) <= yaw_max
-        count += ok[i]
     p = float(na)
     last, cn = -1.0, 0.0
     for i in range(n):
@@ -509,6 +415,119 @@ def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, int
         if dof != last:
             last, cn = dof, _t_const(dof, p)
         ll[i] = cn - 0.5 * logdet - 0.5 * (dof + p) * math.log1p(vv / dof)
+
+
+# ---- the three passes --------------------------------------------------------------------------
+@njit(**_JIT)
+def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise,
+                  noise_scale, b, P, q, bias_on, forget, lam, nu_min, gamma, mu, Lam, nu, uk, y, avail, R, roll_gain,
+                  vp, full, rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc, want_nis, beta, yaw_max,
+                  gate_speed):
+    """Steps 1 and 2 of `StiffnessMPF.step`, in place. Per particle: the first stage of the
+    propagation, a (N, 3), B (N, 3, n_w), slip (2, N) kept from the last sample, or with
+    `interval` (full model, slip_hold = "interval") the model at x with the wheel slip averaged
+    over the step (`_slip_over_step`, jw, c_floor as there, towards the slip of uk); propagate
+    x (N, nx) (`_propagate`: eq. (9), w_prev held, `max_step` sub-steps), add the state noise
+    noise_scale * noise (the caller's normals; noise of shape (0, nx) when off), predict the
+    bias covariance P += diag(q dt) (eq. (29)), forget (`NiW.forget`, eq. (20), when
+    `forget`), evaluate the model at x_k with uk (`_model`: a, B, af, ar, slip, the first
+    stage of the next propagation), mark the plausible particles (`_plausible`: ok), and for
+    the channels `avail` (indices into the model's m channels; y (m,)) weigh as `step` does:
+    h, D of `_measurement`, L11 = (1 + gamma) / nu~ Lam, L12 = (D_a L11)^T,
+    S = D_a L11 D_a^T + (nu~ - 2) / nu~ (R + P)_aa (P only with `bias_on`), Lc = chol(S),
+    e = y_a - h_a - b_a - D_a mu, v = Lc^-1 e and ll, the Student-t log-density
+    (`t_logpdf_whitened`; its log-Gamma terms once per distinct nu~).
+    Then: the adaptive forgetting's innovation (`_adapt_forgetting`: the predictive-weighted
+    normalised |v_acc|^2 over the first nc channels; NaN unless `want_nis` and nc) and
+    logw := normalised logw + ll (when any channel is available).
+    Returns (innovation, ESS (-1: no channel, logw unchanged), number of plausible
+    particles, nu~ common to all particles or 0). The caller zeroes the weights of the
+    implausible particles when some (not all) are, as `_plausible` does."""
+    n, nx = x.shape
+    n_w = mu.shape[1]
+    na = avail.shape[0]
+    mch = q.shape[0]
+    kp = _steer_consts(u_prev[0], vp)  # (once per sample, not per particle)
+    kk = _steer_consts(uk[0], vp)
+    n_sub = max(1, math.ceil(dt / max_step - 1e-9))
+    hs = dt / n_sub
+    xi = np.empty(nx)
+    x1 = np.empty(nx)
+    k1 = np.empty(nx)
+    k2 = np.empty(nx)
+    ai = np.empty(3)
+    Bi = np.empty((3, n_w))
+    with_noise = noise.shape[0] > 0
+    count = 0
+    if interval:  # the slip over the step (`_slip_over_step`) into slip, in a short loop of its own
+        for i in range(n):
+            acc0 = 0.0
+            for j in range(n_w):
+                acc0 += B[i, 0, j] * w_prev[i, j]
+            acc0 = a[i, 0] + acc0
+            slip[0, i], slip[1, i] = _interval_slip1(x[i, 0], x[i, 1], x[i, 2], acc0, w_prev[i, 0], slip[0, i],
+                                                     slip[1, i], u_prev, uk, dt, vp, jw, c_floor, rear_drive)
+    for i in range(n):
+        # 1. propagation (`_propagate`), the first stage from the last sample
+        for c in range(nx):
+            xi[c] = x[i, c]
+        sf, sr = slip[0, i], slip[1, i]
+        if interval:
+            _model1(xi[0], xi[1], xi[2], u_prev[0], u_prev[1], u_prev[2], u_prev[3], kp, True, sf, sr, ai, Bi, vp, True,
+                    rear_drive, n_w)
+        else:
+            for c in range(3):
+                ai[c] = a[i, c]
+                for j in range(n_w):
+                    Bi[c, j] = B[i, c, j]
+        for s in range(n_sub):
+            if s > 0:
+                xs2 = xi[2] if full else 0.0
+                _, _, sf, sr = _model1(xi[0], xi[1], xs2, u_prev[0], u_prev[1], u_prev[2], u_prev[3], kp, False, 0.0,
+                                       0.0, ai, Bi, vp, full, rear_drive, n_w)
+            _xdot1(xi, u_prev[3], ai, Bi, w_prev[i], k1, full, n_w)
+            if not heun:
+                for c in range(nx):
+                    xi[c] = xi[c] + hs * k1[c]
+                continue
+            for c in range(nx):
+                x1[c] = xi[c] + hs * k1[c]
+            xs2 = x1[2] if full else 0.0
+            _model1(x1[0], x1[1], xs2, u_prev[0], u_prev[1], u_prev[2], u_prev[3], kp, full, sf, sr, ai, Bi, vp, full,
+                    rear_drive, n_w)
+            _xdot1(x1, u_prev[3], ai, Bi, w_prev[i], k2, full, n_w)
+            for c in range(nx):
+                xi[c] = xi[c] + (0.5 * hs) * (k1[c] + k2[c])
+        for c in range(nx):
+            x[i, c] = xi[c] + noise_scale[c] * noise[i, c] if with_noise else xi[c]
+        if bias_on:  # eq. (29)
+            for c in range(mch):
+                P[i, c, c] = P[i, c, c] + q[c] * dt
+        if forget:  # eq. (20), `NiW.forget`
+            f = max(lam, min(1.0, nu_min / nu[i])) if nu_min > 0 else lam
+            gamma[i] = gamma[i] / f
+            nu[i] = nu[i] * f
+            for j in range(n_w):
+                for k in range(n_w):
+                    Lam[i, j, k] = Lam[i, j, k] * f
+        # the model at x_k, u_k (`_model`) and the plausible region (`_plausible`)
+        xs2 = x[i, 2] if full else 0.0
+        af[i], ar[i], slip[0, i], slip[1, i] = _model1(x[i, 0], x[i, 1], xs2, uk[0], uk[1], uk[2], uk[3], kk, False,
+                                                       0.0, 0.0, a[i], B[i], vp, full, rear_drive, n_w)
+        vxp = x[i, 0] if full else uk[3]
+        ok[i] = abs(x[i, nx - 2]) <= beta * max(abs(vxp), gate_speed) and abs(x[i, nx - 1]) <= yaw_max
+        count += ok[i]
+    # 2. the weights, with the sizes as constants in the usual cases (the full model with every channel, the
+    # lateral one), so that the compiler unrolls the small loops (`_weigh` is inlined in each branch)
+    if n_w == 3 and na == 3:
+        _weigh(x, a, B, full, roll_gain, h, D, nu, nu_w, gamma, Lam, L11, avail, L12, R, bias_on, P, Lc, mu, y, b, e, v,
+               ll, 3, 3)
+    elif n_w == 2 and na == 2:
+        _weigh(x, a, B, full, roll_gain, h, D, nu, nu_w, gamma, Lam, L11, avail, L12, R, bias_on, P, Lc, mu, y, b, e, v,
+               ll, 2, 2)
+    else:
+        _weigh(x, a, B, full, roll_gain, h, D, nu, nu_w, gamma, Lam, L11, avail, L12, R, bias_on, P, Lc, mu, y, b, e, v,
+               ll, n_w, na)
     innovation = math.nan
     if want_nis and nc:
         innovation = 0.0
