@@ -614,39 +614,14 @@ def resample_gate(logw, u0, resample, idx, x, b, P, gamma, mu, Lam, nu, a, B, sl
 
 
 
-@njit(**_JIT)
-def sample_update(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z, chi, nu_draw, w,
-                  use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw):
-    """Steps 3-5 of `StiffnessMPF.step`, in place. Per particle i (its weighting arrays h, D,
-    L11, nu_w, L12, Lc, v at row idx[i], the ancestor when resampled):
-    - w_i (into w) from the conditional of w given the first nc (accelerometer) residuals,
-      eq. (39)-(41) (`t_conditional` with `L22_chol`, `x2_white`): M = Lc^-1 L21,
-      mu_c = mu + M^T v, Lam_c = (nu~ + v^T v) / (nu~ + nc) (L11 - M^T M), and `t_sample`'s
-      draw mu_c + chol(Lam_c) z sqrt(nu_draw / chi) with the caller's z (N, n_w), chi (N,);
-    - the outlier mask (`use_mask`): learn while |v_acc|^2 < bound;
-    - the bias update (`_bias_update`, eq. (30), `do_bias`): S = P_aa + R_aa + D_a E[Sigma] D_a^T,
-      K^T = S^-1 P_{a,:}, b += K (y_a - h_a - D_a mu - b_a), P -= P_{:,a} K^T, symmetrised;
-    - gate open (`active`): the whitened lean chol(L11)^-1 (w_i - mu_i) of `_track_drift`
-      (`drift`), then `NiW.update` (eq. (19)) and the projection of mu onto [lo, hi] (Sec. V).
-    Then `_track_drift`'s smoothing of the weighted mean lean into drift_state (n_w,) with
-    the factor drift_a, and `_estimate`'s moments after the update into the rows of mom
-    (6, >= max(nx, n_w, m)): x mean, x std, mean of mu, posterior variance of the mean,
-    sigma^2 of eq. (27b), bias mean. Returns the drift statistic z' of `_track_drift`, NaN
-    when not computed (or when the lean is not finite: the reference then keeps its state).
-    The weights exp(logw) are read from qw (N,), as `resample_gate` left them."""
-    n, n_w = mu.shape
-    na = avail.shape[0]
-    mch = b.shape[1]
+@njit(inline="always", **_JIT)
+def _sample(idx, gamma, mu, Lam, nu, L11, nu_w, L12, Lc, v, z, chi, nu_draw, w, use_mask, bound, active, drift,
+            lo, hi, qw, ub, n_w, nc):
+    """Steps 3 and 5 of `sample_update` (its arguments, n_w and nc the sizes; ub (n_w,) the weighted
+    lean of the drift, accumulated)."""
+    n = mu.shape[0]
     M = np.empty((max(nc, 1), n_w))
-    ub = np.zeros(n_w)
     ui = np.empty(n_w)
-    nb = max(na, 1)
-    S = np.empty((nb, nb))
-    Lb = np.zeros((nb, nb))
-    Kt = np.empty((nb, mch))
-    DE = np.empty((nb, n_w))
-    innov = np.empty(nb)
-    Pn = np.empty((mch, mch))
     Lw = np.empty((n, n_w, n_w))  # the conditional scale Lam_c, factorised in place
     learn = np.ones(n, np.bool_)
     for i in range(n):
@@ -697,7 +672,82 @@ def sample_update(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, 
             for k in range(j + 1):
                 t += Lw[i, j, k] * z[i, k]
             w[i, j] = w[i, j] + t * f
-    for i in range(n if do_bias else 0):
+    # 5. the drift of the adaptive forgetting (u = chol(L11)^-1 (w - mu), before the update: chol(L11) in
+    # place of Lam_c's factor, then the solve), then the NiW update and the projection, each in a loop of its own
+    for i in range(n if active and drift else 0):
+        s = idx[i]
+        for j in range(n_w):
+            Sjj = L11[s, j, j]
+            d = Sjj
+            for k in range(j):
+                d = d - Lw[i, j, k] * Lw[i, j, k]
+            Ljj = math.sqrt(max(d, abs(Sjj) * 1e-14 + 1e-300))
+            Lw[i, j, j] = Ljj
+            for r in range(j + 1, n_w):
+                acc = L11[s, r, j]
+                for k in range(j):
+                    acc = acc - Lw[i, r, k] * Lw[i, j, k]
+                Lw[i, r, j] = acc * (1.0 / Ljj)
+    for i in range(n if active and drift else 0):
+        for j in range(n_w):
+            acc = w[i, j] - mu[i, j]
+            for k in range(j):
+                acc = acc - Lw[i, j, k] * ui[k]
+            ui[j] = acc / Lw[i, j, j]
+        q_i = qw[i]
+        for j in range(n_w):
+            ub[j] += q_i * ui[j]
+    for i in range(n if active else 0):
+        if not learn[i]:
+            for j in range(n_w):
+                mu[i, j] = min(max(mu[i, j], lo[j]), hi[j])
+            continue
+        g0 = gamma[i]
+        g_new = g0 / (1.0 + g0)
+        inv = 1.0 + g0
+        for j in range(n_w):
+            zj = w[i, j] - mu[i, j]
+            for k in range(n_w):
+                Lam[i, j, k] = Lam[i, j, k] + zj * (w[i, k] - mu[i, k]) / inv
+        for j in range(n_w):
+            m = mu[i, j] + g_new * (w[i, j] - mu[i, j])
+            mu[i, j] = min(max(m, lo[j]), hi[j])
+        gamma[i] = g_new
+        nu[i] = nu[i] + 1.0
+
+
+@njit(**_JIT)
+def sample_update(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z, chi, nu_draw, w,
+                  use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw):
+    """Steps 3-5 of `StiffnessMPF.step`, in place. Per particle i (its weighting arrays h, D,
+    L11, nu_w, L12, Lc, v at row idx[i], the ancestor when resampled):
+    - w_i (into w) from the conditional of w given the first nc (accelerometer) residuals,
+      eq. (39)-(41) (`t_conditional` with `L22_chol`, `x2_white`): M = Lc^-1 L21,
+      mu_c = mu + M^T v, Lam_c = (nu~ + v^T v) / (nu~ + nc) (L11 - M^T M), and `t_sample`'s
+      draw mu_c + chol(Lam_c) z sqrt(nu_draw / chi) with the caller's z (N, n_w), chi (N,);
+    - the outlier mask (`use_mask`): learn while |v_acc|^2 < bound;
+    - the bias update (`_bias_update`, eq. (30), `do_bias`): S = P_aa + R_aa + D_a E[Sigma] D_a^T,
+      K^T = S^-1 P_{a,:}, b += K (y_a - h_a - D_a mu - b_a), P -= P_{:,a} K^T, symmetrised;
+    - gate open (`active`): the whitened lean chol(L11)^-1 (w_i - mu_i) of `_track_drift`
+      (`drift`), then `NiW.update` (eq. (19)) and the projection of mu onto [lo, hi] (Sec. V).
+    Then `_track_drift`'s smoothing of the weighted mean lean into drift_state (n_w,) with
+    the factor drift_a, and `_estimate`'s moments after the update into the rows of mom
+    (6, >= max(nx, n_w, m)): x mean, x std, mean of mu, posterior variance of the mean,
+    sigma^2 of eq. (27b), bias mean. Returns the drift statistic z' of `_track_drift`, NaN
+    when not computed (or when the lean is not finite: the reference then keeps its state).
+    The weights exp(logw) are read from qw (N,), as `resample_gate` left them."""
+    n, n_w = mu.shape
+    na = avail.shape[0]
+    mch = b.shape[1]
+    nb = max(na, 1)
+    S = np.empty((nb, nb))
+    Lb = np.zeros((nb, nb))
+    Kt = np.empty((nb, mch))
+    DE = np.empty((nb, n_w))
+    innov = np.empty(nb)
+    Pn = np.empty((mch, mch))
+    ub = np.zeros(n_w)
+    for i in range(n if do_bias else 0):  # (first: it reads the statistics before their update and writes only b, P)
         s = idx[i]
         # 4. bias, eq. (30), with the predicted statistics
         den = nu[i] - n_w - 1.0
@@ -745,48 +795,17 @@ def sample_update(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, 
         for c in range(mch):
             for c2 in range(mch):
                 P[i, c, c2] = 0.5 * (Pn[c, c2] + Pn[c2, c])
-    # 5. the drift of the adaptive forgetting (u = chol(L11)^-1 (w - mu), before the update: chol(L11) in
-    # place of Lam_c's factor, then the solve), then the NiW update and the projection, each in a loop of its own
-    for i in range(n if active and drift else 0):
-        s = idx[i]
-        for j in range(n_w):
-            Sjj = L11[s, j, j]
-            d = Sjj
-            for k in range(j):
-                d = d - Lw[i, j, k] * Lw[i, j, k]
-            Ljj = math.sqrt(max(d, abs(Sjj) * 1e-14 + 1e-300))
-            Lw[i, j, j] = Ljj
-            for r in range(j + 1, n_w):
-                acc = L11[s, r, j]
-                for k in range(j):
-                    acc = acc - Lw[i, r, k] * Lw[i, j, k]
-                Lw[i, r, j] = acc * (1.0 / Ljj)
-    for i in range(n if active and drift else 0):
-        for j in range(n_w):
-            acc = w[i, j] - mu[i, j]
-            for k in range(j):
-                acc = acc - Lw[i, j, k] * ui[k]
-            ui[j] = acc / Lw[i, j, j]
-        q_i = qw[i]
-        for j in range(n_w):
-            ub[j] += q_i * ui[j]
-    for i in range(n if active else 0):
-        if not learn[i]:
-            for j in range(n_w):
-                mu[i, j] = min(max(mu[i, j], lo[j]), hi[j])
-            continue
-        g0 = gamma[i]
-        g_new = g0 / (1.0 + g0)
-        inv = 1.0 + g0
-        for j in range(n_w):
-            zj = w[i, j] - mu[i, j]
-            for k in range(n_w):
-                Lam[i, j, k] = Lam[i, j, k] + zj * (w[i, k] - mu[i, k]) / inv
-        for j in range(n_w):
-            m = mu[i, j] + g_new * (w[i, j] - mu[i, j])
-            mu[i, j] = min(max(m, lo[j]), hi[j])
-        gamma[i] = g_new
-        nu[i] = nu[i] + 1.0
+    # 3. and 5., with the sizes as constants in the usual cases (the full model with both accelerometers,
+    # the lateral one), so that the compiler unrolls the small loops (`_sample` is inlined in each branch)
+    if n_w == 3 and nc == 2:
+        _sample(idx, gamma, mu, Lam, nu, L11, nu_w, L12, Lc, v, z, chi, nu_draw, w, use_mask, bound, active, drift,
+                lo, hi, qw, ub, 3, 2)
+    elif n_w == 2 and nc == 1:
+        _sample(idx, gamma, mu, Lam, nu, L11, nu_w, L12, Lc, v, z, chi, nu_draw, w, use_mask, bound, active, drift,
+                lo, hi, qw, ub, 2, 1)
+    else:
+        _sample(idx, gamma, mu, Lam, nu, L11, nu_w, L12, Lc, v, z, chi, nu_draw, w, use_mask, bound, active, drift,
+                lo, hi, qw, ub, n_w, nc)
     zd = math.nan
     if active and drift:
         finite = True
