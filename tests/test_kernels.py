@@ -378,6 +378,26 @@ def test_stiffness_mpf_backends_equal_options(options, model, monkeypatch):
         assert_equal_to_rounding(pa.stats[key], pb.stats[key], key)
 
 
+@pytest.mark.parametrize("model", ["full", "lateral"])
+def test_stiffness_mpf_fused_estimate_equals_the_reference_estimate(model):
+    """The fused step's Estimate (`_estimate_fused`, written out) has every field of the
+    reference's `_estimate_from` on the same moments, bit for bit (NaN where not estimated)."""
+    import dataclasses
+
+    est = StiffnessMPF(load_scenario("paper-sim").vehicle, MPFConfig(particles=24, model=model, gate_warmup=0.05,
+                                                                     gate_vy_std=10.0, gate_steer=0.0))
+    out = _mpf_drive(est, 20)
+    assert est.active and np.isfinite(out[-1, :7]).all()
+    nx, n_w, m = est.x.shape[1], est.n_w, len(est.channels)
+    r = est._wk.mom.tolist()
+    ref = dataclasses.astuple(est._estimate_from(0.7, r[0][:nx], r[1][:nx], r[2][:n_w], r[3][:n_w], r[4][:n_w],
+                                                 r[5][:m]))
+    fused = dataclasses.astuple(est._estimate_fused(0.7, est._wk.mom))
+    assert len(fused) == len(ref) and any(isinstance(v, float) and math.isnan(v) for v in ref) == (model == "lateral")
+    for a, b in zip(fused, ref):
+        assert type(a) is type(b) and (a == b or (a != a and b != b)), (fused, ref)
+
+
 def test_stiffness_mpf_bound_restart_in_the_fused_step_equal(monkeypatch):
     """Narrow projection bounds (0.97-1.03 of nominal) and restart_at_bound_after = 0.05 s:
     the posterior mean sits at a bound, the fused step restarts the filter after resampling

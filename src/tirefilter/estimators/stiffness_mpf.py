@@ -671,10 +671,23 @@ class StiffnessMPF:
             -math.expm1(-dt / cfg.drift_time), wk.lo, wk.hi, wk.mom, wk.q)
         if zd == zd:  # `_track_drift` (the statistic is NaN when not computed)
             self._cap_forgetting(zd)
-        nx, m = self.x.shape[1], len(self.channels)
-        r = wk.mom.tolist()
-        return self._estimate_from(ess, r[0][:nx], r[1][:nx], r[2][:self.n_w], r[3][:self.n_w], r[4][:self.n_w],
-                                   r[5][:m])
+        return self._estimate_fused(ess, wk.mom)
+
+    def _estimate_fused(self, ess: float, mom: np.ndarray) -> Estimate:
+        """`_estimate_from` on the moments that `sample_update` left in the rows of mom, written out
+        for the fused step: the same Estimate (tests/test_kernels.py compares every field) in a
+        third of the time."""
+        xm, xs, mb, vm, s2, bm = mom.tolist()
+        root, C = _sqrt_or_nan, self.C_nom.tolist()
+        if self.full:  # params Cx, Cf_y, Cr_y; bias ax, ay, yaw rate
+            return Estimate(active=bool(self.active), vx=xm[0], vy=xm[1], yaw_rate=xm[2], Cf_y=C[1] + mb[1],
+                            Cr_y=C[2] + mb[2], Cx=C[0] + mb[0], Cf_y_std=root(vm[1]), Cr_y_std=root(vm[2]),
+                            Cx_std=root(vm[0]), Cf_y_sigma=root(s2[1]), Cr_y_sigma=root(s2[2]), Cx_sigma=root(s2[0]),
+                            b_ax=bm[0], b_ay=bm[1], b_yaw_rate=bm[2], ess=float(ess), state_std=(xs[0], xs[1], xs[2]))
+        return Estimate(active=bool(self.active), vx=float(self.u_prev[3]), vy=xm[0], yaw_rate=xm[1],
+                        Cf_y=C[0] + mb[0], Cr_y=C[1] + mb[1], Cf_y_std=root(vm[0]), Cr_y_std=root(vm[1]),
+                        Cf_y_sigma=root(s2[0]), Cr_y_sigma=root(s2[1]), b_ay=bm[0], b_yaw_rate=bm[1], ess=float(ess),
+                        state_std=(0.0, xs[0], xs[1]))
 
     def _work(self) -> "_MPFWork":
         """The fused step's arrays, the particles' own arrays among them: an array that the
