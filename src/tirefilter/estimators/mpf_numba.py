@@ -24,6 +24,18 @@ argument checks, fresh output arrays and re-reads of the model's outputs cost as
 loops: views of per-particle rows (x[i]) passed to helper functions cost a reference count
 each and measured slower.
 
+Inside a pass, the stages whose arithmetic is a chain of dependent square roots, divisions
+and logarithms (the 3 x 3 Cholesky factorisations, the triangular solves, the Student-t
+density, the wheel slip over the step) each run in a short loop of their own over the
+particles, reading and writing the per-particle arrays: in one long loop body the CPU
+cannot overlap one particle's chain with the next particle's, in a short one it does
+(benchmarks/README.md, "The fused MPF step (third pass)"). The weights (`_weigh`) and the
+conditional draw with the learning (`_sample`) are inlined functions that the passes call
+with the sizes (n_w, the available channels, the accelerometer channels) as constants in the
+usual cases, the full model with every channel and the lateral model, so that the compiler
+unrolls their small loops; other sizes (a missing sample) take the same code with the sizes
+as variables.
+
 The numpy methods of `StiffnessMPF` are the readable reference; the kernels compute the
 same expressions in the same order, one particle at a time, and consume random numbers
 drawn by the caller with the reference's generator calls, so both backends follow the same
