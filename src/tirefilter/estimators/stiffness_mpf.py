@@ -693,10 +693,14 @@ class StiffnessMPF:
         """The fused step's arrays, the particles' own arrays among them: an array that the
         reference path replaced (first sample, restart, a loaded state) is copied in."""
         wk = self.__dict__.get("_wk")
+        st = self.stats
+        if (wk is not None and self.x is wk.x and self.w_prev is wk.w and st.mu is wk.mu and st.Lam is wk.Lam
+                and st.gamma is wk.gamma and st.nu is wk.nu and self.b is wk.b and self.P is wk.P
+                and self._at_x[0] is wk.a):  # the last sample's fused step left them all in place
+            return wk
         nx = self.x.shape[1]
         if wk is None or wk.x.shape != self.x.shape:
             wk = self._wk = _MPFWork(self, len(self.x), nx, self.n_w, len(self.channels))
-        st = self.stats
         for name, arr in (("x", self.x), ("b", self.b), ("P", self.P), ("gamma", st.gamma), ("mu", st.mu),
                           ("Lam", st.Lam), ("nu", st.nu), ("w", self.w_prev)):
             buf = getattr(wk, name)
@@ -969,6 +973,7 @@ class _MPFWork:
     channels (the first na columns are used when samples are missing)."""
 
     OWN = ("x", "b", "P", "gamma", "mu", "Lam", "nu", "a", "B", "slip")
+    OWN2 = tuple(name + "2" for name in OWN)
 
     def __init__(self, mpf: "StiffnessMPF", N: int, nx: int, n_w: int, m: int):
         shapes = dict(x=(N, nx), b=(N, m), P=(N, m, m), gamma=(N,), mu=(N, n_w), Lam=(N, n_w, n_w), nu=(N,),
@@ -997,11 +1002,12 @@ class _MPFWork:
         self.spares = tuple(getattr(self, name + "2") for name in self.OWN)
 
     def swap(self) -> None:
-        for name in self.OWN:
-            cur, spare = getattr(self, name), getattr(self, name + "2")
-            setattr(self, name, spare)
-            setattr(self, name + "2", cur)
-        self.spares = tuple(getattr(self, name + "2") for name in self.OWN)
+        """The spares become the particles' arrays and the other way round (`spares` is always
+        the tuple of the arrays named OWN2)."""
+        d = self.__dict__
+        own, self.spares = self.spares, tuple(map(d.__getitem__, self.OWN))
+        d.update(zip(self.OWN, own))
+        d.update(zip(self.OWN2, self.spares))
 
 
 def _sqrt_or_nan(v: float) -> float:
