@@ -68,16 +68,18 @@ class _Timed:
 
 
 class _Capture:
-    """A stand-in for the kernel module that keeps a copy of each kernel's first arguments."""
+    """A stand-in for the kernel module that keeps each kernel and a copy of its first arguments,
+    by the pass's name (`predict_weigh_full` and `predict_weigh_lateral` as `predict_weigh`)."""
 
     def __init__(self, module):
         self._module, self.args = module, {}
 
     def __getattr__(self, name):
         f = getattr(self._module, name)
+        key = name.removesuffix("_full").removesuffix("_lateral")
 
         def cap(*a):
-            self.args.setdefault(name, copy.deepcopy(a))
+            self.args.setdefault(key, (f, copy.deepcopy(a)))
             return f(*a)
 
         return cap
@@ -166,10 +168,10 @@ def main() -> int:
             best = {name: 10**18 for name in caps}
             for _ in range(args.repeat):
                 for name, cap in caps.items():
-                    a = change(copy.deepcopy(cap[kname]))
-                    best[name] = min(best[name], _once(getattr(ests[name]._nb, kname), a))
+                    f, a = cap[kname]
+                    best[name] = min(best[name], _once(f, change(copy.deepcopy(a))))
             print(f"  {kname + label:30s} " + " / ".join(f"{best[n] / 1e3:7.1f}" for n in caps))
-        a = caps["this"][kname]
+        a = caps["this"][kname][1]
         _empty(*a)
         best = min(_once(_empty, a) for _ in range(args.repeat))
         print(f"  {'(dispatch of ' + str(len(a)) + ' arguments)':30s} {best / 1e3:7.1f}")

@@ -34,7 +34,8 @@ conditional draw with the learning (`_sample`) are inlined functions that the pa
 with the sizes (n_w, the available channels, the accelerometer channels) as constants in the
 usual cases, the full model with every channel and the lateral model, so that the compiler
 unrolls their small loops; other sizes (a missing sample) take the same code with the sizes
-as variables.
+as variables. Each case has its own entry point (`predict_weigh_full`, `predict_weigh_lateral`,
+`predict_weigh`; the same for `sample_update`), so that a run compiles only the ones it calls.
 
 The numpy methods of `StiffnessMPF` are the readable reference; the kernels compute the
 same expressions in the same order, one particle at a time, and consume random numbers
@@ -431,10 +432,9 @@ def _weigh(x, a, B, full, roll_gain, h, D, nu, nu_w, gamma, Lam, L11, avail, L12
 
 # ---- the three passes --------------------------------------------------------------------------
 @njit(**_JIT)
-def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise,
-                  noise_scale, b, P, q, bias_on, forget, lam, nu_min, gamma, mu, Lam, nu, uk, y, avail, R, roll_gain,
-                  vp, full, rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc, want_nis, beta, yaw_max,
-                  gate_speed):
+def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise, noise_scale,
+                  b, P, q, bias_on, forget, lam, nu_min, gamma, mu, Lam, nu, uk, y, avail, R, roll_gain, vp, full,
+                  rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc, want_nis, beta, yaw_max, gate_speed):
     """Steps 1 and 2 of `StiffnessMPF.step`, in place. Per particle: the first stage of the
     propagation, a (N, 3), B (N, 3, n_w), slip (2, N) kept from the last sample, or with
     `interval` (full model, slip_hold = "interval") the model at x with the wheel slip averaged
@@ -454,10 +454,59 @@ def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, int
     logw := normalised logw + ll (when any channel is available).
     Returns (innovation, ESS (-1: no channel, logw unchanged), number of plausible
     particles, nu~ common to all particles or 0). The caller zeroes the weights of the
-    implausible particles when some (not all) are, as `_plausible` does."""
+    implausible particles when some (not all) are, as `_plausible` does.
+    `predict_weigh_full` and `predict_weigh_lateral` are the same for the full model with every
+    channel (n_w = na = 3) and the lateral one (n_w = na = 2) with the sizes as constants, so that
+    the compiler unrolls the small loops: each compiles on its first call only."""
+    t1 = (x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise, noise_scale, b, P,
+          q, bias_on, forget, lam, nu_min, gamma, mu, Lam)
+    t2 = (nu, uk, y, avail, R, roll_gain, vp, full, rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc,
+          want_nis, beta, yaw_max, gate_speed)
+    return _predict_weigh(t1, t2, mu.shape[1], avail.shape[0])
+
+
+@njit(**_JIT)
+def predict_weigh_full(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise,
+                       noise_scale, b, P, q, bias_on, forget, lam, nu_min, gamma, mu, Lam, nu, uk, y, avail, R,
+                       roll_gain, vp, full, rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc, want_nis,
+                       beta, yaw_max, gate_speed):
+    """`predict_weigh` for the full model with every channel (n_w = na = 3)."""
+    if mu.shape[1] != 3 or avail.shape[0] != 3:
+        raise ValueError("predict_weigh_full: n_w = na = 3 only")
+    t1 = (x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise, noise_scale, b, P,
+          q, bias_on, forget, lam, nu_min, gamma, mu, Lam)
+    t2 = (nu, uk, y, avail, R, roll_gain, vp, full, rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc,
+          want_nis, beta, yaw_max, gate_speed)
+    return _predict_weigh(t1, t2, 3, 3)
+
+
+@njit(**_JIT)
+def predict_weigh_lateral(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise,
+                          noise_scale, b, P, q, bias_on, forget, lam, nu_min, gamma, mu, Lam, nu, uk, y, avail, R,
+                          roll_gain, vp, full, rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc, want_nis,
+                          beta, yaw_max, gate_speed):
+    """`predict_weigh` for the lateral model with every channel (n_w = na = 2)."""
+    if mu.shape[1] != 2 or avail.shape[0] != 2:
+        raise ValueError("predict_weigh_lateral: n_w = na = 2 only")
+    t1 = (x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise, noise_scale, b, P,
+          q, bias_on, forget, lam, nu_min, gamma, mu, Lam)
+    t2 = (nu, uk, y, avail, R, roll_gain, vp, full, rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc,
+          want_nis, beta, yaw_max, gate_speed)
+    return _predict_weigh(t1, t2, 2, 2)
+
+
+@njit(inline="always", **_JIT)
+def _predict_weigh(t1, t2, n_w, na):
+    """`predict_weigh` with its arguments in t1, t2 (a call of more than 30 arguments compiles to f(*args),
+    which numba does not inline) and the sizes given."""
+    (x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise, noise_scale, b, P, q,
+     bias_on, forget, lam, nu_min, gamma, mu, Lam) = t1
+    (nu, uk, y, avail, R, roll_gain, vp, full, rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc, want_nis,
+     beta, yaw_max, gate_speed) = t2
     n, nx = x.shape
-    n_w = mu.shape[1]
-    na = avail.shape[0]
+    # the propagation with the size as a variable (as a constant it ran no faster and took 4 s longer to
+    # compile); the weights with the sizes given
+    n_wp = mu.shape[1]
     mch = q.shape[0]
     kp = _steer_consts(u_prev[0], vp)  # (once per sample, not per particle)
     kk = _steer_consts(uk[0], vp)
@@ -468,13 +517,13 @@ def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, int
     k1 = np.empty(nx)
     k2 = np.empty(nx)
     ai = np.empty(3)
-    Bi = np.empty((3, n_w))
+    Bi = np.empty((3, n_wp))
     with_noise = noise.shape[0] > 0
     count = 0
     if interval:  # the slip over the step (`_slip_over_step`) into slip, in a short loop of its own
         for i in range(n):
             acc0 = 0.0
-            for j in range(n_w):
+            for j in range(n_wp):
                 acc0 += B[i, 0, j] * w_prev[i, j]
             acc0 = a[i, 0] + acc0
             slip[0, i], slip[1, i] = _interval_slip1(x[i, 0], x[i, 1], x[i, 2], acc0, w_prev[i, 0], slip[0, i],
@@ -486,18 +535,18 @@ def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, int
         sf, sr = slip[0, i], slip[1, i]
         if interval:
             _model1(xi[0], xi[1], xi[2], u_prev[0], u_prev[1], u_prev[2], u_prev[3], kp, True, sf, sr, ai, Bi, vp, True,
-                    rear_drive, n_w)
+                    rear_drive, n_wp)
         else:
             for c in range(3):
                 ai[c] = a[i, c]
-                for j in range(n_w):
+                for j in range(n_wp):
                     Bi[c, j] = B[i, c, j]
         for s in range(n_sub):
             if s > 0:
                 xs2 = xi[2] if full else 0.0
                 _, _, sf, sr = _model1(xi[0], xi[1], xs2, u_prev[0], u_prev[1], u_prev[2], u_prev[3], kp, False, 0.0,
-                                       0.0, ai, Bi, vp, full, rear_drive, n_w)
-            _xdot1(xi, u_prev[3], ai, Bi, w_prev[i], k1, full, n_w)
+                                       0.0, ai, Bi, vp, full, rear_drive, n_wp)
+            _xdot1(xi, u_prev[3], ai, Bi, w_prev[i], k1, full, n_wp)
             if not heun:
                 for c in range(nx):
                     xi[c] = xi[c] + hs * k1[c]
@@ -506,8 +555,8 @@ def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, int
                 x1[c] = xi[c] + hs * k1[c]
             xs2 = x1[2] if full else 0.0
             _model1(x1[0], x1[1], xs2, u_prev[0], u_prev[1], u_prev[2], u_prev[3], kp, full, sf, sr, ai, Bi, vp, full,
-                    rear_drive, n_w)
-            _xdot1(x1, u_prev[3], ai, Bi, w_prev[i], k2, full, n_w)
+                    rear_drive, n_wp)
+            _xdot1(x1, u_prev[3], ai, Bi, w_prev[i], k2, full, n_wp)
             for c in range(nx):
                 xi[c] = xi[c] + (0.5 * hs) * (k1[c] + k2[c])
         for c in range(nx):
@@ -519,27 +568,19 @@ def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, int
             f = max(lam, min(1.0, nu_min / nu[i])) if nu_min > 0 else lam
             gamma[i] = gamma[i] / f
             nu[i] = nu[i] * f
-            for j in range(n_w):
-                for k in range(n_w):
+            for j in range(n_wp):
+                for k in range(n_wp):
                     Lam[i, j, k] = Lam[i, j, k] * f
         # the model at x_k, u_k (`_model`) and the plausible region (`_plausible`)
         xs2 = x[i, 2] if full else 0.0
         af[i], ar[i], slip[0, i], slip[1, i] = _model1(x[i, 0], x[i, 1], xs2, uk[0], uk[1], uk[2], uk[3], kk, False,
-                                                       0.0, 0.0, a[i], B[i], vp, full, rear_drive, n_w)
+                                                       0.0, 0.0, a[i], B[i], vp, full, rear_drive, n_wp)
         vxp = x[i, 0] if full else uk[3]
         ok[i] = abs(x[i, nx - 2]) <= beta * max(abs(vxp), gate_speed) and abs(x[i, nx - 1]) <= yaw_max
         count += ok[i]
-    # 2. the weights, with the sizes as constants in the usual cases (the full model with every channel, the
-    # lateral one), so that the compiler unrolls the small loops (`_weigh` is inlined in each branch)
-    if n_w == 3 and na == 3:
-        _weigh(x, a, B, full, roll_gain, h, D, nu, nu_w, gamma, Lam, L11, avail, L12, R, bias_on, P, Lc, mu, y, b, e, v,
-               ll, 3, 3)
-    elif n_w == 2 and na == 2:
-        _weigh(x, a, B, full, roll_gain, h, D, nu, nu_w, gamma, Lam, L11, avail, L12, R, bias_on, P, Lc, mu, y, b, e, v,
-               ll, 2, 2)
-    else:
-        _weigh(x, a, B, full, roll_gain, h, D, nu, nu_w, gamma, Lam, L11, avail, L12, R, bias_on, P, Lc, mu, y, b, e, v,
-               ll, n_w, na)
+    # 2. the weights
+    _weigh(x, a, B, full, roll_gain, h, D, nu, nu_w, gamma, Lam, L11, avail, L12, R, bias_on, P, Lc, mu, y, b, e, v,
+           ll, n_w, na)
     innovation = math.nan
     if want_nis and nc:
         innovation = 0.0
@@ -747,8 +788,45 @@ def sample_update(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, 
     (6, >= max(nx, n_w, m)): x mean, x std, mean of mu, posterior variance of the mean,
     sigma^2 of eq. (27b), bias mean. Returns the drift statistic z' of `_track_drift`, NaN
     when not computed (or when the lean is not finite: the reference then keeps its state).
-    The weights exp(logw) are read from qw (N,), as `resample_gate` left them."""
-    n, n_w = mu.shape
+    The weights exp(logw) are read from qw (N,), as `resample_gate` left them.
+    `sample_update_full` and `sample_update_lateral` are the same for the full model with both
+    accelerometers (n_w = 3, nc = 2) and the lateral one (n_w = 2, nc = 1) with the sizes as
+    constants."""
+    t1 = (idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z)
+    t2 = (chi, nu_draw, w, use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw)
+    return _sample_update(t1, t2, mu.shape[1], nc)
+
+
+@njit(**_JIT)
+def sample_update_full(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z, chi, nu_draw, w,
+                       use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw):
+    """`sample_update` for the full model with both accelerometers (n_w = 3, nc = 2)."""
+    if mu.shape[1] != 3 or nc != 2:
+        raise ValueError("sample_update_full: n_w = 3, nc = 2 only")
+    t1 = (idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z)
+    t2 = (chi, nu_draw, w, use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw)
+    return _sample_update(t1, t2, 3, 2)
+
+
+@njit(**_JIT)
+def sample_update_lateral(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z, chi, nu_draw, w,
+                          use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw):
+    """`sample_update` for the lateral model with its accelerometer (n_w = 2, nc = 1)."""
+    if mu.shape[1] != 2 or nc != 1:
+        raise ValueError("sample_update_lateral: n_w = 2, nc = 1 only")
+    t1 = (idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z)
+    t2 = (chi, nu_draw, w, use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw)
+    return _sample_update(t1, t2, 2, 1)
+
+
+@njit(inline="always", **_JIT)
+def _sample_update(t1, t2, n_w, nc_):
+    """`sample_update` with its arguments in t1, t2 (a call of more than 30 arguments compiles to f(*args),
+    which numba does not inline) and the sizes given."""
+    (idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z) = t1
+    (chi, nu_draw, w, use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw) = t2
+    n = mu.shape[0]
+    nc = nc_
     na = avail.shape[0]
     mch = b.shape[1]
     nb = max(na, 1)
@@ -807,17 +885,9 @@ def sample_update(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, 
         for c in range(mch):
             for c2 in range(mch):
                 P[i, c, c2] = 0.5 * (Pn[c, c2] + Pn[c2, c])
-    # 3. and 5., with the sizes as constants in the usual cases (the full model with both accelerometers,
-    # the lateral one), so that the compiler unrolls the small loops (`_sample` is inlined in each branch)
-    if n_w == 3 and nc == 2:
-        _sample(idx, gamma, mu, Lam, nu, L11, nu_w, L12, Lc, v, z, chi, nu_draw, w, use_mask, bound, active, drift,
-                lo, hi, qw, ub, 3, 2)
-    elif n_w == 2 and nc == 1:
-        _sample(idx, gamma, mu, Lam, nu, L11, nu_w, L12, Lc, v, z, chi, nu_draw, w, use_mask, bound, active, drift,
-                lo, hi, qw, ub, 2, 1)
-    else:
-        _sample(idx, gamma, mu, Lam, nu, L11, nu_w, L12, Lc, v, z, chi, nu_draw, w, use_mask, bound, active, drift,
-                lo, hi, qw, ub, n_w, nc)
+    # 3. and 5.
+    _sample(idx, gamma, mu, Lam, nu, L11, nu_w, L12, Lc, v, z, chi, nu_draw, w, use_mask, bound, active, drift, lo,
+            hi, qw, ub, n_w, nc)
     zd = math.nan
     if active and drift:
         finite = True

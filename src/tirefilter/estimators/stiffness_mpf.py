@@ -613,15 +613,19 @@ class StiffnessMPF:
         ch = self.channels
         yl = [y.ax, y.ay, y.yaw_rate] if self.full else [y.ay, y.yaw_rate]
         yk = np.array(yl, float)
+        # the kernels compiled for this model's sizes when every channel is there (mpf_numba.predict_weigh_full ...)
+        predict_weigh, sample_update = (nb.predict_weigh_full, nb.sample_update_full) if self.full else (
+            nb.predict_weigh_lateral, nb.sample_update_lateral)
         if math.isfinite(sum(yl)):
             a, nc = wk.avail_all, wk.nc_all
         else:
+            predict_weigh, sample_update = nb.predict_weigh, nb.sample_update
             a = np.flatnonzero(np.isfinite(yk))
             nc = int(sum(ch[j] in (0, 1) for j in a))
         adaptive = cfg.forgetting_mode == "adaptive"
         u_prev = self.u_prev
         self.t_prev, self.u_prev = t, uk
-        innovation, ess, count, nu_common = nb.predict_weigh(
+        innovation, ess, count, nu_common = predict_weigh(
             self.x, u_prev, self.w_prev, wk.a, wk.B, wk.af, wk.ar, wk.slip, dt, cfg.max_step, wk.heun, wk.interval,
             self._jw, self._c_floor, noise, noise_scale, self.b, self.P, q, self.bias_on, self.active, self.lam,
             self.nu0, st.gamma, st.mu, st.Lam, st.nu, uk, yk, a, self.R, self.roll_gain, self._vp, self.full,
@@ -664,7 +668,7 @@ class StiffnessMPF:
         drift = bool(self.active and nc and adaptive)
         if drift and not (self.drift.flags.c_contiguous and self.drift.dtype == np.float64):
             self.drift = np.array(self.drift, float)
-        zd = nb.sample_update(
+        zd = sample_update(
             wk.idx, self.x, self.logw, st.gamma, st.mu, st.Lam, st.nu, self.b, self.P, wk.h, wk.D, wk.L11, wk.nu_w,
             wk.L12, wk.Lc, wk.v, nc, z, chi, nu_draw, wk.w, use_mask, self._outlier_bound(nc) if use_mask else 0.0,
             bool(a.size and self.bias_on), self.R, a, yk, self.active, drift, self.drift,
