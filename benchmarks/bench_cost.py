@@ -2,7 +2,7 @@
 
     .venv/bin/python benchmarks/bench_cost.py [--particles 50 100 200 500 1000 2000 5000]
         [--duration 10] [--estimators mpf augpf ekf rls kf bootstrap gpssm-axle gpssm-tensor gpssm-tensor100]
-        [--figure benchmarks/figures/stiffness_fig14_cost.png] [--gpssm-max 1000]
+        [--figure benchmarks/figures/stiffness_fig14_cost.png] [--gpssm-max 1000] [--interleave]
 
 What is timed: `step()` of each estimator (median wall time and median CPU time of the
 thread after 10 warm-up steps, one process, one BLAS thread), fed the same recorded samples:
@@ -19,6 +19,11 @@ thread after 10 warm-up steps, one process, one BLAS thread), fed the same recor
   the per-axle basis (20 odd functions in all), the default odd tensor (50) and the paper's
   tensor (100), N up to `--gpssm-max`; `gpssm-axle-rank1` etc. (named explicitly): the same
   with the rank-one statistics.
+
+`--interleave`: besides, the MPF and the peer step alternately through the same samples in
+one loop at each N (one MPF step, one peer step, ...), so that a load that comes and goes on
+a shared machine falls on both alike: the ratio of their CPU medians printed from that loop
+is the comparison to quote on a busy machine (separate loops can see loads apart by 2x).
 
 Each estimator's first two calls (numba compilation when the cache is cold, imports; the
 MPF runs its first sample with the numpy reference and compiles its fused step at the
@@ -91,6 +96,12 @@ def time_estimator(est, samples, seed: int = 1) -> tuple[float, float, float]:
 
 # ---- the peer: a bootstrap PF of the `particles` library on the same car -----------------
 def bootstrap_peer(scenario, samples, N: int, seed: int = 1) -> tuple[float, float, float]:
+    """(median wall us per step after the warm-up, median CPU us, first call in ms) of the peer."""
+    return _timed(bootstrap_step(scenario, samples, N, seed), len(samples))
+
+
+def bootstrap_step(scenario, samples, N: int, seed: int = 1):
+    """The peer's step: a function of the sample index k that runs one `next()` of the SMC."""
     import particles
     from particles import distributions as dists
     from particles import state_space_models as ssm
@@ -141,7 +152,24 @@ def bootstrap_peer(scenario, samples, N: int, seed: int = 1) -> tuple[float, flo
     np.random.seed(seed)  # particles draws from numpy's global generator (not ours: the peer's way)
     smc = particles.SMC(fk=ssm.Bootstrap(ssm=SingleTrack(), data=Y), N=N, resampling="systematic", ESSrmin=0.5,
                         store_history=False, collect=None)
-    return _timed(lambda k: next(smc), len(Y))
+    return lambda k: next(smc)
+
+
+def interleaved(scenario, samples, N: int, seed: int = 1) -> tuple[float, float]:
+    """The MPF (as `tirefilter run` builds it) and the peer at N particles, stepped alternately
+    through the same samples in one process, so that both see the same load: the median CPU
+    us per step of each after the warm-up."""
+    est = build_estimator("mpf", scenario, model="auto", particles=N, config={})
+    est.reset(np.random.default_rng(seed))
+    peer = bootstrap_step(scenario, samples, N, seed)
+    cpu: dict[str, list[float]] = {"mpf": [], "bootstrap": []}
+    for k, s in enumerate(samples):
+        for name, step in (("mpf", lambda: est.step(*s)), ("bootstrap", lambda: peer(k))):
+            c0 = time.thread_time()
+            step()
+            if k >= WARMUP:
+                cpu[name].append(time.thread_time() - c0)
+    return float(np.median(cpu["mpf"]) * 1e6), float(np.median(cpu["bootstrap"]) * 1e6)
 
 
 def main() -> int:
@@ -154,8 +182,11 @@ def main() -> int:
     ap.add_argument("--gpssm-max", type=int, default=1000, help="largest N for the GP-SSM rows (default 1000)")
     ap.add_argument("--figure", type=Path, help="write Fig. 14 here (e.g. benchmarks/figures/stiffness_fig14_cost.png)")
     ap.add_argument("--cpu-figure", action="store_true", help="plot the CPU medians (default: wall)")
+    ap.add_argument("--interleave", action="store_true",
+                    help="also step the MPF and the peer alternately in one loop (the same load on both) and print "
+                         "their CPU medians and ratio per N")
     args = ap.parse_args()
-    if "bootstrap" in args.estimators:
+    if "bootstrap" in args.estimators or args.interleave:
         try:
             import particles  # noqa: F401
         except ImportError:
@@ -187,6 +218,11 @@ def main() -> int:
             first.setdefault(name, ms)
             print(f"  {name:16s} N = {n:5d}: {us:9.0f} us per step wall, {cpu:9.0f} us CPU (first call {ms:.0f} ms)",
                   flush=True)
+    if args.interleave:
+        for n in args.particles:
+            mpf, peer = interleaved(sim, sim_samples, n)
+            print(f"  interleaved N = {n:5d}: mpf {mpf:.0f} us CPU, bootstrap {peer:.0f} us CPU, mpf / bootstrap "
+                  f"{mpf / peer:.2f}", flush=True)
     print(f"load average after: {os.getloadavg()[0]:.2f}")
     cols = args.particles
     for label, tab in (("wall", table), ("CPU", cpu_table)):

@@ -348,6 +348,56 @@ def test_stiffness_mpf_gap_step_takes_the_reference_path(monkeypatch):
         assert_equal_to_rounding(pa.stats[key], pb.stats[key], key)
 
 
+OPTIONS = {"outlier-noise-euler": dict(outlier_prob=0.9, state_noise=(0.02, 0.01, 0.002), integrator="euler"),
+           "fixed-forgetting-subgap": dict(forgetting_mode="fixed", max_step=0.004, outlier_prob=0.99)}
+
+
+@pytest.mark.parametrize("model", ["full", "lateral"])
+@pytest.mark.parametrize("options", list(OPTIONS))
+def test_stiffness_mpf_backends_equal_options(options, model, monkeypatch):
+    """The options the runs above leave at their defaults, through the fused step's loops:
+    the per-particle outlier mask (`outlier_prob` < 1), the state noise and the Euler
+    propagation; fixed forgetting (no drift statistic) with every step sub-stepped
+    (`max_step` 4 ms at 10 ms samples). The backends stay equal to rounding."""
+    fused = _count_fused_steps(monkeypatch)
+    vehicle = load_scenario("paper-sim").vehicle
+    runs = {}
+    for backend in ("numpy", "numba"):
+        cfg = MPFConfig(particles=24, model=model, backend=backend, resample_threshold=1.0, gate_warmup=0.05,
+                        gate_vy_std=10.0, gate_steer=0.0, bias_rw=(0.01, 0.01, 0.001), bias0_std=(0.1, 0.1, 0.01),
+                        **OPTIONS[options])
+        est = StiffnessMPF(vehicle, cfg)
+        runs[backend] = (_mpf_drive(est, 60), est)
+    (a, fast), (b, ref) = runs["numba"], runs["numpy"]
+    assert fused[id(fast)] == 59 and fast.resamples == ref.resamples >= 20
+    assert np.isfinite(b[:, :7]).all()
+    assert_equal_to_rounding(a, b, "estimates")
+    pa, pb = fast.posterior(), ref.posterior()
+    assert_equal_to_rounding(pa.particles, pb.particles, "particles")
+    for key in ("gamma", "mu", "Lam", "nu", "bias", "bias_cov"):
+        assert_equal_to_rounding(pa.stats[key], pb.stats[key], key)
+
+
+@pytest.mark.parametrize("model", ["full", "lateral"])
+def test_stiffness_mpf_fused_estimate_equals_the_reference_estimate(model):
+    """The fused step's Estimate (`_estimate_fused`, written out) has every field of the
+    reference's `_estimate_from` on the same moments, bit for bit (NaN where not estimated)."""
+    import dataclasses
+
+    est = StiffnessMPF(load_scenario("paper-sim").vehicle, MPFConfig(particles=24, model=model, gate_warmup=0.05,
+                                                                     gate_vy_std=10.0, gate_steer=0.0))
+    out = _mpf_drive(est, 20)
+    assert est.active and np.isfinite(out[-1, :7]).all()
+    nx, n_w, m = est.x.shape[1], est.n_w, len(est.channels)
+    r = est._wk.mom.tolist()
+    ref = dataclasses.astuple(est._estimate_from(0.7, r[0][:nx], r[1][:nx], r[2][:n_w], r[3][:n_w], r[4][:n_w],
+                                                 r[5][:m]))
+    fused = dataclasses.astuple(est._estimate_fused(0.7, est._wk.mom))
+    assert len(fused) == len(ref) and any(isinstance(v, float) and math.isnan(v) for v in ref) == (model == "lateral")
+    for a, b in zip(fused, ref):
+        assert type(a) is type(b) and (a == b or (a != a and b != b)), (fused, ref)
+
+
 def test_stiffness_mpf_bound_restart_in_the_fused_step_equal(monkeypatch):
     """Narrow projection bounds (0.97-1.03 of nominal) and restart_at_bound_after = 0.05 s:
     the posterior mean sits at a bound, the fused step restarts the filter after resampling

@@ -24,6 +24,19 @@ argument checks, fresh output arrays and re-reads of the model's outputs cost as
 loops: views of per-particle rows (x[i]) passed to helper functions cost a reference count
 each and measured slower.
 
+Inside a pass, the stages whose arithmetic is a chain of dependent square roots, divisions
+and logarithms (the 3 x 3 Cholesky factorisations, the triangular solves, the Student-t
+density, the wheel slip over the step) each run in a short loop of their own over the
+particles, reading and writing the per-particle arrays: in one long loop body the CPU
+cannot overlap one particle's chain with the next particle's, in a short one it does
+(benchmarks/README.md, "The fused MPF step (third pass)"). The weights (`_weigh`) and the
+conditional draw with the learning (`_sample`) are inlined functions that the passes call
+with the sizes (n_w, the available channels, the accelerometer channels) as constants in the
+usual cases, the full model with every channel and the lateral model, so that the compiler
+unrolls their small loops; other sizes (a missing sample) take the same code with the sizes
+as variables. Each case has its own entry point (`predict_weigh_full`, `predict_weigh_lateral`,
+`predict_weigh`; the same for `sample_update`), so that a run compiles only the ones it calls.
+
 The numpy methods of `StiffnessMPF` are the readable reference; the kernels compute the
 same expressions in the same order, one particle at a time, and consume random numbers
 drawn by the caller with the reference's generator calls, so both backends follow the same
@@ -323,108 +336,13 @@ def _normalise_into(logw, add):
 
 
 
-# ---- the three passes --------------------------------------------------------------------------
-@njit(**_JIT)
-def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise,
-                  noise_scale, b, P, q, bias_on, forget, lam, nu_min, gamma, mu, Lam, nu, uk, y, avail, R, roll_gain,
-                  vp, full, rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc, want_nis, beta, yaw_max,
-                  gate_speed):
-    """Steps 1 and 2 of `StiffnessMPF.step`, in place. Per particle: the first stage of the
-    propagation, a (N, 3), B (N, 3, n_w), slip (2, N) kept from the last sample, or with
-    `interval` (full model, slip_hold = "interval") the model at x with the wheel slip averaged
-    over the step (`_slip_over_step`, jw, c_floor as there, towards the slip of uk); propagate
-    x (N, nx) (`_propagate`: eq. (9), w_prev held, `max_step` sub-steps), add the state noise
-    noise_scale * noise (the caller's normals; noise of shape (0, nx) when off), predict the
-    bias covariance P += diag(q dt) (eq. (29)), forget (`NiW.forget`, eq. (20), when
-    `forget`), evaluate the model at x_k with uk (`_model`: a, B, af, ar, slip, the first
-    stage of the next propagation), mark the plausible particles (`_plausible`: ok), and for
-    the channels `avail` (indices into the model's m channels; y (m,)) weigh as `step` does:
-    h, D of `_measurement`, L11 = (1 + gamma) / nu~ Lam, L12 = (D_a L11)^T,
-    S = D_a L11 D_a^T + (nu~ - 2) / nu~ (R + P)_aa (P only with `bias_on`), Lc = chol(S),
-    e = y_a - h_a - b_a - D_a mu, v = Lc^-1 e and ll, the Student-t log-density
-    (`t_logpdf_whitened`; its log-Gamma terms once per distinct nu~).
-    Then: the adaptive forgetting's innovation (`_adapt_forgetting`: the predictive-weighted
-    normalised |v_acc|^2 over the first nc channels; NaN unless `want_nis` and nc) and
-    logw := normalised logw + ll (when any channel is available).
-    Returns (innovation, ESS (-1: no channel, logw unchanged), number of plausible
-    particles, nu~ common to all particles or 0). The caller zeroes the weights of the
-    implausible particles when some (not all) are, as `_plausible` does."""
+@njit(inline="always", **_JIT)
+def _weigh(x, a, B, full, roll_gain, h, D, nu, nu_w, gamma, Lam, L11, avail, L12, R, bias_on, P, Lc, mu, y, b, e, v, ll,
+           n_w, na):
+    """Step 2 of `predict_weigh` (its arguments, n_w and na the sizes): per particle h, D, nu~ (nu_w),
+    L11, L12, Lc = chol(S), e, v and the Student-t log-density ll."""
     n, nx = x.shape
-    n_w = mu.shape[1]
-    na = avail.shape[0]
-    mch = q.shape[0]
-    kp = _steer_consts(u_prev[0], vp)  # (once per sample, not per particle)
-    kk = _steer_consts(uk[0], vp)
-    n_sub = max(1, math.ceil(dt / max_step - 1e-9))
-    hs = dt / n_sub
-    xi = np.empty(nx)
-    x1 = np.empty(nx)
-    k1 = np.empty(nx)
-    k2 = np.empty(nx)
-    ai = np.empty(3)
-    Bi = np.empty((3, n_w))
-    nb = max(na, 1)
-    S = np.empty((nb, nb))
-    DL = np.empty((nb, n_w))
-    inv_d = np.empty(nb)
-    with_noise = noise.shape[0] > 0
-    count = 0
-    for i in range(n):
-        # 1. propagation (`_propagate`), the first stage from the last sample
-        for c in range(nx):
-            xi[c] = x[i, c]
-        sf, sr = slip[0, i], slip[1, i]
-        if interval:  # the slip over the step (`_slip_over_step`)
-            acc0 = 0.0
-            for j in range(n_w):
-                acc0 += B[i, 0, j] * w_prev[i, j]
-            acc0 = a[i, 0] + acc0
-            sf, sr = _interval_slip1(xi[0], xi[1], xi[2], acc0, w_prev[i, 0], sf, sr, u_prev, uk, dt, vp, jw, c_floor,
-                                     rear_drive)
-            _model1(xi[0], xi[1], xi[2], u_prev[0], u_prev[1], u_prev[2], u_prev[3], kp, True, sf, sr, ai, Bi, vp, True,
-                    rear_drive, n_w)
-        else:
-            for c in range(3):
-                ai[c] = a[i, c]
-                for j in range(n_w):
-                    Bi[c, j] = B[i, c, j]
-        for s in range(n_sub):
-            if s > 0:
-                xs2 = xi[2] if full else 0.0
-                _, _, sf, sr = _model1(xi[0], xi[1], xs2, u_prev[0], u_prev[1], u_prev[2], u_prev[3], kp, False, 0.0,
-                                       0.0, ai, Bi, vp, full, rear_drive, n_w)
-            _xdot1(xi, u_prev[3], ai, Bi, w_prev[i], k1, full, n_w)
-            if not heun:
-                for c in range(nx):
-                    xi[c] = xi[c] + hs * k1[c]
-                continue
-            for c in range(nx):
-                x1[c] = xi[c] + hs * k1[c]
-            xs2 = x1[2] if full else 0.0
-            _model1(x1[0], x1[1], xs2, u_prev[0], u_prev[1], u_prev[2], u_prev[3], kp, full, sf, sr, ai, Bi, vp, full,
-                    rear_drive, n_w)
-            _xdot1(x1, u_prev[3], ai, Bi, w_prev[i], k2, full, n_w)
-            for c in range(nx):
-                xi[c] = xi[c] + (0.5 * hs) * (k1[c] + k2[c])
-        for c in range(nx):
-            x[i, c] = xi[c] + noise_scale[c] * noise[i, c] if with_noise else xi[c]
-        if bias_on:  # eq. (29)
-            for c in range(mch):
-                P[i, c, c] = P[i, c, c] + q[c] * dt
-        if forget:  # eq. (20), `NiW.forget`
-            f = max(lam, min(1.0, nu_min / nu[i])) if nu_min > 0 else lam
-            gamma[i] = gamma[i] / f
-            nu[i] = nu[i] * f
-            for j in range(n_w):
-                for k in range(n_w):
-                    Lam[i, j, k] = Lam[i, j, k] * f
-        # the model at x_k, u_k (`_model`) and the plausible region (`_plausible`)
-        xs2 = x[i, 2] if full else 0.0
-        af[i], ar[i], slip[0, i], slip[1, i] = _model1(x[i, 0], x[i, 1], xs2, uk[0], uk[1], uk[2], uk[3], kk, False,
-                                                       0.0, 0.0, a[i], B[i], vp, full, rear_drive, n_w)
-        vxp = x[i, 0] if full else uk[3]
-        ok[i] = abs(x[i, nx - 2]) <= beta * max(abs(vxp), gate_speed) and abs(x[i, nx - 1]) <= yaw_max
-        count += ok[i]
+    DL = np.empty((max(na, 1), n_w))
     p = float(na)
     last, cn = -1.0, 0.0
     for i in range(n):
@@ -461,38 +379,45 @@ def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, int
                 DL[q, k] = s
                 L12[i, k, q] = s
         c = (dof - 2.0) / dof
-        for q in range(na):
-            for q2 in range(na):
+        for q in range(na):  # S (its lower triangle) into Lc[i], factorised there in place below
+            for q2 in range(q + 1):
                 s = 0.0
                 for k in range(n_w):
                     s += DL[q, k] * D[i, avail[q2], k]
                 noise_qq = R[avail[q], avail[q2]]
                 if bias_on:
                     noise_qq = noise_qq + P[i, avail[q], avail[q2]]
-                S[q, q2] = s + c * noise_qq
-        for j in range(na):  # Lc = chol(S) (`_chol`, written out: no view of Lc[i])
-            Sjj = S[j, j]
-            d = Sjj
-            for k in range(j):
-                d = d - Lc[i, j, k] * Lc[i, j, k]
-            Ljj = math.sqrt(max(d, abs(Sjj) * 1e-14 + 1e-300))
-            Lc[i, j, j] = Ljj
-            inv_d[j] = 1.0 / Ljj
-            for r in range(j + 1, na):
-                acc = S[r, j]
-                for k in range(j):
-                    acc = acc - Lc[i, r, k] * Lc[i, j, k]
-                Lc[i, r, j] = acc * inv_d[j]
-            for r in range(j):
-                Lc[i, r, j] = 0.0
-        logdet = 0.0
-        vv = 0.0
+                Lc[i, q, q2] = s + c * noise_qq
         for q in range(na):
             ch = avail[q]
             s = 0.0
             for j in range(n_w):
                 s += D[i, ch, j] * mu[i, j]
             e[i, q] = y[ch] - (h[i, ch] + b[i, ch]) - s
+    # Lc = chol(S) in place (`_chol`), then v = Lc^-1 e and the weight: each in its own short loop
+    # over the particles, whose latency chains (square roots, divisions, logarithms) the CPU then
+    # overlaps across particles (in one long loop body it cannot: benchmarks/README.md)
+    for i in range(n if na else 0):
+        for j in range(na):
+            Sjj = Lc[i, j, j]
+            d = Sjj
+            for k in range(j):
+                d = d - Lc[i, j, k] * Lc[i, j, k]
+            Ljj = math.sqrt(max(d, abs(Sjj) * 1e-14 + 1e-300))
+            Lc[i, j, j] = Ljj
+            inv = 1.0 / Ljj
+            for r in range(j + 1, na):
+                acc = Lc[i, r, j]
+                for k in range(j):
+                    acc = acc - Lc[i, r, k] * Lc[i, j, k]
+                Lc[i, r, j] = acc * inv
+            for r in range(j):
+                Lc[i, r, j] = 0.0
+    for i in range(n if na else 0):
+        dof = nu_w[i]
+        logdet = 0.0
+        vv = 0.0
+        for q in range(na):
             acc = e[i, q]
             for k in range(q):
                 acc = acc - Lc[i, q, k] * v[i, k]
@@ -503,6 +428,159 @@ def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, int
         if dof != last:
             last, cn = dof, _t_const(dof, p)
         ll[i] = cn - 0.5 * logdet - 0.5 * (dof + p) * math.log1p(vv / dof)
+
+
+# ---- the three passes --------------------------------------------------------------------------
+@njit(**_JIT)
+def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise, noise_scale,
+                  b, P, q, bias_on, forget, lam, nu_min, gamma, mu, Lam, nu, uk, y, avail, R, roll_gain, vp, full,
+                  rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc, want_nis, beta, yaw_max, gate_speed):
+    """Steps 1 and 2 of `StiffnessMPF.step`, in place. Per particle: the first stage of the
+    propagation, a (N, 3), B (N, 3, n_w), slip (2, N) kept from the last sample, or with
+    `interval` (full model, slip_hold = "interval") the model at x with the wheel slip averaged
+    over the step (`_slip_over_step`, jw, c_floor as there, towards the slip of uk); propagate
+    x (N, nx) (`_propagate`: eq. (9), w_prev held, `max_step` sub-steps), add the state noise
+    noise_scale * noise (the caller's normals; noise of shape (0, nx) when off), predict the
+    bias covariance P += diag(q dt) (eq. (29)), forget (`NiW.forget`, eq. (20), when
+    `forget`), evaluate the model at x_k with uk (`_model`: a, B, af, ar, slip, the first
+    stage of the next propagation), mark the plausible particles (`_plausible`: ok), and for
+    the channels `avail` (indices into the model's m channels; y (m,)) weigh as `step` does:
+    h, D of `_measurement`, L11 = (1 + gamma) / nu~ Lam, L12 = (D_a L11)^T,
+    S = D_a L11 D_a^T + (nu~ - 2) / nu~ (R + P)_aa (P only with `bias_on`), Lc = chol(S),
+    e = y_a - h_a - b_a - D_a mu, v = Lc^-1 e and ll, the Student-t log-density
+    (`t_logpdf_whitened`; its log-Gamma terms once per distinct nu~).
+    Then: the adaptive forgetting's innovation (`_adapt_forgetting`: the predictive-weighted
+    normalised |v_acc|^2 over the first nc channels; NaN unless `want_nis` and nc) and
+    logw := normalised logw + ll (when any channel is available).
+    Returns (innovation, ESS (-1: no channel, logw unchanged), number of plausible
+    particles, nu~ common to all particles or 0). The caller zeroes the weights of the
+    implausible particles when some (not all) are, as `_plausible` does.
+    `predict_weigh_full` and `predict_weigh_lateral` are the same for the full model with every
+    channel (n_w = na = 3) and the lateral one (n_w = na = 2) with the sizes as constants, so that
+    the compiler unrolls the small loops: each compiles on its first call only."""
+    t1 = (x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise, noise_scale, b, P,
+          q, bias_on, forget, lam, nu_min, gamma, mu, Lam)
+    t2 = (nu, uk, y, avail, R, roll_gain, vp, full, rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc,
+          want_nis, beta, yaw_max, gate_speed)
+    return _predict_weigh(t1, t2, mu.shape[1], avail.shape[0])
+
+
+@njit(**_JIT)
+def predict_weigh_full(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise,
+                       noise_scale, b, P, q, bias_on, forget, lam, nu_min, gamma, mu, Lam, nu, uk, y, avail, R,
+                       roll_gain, vp, full, rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc, want_nis,
+                       beta, yaw_max, gate_speed):
+    """`predict_weigh` for the full model with every channel (n_w = na = 3)."""
+    if mu.shape[1] != 3 or avail.shape[0] != 3:
+        raise ValueError("predict_weigh_full: n_w = na = 3 only")
+    t1 = (x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise, noise_scale, b, P,
+          q, bias_on, forget, lam, nu_min, gamma, mu, Lam)
+    t2 = (nu, uk, y, avail, R, roll_gain, vp, full, rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc,
+          want_nis, beta, yaw_max, gate_speed)
+    return _predict_weigh(t1, t2, 3, 3)
+
+
+@njit(**_JIT)
+def predict_weigh_lateral(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise,
+                          noise_scale, b, P, q, bias_on, forget, lam, nu_min, gamma, mu, Lam, nu, uk, y, avail, R,
+                          roll_gain, vp, full, rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc, want_nis,
+                          beta, yaw_max, gate_speed):
+    """`predict_weigh` for the lateral model with every channel (n_w = na = 2)."""
+    if mu.shape[1] != 2 or avail.shape[0] != 2:
+        raise ValueError("predict_weigh_lateral: n_w = na = 2 only")
+    t1 = (x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise, noise_scale, b, P,
+          q, bias_on, forget, lam, nu_min, gamma, mu, Lam)
+    t2 = (nu, uk, y, avail, R, roll_gain, vp, full, rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc,
+          want_nis, beta, yaw_max, gate_speed)
+    return _predict_weigh(t1, t2, 2, 2)
+
+
+@njit(inline="always", **_JIT)
+def _predict_weigh(t1, t2, n_w, na):
+    """`predict_weigh` with its arguments in t1, t2 (a call of more than 30 arguments compiles to f(*args),
+    which numba does not inline) and the sizes given."""
+    (x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise, noise_scale, b, P, q,
+     bias_on, forget, lam, nu_min, gamma, mu, Lam) = t1
+    (nu, uk, y, avail, R, roll_gain, vp, full, rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc, want_nis,
+     beta, yaw_max, gate_speed) = t2
+    n, nx = x.shape
+    # the propagation with the size as a variable (as a constant it ran no faster and took 4 s longer to
+    # compile); the weights with the sizes given
+    n_wp = mu.shape[1]
+    mch = q.shape[0]
+    kp = _steer_consts(u_prev[0], vp)  # (once per sample, not per particle)
+    kk = _steer_consts(uk[0], vp)
+    n_sub = max(1, math.ceil(dt / max_step - 1e-9))
+    hs = dt / n_sub
+    xi = np.empty(nx)
+    x1 = np.empty(nx)
+    k1 = np.empty(nx)
+    k2 = np.empty(nx)
+    ai = np.empty(3)
+    Bi = np.empty((3, n_wp))
+    with_noise = noise.shape[0] > 0
+    count = 0
+    if interval:  # the slip over the step (`_slip_over_step`) into slip, in a short loop of its own
+        for i in range(n):
+            acc0 = 0.0
+            for j in range(n_wp):
+                acc0 += B[i, 0, j] * w_prev[i, j]
+            acc0 = a[i, 0] + acc0
+            slip[0, i], slip[1, i] = _interval_slip1(x[i, 0], x[i, 1], x[i, 2], acc0, w_prev[i, 0], slip[0, i],
+                                                     slip[1, i], u_prev, uk, dt, vp, jw, c_floor, rear_drive)
+    for i in range(n):
+        # 1. propagation (`_propagate`), the first stage from the last sample
+        for c in range(nx):
+            xi[c] = x[i, c]
+        sf, sr = slip[0, i], slip[1, i]
+        if interval:
+            _model1(xi[0], xi[1], xi[2], u_prev[0], u_prev[1], u_prev[2], u_prev[3], kp, True, sf, sr, ai, Bi, vp, True,
+                    rear_drive, n_wp)
+        else:
+            for c in range(3):
+                ai[c] = a[i, c]
+                for j in range(n_wp):
+                    Bi[c, j] = B[i, c, j]
+        for s in range(n_sub):
+            if s > 0:
+                xs2 = xi[2] if full else 0.0
+                _, _, sf, sr = _model1(xi[0], xi[1], xs2, u_prev[0], u_prev[1], u_prev[2], u_prev[3], kp, False, 0.0,
+                                       0.0, ai, Bi, vp, full, rear_drive, n_wp)
+            _xdot1(xi, u_prev[3], ai, Bi, w_prev[i], k1, full, n_wp)
+            if not heun:
+                for c in range(nx):
+                    xi[c] = xi[c] + hs * k1[c]
+                continue
+            for c in range(nx):
+                x1[c] = xi[c] + hs * k1[c]
+            xs2 = x1[2] if full else 0.0
+            _model1(x1[0], x1[1], xs2, u_prev[0], u_prev[1], u_prev[2], u_prev[3], kp, full, sf, sr, ai, Bi, vp, full,
+                    rear_drive, n_wp)
+            _xdot1(x1, u_prev[3], ai, Bi, w_prev[i], k2, full, n_wp)
+            for c in range(nx):
+                xi[c] = xi[c] + (0.5 * hs) * (k1[c] + k2[c])
+        for c in range(nx):
+            x[i, c] = xi[c] + noise_scale[c] * noise[i, c] if with_noise else xi[c]
+        if bias_on:  # eq. (29)
+            for c in range(mch):
+                P[i, c, c] = P[i, c, c] + q[c] * dt
+        if forget:  # eq. (20), `NiW.forget`
+            f = max(lam, min(1.0, nu_min / nu[i])) if nu_min > 0 else lam
+            gamma[i] = gamma[i] / f
+            nu[i] = nu[i] * f
+            for j in range(n_wp):
+                for k in range(n_wp):
+                    Lam[i, j, k] = Lam[i, j, k] * f
+        # the model at x_k, u_k (`_model`) and the plausible region (`_plausible`)
+        xs2 = x[i, 2] if full else 0.0
+        af[i], ar[i], slip[0, i], slip[1, i] = _model1(x[i, 0], x[i, 1], xs2, uk[0], uk[1], uk[2], uk[3], kk, False,
+                                                       0.0, 0.0, a[i], B[i], vp, full, rear_drive, n_wp)
+        vxp = x[i, 0] if full else uk[3]
+        ok[i] = abs(x[i, nx - 2]) <= beta * max(abs(vxp), gate_speed) and abs(x[i, nx - 1]) <= yaw_max
+        count += ok[i]
+    # 2. the weights
+    _weigh(x, a, B, full, roll_gain, h, D, nu, nu_w, gamma, Lam, L11, avail, L12, R, bias_on, P, Lc, mu, y, b, e, v,
+           ll, n_w, na)
     innovation = math.nan
     if want_nis and nc:
         innovation = 0.0
@@ -530,7 +608,7 @@ def _take_rows(src, dst, idx):
 
 @njit(**_JIT)
 def resample_gate(logw, u0, resample, idx, x, b, P, gamma, mu, Lam, nu, a, B, slip, x2, b2, P2, gamma2, mu2, Lam2,
-                  nu2, a2, B2, slip2, af, ar, full, pin_lo, pin_hi):
+                  nu2, a2, B2, slip2, af, ar, full, pin_lo, pin_hi, qw):
     """Resampling and the gate's moments. `resample`: systematic resampling
     (`systematic_resample` with the caller's uniform u0) into idx, the particles' arrays
     (x, b, P, the statistics, the model's first stage a, B, slip) copied by idx into their
@@ -538,7 +616,8 @@ def resample_gate(logw, u0, resample, idx, x, b, P, gamma, mu, Lam, nu, a, B, sl
     weighting (h, D, L11, ...) are not copied: `sample_update` reads them through idx.
     Returns the gate's moments over the (resampled) particles, E[vx] (full model), the std
     of vy and max(|E[af]|, |E[ar]|), and whether the posterior mean of mu lies at or beyond
-    pin_lo or pin_hi (n_w,) in some component (the bound restart, `_pinned`)."""
+    pin_lo or pin_hi (n_w,) in some component (the bound restart, `_pinned`). The weights
+    exp(logw) after resampling go into qw (N,), for `sample_update`."""
     n = logw.shape[0]
     if resample:
         systematic_into(logw, u0, idx)
@@ -564,6 +643,7 @@ def resample_gate(logw, u0, resample, idx, x, b, P, gamma, mu, Lam, nu, a, B, sl
     mvx = mvy = maf = mar = 0.0
     for i in range(n):
         q = math.exp(logw[i])
+        qw[i] = q
         mvx += q * xs[i, 0]
         mvy += q * xs[i, iv]
         maf += q * af[idx[i]]
@@ -573,7 +653,7 @@ def resample_gate(logw, u0, resample, idx, x, b, P, gamma, mu, Lam, nu, a, B, sl
     mbar = np.zeros(n_w)
     s = 0.0
     for i in range(n):
-        q = math.exp(logw[i])
+        q = qw[i]
         d = xs[i, iv] - mvy
         s += q * (d * d)
         for j in range(n_w):
@@ -587,44 +667,21 @@ def resample_gate(logw, u0, resample, idx, x, b, P, gamma, mu, Lam, nu, a, B, sl
 
 
 
-@njit(**_JIT)
-def sample_update(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z, chi, nu_draw, w,
-                  use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom):
-    """Steps 3-5 of `StiffnessMPF.step`, in place. Per particle i (its weighting arrays h, D,
-    L11, nu_w, L12, Lc, v at row idx[i], the ancestor when resampled):
-    - w_i (into w) from the conditional of w given the first nc (accelerometer) residuals,
-      eq. (39)-(41) (`t_conditional` with `L22_chol`, `x2_white`): M = Lc^-1 L21,
-      mu_c = mu + M^T v, Lam_c = (nu~ + v^T v) / (nu~ + nc) (L11 - M^T M), and `t_sample`'s
-      draw mu_c + chol(Lam_c) z sqrt(nu_draw / chi) with the caller's z (N, n_w), chi (N,);
-    - the outlier mask (`use_mask`): learn while |v_acc|^2 < bound;
-    - the bias update (`_bias_update`, eq. (30), `do_bias`): S = P_aa + R_aa + D_a E[Sigma] D_a^T,
-      K^T = S^-1 P_{a,:}, b += K (y_a - h_a - D_a mu - b_a), P -= P_{:,a} K^T, symmetrised;
-    - gate open (`active`): the whitened lean chol(L11)^-1 (w_i - mu_i) of `_track_drift`
-      (`drift`), then `NiW.update` (eq. (19)) and the projection of mu onto [lo, hi] (Sec. V).
-    Then `_track_drift`'s smoothing of the weighted mean lean into drift_state (n_w,) with
-    the factor drift_a, and `_estimate`'s moments after the update into the rows of mom
-    (6, >= max(nx, n_w, m)): x mean, x std, mean of mu, posterior variance of the mean,
-    sigma^2 of eq. (27b), bias mean. Returns the drift statistic z' of `_track_drift`, NaN
-    when not computed (or when the lean is not finite: the reference then keeps its state)."""
-    n, n_w = mu.shape
-    na = avail.shape[0]
-    mch = b.shape[1]
+@njit(inline="always", **_JIT)
+def _sample(idx, gamma, mu, Lam, nu, L11, nu_w, L12, Lc, v, z, chi, nu_draw, w, use_mask, bound, active, drift,
+            lo, hi, qw, ub, n_w, nc):
+    """Steps 3 and 5 of `sample_update` (its arguments, n_w and nc the sizes; ub (n_w,) the weighted
+    lean of the drift, accumulated)."""
+    n = mu.shape[0]
     M = np.empty((max(nc, 1), n_w))
-    Lm = np.empty((n_w, n_w))
-    L = np.zeros((n_w, n_w))
-    mc = np.empty(n_w)
-    ub = np.zeros(n_w)
     ui = np.empty(n_w)
-    nb = max(na, 1)
-    S = np.empty((nb, nb))
-    Lb = np.zeros((nb, nb))
-    Kt = np.empty((nb, mch))
-    DE = np.empty((nb, n_w))
-    innov = np.empty(nb)
-    Pn = np.empty((mch, mch))
+    Lw = np.empty((n, n_w, n_w))  # the conditional scale Lam_c, factorised in place
+    learn = np.ones(n, np.bool_)
     for i in range(n):
         s = idx[i]
-        # 3. the conditional Student-t and its draw
+        # 3. the conditional Student-t and its draw: Lam_c and mu_c (into w), then each of
+        # chol(Lam_c) and the draw in a short loop of its own over the particles (the CPU
+        # overlaps the square roots and divisions of successive particles)
         for k in range(n_w):  # M = solve_lower(Lc, L21): column k of L21 is row k of L12
             for q in range(nc):
                 acc = L12[s, k, q]
@@ -638,85 +695,63 @@ def sample_update(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, 
             t = 0.0
             for q in range(nc):
                 t += M[q, k] * v[s, q]
-            mc[k] = mu[i, k] + t
+            w[i, k] = mu[i, k] + t
         sc = (nu_w[s] + vv) / (nu_w[s] + nc)
         for j in range(n_w):
-            for k in range(n_w):
+            for k in range(j + 1):
                 g = 0.0
                 for q in range(nc):
                     g += M[q, j] * M[q, k]
-                Lm[j, k] = sc * (L11[s, j, k] - g)
-        _chol(Lm, L, n_w)
+                Lw[i, j, k] = sc * (L11[s, j, k] - g)
+        if use_mask:  # the outlier mask: learn while |v_acc|^2 < bound
+            learn[i] = vv < bound
+    for i in range(n):  # chol(Lam_c) in place (`_chol`)
+        for j in range(n_w):
+            Sjj = Lw[i, j, j]
+            d = Sjj
+            for k in range(j):
+                d = d - Lw[i, j, k] * Lw[i, j, k]
+            Ljj = math.sqrt(max(d, abs(Sjj) * 1e-14 + 1e-300))
+            Lw[i, j, j] = Ljj
+            for r in range(j + 1, n_w):
+                acc = Lw[i, r, j]
+                for k in range(j):
+                    acc = acc - Lw[i, r, k] * Lw[i, j, k]
+                Lw[i, r, j] = acc * (1.0 / Ljj)
+    for i in range(n):  # the draw mu_c + chol(Lam_c) z sqrt(nu_draw / chi)
         f = math.sqrt(nu_draw[i] / chi[i])
         for j in range(n_w):
             t = 0.0
             for k in range(j + 1):
-                t += L[j, k] * z[i, k]
-            w[i, j] = mc[j] + t * f
-        learn = True
-        if use_mask:
-            learn = vv < bound
-        # 4. bias, eq. (30), with the predicted statistics
-        if do_bias:
-            den = nu[i] - n_w - 1.0
-            for q in range(na):
-                for k in range(n_w):
-                    t = 0.0
-                    for j in range(n_w):
-                        t += D[s, avail[q], j] * (Lam[i, j, k] / den)
-                    DE[q, k] = t
-            for q in range(na):
-                for q2 in range(na):
-                    t = 0.0
-                    for k in range(n_w):
-                        t += DE[q, k] * D[s, avail[q2], k]
-                    S[q, q2] = P[i, avail[q], avail[q2]] + R[avail[q], avail[q2]] + t
-            _chol(S, Lb, na)
-            for c in range(mch):  # Kt[:, c] = S^-1 P[a, c]
-                for q in range(na):
-                    acc = P[i, avail[q], c]
-                    for j in range(q):
-                        acc = acc - Lb[q, j] * Kt[j, c]
-                    Kt[q, c] = acc / Lb[q, q]
-                for q in range(na - 1, -1, -1):
-                    acc = Kt[q, c]
-                    for j in range(q + 1, na):
-                        acc = acc - Lb[j, q] * Kt[j, c]
-                    Kt[q, c] = acc / Lb[q, q]
-            for q in range(na):
-                ch = avail[q]
-                t = 0.0
-                for j in range(n_w):
-                    t += D[s, ch, j] * mu[i, j]
-                innov[q] = y[ch] - h[s, ch] - t - b[i, ch]
-            for c in range(mch):
-                t = 0.0
-                for q in range(na):
-                    t += Kt[q, c] * innov[q]
-                b[i, c] = b[i, c] + t
-            for c in range(mch):  # Pn = P - P_{:,a} K^T (from the old P), then 0.5 (Pn + Pn^T)
-                for c2 in range(mch):
-                    t = 0.0
-                    for q in range(na):
-                        t += P[i, avail[q], c] * Kt[q, c2]
-                    Pn[c, c2] = P[i, c, c2] - t
-            for c in range(mch):
-                for c2 in range(mch):
-                    P[i, c, c2] = 0.5 * (Pn[c, c2] + Pn[c2, c])
-        if not active:
-            continue
-        # 5. the drift of the adaptive forgetting, then the NiW update and the projection
-        if drift:  # u = chol(L11)^-1 (w - mu), before the update
-            _chol(L11[s], L, n_w)
-            for j in range(n_w):
-                acc = w[i, j] - mu[i, j]
+                t += Lw[i, j, k] * z[i, k]
+            w[i, j] = w[i, j] + t * f
+    # 5. the drift of the adaptive forgetting (u = chol(L11)^-1 (w - mu), before the update: chol(L11) in
+    # place of Lam_c's factor, then the solve), then the NiW update and the projection, each in a loop of its own
+    for i in range(n if active and drift else 0):
+        s = idx[i]
+        for j in range(n_w):
+            Sjj = L11[s, j, j]
+            d = Sjj
+            for k in range(j):
+                d = d - Lw[i, j, k] * Lw[i, j, k]
+            Ljj = math.sqrt(max(d, abs(Sjj) * 1e-14 + 1e-300))
+            Lw[i, j, j] = Ljj
+            for r in range(j + 1, n_w):
+                acc = L11[s, r, j]
                 for k in range(j):
-                    acc = acc - L[j, k] * ui[k]
-                ui[j] = acc / L[j, j]
-            q_i = math.exp(logw[i])
-            for j in range(n_w):
-                ub[j] += q_i * ui[j]
-        if not learn:
+                    acc = acc - Lw[i, r, k] * Lw[i, j, k]
+                Lw[i, r, j] = acc * (1.0 / Ljj)
+    for i in range(n if active and drift else 0):
+        for j in range(n_w):
+            acc = w[i, j] - mu[i, j]
+            for k in range(j):
+                acc = acc - Lw[i, j, k] * ui[k]
+            ui[j] = acc / Lw[i, j, j]
+        q_i = qw[i]
+        for j in range(n_w):
+            ub[j] += q_i * ui[j]
+    for i in range(n if active else 0):
+        if not learn[i]:
             for j in range(n_w):
                 mu[i, j] = min(max(mu[i, j], lo[j]), hi[j])
             continue
@@ -732,6 +767,127 @@ def sample_update(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, 
             mu[i, j] = min(max(m, lo[j]), hi[j])
         gamma[i] = g_new
         nu[i] = nu[i] + 1.0
+
+
+@njit(**_JIT)
+def sample_update(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z, chi, nu_draw, w,
+                  use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw):
+    """Steps 3-5 of `StiffnessMPF.step`, in place. Per particle i (its weighting arrays h, D,
+    L11, nu_w, L12, Lc, v at row idx[i], the ancestor when resampled):
+    - w_i (into w) from the conditional of w given the first nc (accelerometer) residuals,
+      eq. (39)-(41) (`t_conditional` with `L22_chol`, `x2_white`): M = Lc^-1 L21,
+      mu_c = mu + M^T v, Lam_c = (nu~ + v^T v) / (nu~ + nc) (L11 - M^T M), and `t_sample`'s
+      draw mu_c + chol(Lam_c) z sqrt(nu_draw / chi) with the caller's z (N, n_w), chi (N,);
+    - the outlier mask (`use_mask`): learn while |v_acc|^2 < bound;
+    - the bias update (`_bias_update`, eq. (30), `do_bias`): S = P_aa + R_aa + D_a E[Sigma] D_a^T,
+      K^T = S^-1 P_{a,:}, b += K (y_a - h_a - D_a mu - b_a), P -= P_{:,a} K^T, symmetrised;
+    - gate open (`active`): the whitened lean chol(L11)^-1 (w_i - mu_i) of `_track_drift`
+      (`drift`), then `NiW.update` (eq. (19)) and the projection of mu onto [lo, hi] (Sec. V).
+    Then `_track_drift`'s smoothing of the weighted mean lean into drift_state (n_w,) with
+    the factor drift_a, and `_estimate`'s moments after the update into the rows of mom
+    (6, >= max(nx, n_w, m)): x mean, x std, mean of mu, posterior variance of the mean,
+    sigma^2 of eq. (27b), bias mean. Returns the drift statistic z' of `_track_drift`, NaN
+    when not computed (or when the lean is not finite: the reference then keeps its state).
+    The weights exp(logw) are read from qw (N,), as `resample_gate` left them.
+    `sample_update_full` and `sample_update_lateral` are the same for the full model with both
+    accelerometers (n_w = 3, nc = 2) and the lateral one (n_w = 2, nc = 1) with the sizes as
+    constants."""
+    t1 = (idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z)
+    t2 = (chi, nu_draw, w, use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw)
+    return _sample_update(t1, t2, mu.shape[1], nc)
+
+
+@njit(**_JIT)
+def sample_update_full(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z, chi, nu_draw, w,
+                       use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw):
+    """`sample_update` for the full model with both accelerometers (n_w = 3, nc = 2)."""
+    if mu.shape[1] != 3 or nc != 2:
+        raise ValueError("sample_update_full: n_w = 3, nc = 2 only")
+    t1 = (idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z)
+    t2 = (chi, nu_draw, w, use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw)
+    return _sample_update(t1, t2, 3, 2)
+
+
+@njit(**_JIT)
+def sample_update_lateral(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z, chi, nu_draw, w,
+                          use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw):
+    """`sample_update` for the lateral model with its accelerometer (n_w = 2, nc = 1)."""
+    if mu.shape[1] != 2 or nc != 1:
+        raise ValueError("sample_update_lateral: n_w = 2, nc = 1 only")
+    t1 = (idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z)
+    t2 = (chi, nu_draw, w, use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw)
+    return _sample_update(t1, t2, 2, 1)
+
+
+@njit(inline="always", **_JIT)
+def _sample_update(t1, t2, n_w, nc_):
+    """`sample_update` with its arguments in t1, t2 (a call of more than 30 arguments compiles to f(*args),
+    which numba does not inline) and the sizes given."""
+    (idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z) = t1
+    (chi, nu_draw, w, use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw) = t2
+    n = mu.shape[0]
+    nc = nc_
+    na = avail.shape[0]
+    mch = b.shape[1]
+    nb = max(na, 1)
+    S = np.empty((nb, nb))
+    Lb = np.zeros((nb, nb))
+    Kt = np.empty((nb, mch))
+    DE = np.empty((nb, n_w))
+    innov = np.empty(nb)
+    Pn = np.empty((mch, mch))
+    ub = np.zeros(n_w)
+    for i in range(n if do_bias else 0):  # (first: it reads the statistics before their update and writes only b, P)
+        s = idx[i]
+        # 4. bias, eq. (30), with the predicted statistics
+        den = nu[i] - n_w - 1.0
+        for q in range(na):
+            for k in range(n_w):
+                t = 0.0
+                for j in range(n_w):
+                    t += D[s, avail[q], j] * (Lam[i, j, k] / den)
+                DE[q, k] = t
+        for q in range(na):
+            for q2 in range(na):
+                t = 0.0
+                for k in range(n_w):
+                    t += DE[q, k] * D[s, avail[q2], k]
+                S[q, q2] = P[i, avail[q], avail[q2]] + R[avail[q], avail[q2]] + t
+        _chol(S, Lb, na)
+        for c in range(mch):  # Kt[:, c] = S^-1 P[a, c]
+            for q in range(na):
+                acc = P[i, avail[q], c]
+                for j in range(q):
+                    acc = acc - Lb[q, j] * Kt[j, c]
+                Kt[q, c] = acc / Lb[q, q]
+            for q in range(na - 1, -1, -1):
+                acc = Kt[q, c]
+                for j in range(q + 1, na):
+                    acc = acc - Lb[j, q] * Kt[j, c]
+                Kt[q, c] = acc / Lb[q, q]
+        for q in range(na):
+            ch = avail[q]
+            t = 0.0
+            for j in range(n_w):
+                t += D[s, ch, j] * mu[i, j]
+            innov[q] = y[ch] - h[s, ch] - t - b[i, ch]
+        for c in range(mch):
+            t = 0.0
+            for q in range(na):
+                t += Kt[q, c] * innov[q]
+            b[i, c] = b[i, c] + t
+        for c in range(mch):  # Pn = P - P_{:,a} K^T (from the old P), then 0.5 (Pn + Pn^T)
+            for c2 in range(mch):
+                t = 0.0
+                for q in range(na):
+                    t += P[i, avail[q], c] * Kt[q, c2]
+                Pn[c, c2] = P[i, c, c2] - t
+        for c in range(mch):
+            for c2 in range(mch):
+                P[i, c, c2] = 0.5 * (Pn[c, c2] + Pn[c2, c])
+    # 3. and 5.
+    _sample(idx, gamma, mu, Lam, nu, L11, nu_w, L12, Lc, v, z, chi, nu_draw, w, use_mask, bound, active, drift, lo,
+            hi, qw, ub, n_w, nc)
     zd = math.nan
     if active and drift:
         finite = True
@@ -744,7 +900,7 @@ def sample_update(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, 
                 drift_state[j] = drift_state[j] + drift_a * (ub[j] - drift_state[j])
                 dd += drift_state[j] * drift_state[j]
             zd = dd * (2.0 - drift_a) / (drift_a * n_w)
-    estimate_moments(logw, x, gamma, mu, Lam, nu, b, mom)
+    _moments(qw, x, gamma, mu, Lam, nu, b, mom)
     return zd
 
 
@@ -753,15 +909,22 @@ def estimate_moments(logw, x, gamma, mu, Lam, nu, b, mom):
     """`_estimate`'s sums into the rows of mom (6, >= max(nx, n_w, m)): x mean and std, the
     mean of mu, the posterior variance of the mean (gamma E[Sigma] plus the spread of the
     particle means), eq. (27b) sigma^2, bias mean."""
+    q = np.empty(logw.shape[0])
+    for i in range(logw.shape[0]):
+        q[i] = math.exp(logw[i])
+    _moments(q, x, gamma, mu, Lam, nu, b, mom)
+
+
+@njit(**_JIT)
+def _moments(q, x, gamma, mu, Lam, nu, b, mom):
+    """`estimate_moments` with the weights q = exp(logw) (N,) given."""
     n, nx = x.shape
     n_w = mu.shape[1]
     mch = b.shape[1]
     mom[:] = 0.0
     xm, xs, mbar, vm, s2, bm = mom[0], mom[1], mom[2], mom[3], mom[4], mom[5]
     spread = np.zeros(n_w)
-    q = np.empty(n)
     for i in range(n):
-        q[i] = math.exp(logw[i])
         for c in range(nx):
             xm[c] += q[i] * x[i, c]
         for j in range(n_w):
