@@ -272,7 +272,7 @@ class StiffnessMPF:
         self.linear_region = True  # |a^Y| below the gate's linear-region bound at the last sample
         self.lam = self.cfg.forgetting  # the forgetting factor applied at the next propagation
         self.drift = np.zeros(self.n_w)  # smoothed whitened w_k - mu_{k|k-1} (adaptive forgetting)
-        self.cx_weight_max = 0.0  # the largest excitation weight of Cx in this run (`_excite_cx`)
+        self.cx_weight_max = 0.0 if self.full else None  # the largest excitation weight of Cx so far (`_excite_cx`)
         self._reset_cx_excitation()
 
     def _draw_prior(self, x0_mean) -> None:
