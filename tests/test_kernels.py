@@ -291,12 +291,14 @@ def test_stiffness_mpf_backends_equal(model, bias, restarts, paper, monkeypatch)
     `restarts`: a plausible yaw rate so small that the cloud leaves it now and then.
     `paper`: the paper's wheel slip (held from the start of the step) and undriven axle;
     False: the surface-scaled undriven axle; "learned": the undriven axle scaled by the excitation
-    weight of Cx (the default), on a drive whose front slip swings by 0.5% (the weight grows).
+    weight of Cx (the default), on a drive whose front slip swings by 0.5% (the weight grows), and
+    the v^Y noise of the adaptive forgetting's innovation statistic (`vy_jitter`).
     The numba filter runs its fused step (`_step_compiled`) on every sample but the first
     (a restart is decided inside it); the numpy filter never does."""
     if paper == "learned" and model == "lateral":
         pytest.skip("the lateral model has no Cx")
-    variant = PAPER_SLIP if paper is True else dict(undriven_stiffness="learned" if paper else "surface")
+    variant = PAPER_SLIP if paper is True else dict(undriven_stiffness="learned", vy_jitter=0.2) if paper else dict(
+        undriven_stiffness="surface")
     fused = _count_fused_steps(monkeypatch)
     vehicle = load_scenario("paper-sim").vehicle
     noise = dict(bias_rw=(0.01, 0.01, 0.001), bias0_std=(0.1, 0.1, 0.01)) if bias else dict(

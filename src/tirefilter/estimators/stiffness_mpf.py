@@ -80,6 +80,9 @@ class MPFConfig:
     x0_mean: tuple[float, ...] | None = None  # initial state mean (full: vx, vy, r)
     x0_std: tuple[float, ...] = (1.0, 0.5, 0.0175)  # full: vx, vy, r (lateral uses vy, r)
     state_noise: tuple[float, ...] = (0.0, 0.0, 0.0)  # additive process noise per sqrt(s), full: vx, vy, r
+    # v^Y process noise while the adaptive forgetting's innovation statistic z fires (derivations Sec. 24):
+    # std per sqrt(s) vy_jitter * sqrt(max(z - 1, 0)), added to state_noise's; 0: off
+    vy_jitter: float = 0.0
     x0_vx_from_wheels: bool = True  # full model: centre vx on R_w omega of the undriven axle
     x0_vx_wheel_std: float = 0.02  # m/s, spread around it (the free-rolling wheel's slip)
     # observability gate (Sec. V) and linear-region gate
@@ -150,7 +153,7 @@ class MPFConfig:
         for key in ("init_std", "init_half_width", "init_sigma", "gate_speed", "gate_steer", "gate_ay_max",
                     "gate_alpha_max", "gate_vy_std", "gate_warmup", "nu0_margin", "plausible_beta",
                     "plausible_yaw_rate", "restart_alpha", "restart_after", "restart_at_bound_after",
-                    "x0_vx_wheel_std"):
+                    "x0_vx_wheel_std", "vy_jitter"):
             if not getattr(self, key) >= 0:
                 bad(key, f"must be >= 0, got {getattr(self, key)!r}")
         for key in ("sigma", "bias_rw", "bias0_std", "disturbance_rw", "x0_std", "state_noise"):
@@ -212,7 +215,7 @@ class StiffnessMPF:
         # residual is the model's error, not the road's (derivations, Sec. 16)
         self.q_bias, self.q_bias_nonlinear = q_sensor + q_road, q_sensor
         q = np.asarray(self.cfg.state_noise, float)[-(3 if self.full else 2):]
-        self.state_noise = q if np.any(q > 0) else None
+        self.state_noise = q if np.any(q > 0) or self.cfg.vy_jitter > 0 else None
         ref = np.asarray(self.cfg.init_reference if self.cfg.init_reference is not None else self.C_nom, float)
         center = np.asarray(self.cfg.init_center if self.cfg.init_center is not None else ref, float)
         if ref.shape != (self.n_w,) or center.shape != (self.n_w,):
@@ -472,7 +475,7 @@ class StiffnessMPF:
             self.x = self._propagate(self.x, self.u_prev, self.w_prev, dt, first)
             self._redraw_after_gap(dt, u_now)  # (a gap: the compiled backend comes this way too)
             if self.state_noise is not None:  # optional regularisation against sample impoverishment
-                self.x = self.x + math.sqrt(dt) * self.state_noise * self.rng.standard_normal(self.x.shape)
+                self.x = self.x + self._state_noise_scale(dt) * self.rng.standard_normal(self.x.shape)
             if self.bias_on:
                 q = self.q_bias if self.linear_region else self.q_bias_nonlinear
                 self.P = self.P + np.diag(q * dt)
@@ -568,6 +571,18 @@ class StiffnessMPF:
         if self.full:
             self._excite_cx(float(np.exp(self.logw) @ self.x[:, 0]), uk, dt)
         return self._estimate(ess)
+
+    def _state_noise_scale(self, dt: float) -> np.ndarray:
+        """Std of the additive state noise over a step dt (nx,): `state_noise` sqrt(dt), and on
+        v^Y also vy_jitter sqrt(max(z - 1, 0)) sqrt(dt) with z the adaptive forgetting's
+        smoothed innovation statistic of the previous sample (derivations Sec. 24)."""
+        q = self.state_noise
+        jit = self.cfg.vy_jitter
+        if jit > 0 and self.cfg.forgetting_mode == "adaptive" and self.surprise > 1.0:
+            q = q.copy()
+            iy = 1 if self.full else 0
+            q[iy] = math.sqrt(q[iy] ** 2 + jit * jit * (self.surprise - 1.0))
+        return math.sqrt(dt) * q
 
     # ---- the undriven axle's share of the learned Cx (undriven_stiffness = "learned") ----------
     def _reset_cx_excitation(self) -> None:
@@ -669,7 +684,7 @@ class StiffnessMPF:
         cfg, nb, rng, st = self.cfg, self._nb, self.rng, self.stats
         wk = self._work()
         if self.state_noise is not None:  # optional regularisation against sample impoverishment
-            noise, noise_scale = rng.standard_normal(self.x.shape), math.sqrt(dt) * self.state_noise
+            noise, noise_scale = rng.standard_normal(self.x.shape), self._state_noise_scale(dt)
         else:
             noise, noise_scale = wk.no_noise, wk.no_scale
         q = self.q_bias if self.linear_region else self.q_bias_nonlinear
