@@ -80,8 +80,9 @@ class MPFConfig:
     x0_mean: tuple[float, ...] | None = None  # initial state mean (full: vx, vy, r)
     x0_std: tuple[float, ...] = (1.0, 0.5, 0.0175)  # full: vx, vy, r (lateral uses vy, r)
     state_noise: tuple[float, ...] = (0.0, 0.0, 0.0)  # additive process noise per sqrt(s), full: vx, vy, r
-    # v^Y process noise while the adaptive forgetting's innovation statistic z fires (derivations Sec. 24):
-    # std per sqrt(s) vy_jitter * sqrt(max(z - 1, 0)), added to state_noise's; 0: off
+    # v^Y process noise while the adaptive forgetting's innovation statistic z holds lambda at its floor
+    # (z > z_on = (1 - forgetting_min) / (1 - forgetting)): std per sqrt(s) vy_jitter sqrt(z - z_on), added
+    # to state_noise's; 0: off
     vy_jitter: float = 0.0
     x0_vx_from_wheels: bool = True  # full model: centre vx on R_w omega of the undriven axle
     x0_vx_wheel_std: float = 0.02  # m/s, spread around it (the free-rolling wheel's slip)
@@ -574,14 +575,16 @@ class StiffnessMPF:
 
     def _state_noise_scale(self, dt: float) -> np.ndarray:
         """Std of the additive state noise over a step dt (nx,): `state_noise` sqrt(dt), and on
-        v^Y also vy_jitter sqrt(max(z - 1, 0)) sqrt(dt) with z the adaptive forgetting's
-        smoothed innovation statistic of the previous sample (derivations Sec. 24)."""
-        q = self.state_noise
-        jit = self.cfg.vy_jitter
-        if jit > 0 and self.cfg.forgetting_mode == "adaptive" and self.surprise > 1.0:
+        v^Y also vy_jitter sqrt(z - z_on) sqrt(dt) while the adaptive forgetting's smoothed
+        innovation statistic z of the previous sample exceeds z_on, the z that puts lambda at its
+        floor `forgetting_min` (a change: benchmarks/README, "v^Y noise at a change")."""
+        cfg, q = self.cfg, self.state_noise
+        # z at which the forgetting reaches its floor, 1 - (1 - lambda) z = lambda_min: the change statistic fires
+        z_on = (1.0 - cfg.forgetting_min) / max(1.0 - cfg.forgetting, 1e-12)
+        if cfg.vy_jitter > 0 and cfg.forgetting_mode == "adaptive" and self.surprise > z_on:
             q = q.copy()
             iy = 1 if self.full else 0
-            q[iy] = math.sqrt(q[iy] ** 2 + jit * jit * (self.surprise - 1.0))
+            q[iy] = math.sqrt(q[iy] ** 2 + cfg.vy_jitter**2 * (self.surprise - z_on))
         return math.sqrt(dt) * q
 
     # ---- the undriven axle's share of the learned Cx (undriven_stiffness = "learned") ----------
