@@ -250,34 +250,38 @@ def test_slip_over_step_kernel_equal(drive, undriven):
 PAPER_SLIP = dict(slip_hold="start", undriven_stiffness="nominal", x0_vx_wheel_std=0.1)
 
 
-def _mpf_samples(vehicle, steps: int, gap: float = 0.05):
+def _mpf_samples(vehicle, steps: int, gap: float = 0.05, slip_wave: float = 0.0):
     """A steering sine at about 20 m/s, 100 Hz, from a linear single track with noise and a
     little wheel slip (no FMU): (t, Inputs, Measurement) per sample; a^Y missing every 7th
     sample, all sensors missing once, and one gap of `gap` s before sample 30 (50 ms:
-    sub-stepped)."""
+    sub-stepped). `slip_wave`: the front wheel's slip swings by this much at 3 Hz (Cx excited)."""
     rng, v, t = np.random.default_rng(5), vehicle, 0.0
     for k in range(steps):
         t += gap if k == 30 else 0.01
         delta = 0.02 * math.sin(2 * math.pi * 0.7 * t)
         r = 20.0 * delta / (v.lf + v.lr)
         omega = 20.0 / v.wheel_radius
+        slip = 0.01 + slip_wave * math.sin(2 * math.pi * 3.0 * t)
         ay = math.nan if k % 7 == 3 else 20.0 * r + 0.05 * rng.standard_normal()
-        y = Measurement() if k == 40 else Measurement(ax=0.2 + 0.05 * rng.standard_normal(), ay=ay,
+        ax = 0.2 + 0.8 * v.Cx * (slip - 0.01) / v.mass
+        y = Measurement() if k == 40 else Measurement(ax=ax + 0.05 * rng.standard_normal(), ay=ay,
                                                        yaw_rate=r + 0.003 * rng.standard_normal())
-        yield t, Inputs(delta=delta, omega_f=omega * 1.01, omega_r=omega, vx=20.0), y
+        yield t, Inputs(delta=delta, omega_f=omega * (1 + slip), omega_r=omega, vx=20.0), y
 
 
 def _mpf_outputs(e) -> tuple:
     return e.vx, e.vy, e.yaw_rate, e.Cf_y, e.Cr_y, e.Cf_y_std, e.Cr_y_sigma, e.b_ay, e.b_yaw_rate, e.ess
 
 
-def _mpf_drive(est: StiffnessMPF, steps: int, gap: float = 0.05):
-    """`est` reset and stepped through `_mpf_samples`: its outputs per sample."""
+def _mpf_drive(est: StiffnessMPF, steps: int, gap: float = 0.05, slip_wave: float = 0.0):
+    """`est` reset and stepped through `_mpf_samples`: its outputs per sample, with the
+    excitation weight of Cx and the undriven axle's share."""
     est.reset(np.random.default_rng(9))
-    return np.array([_mpf_outputs(est.step(t, u, y)) for t, u, y in _mpf_samples(est.vehicle, steps, gap)])
+    return np.array([_mpf_outputs(est.step(t, u, y)) + (est.cx_weight, est.undriven_share)
+                     for t, u, y in _mpf_samples(est.vehicle, steps, gap, slip_wave)])
 
 
-@pytest.mark.parametrize("paper", [False, True], ids=["", "paper-slip"])
+@pytest.mark.parametrize("paper", [False, True, "learned"], ids=["", "paper-slip", "learned-undriven"])
 @pytest.mark.parametrize("restarts", [False, True], ids=["", "restarts"])
 @pytest.mark.parametrize("bias", [False, True], ids=["no-bias", "bias"])
 @pytest.mark.parametrize("model", ["full", "lateral"])
@@ -285,9 +289,16 @@ def test_stiffness_mpf_backends_equal(model, bias, restarts, paper, monkeypatch)
     """80 steps at N = 24 with resampling at every step (threshold 1) and learning from the
     fifth sample: numba and numpy give the same estimates, particles, bias and statistics.
     `restarts`: a plausible yaw rate so small that the cloud leaves it now and then.
-    `paper`: the paper's wheel slip (held from the start of the step) and undriven axle.
+    `paper`: the paper's wheel slip (held from the start of the step) and undriven axle;
+    False: the surface-scaled undriven axle; "learned": the undriven axle scaled by the excitation
+    weight of Cx (the default), on a drive whose front slip swings by 0.5% (the weight grows), and
+    the v^Y noise of the adaptive forgetting's innovation statistic (`vy_jitter`).
     The numba filter runs its fused step (`_step_compiled`) on every sample but the first
     (a restart is decided inside it); the numpy filter never does."""
+    if paper == "learned" and model == "lateral":
+        pytest.skip("the lateral model has no Cx")
+    variant = PAPER_SLIP if paper is True else dict(undriven_stiffness="learned", vy_jitter=0.2) if paper else dict(
+        undriven_stiffness="surface")
     fused = _count_fused_steps(monkeypatch)
     vehicle = load_scenario("paper-sim").vehicle
     noise = dict(bias_rw=(0.01, 0.01, 0.001), bias0_std=(0.1, 0.1, 0.01)) if bias else dict(
@@ -296,10 +307,12 @@ def test_stiffness_mpf_backends_equal(model, bias, restarts, paper, monkeypatch)
     for backend in ("numpy", "numba"):
         cfg = MPFConfig(particles=24, model=model, backend=backend, resample_threshold=1.0, gate_warmup=0.05,
                         gate_vy_std=10.0, gate_steer=0.0, plausible_yaw_rate=0.02 if restarts else 2.0, **noise,
-                        **(PAPER_SLIP if paper else dict(undriven_stiffness="surface")))
+                        **variant)
         est = StiffnessMPF(vehicle, cfg)
-        runs[backend] = (_mpf_drive(est, 80), est)
+        runs[backend] = (_mpf_drive(est, 80, slip_wave=0.005 if paper == "learned" else 0.0), est)
     (a, fast), (b, ref) = runs["numba"], runs["numpy"]
+    if paper == "learned" and not restarts:  # the weight has grown: the undriven axle's share moved
+        assert b[-1, -2] > 0.5 and b[-1, -1] == pytest.approx(b[-1, -2] * ref.full_share)
     assert fused[id(ref)] == 0 and fused[id(fast)] == 79  # (a restart is decided inside the fused step)
     assert ref.resamples >= 30 and fast.resamples == ref.resamples
     assert fast.restarts == ref.restarts and (ref.restarts >= 2 if restarts else ref.restarts == 0)
@@ -463,6 +476,7 @@ def test_stiffness_mpf_fused_state_pickles():
     copy = pickle.loads(pickle.dumps(part))
     assert copy.x is copy._wk.x and copy.stats.mu is copy._wk.mu  # still the work arrays, not copies of them
     # the samples 25-39 of `_mpf_drive`, after the first 25 (their noise drawn in the same order)
-    rest = [_mpf_outputs(copy.step(t, u, y)) for k, (t, u, y) in enumerate(_mpf_samples(vehicle, 40)) if k >= 25]
+    rest = [_mpf_outputs(copy.step(t, u, y)) + (copy.cx_weight, copy.undriven_share)
+            for k, (t, u, y) in enumerate(_mpf_samples(vehicle, 40)) if k >= 25]
     assert np.array_equal(np.vstack([b, rest]), a)
     assert np.array_equal(copy.posterior().stats["Lam"], whole.posterior().stats["Lam"])

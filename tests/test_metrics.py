@@ -84,6 +84,19 @@ def test_divergence_restarts_and_overconfidence_are_warned():
     assert "restarts 1" in "\n".join(lines) and "DIVERGED" in metrics_line(m) and "1 restart(s)" in metrics_line(m)
 
 
+@pytest.mark.parametrize("weight, said", [(None, False), (0.0, True), (0.49, True), (0.5, False), (1.0, False)])
+def test_a_run_without_excitation_of_cx_says_so(weight, said):
+    """The MPF's largest excitation weight of Cx (`cx_weight_max`) below CX_EXCITED = 0.5: one
+    line says that Cx was not learned from the drive, in both the table's and the streamed metrics."""
+    r = _run()
+    for m in (run_metrics(r, SCHEDULE, cx_excitation=weight), _streamed(r, SCHEDULE, [700], cx_excitation=weight)):
+        assert m["cx_excitation"] == weight
+        lines = [w for w in format_metrics(m) if w.startswith("warning: Cx: no wheel-slip excitation")]
+        assert len(lines) == (1 if said else 0)
+        if said:
+            assert f"at most {weight:.2f} of 1" in lines[0]
+
+
 def test_missing_estimates_in_the_settled_window_are_counted():
     est = _run()["Cf_y"].copy()
     est[(T >= 16.0) & (T < 17.0)] = np.nan

@@ -171,7 +171,9 @@ def test_a_gap_draws_vx_again_from_the_undriven_wheels(backend):
 
 @pytest.mark.parametrize("options,match", [
     ({"slip_hold": "end"}, "expected interval or start"),
-    ({"undriven_stiffness": "guess"}, "expected surface or nominal"),
+    ({"undriven_stiffness": "guess"}, "expected learned, surface or nominal"),
+    ({"cx_excitation_time": 0.0}, "cx_excitation_time"),
+    ({"cx_excitation_time": math.inf}, "cx_excitation_time"),
     ({"restart_at_bound_after": -1.0}, "must be >= 0"),
     ({"x0_vx_wheel_std": -0.1}, "must be >= 0"),
 ])
@@ -181,16 +183,67 @@ def test_bad_slip_and_restart_options_are_rejected(options, match):
 
 
 def test_defaults_and_the_papers_variant():
-    """The interval slip, a 0.02 m/s v^X start spread and the bound restart are the defaults,
-    with the paper's nominal undriven axle; the paper's eq. (9) (slip of t_k held) and the
-    surface-scaled undriven axle are options."""
+    """The interval slip, a 0.02 m/s v^X start spread, the bound restart and the undriven axle
+    scaled by the excitation weight of Cx (nominal until Cx is excited) are the defaults; the
+    paper's eq. (9) (slip of t_k held), its nominal undriven axle and the surface-scaled
+    undriven axle are options."""
     cfg = MPFConfig()
-    assert (cfg.slip_hold, cfg.undriven_stiffness, cfg.x0_vx_wheel_std, cfg.restart_at_bound_after) == (
-        "interval", "nominal", 0.02, 2.0)
+    assert (cfg.slip_hold, cfg.undriven_stiffness, cfg.x0_vx_wheel_std, cfg.restart_at_bound_after,
+            cfg.cx_excitation_time) == ("interval", "learned", 0.02, 2.0, 1.0)
     vehicle = load_scenario("paper-sim").vehicle
-    assert StiffnessMPF(vehicle).undriven_share == 0.0
+    est = StiffnessMPF(vehicle)
+    est.reset(np.random.default_rng(0))
+    assert est.undriven_share == 0.0 and est.full_share == pytest.approx(vehicle.Cx_undriven / vehicle.Cx)
+    assert StiffnessMPF(vehicle, MPFConfig(undriven_stiffness="nominal")).undriven_share == 0.0
     surface = StiffnessMPF(vehicle, MPFConfig(slip_hold="start", undriven_stiffness="surface"))
     assert surface.undriven_share == pytest.approx(vehicle.Cx_undriven / vehicle.Cx)
+
+
+def test_cx_excitation_weight_is_the_contraction_of_the_linear_gaussian_posterior():
+    """rho = I P_0 / (1 + I P_0) equals 1 - P_N / P_0 of the scalar Kalman filter of
+    y_k = b_k w + e_k (prior variance P_0, noise variance R) after the same regressors, and
+    the exact values at its ends (derivations Sec. 23)."""
+    from tirefilter.estimators.stiffness_mpf import cx_excitation_weight
+
+    rng = np.random.default_rng(2)
+    b, R, P0 = rng.normal(0.0, 5e-6, 300), 0.05**2, (0.3 * 2.632e5) ** 2
+    P = P0
+    for bk in b:  # the covariance form of the Kalman filter
+        P = P - P * bk * bk * P / (bk * bk * P + R)
+    assert cx_excitation_weight(float(np.sum(b * b) / R), P0) == pytest.approx(1.0 - P / P0, rel=1e-9)
+    assert cx_excitation_weight(0.0, P0) == 0.0 and cx_excitation_weight(5.0, 0.0) == 0.0
+    assert cx_excitation_weight(1.0 / P0, P0) == pytest.approx(0.5, rel=1e-15)
+    assert cx_excitation_weight(9.0 / P0, P0) == pytest.approx(0.9, rel=1e-15)
+    assert cx_excitation_weight(math.inf, P0) == 1.0
+    with pytest.raises(ValueError, match=">= 0"):
+        cx_excitation_weight(-1.0, P0)
+
+
+def test_cx_excitation_counts_the_changes_of_the_slip_only():
+    """`_excite_cx` on a driven slip held at 1% (no information: its level is the bias's), then
+    stepped to 2%: the high-passed regressor b_k = (lambda_k - level_k) / m decays as
+    (1 - a)^(j + 1) ds / m after the step, a = 1 - exp(-dt / T), so with lambda = 1 the
+    information sums to (ds / m)^2 (1 - a)^2 / (1 - (1 - a)^2) / sigma_ax^2; with the gate closed
+    it stays frozen, and the undriven axle takes the share rho of the surface scaling."""
+    vehicle = load_scenario("paper-sim").vehicle  # front drive
+    est = StiffnessMPF(vehicle, MPFConfig(backend="numpy"))
+    est.reset(np.random.default_rng(0))
+    est.active, est._lam_step, vx, dt = True, 1.0, 20.0, 0.01
+    omega = lambda slip: vx / (1 - slip) / vehicle.wheel_radius  # noqa: E731  (slip = 1 - vx / (R_w omega))
+    for _ in range(300):
+        est._excite_cx(vx, np.array([0.0, omega(0.01), vx / vehicle.wheel_radius, vx]), dt)
+    assert est.cx_info == 0.0 and est.cx_weight == 0.0 and est.undriven_share == 0.0
+    for _ in range(3000):  # 30 s: (1 - a)^6000 is nothing
+        est._excite_cx(vx, np.array([0.0, omega(0.02), vx / vehicle.wheel_radius, vx]), dt)
+    q = math.exp(-dt / est.cfg.cx_excitation_time)  # 1 - a
+    want = (0.01 / vehicle.mass) ** 2 * q * q / (1 - q * q) / est.cfg.sigma[0] ** 2
+    assert est.cx_info == pytest.approx(want, rel=1e-9)
+    rho = want * est._cx_prior_var() / (1 + want * est._cx_prior_var())
+    assert est.cx_weight == pytest.approx(rho, rel=1e-9) and est.cx_weight_max == est.cx_weight
+    assert est.undriven_share == pytest.approx(rho * vehicle.Cx_undriven / vehicle.Cx, rel=1e-9)
+    est.active = False
+    est._excite_cx(vx, np.array([0.0, omega(0.03), vx / vehicle.wheel_radius, vx]), dt)
+    assert est.cx_info == pytest.approx(want, rel=1e-9)  # frozen with the gate closed
 
 
 @pytest.mark.parametrize("backend", ["numpy", "numba"])

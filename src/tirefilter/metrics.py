@@ -54,6 +54,7 @@ def settling_time(r: dict, param: str, t_change: float, tol: float = 0.05) -> fl
 PARAMS = ("Cf_y", "Cr_y", "Cx")
 STATES = (("vy", "m/s"), ("beta", "rad"), ("yaw_rate", "rad/s"), ("vx", "m/s"))
 Z90 = 1.6448536269514722  # the 90% interval of DESIGN.md's coverage: estimate +- Z90 * *_std
+CX_EXCITED = 0.5  # a run whose excitation weight of Cx (derivations Sec. 23) stays below this: "not excited"
 DIVERGED_VY = 1.0  # m/s: |v^Y - reference| beyond this is a diverged state ...
 DIVERGED_BETA = 0.1  # rad: ... or |beta - reference| beyond this, where v^Y has no reference
 
@@ -89,7 +90,8 @@ def _finite_mean(x: np.ndarray) -> float | None:
     return float(np.mean(x)) if x.size else None
 
 
-def run_metrics(r: dict, schedule=None, *, restarts: int | None = None, resamples: int | None = None) -> dict:
+def run_metrics(r: dict, schedule=None, *, restarts: int | None = None, resamples: int | None = None,
+                cx_excitation: float | None = None) -> dict:
     """The accuracy and health figures of one run (DESIGN.md, "Metric definitions"), from
     its Result-CSV columns `r` (name -> (n,) array).
 
@@ -105,7 +107,10 @@ def run_metrics(r: dict, schedule=None, *, restarts: int | None = None, resample
       their time windows;
     - restarts and resamples (the estimator's counters, None where it has none), the share
       of samples with the learning gate open (`active`);
-    - `warnings`: one line per restart, divergence, NaN estimate or coverage below 50%.
+    - `cx_excitation`: the largest excitation weight of Cx in the run (the MPF's
+      `cx_weight_max`, derivations Sec. 23; None without one);
+    - `warnings`: one line per restart, divergence, NaN estimate or coverage below 50%, and
+      one when Cx was never excited (`cx_excitation` below CX_EXCITED).
 
     The reference of `RunMetrics`, which computes the same chunk by chunk (a run's summary).
     """
@@ -157,7 +162,8 @@ def run_metrics(r: dict, schedule=None, *, restarts: int | None = None, resample
                                "max_abs": float(np.max(np.abs(e[ok]))), "unit": unit}
     out["diverged"] = _divergence(r, t)
     active = r.get("active")
-    _finish(out, warnings, restarts, resamples, _finite_mean(np.asarray(active, float)) if active is not None else None)
+    _finish(out, warnings, restarts, resamples, _finite_mean(np.asarray(active, float)) if active is not None else None,
+            cx_excitation)
     return out
 
 
@@ -379,7 +385,8 @@ class RunMetrics:
         if self.active is not None:
             self.active.add(c["active"])
 
-    def finalize(self, *, restarts: int | None = None, resamples: int | None = None) -> dict:
+    def finalize(self, *, restarts: int | None = None, resamples: int | None = None,
+                 cx_excitation: float | None = None) -> dict:
         """The figures of the rows so far, as `run_metrics` gives them."""
         sched = self.schedule
         out: dict = {"samples": int(self.n),
@@ -425,12 +432,14 @@ class RunMetrics:
                                    "samples": a.bad, "share": a.bad / self.n if self.n else 0.0,
                                    "max_abs": a.max_e if a.any_ok else None, "windows": a.bad_runs.windows}
                 break
-        _finish(out, warnings, restarts, resamples, self.active.mean() if self.active is not None else None)
+        _finish(out, warnings, restarts, resamples, self.active.mean() if self.active is not None else None,
+                cx_excitation)
         return out
 
 
-def _finish(out: dict, warnings: list[str], restarts, resamples, gate_open_share) -> None:
-    """The divergence warning, the counters, the gate share and the warnings of `out`."""
+def _finish(out: dict, warnings: list[str], restarts, resamples, gate_open_share, cx_excitation=None) -> None:
+    """The divergence warning, the counters, the gate share, the excitation of Cx and the
+    warnings of `out`."""
     if out["diverged"] is not None and out["diverged"]["samples"]:
         d = out["diverged"]
         spans = ", ".join(f"{a:g}-{b:g} s" for a, b in d["windows"][:3]) + (", ..." if len(d["windows"]) > 3 else "")
@@ -442,6 +451,10 @@ def _finish(out: dict, warnings: list[str], restarts, resamples, gate_open_share
         warnings.append(f"the filter restarted {restarts} time{'s' if restarts > 1 else ''} from its prior "
                         "(every particle implausible): estimates around then are not converged")
     out["gate_open_share"] = gate_open_share
+    out["cx_excitation"] = None if cx_excitation is None else float(cx_excitation)
+    if cx_excitation is not None and cx_excitation < CX_EXCITED:
+        warnings.append(f"Cx: no wheel-slip excitation (excitation weight at most {cx_excitation:.2f} of 1, "
+                        "derivations Sec. 23): its estimate is the prior's, not learned from this drive")
     out["warnings"] = warnings
 
 

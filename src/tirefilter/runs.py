@@ -251,7 +251,8 @@ class RunOutputs:
         if not self.rows or self.estimator is None or self.scored.metrics is None:
             return None
         return self.scored.finalize(restarts=getattr(self.estimator, "restarts", None),
-                                    resamples=getattr(self.estimator, "resamples", None))
+                                    resamples=getattr(self.estimator, "resamples", None),
+                                    cx_excitation=getattr(self.estimator, "cx_weight_max", None))
 
     def close(self) -> None:
         self.bar.close()

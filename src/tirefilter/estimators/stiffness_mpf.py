@@ -60,8 +60,12 @@ class MPFConfig:
     slip_hold: str = "interval"
     # longitudinal stiffness of the undriven axle: "nominal": its nominal value (the paper); "surface": its
     # nominal scaled as the driven axle's estimate (one surface under both axles: right where Cx is learned,
-    # harmful where it is not, derivations Sec. 22)
-    undriven_stiffness: str = "nominal"
+    # harmful where it is not, derivations Sec. 22); "learned": scaled by the share rho of the driven axle's
+    # deviation that the wheel-slip excitation has taught (0: nominal, 1: surface; derivations Sec. 23)
+    undriven_stiffness: str = "learned"
+    # "learned": a driven-axle slip level held longer than this (s) is confounded with the a^X bias and v^X
+    # errors; only its changes within this time count as excitation of Cx (derivations Sec. 23)
+    cx_excitation_time: float = 1.0
     resample_threshold: float = 0.5  # resample when ESS < threshold * N
     # initial stiffness: per-particle means drawn around `init_center` (absolute, per
     # parameter, default nominal) with a relative spread of the reference stiffness
@@ -76,6 +80,10 @@ class MPFConfig:
     x0_mean: tuple[float, ...] | None = None  # initial state mean (full: vx, vy, r)
     x0_std: tuple[float, ...] = (1.0, 0.5, 0.0175)  # full: vx, vy, r (lateral uses vy, r)
     state_noise: tuple[float, ...] = (0.0, 0.0, 0.0)  # additive process noise per sqrt(s), full: vx, vy, r
+    # v^Y process noise while the adaptive forgetting's innovation statistic z holds lambda at its floor
+    # (z > z_on = (1 - forgetting_min) / (1 - forgetting)): std per sqrt(s) vy_jitter sqrt(z - z_on), added
+    # to state_noise's; 0: off
+    vy_jitter: float = 0.0
     x0_vx_from_wheels: bool = True  # full model: centre vx on R_w omega of the undriven axle
     x0_vx_wheel_std: float = 0.02  # m/s, spread around it (the free-rolling wheel's slip)
     # observability gate (Sec. V) and linear-region gate
@@ -137,14 +145,16 @@ class MPFConfig:
             bad("integrator", f"expected euler or heun, got {self.integrator!r}")
         if self.slip_hold not in ("interval", "start"):
             bad("slip_hold", f"expected interval or start, got {self.slip_hold!r}")
-        if self.undriven_stiffness not in ("surface", "nominal"):
-            bad("undriven_stiffness", f"expected surface or nominal, got {self.undriven_stiffness!r}")
+        if self.undriven_stiffness not in ("learned", "surface", "nominal"):
+            bad("undriven_stiffness", f"expected learned, surface or nominal, got {self.undriven_stiffness!r}")
+        if not (self.cx_excitation_time > 0 and math.isfinite(self.cx_excitation_time)):
+            bad("cx_excitation_time", f"must be finite and > 0, got {self.cx_excitation_time!r}")
         if self.init_distribution not in ("normal", "uniform"):
             bad("init_distribution", f"expected normal or uniform, got {self.init_distribution!r}")
         for key in ("init_std", "init_half_width", "init_sigma", "gate_speed", "gate_steer", "gate_ay_max",
                     "gate_alpha_max", "gate_vy_std", "gate_warmup", "nu0_margin", "plausible_beta",
                     "plausible_yaw_rate", "restart_alpha", "restart_after", "restart_at_bound_after",
-                    "x0_vx_wheel_std"):
+                    "x0_vx_wheel_std", "vy_jitter"):
             if not getattr(self, key) >= 0:
                 bad(key, f"must be >= 0, got {getattr(self, key)!r}")
         for key in ("sigma", "bias_rw", "bias0_std", "disturbance_rw", "x0_std", "state_noise"):
@@ -186,8 +196,11 @@ class StiffnessMPF:
         self.C_nom_fx = other if self.rear_drive else v.Cx
         self.C_nom_rx = v.Cx if self.rear_drive else other
         # "surface": the undriven axle's longitudinal stiffness moves with the driven axle's estimate,
-        # C_u = C_u,nom (1 + w_x / C_x,nom): its force adds share * slip_u * w_x to B's first column
-        self.undriven_share = other / v.Cx if self.cfg.undriven_stiffness == "surface" else 0.0
+        # C_u = C_u,nom (1 + w_x / C_x,nom): its force adds share * slip_u * w_x to B's first column;
+        # "learned": C_u = C_u,nom (1 + rho w_x / C_x,nom), share = rho * C_u,nom / C_x,nom with rho the
+        # excitation weight of Cx (`_excite_cx`, derivations Sec. 23), 0 until the wheel slip has taught Cx
+        self.full_share = other / v.Cx if self.cfg.undriven_stiffness in ("surface", "learned") else 0.0
+        self.undriven_share = self.full_share if self.cfg.undriven_stiffness == "surface" else 0.0
         self.full = self.cfg.model == "full"
         self.params = ("Cx", "Cf_y", "Cr_y") if self.full else ("Cf_y", "Cr_y")
         self.C_nom = np.array([v.Cx, v.Cf_y, v.Cr_y] if self.full else [v.Cf_y, v.Cr_y])
@@ -203,7 +216,7 @@ class StiffnessMPF:
         # residual is the model's error, not the road's (derivations, Sec. 16)
         self.q_bias, self.q_bias_nonlinear = q_sensor + q_road, q_sensor
         q = np.asarray(self.cfg.state_noise, float)[-(3 if self.full else 2):]
-        self.state_noise = q if np.any(q > 0) else None
+        self.state_noise = q if np.any(q > 0) or self.cfg.vy_jitter > 0 else None
         ref = np.asarray(self.cfg.init_reference if self.cfg.init_reference is not None else self.C_nom, float)
         center = np.asarray(self.cfg.init_center if self.cfg.init_center is not None else ref, float)
         if ref.shape != (self.n_w,) or center.shape != (self.n_w,):
@@ -263,6 +276,8 @@ class StiffnessMPF:
         self.linear_region = True  # |a^Y| below the gate's linear-region bound at the last sample
         self.lam = self.cfg.forgetting  # the forgetting factor applied at the next propagation
         self.drift = np.zeros(self.n_w)  # smoothed whitened w_k - mu_{k|k-1} (adaptive forgetting)
+        self.cx_weight_max = 0.0 if self.full else None  # the largest excitation weight of Cx so far (`_excite_cx`)
+        self._reset_cx_excitation()
 
     def _draw_prior(self, x0_mean) -> None:
         """Particles from the initial distribution: stiffness statistics (or the carried
@@ -434,6 +449,7 @@ class StiffnessMPF:
     # ---- the filter -------------------------------------------------------------------
     def step(self, t: float, u: Inputs, y: Measurement) -> Estimate:
         cfg = self.cfg
+        self._lam_step = self.lam  # the factor this step forgets the statistics with (`_excite_cx`)
         u_now = np.array([u.delta, u.omega_f, u.omega_r, u.vx], float)
         uk = u_now
         if self.u_prev is not None and not math.isfinite(u.delta + u.omega_f + u.omega_r + u.vx):
@@ -460,7 +476,7 @@ class StiffnessMPF:
             self.x = self._propagate(self.x, self.u_prev, self.w_prev, dt, first)
             self._redraw_after_gap(dt, u_now)  # (a gap: the compiled backend comes this way too)
             if self.state_noise is not None:  # optional regularisation against sample impoverishment
-                self.x = self.x + math.sqrt(dt) * self.state_noise * self.rng.standard_normal(self.x.shape)
+                self.x = self.x + self._state_noise_scale(dt) * self.rng.standard_normal(self.x.shape)
             if self.bias_on:
                 q = self.q_bias if self.linear_region else self.q_bias_nonlinear
                 self.P = self.P + np.diag(q * dt)
@@ -553,7 +569,72 @@ class StiffnessMPF:
             self.stats.mu = np.clip(self.stats.mu, lo, hi)  # parameter projection (Sec. V)
         self.w_prev = w
         self._at_x = model_k  # the first stage of the next propagation, at this x and u
+        if self.full:
+            self._excite_cx(float(np.exp(self.logw) @ self.x[:, 0]), uk, dt)
         return self._estimate(ess)
+
+    def _state_noise_scale(self, dt: float) -> np.ndarray:
+        """Std of the additive state noise over a step dt (nx,): `state_noise` sqrt(dt), and on
+        v^Y also vy_jitter sqrt(z - z_on) sqrt(dt) while the adaptive forgetting's smoothed
+        innovation statistic z of the previous sample exceeds z_on, the z that puts lambda at its
+        floor `forgetting_min` (a change: benchmarks/README, "v^Y noise at a change")."""
+        cfg, q = self.cfg, self.state_noise
+        # z at which the forgetting reaches its floor, 1 - (1 - lambda) z = lambda_min: the change statistic fires
+        z_on = (1.0 - cfg.forgetting_min) / max(1.0 - cfg.forgetting, 1e-12)
+        if cfg.vy_jitter > 0 and cfg.forgetting_mode == "adaptive" and self.surprise > z_on:
+            q = q.copy()
+            iy = 1 if self.full else 0
+            q[iy] = math.sqrt(q[iy] ** 2 + cfg.vy_jitter**2 * (self.surprise - z_on))
+        return math.sqrt(dt) * q
+
+    # ---- the undriven axle's share of the learned Cx (undriven_stiffness = "learned") ----------
+    def _reset_cx_excitation(self) -> None:
+        """No excitation of Cx yet: information 0, weight 0 (with "learned" the undriven axle at
+        its nominal stiffness), the slip level unknown."""
+        self.cx_info = 0.0  # I_k, information on dC_x from the changes of the driven axle's slip, 1/N^2
+        self.cx_weight = 0.0  # rho_k = cx_excitation_weight(I_k, prior variance)
+        self._slip_level = NAN  # the slip smoothed over cx_excitation_time
+        self._set_undriven_share()
+
+    def _cx_prior_var(self) -> float:
+        """Prior variance of the mean of dC_x, (s C_ref,x)^2 (Sec. 7: the particles' spread plus
+        the within-particle share), s = init_std or init_half_width / sqrt(3)."""
+        cfg = self.cfg
+        s = cfg.init_std if cfg.init_distribution == "normal" else cfg.init_half_width / math.sqrt(3.0)
+        return float((s * self.C_ref[0]) ** 2)
+
+    def _set_undriven_share(self) -> None:
+        if self.cfg.undriven_stiffness == "learned":
+            self.undriven_share = self.full_share * self.cx_weight
+            if self._nb is not None:
+                self._vp[9] = self.undriven_share
+
+    def _excite_cx(self, vx: float, uk: np.ndarray, dt: float) -> None:
+        """The excitation weight of Cx after sample k (derivations Sec. 23), full model.
+
+        The driven axle's slip at the posterior-mean v^X, lambda_k, minus its level smoothed over
+        `cx_excitation_time` T (a level held longer is confounded with the a^X bias and v^X
+        errors) is the regressor of dC_x in a^X, b_k = (lambda_k - level_k) / m. While the gate is
+        open its information accumulates with the statistics' forgetting factor lambda_k (eq. (20)),
+        I_k = lambda_k I_{k-1} + b_k^2 / sigma_ax^2, frozen while the gate is closed, and
+        rho_k = I_k P_0 / (1 + I_k P_0) = 1 - P_k / P_0 is the contraction of the linear-Gaussian
+        posterior variance of dC_x from its prior variance P_0. With undriven_stiffness =
+        "learned" the undriven axle takes the share rho_k of the driven axle's relative deviation
+        from the next propagation on."""
+        omega = uk[2] if self.rear_drive else uk[1]
+        wr = self.vehicle.wheel_radius * omega
+        slip = (wr - vx) / max(abs(vx), abs(wr), 1.0)
+        if not math.isfinite(slip):
+            return
+        if not math.isfinite(self._slip_level):
+            self._slip_level = slip
+        self._slip_level += -math.expm1(-dt / self.cfg.cx_excitation_time) * (slip - self._slip_level)
+        if self.active:
+            b = (slip - self._slip_level) / self.vehicle.mass
+            self.cx_info = self._lam_step * self.cx_info + b * b / self.R[0, 0]
+        self.cx_weight = cx_excitation_weight(self.cx_info, self._cx_prior_var())
+        self.cx_weight_max = max(self.cx_weight_max, self.cx_weight)
+        self._set_undriven_share()
 
     def _pin_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """The deviations (n_w,) at or beyond which a posterior mean counts as held at a
@@ -606,7 +687,7 @@ class StiffnessMPF:
         cfg, nb, rng, st = self.cfg, self._nb, self.rng, self.stats
         wk = self._work()
         if self.state_noise is not None:  # optional regularisation against sample impoverishment
-            noise, noise_scale = rng.standard_normal(self.x.shape), math.sqrt(dt) * self.state_noise
+            noise, noise_scale = rng.standard_normal(self.x.shape), self._state_noise_scale(dt)
         else:
             noise, noise_scale = wk.no_noise, wk.no_scale
         q = self.q_bias if self.linear_region else self.q_bias_nonlinear
@@ -675,6 +756,8 @@ class StiffnessMPF:
             -math.expm1(-dt / cfg.drift_time), wk.lo, wk.hi, wk.mom, wk.q)
         if zd == zd:  # `_track_drift` (the statistic is NaN when not computed)
             self._cap_forgetting(zd)
+        if self.full:
+            self._excite_cx(float(wk.mom[0, 0]), uk, dt)
         return self._estimate_fused(ess, wk.mom)
 
     def _estimate_fused(self, ess: float, mom: np.ndarray) -> Estimate:
@@ -874,6 +957,7 @@ class StiffnessMPF:
             yk = np.array([y.ax, y.ay, y.yaw_rate], float)[list(self.channels)]
             self.logw = normalize_log_weights(self._informed_start(uk, yk))
         self.restarts += 1
+        self._reset_cx_excitation()  # the prior again: nothing of Cx learned
         self.t_start, self.t_prev, self.u_prev, self.active = t, t, uk, False
         self._contradiction_since = self._bound_since = None
         self._at_x = self._model(self.x, uk)
@@ -1012,6 +1096,16 @@ class _MPFWork:
         own, self.spares = self.spares, tuple(map(d.__getitem__, self.OWN))
         d.update(zip(self.OWN, own))
         d.update(zip(self.OWN2, self.spares))
+
+
+def cx_excitation_weight(info: float, prior_var: float) -> float:
+    """rho = 1 - P / P_0 for the posterior variance P = 1 / (1 / P_0 + info) of a scalar
+    linear-Gaussian parameter with prior variance P_0 and data information `info` (derivations
+    Sec. 23), written I P_0 / (1 + I P_0): 0 without information or with a certain prior."""
+    if not (info >= 0 and prior_var >= 0):
+        raise ValueError(f"information and prior variance must be >= 0, got {info!r}, {prior_var!r}")
+    ip = info * prior_var
+    return ip / (1.0 + ip) if math.isfinite(ip) else 1.0
 
 
 def _sqrt_or_nan(v: float) -> float:
