@@ -3,7 +3,7 @@ step against another version's in one process (issue 14).
 
     git archive main src | tar -x -C /tmp/gbase
     .venv/bin/python benchmarks/profile_gpssm_step.py [--particles 200] [--duration 6]
-        [--bases gpssm-axle gpssm-tensor gpssm-tensor100] [--base /tmp/gbase/src]
+        [--bases gpssm-axle gpssm-tensor gpssm-tensor100] [--repeat 100] [--base /tmp/gbase/src]
 
 Each basis (the names of bench_cost.py: exact statistics, friction-snow, seed 0, the first
 `--duration` s) is built as `tirefilter run` builds it. Stepping through the samples, after
@@ -18,7 +18,10 @@ temporary module (compiled and cached apart) and its `CompiledStep` drives a sec
 of the same configuration; the two filters then step through the same samples alternately,
 sample by sample (the same load on both), and the median and 10th percentile of the thread's
 CPU time per `step()` of each, and their ratio, are printed. The per-pass profile is printed
-for both.
+for both. Then each pass alone, `--repeat` calls on the arguments it got at the middle
+sample (fresh copies each time; the resampling passes at the last resampling before it),
+alternating call by call between the versions: the minimum, what a pass costs without the
+noise of a shared machine.
 """
 
 from __future__ import annotations
@@ -155,6 +158,58 @@ def ab(ests: dict, samples, rounds: int) -> None:
 BASE = None
 
 
+def captured(est, module, samples) -> dict:
+    """Each compiled pass and a copy of its arguments at the middle sample (the resampling
+    passes at the last resampling step before it)."""
+    import copy
+
+    args = {}
+    originals = {p: getattr(module, p) for p in PASSES if hasattr(module, p) and p != "t_draws"}
+
+    def cap(key, f):
+        def inner(*a):
+            args[key] = (f, copy.deepcopy(a))
+            return f(*a)
+        return inner
+
+    mid = len(samples) // 2
+    try:
+        for k, s in enumerate(samples[:mid + 1]):
+            for p, f in originals.items():
+                setattr(module, p, cap(p, f))
+            est.step(*s)
+    finally:
+        for p, f in originals.items():
+            setattr(module, p, f)
+    return args
+
+
+def passes_alone(ests: dict, samples, repeat: int) -> None:
+    """Each pass alone on its arguments at the middle sample, minimum of `repeat` calls (fresh
+    copies each time), alternating call by call between the versions."""
+    import copy
+
+    caps = {}
+    for label, est in ests.items():
+        est.reset(np.random.default_rng(1))
+        module = BASE if label == "base" else gpssm_numba
+        if label == "base":
+            est._compiled = BASE.CompiledStep(est)
+        caps[label] = captured(est, module, samples)
+    names = [n for n in caps["this"] if all(n in c for c in caps.values())]
+    print(f"    each pass alone at the middle sample, minimum of {repeat} calls, us ({' / '.join(ests)}):")
+    for kname in names:
+        best = {label: 10**18 for label in caps}
+        for _ in range(repeat):
+            for label, cap in caps.items():
+                f, a = cap[kname]
+                a = copy.deepcopy(a)
+                c0 = clock()
+                f(*a)
+                best[label] = min(best[label], clock() - c0)
+        print(f"      {kname:32s} " + " / ".join(f"{best[n] / 1e3:8.1f}" for n in caps))
+
+
 def main() -> int:
     global BASE
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -162,6 +217,7 @@ def main() -> int:
     ap.add_argument("--duration", type=float, default=6.0)
     ap.add_argument("--bases", nargs="+", default=["gpssm-axle", "gpssm-tensor"], choices=sorted(GPSSM))
     ap.add_argument("--rounds", type=int, default=2, help="alternating passes through the samples (default 2)")
+    ap.add_argument("--repeat", type=int, default=100, help="calls of each pass alone (default 100; 0: none)")
     ap.add_argument("--base", type=Path, help="another version's src directory, timed alongside")
     args = ap.parse_args()
     snow, samples = record("friction-snow", args.duration)
@@ -180,6 +236,8 @@ def main() -> int:
             if label == "base":
                 est._compiled = BASE.CompiledStep(est)
             profile(est, BASE if label == "base" else gpssm_numba, samples)
+        if args.repeat:
+            passes_alone(ests, samples, args.repeat)
         ab(ests, samples, args.rounds)
     print(f"load average after: {os.getloadavg()[0]:.2f}")
     return 0
