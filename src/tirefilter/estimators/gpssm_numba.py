@@ -202,6 +202,57 @@ def _write_predictive(work, b, per, d, m, Z, w, Lam0, Phi, nu, lam):
 
 
 @njit(**_JIT)
+def _write_predictive_lanes(work, b0, nw, per, d, m, Z, Lam0, Phi, nu, acc, lam):
+    """`_write_predictive` for the lanes w < nw of a block (batch elements b0 + w) at once: the
+    sums over j (c, M phi, Psi K^-1 Psi^T) accumulated over the lanes first (one vector
+    operation per j), then each lane's loc, scale, dof. Per lane the same operations in the same
+    order as `_write_predictive` (acc: (1 + d + d d, >= lanes) scratch; lam: (2, 2))."""
+    W = Z.shape[2]
+    nq = 1 + d + d * d
+    for w in range(W):
+        acc[0, w] = 1.0
+    for q in range(1, nq):
+        for w in range(W):
+            acc[q, w] = 0.0
+    for j in range(m):
+        zp = Z[m + d, j]
+        a0 = acc[0]
+        for w in range(W):
+            a0[w] += zp[w] * zp[w]
+        for i in range(d):
+            zi = Z[m + i, j]
+            ai = acc[1 + i]
+            for w in range(W):
+                ai[w] += zi[w] * zp[w]
+            for k in range(d):
+                zk = Z[m + k, j]
+                aq = acc[1 + d + i * d + k]
+                for w in range(W):
+                    aq[w] += zi[w] * zk[w]
+    for w in range(nw):
+        b = b0 + w
+        n, a = b // per, b % per
+        df = nu[b] - d + 1.0
+        f = acc[0, w] / df
+        for i in range(d):
+            work[n, LOC + a + i] = acc[1 + i, w]
+            for k in range(d):
+                lam[i, k] = Lam0[i, k] + Phi[b, i, k] - acc[1 + d + i * d + k, w]
+        if d == 2:
+            work[n, S + 0] = f * lam[0, 0]
+            work[n, S + 1] = f * (0.5 * (lam[0, 1] + lam[1, 0]))
+            work[n, S + 2] = f * (0.5 * (lam[1, 0] + lam[0, 1]))
+            work[n, S + 3] = f * lam[1, 1]
+            work[n, DOF] = df
+        else:
+            work[n, S + 3 * a] = f * lam[0, 0]
+            if a == 0:
+                work[n, S + 1] = 0.0
+                work[n, S + 2] = 0.0
+                work[n, DOF] = df
+
+
+@njit(**_JIT)
 def _chol_row(A, r, j0, m, W, inv):
     """Row r of `_chol_lanes` from column j0 on (the columns before j0 are done)."""
     row = A[r]
@@ -274,6 +325,7 @@ def exact_forget_predictive(K, Psi, Phi, nu, V, Lam0, work, per, forget, lam, nu
     W = lanes
     A = np.zeros((m + d + 1, m, W))
     inv = np.empty((m, W))
+    acc = np.empty((1 + d + d * d, W))
     lam2 = np.empty((2, 2))
     for b0 in range(0, nb, W):
         nw = min(W, nb - b0)
@@ -302,8 +354,7 @@ def exact_forget_predictive(K, Psi, Phi, nu, V, Lam0, work, per, forget, lam, nu
                     for j in range(min(i + 1, m)):
                         A[i, j, w] = 1.0 if i == j else 0.0
         _chol_lanes(A, m, W, inv)
-        for w in range(nw):
-            _write_predictive(work, b0 + w, per, d, m, A, w, Lam0, Phi, nu, lam2)
+        _write_predictive_lanes(work, b0, nw, per, d, m, A, Lam0, Phi, nu, acc, lam2)
 
 
 @njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
