@@ -168,6 +168,50 @@ def _update_forget(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget, lam
 
 
 @njit(**_JIT)
+def _update_forget_lane(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget, lam, nu_min, A, w):
+    """`_update_forget` for batch element b, and K's lower triangle copied into lane w of A
+    (A[i, j, w] = K[b, i, j]); with a pending update in the same sweep over K (each entry
+    written to K and A as it is computed: one pass over K instead of two), with the same
+    operations in the same order."""
+    d, m = Psi.shape[1], Psi.shape[2]
+    Kb = K[b]
+    if not pending:
+        if forget:
+            _forget_exact(K, Psi, Phi, nu, V, b, lam, nu_min)
+        for i in range(m):
+            Ki = Kb[i]
+            Ai = A[i]
+            for j in range(i + 1):
+                Ai[j, w] = Ki[j]
+        return
+    n, a = b // per, b % per
+    nu[b] += 1.0
+    f = _factor(lam, nu_min, nu[b]) if forget else 1.0
+    g = 1.0 - f
+    ph = phi_p[n, a * m:(a + 1) * m]
+    for i in range(d):
+        zi = zeta[n, a + i]
+        for k in range(d):
+            Phi[b, i, k] = (Phi[b, i, k] + zi * zeta[n, a + k]) * f
+        Pi = Psi[b, i]
+        for j in range(m):
+            Pi[j] = (Pi[j] + zi * ph[j]) * f
+    for i in range(m):
+        p = ph[i]
+        Ki = Kb[i]
+        Ai = A[i]
+        for j in range(i):
+            v = (Ki[j] + p * ph[j]) * f
+            Ki[j] = v
+            Ai[j, w] = v
+        v = (Ki[i] + p * ph[i]) * f
+        v += g * V[i]
+        Ki[i] = v
+        Ai[i, w] = v
+    nu[b] = nu[b] * f
+
+
+@njit(**_JIT)
 def _write_predictive(work, b, per, d, m, Z, w, Lam0, Phi, nu, lam):
     """loc, scale, dof of batch element b into work from Z[m + q, j, w] = (C^-1 [Psi^T, phi])[j, q]
     (lane w; lam: (2, 2) scratch)."""
@@ -332,13 +376,7 @@ def exact_forget_predictive(K, Psi, Phi, nu, V, Lam0, work, per, forget, lam, nu
         for w in range(W):
             if w < nw:
                 b = b0 + w
-                _update_forget(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget, lam, nu_min)
-                Kb = K[b]
-                for i in range(m):
-                    Ki = Kb[i]
-                    Ai = A[i]
-                    for j in range(i + 1):
-                        Ai[j, w] = Ki[j]
+                _update_forget_lane(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget, lam, nu_min, A, w)
                 n, a = b // per, b % per
                 for i in range(d):
                     Pi = Psi[b, i]
