@@ -662,6 +662,19 @@ def sample(x, work, logw, z, u, zeta, mu, conditional):
     return m0, m1, math.sqrt(max(v0, 0.0)), math.sqrt(max(v1, 0.0)), mf, mr
 
 
+@njit(**_JIT)
+def common_dof(work, add):
+    """The draw's degrees of freedom work[:, DOF] + add when every particle has the same (the
+    usual case: `student_t.t_draws` then draws the chi-square with one scalar dof), NaN
+    otherwise (also when it is NaN), so that the step draws as t_draws would without its
+    numpy checks."""
+    v = work[0, DOF] + add
+    for i in range(1, work.shape[0]):
+        if work[i, DOF] + add != v:
+            return math.nan
+    return v
+
+
 # ---- 6. learning ----------------------------------------------------------------------------------
 @njit(**_JIT)
 def rank1_update(M, P, Lam, nu, work, zeta, per):
@@ -822,8 +835,11 @@ class CompiledStep:
             est.resamples += 1
         # 5. zeta (t conditional given the a^Y residual), mu, learning
         conditional = have_ay and learned
-        dof = work[:, DOF] + 1.0 if conditional else work[:, DOF]
-        z, u = t_draws(dof, (N, 2), rng)
+        c = common_dof(work, 1.0 if conditional else 0.0)
+        if math.isnan(c):  # dof differing between particles (or NaN): as the reference
+            z, u = t_draws(work[:, DOF] + 1.0 if conditional else work[:, DOF], (N, 2), rng)
+        else:  # t_draws' generator calls for a common dof, without its checks
+            z, u = rng.standard_normal((N, 2)), rng.chisquare(c, (N,))
         m0, m1, s0, s1, mf, mr = sample(est.x, work, est.logw, z, np.ascontiguousarray(u, float), self.zeta, est.mu,
                                         conditional)
         if est.active:
