@@ -49,8 +49,8 @@ from tirefilter.estimators import gpssm_numba  # noqa: E402
 
 clock = time.thread_time_ns
 PASSES = ("front", "exact_forget_predictive", "exact_forget_predictive_lapack", "rank1_forget_predictive", "weigh",
-          "systematic_ancestors", "gather_rows", "gather_lower", "sample", "rank1_update", "t_draws", "common_dof", "exact_update",
-          "mirror", "forget_predictive", "predictive_write")
+          "systematic_ancestors", "gather_rows", "gather_lower", "sample", "rank1_update", "t_draws", "common_dof",
+          "exact_update", "mirror")
 
 
 def load_base(src: Path, into: Path):
