@@ -3,7 +3,7 @@ path of `FrictionGPSSM.step`, the same arithmetic as the numpy reference in
 `friction_gpssm.py` (tested equal to 1e-12 relative in tests/test_kernels.py with the same
 random numbers, resampling included).
 
-One step is seven kernel calls at most; the random numbers are drawn outside them with the reference's
+One step is eight kernel calls at most; the random numbers are drawn outside them with the reference's
 generator calls, in the reference's order (yaw-rate start or state noise, the resampling
 uniform, the Student-t draws `student_t.t_draws`), so both backends follow one path:
   1. `front`: propagation (eq. (1), Euler sub-steps), slip angles (eq. (4)) clipped to
@@ -19,8 +19,10 @@ uniform, the Student-t draws `student_t.t_draws`), so both backends follow one p
   4. `systematic_ancestors`, `gather_rows`, `gather_lower`: systematic resampling (the
      uniform drawn as `stats.systematic_resample` draws it) and its copies, in place (sorted
      ancestors: only the rows that change are copied);
-  5. `sample`: the conditional Student-t draw of zeta (the locally optimal proposal),
-     mu = mu~ + zeta and the weighted moments for the estimate;
+  5. `common_dof` (whether every particle draws with the same dof: the step then makes
+     `t_draws`' two generator calls itself, `t_draws` otherwise), `sample`: the conditional
+     Student-t draw of zeta (the locally optimal proposal), mu = mu~ + zeta and the weighted
+     moments for the estimate;
   6. `rank1_update` (rank-one statistics, eq. (27)/(28) as recursive least squares); the exact
      statistics' update waits for the next step's pass (`CompiledStep.flush` applies it with
      `exact_update` when the statistics are read in between).
