@@ -480,3 +480,42 @@ def test_stiffness_mpf_fused_state_pickles():
             for k, (t, u, y) in enumerate(_mpf_samples(vehicle, 40)) if k >= 25]
     assert np.array_equal(np.vstack([b, rest]), a)
     assert np.array_equal(copy.posterior().stats["Lam"], whole.posterior().stats["Lam"])
+
+
+@pytest.mark.parametrize("kind", ["axle", "tensor"])
+def test_friction_gpssm_backends_equal_with_differing_dof(kind):
+    """The compiled step draws the Student-t variables itself when every particle has the
+    same dof (`common_dof`) and through `t_draws` otherwise: with the particles' nu made to
+    differ mid-run (the same change in both backends' statistics), both backends still
+    draw the same numbers and give the same estimates and statistics."""
+    from tirefilter.estimators.gpssm_numba import DOF, common_dof
+
+    vehicle = load_scenario("friction-snow").vehicle
+    runs = {}
+    for backend in ("numpy", "numba"):
+        cfg = GPSSMConfig(particles=37, basis=kind, backend=backend, resample_threshold=1.0)
+        est = FrictionGPSSM(vehicle, cfg)
+        _drive(est, 10)
+        est.friction()  # the compiled step's pending update applied: both statistics equal now
+        est._stats.nu[1::2] += 0.5
+        rng = np.random.default_rng(7)
+        out, differ = [], 0
+        for k in range(10, 20):
+            t = 0.04 * k
+            delta = 0.03 * math.sin(2 * math.pi * 0.5 * t)
+            r = 15.0 * delta / 2.8
+            e = est.step(t, Inputs(delta=delta, vx=15.0),
+                         Measurement(ay=15.0 * r + 0.05 * rng.standard_normal(),
+                                     yaw_rate=r + 0.003 * rng.standard_normal()))
+            out.append((e.vy, e.yaw_rate, e.ess, e.Cf_y, e.Cr_y))
+            if backend == "numba":
+                dof = est._compiled.work[:, DOF]
+                differ += math.isnan(common_dof(est._compiled.work, 0.0)) and np.ptp(dof) > 0
+        runs[backend] = (np.array(out), est, differ)
+    (a, fast, differ), (b, ref, _) = runs["numba"], runs["numpy"]
+    assert differ >= 5  # the t_draws branch was taken
+    assert_equal_to_rounding(a, b, "estimates")
+    pa, pb = fast.posterior(), ref.posterior()
+    assert_equal_to_rounding(pa.particles, pb.particles, "particles")
+    for key in ("M", "Lam", "nu", "mu"):
+        assert_equal_to_rounding(pa.stats[key], pb.stats[key], key)

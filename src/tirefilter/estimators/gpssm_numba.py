@@ -3,7 +3,7 @@ path of `FrictionGPSSM.step`, the same arithmetic as the numpy reference in
 `friction_gpssm.py` (tested equal to 1e-12 relative in tests/test_kernels.py with the same
 random numbers, resampling included).
 
-One step is seven kernel calls at most; the random numbers are drawn outside them with the reference's
+One step is eight kernel calls at most; the random numbers are drawn outside them with the reference's
 generator calls, in the reference's order (yaw-rate start or state noise, the resampling
 uniform, the Student-t draws `student_t.t_draws`), so both backends follow one path:
   1. `front`: propagation (eq. (1), Euler sub-steps), slip angles (eq. (4)) clipped to
@@ -19,8 +19,10 @@ uniform, the Student-t draws `student_t.t_draws`), so both backends follow one p
   4. `systematic_ancestors`, `gather_rows`, `gather_lower`: systematic resampling (the
      uniform drawn as `stats.systematic_resample` draws it) and its copies, in place (sorted
      ancestors: only the rows that change are copied);
-  5. `sample`: the conditional Student-t draw of zeta (the locally optimal proposal),
-     mu = mu~ + zeta and the weighted moments for the estimate;
+  5. `common_dof` (whether every particle draws with the same dof: the step then makes
+     `t_draws`' two generator calls itself, `t_draws` otherwise), `sample`: the conditional
+     Student-t draw of zeta (the locally optimal proposal), mu = mu~ + zeta and the weighted
+     moments for the estimate;
   6. `rank1_update` (rank-one statistics, eq. (27)/(28) as recursive least squares); the exact
      statistics' update waits for the next step's pass (`CompiledStep.flush` applies it with
      `exact_update` when the statistics are read in between).
@@ -30,7 +32,12 @@ The step keeps only the lower triangle of the exact statistics' K = Sigma + V up
 substitution is needed: with Z = C^-1 [Psi^T, phi] (C C^T = K), Psi K^-1 Psi^T = Z_Psi^T Z_Psi,
 phi^T K^-1 phi = |z_phi|^2 and M phi = Z_Psi^T z_phi. Below `LANES_BELOW` basis functions the
 factorisation runs on `LANES` batch elements at once, one SIMD lane each (the matrices
-interleaved as (m, m, LANES), so every inner loop is a vector operation over lanes);
+interleaved as (m, m, LANES), so every inner loop is a vector operation over lanes), in
+three stages per block of lanes: each element's pending update and forgetting, written into
+K and into its lane in the same sweep (`_update_forget_lane`), the factorisation with the
+forward substitution (`_chol_lanes`), and the predictive's sums over the basis accumulated
+over all lanes at once before each lane's scalar tail (`_write_predictive_lanes`; the
+per-element strided reads of `_write_predictive` cost 10-20% of the pass at m = 10);
 from `LANES_BELOW` up each matrix goes to LAPACK's dpotrf (numba's np.linalg.cholesky).
 No exact low-rank update of the factor exists under the paper's forgetting
 (docs/derivations.md, Sec. 20): each step refactorises.
@@ -168,6 +175,50 @@ def _update_forget(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget, lam
 
 
 @njit(**_JIT)
+def _update_forget_lane(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget, lam, nu_min, A, w):
+    """`_update_forget` for batch element b, and K's lower triangle copied into lane w of A
+    (A[i, j, w] = K[b, i, j]); with a pending update in the same sweep over K (each entry
+    written to K and A as it is computed: one pass over K instead of two), with the same
+    operations in the same order."""
+    d, m = Psi.shape[1], Psi.shape[2]
+    Kb = K[b]
+    if not pending:
+        if forget:
+            _forget_exact(K, Psi, Phi, nu, V, b, lam, nu_min)
+        for i in range(m):
+            Ki = Kb[i]
+            Ai = A[i]
+            for j in range(i + 1):
+                Ai[j, w] = Ki[j]
+        return
+    n, a = b // per, b % per
+    nu[b] += 1.0
+    f = _factor(lam, nu_min, nu[b]) if forget else 1.0
+    g = 1.0 - f
+    ph = phi_p[n, a * m:(a + 1) * m]
+    for i in range(d):
+        zi = zeta[n, a + i]
+        for k in range(d):
+            Phi[b, i, k] = (Phi[b, i, k] + zi * zeta[n, a + k]) * f
+        Pi = Psi[b, i]
+        for j in range(m):
+            Pi[j] = (Pi[j] + zi * ph[j]) * f
+    for i in range(m):
+        p = ph[i]
+        Ki = Kb[i]
+        Ai = A[i]
+        for j in range(i):
+            v = (Ki[j] + p * ph[j]) * f
+            Ki[j] = v
+            Ai[j, w] = v
+        v = (Ki[i] + p * ph[i]) * f
+        v += g * V[i]
+        Ki[i] = v
+        Ai[i, w] = v
+    nu[b] = nu[b] * f
+
+
+@njit(**_JIT)
 def _write_predictive(work, b, per, d, m, Z, w, Lam0, Phi, nu, lam):
     """loc, scale, dof of batch element b into work from Z[m + q, j, w] = (C^-1 [Psi^T, phi])[j, q]
     (lane w; lam: (2, 2) scratch)."""
@@ -199,6 +250,57 @@ def _write_predictive(work, b, per, d, m, Z, w, Lam0, Phi, nu, lam):
             work[n, S + 1] = 0.0
             work[n, S + 2] = 0.0
             work[n, DOF] = df
+
+
+@njit(**_JIT)
+def _write_predictive_lanes(work, b0, nw, per, d, m, Z, Lam0, Phi, nu, acc, lam):
+    """`_write_predictive` for the lanes w < nw of a block (batch elements b0 + w) at once: the
+    sums over j (c, M phi, Psi K^-1 Psi^T) accumulated over the lanes first (one vector
+    operation per j), then each lane's loc, scale, dof. Per lane the same operations in the same
+    order as `_write_predictive` (acc: (1 + d + d d, >= lanes) scratch; lam: (2, 2))."""
+    W = Z.shape[2]
+    nq = 1 + d + d * d
+    for w in range(W):
+        acc[0, w] = 1.0
+    for q in range(1, nq):
+        for w in range(W):
+            acc[q, w] = 0.0
+    for j in range(m):
+        zp = Z[m + d, j]
+        a0 = acc[0]
+        for w in range(W):
+            a0[w] += zp[w] * zp[w]
+        for i in range(d):
+            zi = Z[m + i, j]
+            ai = acc[1 + i]
+            for w in range(W):
+                ai[w] += zi[w] * zp[w]
+            for k in range(d):
+                zk = Z[m + k, j]
+                aq = acc[1 + d + i * d + k]
+                for w in range(W):
+                    aq[w] += zi[w] * zk[w]
+    for w in range(nw):
+        b = b0 + w
+        n, a = b // per, b % per
+        df = nu[b] - d + 1.0
+        f = acc[0, w] / df
+        for i in range(d):
+            work[n, LOC + a + i] = acc[1 + i, w]
+            for k in range(d):
+                lam[i, k] = Lam0[i, k] + Phi[b, i, k] - acc[1 + d + i * d + k, w]
+        if d == 2:
+            work[n, S + 0] = f * lam[0, 0]
+            work[n, S + 1] = f * (0.5 * (lam[0, 1] + lam[1, 0]))
+            work[n, S + 2] = f * (0.5 * (lam[1, 0] + lam[0, 1]))
+            work[n, S + 3] = f * lam[1, 1]
+            work[n, DOF] = df
+        else:
+            work[n, S + 3 * a] = f * lam[0, 0]
+            if a == 0:
+                work[n, S + 1] = 0.0
+                work[n, S + 2] = 0.0
+                work[n, DOF] = df
 
 
 @njit(**_JIT)
@@ -274,19 +376,14 @@ def exact_forget_predictive(K, Psi, Phi, nu, V, Lam0, work, per, forget, lam, nu
     W = lanes
     A = np.zeros((m + d + 1, m, W))
     inv = np.empty((m, W))
+    acc = np.empty((1 + d + d * d, W))
     lam2 = np.empty((2, 2))
     for b0 in range(0, nb, W):
         nw = min(W, nb - b0)
         for w in range(W):
             if w < nw:
                 b = b0 + w
-                _update_forget(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget, lam, nu_min)
-                Kb = K[b]
-                for i in range(m):
-                    Ki = Kb[i]
-                    Ai = A[i]
-                    for j in range(i + 1):
-                        Ai[j, w] = Ki[j]
+                _update_forget_lane(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget, lam, nu_min, A, w)
                 n, a = b // per, b % per
                 for i in range(d):
                     Pi = Psi[b, i]
@@ -302,8 +399,7 @@ def exact_forget_predictive(K, Psi, Phi, nu, V, Lam0, work, per, forget, lam, nu
                     for j in range(min(i + 1, m)):
                         A[i, j, w] = 1.0 if i == j else 0.0
         _chol_lanes(A, m, W, inv)
-        for w in range(nw):
-            _write_predictive(work, b0 + w, per, d, m, A, w, Lam0, Phi, nu, lam2)
+        _write_predictive_lanes(work, b0, nw, per, d, m, A, Lam0, Phi, nu, acc, lam2)
 
 
 @njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
@@ -568,6 +664,19 @@ def sample(x, work, logw, z, u, zeta, mu, conditional):
     return m0, m1, math.sqrt(max(v0, 0.0)), math.sqrt(max(v1, 0.0)), mf, mr
 
 
+@njit(**_JIT)
+def common_dof(work, add):
+    """The draw's degrees of freedom work[:, DOF] + add when every particle has the same (the
+    usual case: `student_t.t_draws` then draws the chi-square with one scalar dof), NaN
+    otherwise (also when it is NaN), so that the step draws as t_draws would without its
+    numpy checks."""
+    v = work[0, DOF] + add
+    for i in range(1, work.shape[0]):
+        if work[i, DOF] + add != v:
+            return math.nan
+    return v
+
+
 # ---- 6. learning ----------------------------------------------------------------------------------
 @njit(**_JIT)
 def rank1_update(M, P, Lam, nu, work, zeta, per):
@@ -728,8 +837,11 @@ class CompiledStep:
             est.resamples += 1
         # 5. zeta (t conditional given the a^Y residual), mu, learning
         conditional = have_ay and learned
-        dof = work[:, DOF] + 1.0 if conditional else work[:, DOF]
-        z, u = t_draws(dof, (N, 2), rng)
+        c = common_dof(work, 1.0 if conditional else 0.0)
+        if math.isnan(c):  # dof differing between particles (or NaN): as the reference
+            z, u = t_draws(work[:, DOF] + 1.0 if conditional else work[:, DOF], (N, 2), rng)
+        else:  # t_draws' generator calls for a common dof, without its checks
+            z, u = rng.standard_normal((N, 2)), rng.chisquare(c, (N,))
         m0, m1, s0, s1, mf, mr = sample(est.x, work, est.logw, z, np.ascontiguousarray(u, float), self.zeta, est.mu,
                                         conditional)
         if est.active:
