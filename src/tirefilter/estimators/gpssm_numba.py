@@ -140,6 +140,26 @@ def _forget_exact(K, Psi, Phi, nu, V, b, lam, nu_min):
     nu[b] = nu[b] * f
 
 
+@njit(inline="always", **_JIT)
+def _pending_head(Psi, Phi, nu, b, per, zeta, phi_p, forget, lam, nu_min):
+    """The start of batch element b's pending update (eq. (27a)-(27b), (28f)) with the
+    forgetting factor f (eq. (29)): nu += 1, Phi and Psi updated and scaled by f. Returns
+    (f, 1 - f, phi) for the update of K, which each caller sweeps its own way."""
+    d, m = Psi.shape[1], Psi.shape[2]
+    n, a = b // per, b % per
+    nu[b] += 1.0
+    f = _factor(lam, nu_min, nu[b]) if forget else 1.0
+    ph = phi_p[n, a * m:(a + 1) * m]
+    for i in range(d):
+        zi = zeta[n, a + i]
+        for k in range(d):
+            Phi[b, i, k] = (Phi[b, i, k] + zi * zeta[n, a + k]) * f
+        Pi = Psi[b, i]
+        for j in range(m):
+            Pi[j] = (Pi[j] + zi * ph[j]) * f
+    return f, 1.0 - f, ph
+
+
 @njit(**_JIT)
 def _update_forget(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget, lam, nu_min):
     """Batch element b: the pending update (eq. (27a)-(27c), (28f)) then the forgetting
@@ -151,19 +171,8 @@ def _update_forget(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget, lam
         if forget:
             _forget_exact(K, Psi, Phi, nu, V, b, lam, nu_min)
         return
-    d, m = Psi.shape[1], Psi.shape[2]
-    n, a = b // per, b % per
-    nu[b] += 1.0
-    f = _factor(lam, nu_min, nu[b]) if forget else 1.0
-    g = 1.0 - f
-    ph = phi_p[n, a * m:(a + 1) * m]
-    for i in range(d):
-        zi = zeta[n, a + i]
-        for k in range(d):
-            Phi[b, i, k] = (Phi[b, i, k] + zi * zeta[n, a + k]) * f
-        Pi = Psi[b, i]
-        for j in range(m):
-            Pi[j] = (Pi[j] + zi * ph[j]) * f
+    f, g, ph = _pending_head(Psi, Phi, nu, b, per, zeta, phi_p, forget, lam, nu_min)
+    m = Psi.shape[2]
     Kb = K[b]
     for i in range(m):
         p = ph[i]
@@ -180,7 +189,7 @@ def _update_forget_lane(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget
     (A[i, j, w] = K[b, i, j]); with a pending update in the same sweep over K (each entry
     written to K and A as it is computed: one pass over K instead of two), with the same
     operations in the same order."""
-    d, m = Psi.shape[1], Psi.shape[2]
+    m = Psi.shape[2]
     Kb = K[b]
     if not pending:
         if forget:
@@ -191,18 +200,7 @@ def _update_forget_lane(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget
             for j in range(i + 1):
                 Ai[j, w] = Ki[j]
         return
-    n, a = b // per, b % per
-    nu[b] += 1.0
-    f = _factor(lam, nu_min, nu[b]) if forget else 1.0
-    g = 1.0 - f
-    ph = phi_p[n, a * m:(a + 1) * m]
-    for i in range(d):
-        zi = zeta[n, a + i]
-        for k in range(d):
-            Phi[b, i, k] = (Phi[b, i, k] + zi * zeta[n, a + k]) * f
-        Pi = Psi[b, i]
-        for j in range(m):
-            Pi[j] = (Pi[j] + zi * ph[j]) * f
+    f, g, ph = _pending_head(Psi, Phi, nu, b, per, zeta, phi_p, forget, lam, nu_min)
     for i in range(m):
         p = ph[i]
         Ki = Kb[i]
