@@ -26,6 +26,9 @@ from tirefilter.peer.score import read_columns, score_replay
 from tirefilter.replay.log import read_log
 from tirefilter.vehicle.params import load_vehicle
 
+# one worker of make test runs this module, so that the drives (module fixture, ~20 s) are simulated once
+pytestmark = pytest.mark.xdist_group("peer_drive")
+
 DURATION = 40.0  # s, the CI drives: 4 s straight, then a 0.5 Hz steer sine (|a^Y| < 3 m/s^2)
 LAST = 20.0  # s, window of the stiffness mean
 STIFFNESS_TOL = 10.0  # %, issue 13 point 6
