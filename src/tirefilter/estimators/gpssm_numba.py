@@ -54,7 +54,7 @@ import numpy as np
 from numba import njit
 
 from tirefilter.errors import ConfigError
-from tirefilter.stats.mniw_numba import _factor, _phi1, _rank1_forget1, exact_update
+from tirefilter.stats.mniw_numba import _factor, _phi1, _rank1_forget1, _rank1_update1, exact_update
 from tirefilter.stats.particles_numba import systematic_into
 from tirefilter.stats.student_t import t_draws
 
@@ -216,6 +216,24 @@ def _update_forget_lane(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget
     nu[b] = nu[b] * f
 
 
+@njit(inline="always", **_JIT)
+def _write_scale(work, n, a, d, f, lam, df):
+    """Particle n's predictive scale f Lambda* (symmetrised, d = 2: the tensor basis) or axle a's
+    diagonal entry (d = 1: the per-axle basis, the off-diagonal zero), and its dof df."""
+    if d == 2:
+        work[n, S + 0] = f * lam[0, 0]
+        work[n, S + 1] = f * (0.5 * (lam[0, 1] + lam[1, 0]))
+        work[n, S + 2] = f * (0.5 * (lam[1, 0] + lam[0, 1]))
+        work[n, S + 3] = f * lam[1, 1]
+        work[n, DOF] = df
+    else:
+        work[n, S + 3 * a] = f * lam[0, 0]
+        if a == 0:
+            work[n, S + 1] = 0.0
+            work[n, S + 2] = 0.0
+            work[n, DOF] = df
+
+
 @njit(**_JIT)
 def _write_predictive(work, b, per, d, m, Z, w, Lam0, Phi, nu, lam):
     """loc, scale, dof of batch element b into work from Z[m + q, j, w] = (C^-1 [Psi^T, phi])[j, q]
@@ -236,18 +254,7 @@ def _write_predictive(work, b, per, d, m, Z, w, Lam0, Phi, nu, lam):
             for j in range(m):
                 q += Z[m + i, j, w] * Z[m + k, j, w]
             lam[i, k] = Lam0[i, k] + Phi[b, i, k] - q
-    if d == 2:
-        work[n, S + 0] = f * lam[0, 0]
-        work[n, S + 1] = f * (0.5 * (lam[0, 1] + lam[1, 0]))
-        work[n, S + 2] = f * (0.5 * (lam[1, 0] + lam[0, 1]))
-        work[n, S + 3] = f * lam[1, 1]
-        work[n, DOF] = df
-    else:
-        work[n, S + 3 * a] = f * lam[0, 0]
-        if a == 0:
-            work[n, S + 1] = 0.0
-            work[n, S + 2] = 0.0
-            work[n, DOF] = df
+    _write_scale(work, n, a, d, f, lam, df)
 
 
 @njit(**_JIT)
@@ -287,18 +294,7 @@ def _write_predictive_lanes(work, b0, nw, per, d, m, Z, Lam0, Phi, nu, acc, lam)
             work[n, LOC + a + i] = acc[1 + i, w]
             for k in range(d):
                 lam[i, k] = Lam0[i, k] + Phi[b, i, k] - acc[1 + d + i * d + k, w]
-        if d == 2:
-            work[n, S + 0] = f * lam[0, 0]
-            work[n, S + 1] = f * (0.5 * (lam[0, 1] + lam[1, 0]))
-            work[n, S + 2] = f * (0.5 * (lam[1, 0] + lam[0, 1]))
-            work[n, S + 3] = f * lam[1, 1]
-            work[n, DOF] = df
-        else:
-            work[n, S + 3 * a] = f * lam[0, 0]
-            if a == 0:
-                work[n, S + 1] = 0.0
-                work[n, S + 2] = 0.0
-                work[n, DOF] = df
+        _write_scale(work, n, a, d, f, lam, df)
 
 
 @njit(**_JIT)
@@ -685,32 +681,7 @@ def rank1_update(M, P, Lam, nu, work, zeta, per):
     e = np.empty(d)
     for b in range(nb):
         n, a = b // per, b % per
-        o = PHI + a * m
-        c = 0.0
-        for i in range(m):
-            s = 0.0
-            for j in range(m):
-                s += P[b, i, j] * work[n, o + j]
-            g[i] = s
-            c += work[n, o + i] * s
-        c = 1.0 + c
-        ic = 1.0 / c
-        for i in range(d):
-            s = 0.0
-            for j in range(m):
-                s += M[b, i, j] * work[n, o + j]
-            e[i] = zeta[n, a + i] - s
-        for j in range(m):
-            gs[j] = g[j] * ic
-        for i in range(d):
-            for j in range(m):
-                M[b, i, j] += e[i] * gs[j]
-            for k in range(d):
-                Lam[b, i, k] += e[i] * e[k] * ic
-        for i in range(m):
-            for j in range(m):
-                P[b, i, j] -= g[i] * gs[j]
-        nu[b] += 1.0
+        _rank1_update1(M, P, Lam, nu, b, zeta[n, a:a + d], work[n, PHI + a * m:PHI + (a + 1) * m], g, gs, e)
 
 
 # ---- the step ------------------------------------------------------------------------------------

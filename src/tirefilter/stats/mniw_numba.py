@@ -247,31 +247,39 @@ def rank1_update(M, P, Lam, nu, zeta, phi):
     gs = np.empty(m)
     e = np.empty(d)
     for b in range(nb):
-        c = 0.0
-        for i in range(m):
-            s = 0.0
-            for j in range(m):
-                s += P[b, i, j] * phi[b, j]
-            g[i] = s
-            c += phi[b, i] * s
-        c = 1.0 + c
-        ic = 1.0 / c
-        for i in range(d):
-            s = 0.0
-            for j in range(m):
-                s += M[b, i, j] * phi[b, j]
-            e[i] = zeta[b, i] - s
+        _rank1_update1(M, P, Lam, nu, b, zeta[b], phi[b], g, gs, e)
+
+
+@njit(inline="always", **_JIT)
+def _rank1_update1(M, P, Lam, nu, b, zeta_b, phi_b, g, gs, e):
+    """`rank1_update` of batch entry b with its target zeta_b (d,) and features phi_b (m,)
+    (g, gs: (m,), e: (d,) scratch)."""
+    d, m = M.shape[1], M.shape[2]
+    c = 0.0
+    for i in range(m):
+        s = 0.0
         for j in range(m):
-            gs[j] = g[j] * ic
-        for i in range(d):
-            for j in range(m):
-                M[b, i, j] += e[i] * gs[j]
-            for k in range(d):
-                Lam[b, i, k] += e[i] * e[k] * ic
-        for i in range(m):
-            for j in range(m):
-                P[b, i, j] -= g[i] * gs[j]
-        nu[b] += 1.0
+            s += P[b, i, j] * phi_b[j]
+        g[i] = s
+        c += phi_b[i] * s
+    c = 1.0 + c
+    ic = 1.0 / c
+    for i in range(d):
+        s = 0.0
+        for j in range(m):
+            s += M[b, i, j] * phi_b[j]
+        e[i] = zeta_b[i] - s
+    for j in range(m):
+        gs[j] = g[j] * ic
+    for i in range(d):
+        for j in range(m):
+            M[b, i, j] += e[i] * gs[j]
+        for k in range(d):
+            Lam[b, i, k] += e[i] * e[k] * ic
+    for i in range(m):
+        for j in range(m):
+            P[b, i, j] -= g[i] * gs[j]
+    nu[b] += 1.0
 
 
 @njit(inline="always", **_JIT)
