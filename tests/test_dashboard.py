@@ -47,6 +47,25 @@ CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic
 SEED, N_SMALL = 3, 50
 
 
+@pytest.fixture(scope="module", autouse=True)
+def compiled_mpf():
+    """The MPF's compiled kernels loaded (or, in a fresh clone, compiled: about 40 s, more on a
+    slow machine) before any run of the dashboard, so that the waits below bound the runs and
+    not a first compile: a few samples of a straight drive through a small default filter,
+    for the full and the lateral model."""
+    from tirefilter.estimators.base import Inputs, Measurement
+    from tirefilter.estimators.stiffness_mpf import MPFConfig, StiffnessMPF
+
+    vehicle = load_scenario("paper-sim").vehicle
+    omega = 20.0 / vehicle.wheel_radius
+    for model in ("full", "lateral"):
+        est = StiffnessMPF(vehicle, MPFConfig(particles=8, model=model))
+        est.reset(np.random.default_rng(0))
+        for k in range(5):
+            est.step(0.01 * k, Inputs(delta=0.01, omega_f=omega, omega_r=omega, vx=20.0),
+                     Measurement(ax=0.0, ay=0.5, yaw_rate=0.03))
+
+
 def wait_for(predicate, timeout: float = 60.0, what: str = "condition"):  # generous: a loaded CI machine
     end = time.monotonic() + timeout
     while time.monotonic() < end:
@@ -644,7 +663,7 @@ def test_the_page_in_a_real_browser(fmu_paths, tmp_path):
                 page.get_by_role("button", name="Start", exact=True).click()
                 page.get_by_text(re.compile(r"running · scenario paper-sim")).wait_for(timeout=20000)
                 page.wait_for_function("() => document.querySelectorAll('.uplot canvas').length >= 3", timeout=20000)
-                wait_for(lambda: _chart_has_line(page, 0), timeout=20, what="a line in the Cf_y chart")
+                wait_for(lambda: _chart_has_line(page, 0), what="a line in the Cf_y chart")
                 shots.append(tmp_path / "running.png")
                 page.screenshot(path=shots[-1])
 

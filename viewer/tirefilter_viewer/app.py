@@ -562,6 +562,8 @@ class Dashboard:
         duration = f" of {self._run.duration:g}" if self._run is not None else ""
         parts.append(f"t = {t:.2f}{duration} s" if math.isfinite(t) else "t = -")
         parts.append(f"{h.rows} samples")
+        if self._state == "running" and not h.rows:  # the first step loads the compiled kernels
+            parts.append("first step (a machine's first run compiles the kernels: about a minute)")
         if self._state == "running":
             parts.append(f"{self.update_rate():.0f} updates/s")
         if self._run is not None and self._run.median_step_us():
