@@ -65,7 +65,7 @@ def test_every_tab_of_the_layout_renders_without_errors_or_empty_views(fmu_paths
             sender.flush()
             boxes = view_cells(*layout_grid(layout, active))
             time.sleep(3)
-            img = wait_loaded(page, boxes, timeout=60, shot=ARTIFACTS / f"tab-{active[0]}-{active[1]}.png")
+            img = wait_loaded(page, boxes, timeout=120, shot=ARTIFACTS / f"tab-{active[0]}-{active[1]}.png")
             problems[f"tab-{active[0]}-{active[1]}"] = check_views(img, boxes)
 
         # the check sees a real error badge: a 2-D line strip in the 3-D top view (what /vehicle/path was)
