@@ -396,42 +396,168 @@ def exact_forget_predictive(K, Psi, Phi, nu, V, Lam0, work, per, forget, lam, nu
         _write_predictive_lanes(work, b0, nw, per, d, m, A, Lam0, Phi, nu, acc, lam2)
 
 
+@njit(**_JIT)
+def _update_forget_rows(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget, lam, nu_min, A):
+    """`_update_forget_lane` with A (>= m, m) one matrix: K's lower triangle after the pending
+    update and the forgetting, written to K and A in the same sweep, the same operations in
+    the same order as `_update_forget`."""
+    m = Psi.shape[2]
+    Kb = K[b]
+    if not pending:
+        if forget:
+            _forget_exact(K, Psi, Phi, nu, V, b, lam, nu_min)
+        for i in range(m):
+            Ki = Kb[i]
+            Ai = A[i]
+            for j in range(i + 1):
+                Ai[j] = Ki[j]
+        return
+    f, g, ph = _pending_head(Psi, Phi, nu, b, per, zeta, phi_p, forget, lam, nu_min)
+    for i in range(m):
+        p = ph[i]
+        Ki = Kb[i]
+        Ai = A[i]
+        for j in range(i):
+            v = (Ki[j] + p * ph[j]) * f
+            Ki[j] = v
+            Ai[j] = v
+        v = (Ki[i] + p * ph[i]) * f
+        v += g * V[i]
+        Ki[i] = v
+        Ai[i] = v
+    nu[b] = nu[b] * f
+
+
 @njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
-def _dot(a, b, n):
-    s = 0.0
-    for k in range(n):
-        s += a[k] * b[k]
-    return s
+def _chol_rows(A, m, inv, spare):
+    """In place, one matrix: A (n, m), rows 0..m-1 a symmetric positive definite matrix (lower
+    triangle read), rows m..n-1 right-hand sides b^T; afterwards the lower Cholesky factor C and
+    the rows (C^-1 b)^T (the recurrence continued below the matrix, as `_chol_lanes`).
+    Row-oriented, A[i, j] = (A[i, j] - sum_{k<j} A[i, k] A[j, k]) / A[j, j], register-blocked:
+    two rows against four columns, the eight sums over k < j accumulated together (each A[i, k]
+    and A[j, k] loaded once for four and two of them; `reassoc` lets LLVM vectorise the sums
+    over k), then the four columns finished in order (the terms k = j..j + 2). The sums'
+    order differs from dpotrf's and the reference's LU solve by rounding only. `spare`: (m,)
+    scratch, the second row of an odd last pair."""
+    n = A.shape[0]
+    i = 0
+    while i < n:
+        two = i + 1 < n
+        R0 = A[i]
+        R1 = A[i + 1] if two else spare
+        jmax = min(i, m)
+        j = 0
+        while j + 4 <= jmax:
+            Q0, Q1, Q2, Q3 = A[j], A[j + 1], A[j + 2], A[j + 3]
+            s00 = s01 = s02 = s03 = 0.0
+            s10 = s11 = s12 = s13 = 0.0
+            for k in range(j):
+                a = R0[k]
+                c = R1[k]
+                s00 += a * Q0[k]
+                s01 += a * Q1[k]
+                s02 += a * Q2[k]
+                s03 += a * Q3[k]
+                s10 += c * Q0[k]
+                s11 += c * Q1[k]
+                s12 += c * Q2[k]
+                s13 += c * Q3[k]
+            x0 = (R0[j] - s00) * inv[j]
+            y0 = (R1[j] - s10) * inv[j]
+            R0[j], R1[j] = x0, y0
+            x1 = (R0[j + 1] - s01 - x0 * Q1[j]) * inv[j + 1]
+            y1 = (R1[j + 1] - s11 - y0 * Q1[j]) * inv[j + 1]
+            R0[j + 1], R1[j + 1] = x1, y1
+            x2 = (R0[j + 2] - s02 - x0 * Q2[j] - x1 * Q2[j + 1]) * inv[j + 2]
+            y2 = (R1[j + 2] - s12 - y0 * Q2[j] - y1 * Q2[j + 1]) * inv[j + 2]
+            R0[j + 2], R1[j + 2] = x2, y2
+            R0[j + 3] = (R0[j + 3] - s03 - x0 * Q3[j] - x1 * Q3[j + 1] - x2 * Q3[j + 2]) * inv[j + 3]
+            R1[j + 3] = (R1[j + 3] - s13 - y0 * Q3[j] - y1 * Q3[j + 1] - y2 * Q3[j + 2]) * inv[j + 3]
+            j += 4
+        while j < jmax:
+            Q0 = A[j]
+            s0 = 0.0
+            s1 = 0.0
+            for k in range(j):
+                s0 += R0[k] * Q0[k]
+                s1 += R1[k] * Q0[k]
+            R0[j] = (R0[j] - s0) * inv[j]
+            R1[j] = (R1[j] - s1) * inv[j]
+            j += 1
+        if i < m:  # the diagonal of row i, then row i + 1's column i and its diagonal
+            s = 0.0
+            for k in range(i):
+                s += R0[k] * R0[k]
+            v = R0[i] - s
+            c = math.sqrt(v) if v > 0.0 else math.nan
+            R0[i] = c
+            inv[i] = 1.0 / c
+            if two:
+                s = 0.0
+                for k in range(i):
+                    s += R1[k] * R0[k]
+                R1[i] = (R1[i] - s) * inv[i]
+                if i + 1 < m:
+                    s = 0.0
+                    for k in range(i + 1):
+                        s += R1[k] * R1[k]
+                    v = R1[i + 1] - s
+                    c = math.sqrt(v) if v > 0.0 else math.nan
+                    R1[i + 1] = c
+                    inv[i + 1] = 1.0 / c
+        i += 2
 
 
 @njit(**_JIT)
-def exact_forget_predictive_lapack(K, Psi, Phi, nu, V, Lam0, work, per, forget, lam, nu_min, pending, zeta, phi_p):
-    """`exact_forget_predictive` with each K factorised by LAPACK's dpotrf (large bases)."""
+def _write_predictive_rows(work, b, per, d, m, Z, Lam0, Phi, nu, lam):
+    """`_write_predictive` from Z[m + q, j] = (C^-1 [Psi^T, phi])[j, q] (one matrix, no lanes),
+    the same operations in the same order."""
+    n, a = b // per, b % per
+    c = 1.0
+    zp = Z[m + d]
+    for j in range(m):
+        c += zp[j] * zp[j]
+    df = nu[b] - d + 1.0
+    f = c / df
+    for i in range(d):
+        zi = Z[m + i]
+        s = 0.0
+        for j in range(m):
+            s += zi[j] * zp[j]
+        work[n, LOC + a + i] = s
+        for k in range(d):
+            zk = Z[m + k]
+            q = 0.0
+            for j in range(m):
+                q += zi[j] * zk[j]
+            lam[i, k] = Lam0[i, k] + Phi[b, i, k] - q
+    _write_scale(work, n, a, d, f, lam, df)
+
+
+@njit(**_JIT)
+def exact_forget_predictive_rows(K, Psi, Phi, nu, V, Lam0, work, per, forget, lam, nu_min, pending, zeta, phi_p):
+    """`exact_forget_predictive` one matrix at a time (large bases): the pending update and
+    the forgetting written into K and A in one sweep, the factorisation with the forward
+    substitution by `_chol_rows`, then the predictive."""
     nb, d, m = Psi.shape
-    Zt = np.empty((d + 1, m))
-    Ks = np.empty((m, m))
-    Z = np.empty((m + d + 1, m, 1))
+    A = np.zeros((m + d + 1, m))
+    inv = np.empty(m)
+    spare = np.zeros(m)
     lam2 = np.empty((2, 2))
     for b in range(nb):
-        _update_forget(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget, lam, nu_min)
-        for i in range(m):
-            for j in range(i + 1):
-                Ks[i, j] = K[b, i, j]
-                Ks[j, i] = K[b, i, j]
-        C = np.linalg.cholesky(Ks)
+        _update_forget_rows(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget, lam, nu_min, A)
         n, a = b // per, b % per
-        for j in range(m):
-            for i in range(d):
-                Zt[i, j] = Psi[b, i, j]
-            Zt[d, j] = work[n, PHI + a * m + j]
-        for i in range(m):
-            inv = 1.0 / C[i, i]
-            for q in range(d + 1):
-                Zt[q, i] = (Zt[q, i] - _dot(C[i], Zt[q], i)) * inv
-        for q in range(d + 1):
+        for i in range(d):
+            Pi = Psi[b, i]
+            Ai = A[m + i]
             for j in range(m):
-                Z[m + q, j, 0] = Zt[q, j]
-        _write_predictive(work, b, per, d, m, Z, 0, Lam0, Phi, nu, lam2)
+                Ai[j] = Pi[j]
+        ph = work[n, PHI + a * m:PHI + (a + 1) * m]
+        Ai = A[m + d]
+        for j in range(m):
+            Ai[j] = ph[j]
+        _chol_rows(A, m, inv, spare)
+        _write_predictive_rows(work, b, per, d, m, A, Lam0, Phi, nu, lam2)
 
 
 @njit(**_JIT)
@@ -781,7 +907,7 @@ class CompiledStep:
         # 3. forgetting and predictive
         a1, a2, a3, nu = self._views()
         if self.exact:
-            fn = exact_forget_predictive if self.lanes else exact_forget_predictive_lapack
+            fn = exact_forget_predictive if self.lanes else exact_forget_predictive_rows
             args = (a1, a2, a3, nu, est._stats.V, est._stats.Lam0, work, self.per, forget, float(cfg.forgetting),
                     float(est.nu0)) + ((LANES,) if self.lanes else ()) + (self.pending, self.zeta, self.phi_p)
             fn(*args)
