@@ -485,69 +485,29 @@ def _write_predictive_rows(work, b, per, d, m, Z, Lam0, Phi, nu, lam):
 
 
 @njit(**_JIT)
-def _rows_element(K, Psi, Phi, nu, V, Lam0, work, per, forget, lam, nu_min, pending, zeta, phi_p, b, A, inv, spare,
-                  lam2):
-    """`exact_forget_predictive_rows` for batch element b."""
-    d, m = Psi.shape[1], Psi.shape[2]
-    _update_forget_rows(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget, lam, nu_min, A)
-    n, a = b // per, b % per
-    for i in range(d):
-        Pi = Psi[b, i]
-        Ai = A[m + i]
-        for j in range(m):
-            Ai[j] = Pi[j]
-    ph = work[n, PHI + a * m:PHI + (a + 1) * m]
-    Ai = A[m + d]
-    for j in range(m):
-        Ai[j] = ph[j]
-    _chol_rows(A, m, inv, spare)
-    _write_predictive_rows(work, b, per, d, m, A, Lam0, Phi, nu, lam2)
-
-
-@njit(**_JIT)
-def _copy_lower3(K, i, j):
-    """K[i] = K[j]'s lower triangle (K (B, m, m))."""
-    for r in range(K.shape[1]):
-        Ki = K[i, r]
-        Kj = K[j, r]
-        for c in range(r + 1):
-            Ki[c] = Kj[c]
-
-
-@njit(**_JIT)
-def exact_forget_predictive_rows(K, Psi, Phi, nu, V, Lam0, work, per, forget, lam, nu_min, pending, zeta, phi_p,
-                                 anc):
+def exact_forget_predictive_rows(K, Psi, Phi, nu, V, Lam0, work, per, forget, lam, nu_min, pending, zeta, phi_p):
     """`exact_forget_predictive` one matrix at a time (large bases): the pending update and
     the forgetting written into K and A in one sweep, the factorisation with the forward
-    substitution by `_chol_rows`, then the predictive. `anc` (N,), when not empty: the
-    resampling's sorted ancestors, whose K the last resampling left uncopied (the other
-    statistics are already gathered); each particle's K is copied from its ancestor's just
-    before its sweep, while in cache, in `gather_lower`'s order: first the particles with
-    anc[n] > n in ascending order, then those with anc[n] < n in descending order, then the
-    kept ones (with sorted ancestors no K is read after its particle was updated; see
-    `gather_rows`). Each element's arithmetic is the same in any order."""
+    substitution by `_chol_rows`, then the predictive."""
     nb, d, m = Psi.shape
     A = np.zeros((m + d + 1, m))
     inv = np.empty(m)
     spare = np.zeros(m)
     lam2 = np.empty((2, 2))
-    if anc.shape[0] == 0:
-        for b in range(nb):
-            _rows_element(K, Psi, Phi, nu, V, Lam0, work, per, forget, lam, nu_min, pending, zeta, phi_p, b, A, inv,
-                          spare, lam2)
-        return
-    N = anc.shape[0]
-    for phase in range(3):
-        for k in range(N):
-            n = N - 1 - k if phase == 1 else k
-            src = anc[n]
-            if (phase == 0 and src > n) or (phase == 1 and src < n) or (phase == 2 and src == n):
-                for a in range(per):
-                    b = n * per + a
-                    if src != n:
-                        _copy_lower3(K, b, src * per + a)
-                    _rows_element(K, Psi, Phi, nu, V, Lam0, work, per, forget, lam, nu_min, pending, zeta, phi_p,
-                                  b, A, inv, spare, lam2)
+    for b in range(nb):
+        _update_forget_rows(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget, lam, nu_min, A)
+        n, a = b // per, b % per
+        for i in range(d):
+            Pi = Psi[b, i]
+            Ai = A[m + i]
+            for j in range(m):
+                Ai[j] = Pi[j]
+        ph = work[n, PHI + a * m:PHI + (a + 1) * m]
+        Ai = A[m + d]
+        for j in range(m):
+            Ai[j] = ph[j]
+        _chol_rows(A, m, inv, spare)
+        _write_predictive_rows(work, b, per, d, m, A, Lam0, Phi, nu, lam2)
 
 
 @njit(**_JIT)
@@ -821,8 +781,6 @@ class CompiledStep:
         self.zeta = np.zeros((N, 2))
         self.phi_p = np.zeros((N, size * self.per))  # features of the pending update
         self.pending = False  # exact statistics: this step's update waits for the next pass
-        self.anc = None  # exact statistics, one matrix at a time: ancestors whose K the next pass copies
-        self._no_anc = np.empty(0, np.int64)
         self.stale_upper = False  # the kernels keep K's lower triangle; `flush` mirrors it
         keep = np.ascontiguousarray(est.basis.keep, np.int64)
         m1 = int(est.b1.m)
@@ -839,12 +797,7 @@ class CompiledStep:
                     float(v.yaw_inertia))
 
     def flush(self) -> None:
-        """Apply a pending update of the exact statistics now (before anything reads them): first
-        the resampling's copies of K that the next pass would make (`anc`), then the update."""
-        if self.anc is not None:
-            K = self.est._stats.K
-            gather_lower(K.reshape((self.est.cfg.particles, self.per) + K.shape[-2:]), self.anc)
-            self.anc = None
+        """Apply a pending update of the exact statistics now (before anything reads them)."""
         if self.pending:
             self.pending = False
             K, Psi, Phi, nu = self._views()
@@ -904,14 +857,11 @@ class CompiledStep:
         # 3. forgetting and predictive
         a1, a2, a3, nu = self._views()
         if self.exact:
+            fn = exact_forget_predictive if self.lanes else exact_forget_predictive_rows
             args = (a1, a2, a3, nu, est._stats.V, est._stats.Lam0, work, self.per, forget, float(cfg.forgetting),
-                    float(est.nu0))
-            if self.lanes:
-                exact_forget_predictive(*args, LANES, self.pending, self.zeta, self.phi_p)
-            else:
-                exact_forget_predictive_rows(*args, self.pending, self.zeta, self.phi_p,
-                                             self._no_anc if self.anc is None else self.anc)
-            self.pending, self.stale_upper, self.anc = False, True, None
+                    float(est.nu0)) + ((LANES,) if self.lanes else ()) + (self.pending, self.zeta, self.phi_p)
+            fn(*args)
+            self.pending, self.stale_upper = False, True
         else:
             rank1_forget_predictive(a1, a2, a3, nu, work, self.per, forget, float(cfg.forgetting), float(est.nu0),
                                     bool(est._stats.bounded), float(est._stats.trace0))
@@ -925,9 +875,7 @@ class CompiledStep:
         if ess < cfg.resample_threshold * N:
             idx = systematic_ancestors(est.logw, float(rng.random((1,))[0]))  # as stats.systematic_resample
             gather_rows(self._rows(), idx)
-            if self.exact and not self.lanes and _sorted(idx):  # K copied by the next pass (or `flush`)
-                self.anc = idx
-            elif self.exact:
+            if self.exact:
                 K = self.est._stats.K
                 gather_lower(K.reshape((N, self.per) + K.shape[-2:]), idx)
             est.logw[:] = -math.log(N)
