@@ -40,7 +40,7 @@ accumulated over all lanes at once before each lane's scalar tail (`_write_predi
 reading each lane's sums apart, strided by the lane count, cost 10-20% of the pass at m = 10).
 From `LANES_BELOW` up (the tensor bases) each matrix is factorised alone by a
 register-blocked row Cholesky (`_chol_rows`: four rows against two columns, the sums over the
-columns vectorised), 0.6 of LAPACK's dpotrf called per matrix at m = 100 and 0.9 of the lanes
+columns vectorised), about 0.6 of LAPACK's dpotrf called per matrix at m = 100 and 0.9 of the lanes
 at m = 50 (benchmarks/README.md, "The GP-SSM's factorisation (fourth pass)").
 No exact low-rank update of the factor exists under the paper's forgetting
 (docs/derivations.md, Sec. 20): each step refactorises.
