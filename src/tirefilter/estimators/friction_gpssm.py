@@ -307,15 +307,16 @@ class FrictionGPSSM:
     # ---- the filter -------------------------------------------------------------------
     def step(self, t: float, u: Inputs, y: Measurement) -> Estimate:
         cfg, N, rng = self.cfg, self.cfg.particles, self.rng
-        uk = np.array([u.delta, u.vx], float)
+        delta, vx = float(u.delta), float(u.vx)  # a missing input: the previous one (scalars: a few us a step)
         if self.u_prev is not None:
-            uk = np.where(np.isfinite(uk), uk, self.u_prev)
-        if not math.isfinite(uk[1]):
+            delta = delta if math.isfinite(delta) else float(self.u_prev[0])
+            vx = vx if math.isfinite(vx) else float(self.u_prev[1])
+        if not math.isfinite(vx):
             raise ConfigError("inputs", "vx",
                               f"the friction GP-SSM (lateral model) needs vx; none given up to t = {t} s")
-        if not math.isfinite(uk[0]):
-            uk[0] = 0.0
-        delta, vx = float(uk[0]), float(uk[1])
+        if not math.isfinite(delta):
+            delta = 0.0
+        uk = np.array([delta, vx])
         if self.mpf is not None:
             self.mpf_estimate = self.mpf.step(t, u, y)
             self._combined_prior(t)
@@ -449,12 +450,13 @@ class FrictionGPSSM:
         """Cornering stiffness of the learned curve, F^z (mu~'(0) + E[A] phi'(0)); the
         particle spread of E[A] phi'(0) as its std. With the exact statistics M needs a
         solve: it is refreshed only at snapshots (`friction()`), the prior slope otherwise."""
-        s0 = np.array(self.prior.slope())
         if M is None:
             f, sf, r, sr = self._slope
             if not math.isfinite(f):
+                s0 = self.prior.slope()
                 return dict(Cf_y=self.Fz[0] * s0[0], Cr_y=self.Fz[1] * s0[1])
             return dict(Cf_y=f, Cf_y_std=sf, Cr_y=r, Cr_y_std=sr)
+        s0 = np.array(self.prior.slope())
         if self.d == 2:
             sl = np.stack([M[:, 0] @ self._dphi0[0], M[:, 1] @ self._dphi0[1]], axis=1)
         else:
@@ -466,7 +468,8 @@ class FrictionGPSSM:
         return dict(Cf_y=C[0], Cf_y_std=self.Fz[0] * std[0], Cr_y=C[1], Cr_y_std=self.Fz[1] * std[1])
 
     def _bin(self, a: float) -> int:
-        return int(np.clip(np.searchsorted(self.grid, a), 0, len(self.grid) - 1))
+        # min/max, not np.clip: np.clip on a scalar costs about 10 us (its dtype-limit checks), the same bin
+        return min(max(int(np.searchsorted(self.grid, a)), 0), len(self.grid) - 1)
 
     def path(self) -> tuple[np.ndarray, np.ndarray]:
         """Tensor basis: the other axle's slip along which each axle's curve is evaluated,

@@ -12,7 +12,7 @@ uniform, the Student-t draws `student_t.t_draws`), so both backends follow one p
      instead of one sin per function), the Pacejka prior (Sec. 4);
   2. one pass over the statistics: for the exact statistics the previous step's update
      (eq. (27), kept pending until now), the forgetting (eq. (29)) and the predictive
-     (eq. (31)-(32)), `exact_forget_predictive` (`_lapack` from `LANES_BELOW` functions);
+     (eq. (31)-(32)), `exact_forget_predictive` (`_rows` from `LANES_BELOW` functions);
      for the rank-one ones the forgetting and the predictive, `rank1_forget_predictive`;
   3. `weigh`: the Student-t a^Y and Gaussian yaw-rate likelihoods (eq. (22)), the one-step
      prediction, log-sum-exp normalisation and the ESS;
@@ -30,15 +30,18 @@ uniform, the Student-t draws `student_t.t_draws`), so both backends follow one p
 The step keeps only the lower triangle of the exact statistics' K = Sigma + V up to date
 (`flush` mirrors it). The exact predictive factorises K (m x m) per batch element, and only forward
 substitution is needed: with Z = C^-1 [Psi^T, phi] (C C^T = K), Psi K^-1 Psi^T = Z_Psi^T Z_Psi,
-phi^T K^-1 phi = |z_phi|^2 and M phi = Z_Psi^T z_phi. Below `LANES_BELOW` basis functions the
-factorisation runs on `LANES` batch elements at once, one SIMD lane each (the matrices
-interleaved as (m, m, LANES), so every inner loop is a vector operation over lanes), in
-three stages per block of lanes: each element's pending update and forgetting, written into
-K and into its lane in the same sweep (`_update_forget_lane`), the factorisation with the
-forward substitution (`_chol_lanes`), and the predictive's sums over the basis accumulated
-over all lanes at once before each lane's scalar tail (`_write_predictive_lanes`; the
-per-element strided reads of `_write_predictive` cost 10-20% of the pass at m = 10);
-from `LANES_BELOW` up each matrix goes to LAPACK's dpotrf (numba's np.linalg.cholesky).
+phi^T K^-1 phi = |z_phi|^2 and M phi = Z_Psi^T z_phi. Below `LANES_BELOW` basis functions (the
+per-axle basis) the factorisation runs on `LANES` batch elements at once, one SIMD lane each
+(the matrices interleaved as (m, m, LANES), so every inner loop is a vector operation over
+lanes), in three stages per block of lanes: each element's pending update and forgetting,
+written into K and into its lane in the same sweep (`_update_forget_lane`), the factorisation
+with the forward substitution (`_chol_lanes`), and the predictive's sums over the basis
+accumulated over all lanes at once before each lane's scalar tail (`_write_predictive_lanes`;
+reading each lane's sums apart, strided by the lane count, cost 10-20% of the pass at m = 10).
+From `LANES_BELOW` up (the tensor bases) each matrix is factorised alone by a
+register-blocked row Cholesky (`_chol_rows`: four rows against two columns, the sums over the
+columns vectorised), about 0.6 of LAPACK's dpotrf called per matrix at m = 100 and 0.9 of the lanes
+at m = 50 (benchmarks/README.md, "The GP-SSM's factorisation (fourth pass)").
 No exact low-rank update of the factor exists under the paper's forgetting
 (docs/derivations.md, Sec. 20): each step refactorises.
 
@@ -60,7 +63,7 @@ from tirefilter.stats.student_t import t_draws
 
 _JIT = dict(cache=True, nogil=True)
 LANES = 32  # batch elements factorised together (eight AVX2 vectors of float64; measured best of 8-32)
-LANES_BELOW = 64  # basis size from which LAPACK's dpotrf factorises instead
+LANES_BELOW = 32  # basis size from which `_chol_rows` factorises each matrix alone instead
 
 # columns of `work`
 AF, AR, PF, PR, LOC, S, DOF, SC, SY, E, PHI = 0, 1, 2, 3, 4, 6, 10, 11, 13, 14, 15
@@ -161,34 +164,14 @@ def _pending_head(Psi, Phi, nu, b, per, zeta, phi_p, forget, lam, nu_min):
 
 
 @njit(**_JIT)
-def _update_forget(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget, lam, nu_min):
+def _update_forget_lane(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget, lam, nu_min, A, w):
     """Batch element b: the pending update (eq. (27a)-(27c), (28f)) then the forgetting
     (eq. (29)), in one sweep over K with the reference's operations in the reference's order
-    ((K + phi phi^T) * f, then + (1 - f) V on the diagonal). K's lower triangle only: the
-    upper one is restored by `mirror` before anything else reads K (the reference's K is
-    exactly symmetric: p_i p_j = p_j p_i and the forgetting is elementwise)."""
-    if not pending:
-        if forget:
-            _forget_exact(K, Psi, Phi, nu, V, b, lam, nu_min)
-        return
-    f, g, ph = _pending_head(Psi, Phi, nu, b, per, zeta, phi_p, forget, lam, nu_min)
-    m = Psi.shape[2]
-    Kb = K[b]
-    for i in range(m):
-        p = ph[i]
-        Ki = Kb[i]
-        for j in range(i + 1):
-            Ki[j] = (Ki[j] + p * ph[j]) * f
-        Ki[i] += g * V[i]
-    nu[b] = nu[b] * f
-
-
-@njit(**_JIT)
-def _update_forget_lane(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget, lam, nu_min, A, w):
-    """`_update_forget` for batch element b, and K's lower triangle copied into lane w of A
-    (A[i, j, w] = K[b, i, j]); with a pending update in the same sweep over K (each entry
-    written to K and A as it is computed: one pass over K instead of two), with the same
-    operations in the same order."""
+    ((K + phi phi^T) * f, then + (1 - f) V on the diagonal), each entry of K's lower triangle
+    written to K and to lane w of A (A[i, j, w] = K[b, i, j]) as it is computed: one pass over
+    K instead of two. K's lower triangle only: the upper one is restored by `mirror` before
+    anything else reads K (the reference's K is exactly symmetric: p_i p_j = p_j p_i and the
+    forgetting is elementwise)."""
     m = Psi.shape[2]
     Kb = K[b]
     if not pending:
@@ -235,34 +218,11 @@ def _write_scale(work, n, a, d, f, lam, df):
 
 
 @njit(**_JIT)
-def _write_predictive(work, b, per, d, m, Z, w, Lam0, Phi, nu, lam):
-    """loc, scale, dof of batch element b into work from Z[m + q, j, w] = (C^-1 [Psi^T, phi])[j, q]
-    (lane w; lam: (2, 2) scratch)."""
-    n, a = b // per, b % per
-    c = 1.0
-    for j in range(m):
-        c += Z[m + d, j, w] * Z[m + d, j, w]
-    df = nu[b] - d + 1.0
-    f = c / df
-    for i in range(d):
-        s = 0.0
-        for j in range(m):
-            s += Z[m + i, j, w] * Z[m + d, j, w]
-        work[n, LOC + a + i] = s
-        for k in range(d):
-            q = 0.0
-            for j in range(m):
-                q += Z[m + i, j, w] * Z[m + k, j, w]
-            lam[i, k] = Lam0[i, k] + Phi[b, i, k] - q
-    _write_scale(work, n, a, d, f, lam, df)
-
-
-@njit(**_JIT)
 def _write_predictive_lanes(work, b0, nw, per, d, m, Z, Lam0, Phi, nu, acc, lam):
-    """`_write_predictive` for the lanes w < nw of a block (batch elements b0 + w) at once: the
+    """`_write_predictive_rows` for the lanes w < nw of a block (batch elements b0 + w) at once: the
     sums over j (c, M phi, Psi K^-1 Psi^T) accumulated over the lanes first (one vector
     operation per j), then each lane's loc, scale, dof. Per lane the same operations in the same
-    order as `_write_predictive` (acc: (1 + d + d d, >= lanes) scratch; lam: (2, 2))."""
+    order as `_write_predictive_rows` (acc: (1 + d + d d, >= lanes) scratch; lam: (2, 2))."""
     W = Z.shape[2]
     nq = 1 + d + d * d
     for w in range(W):
@@ -396,42 +356,158 @@ def exact_forget_predictive(K, Psi, Phi, nu, V, Lam0, work, per, forget, lam, nu
         _write_predictive_lanes(work, b0, nw, per, d, m, A, Lam0, Phi, nu, acc, lam2)
 
 
+@njit(**_JIT)
+def _update_forget_rows(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget, lam, nu_min, A):
+    """`_update_forget_lane` with A (>= m, m) one matrix (A[i, j] = K[b, i, j]), the same
+    operations in the same order."""
+    m = Psi.shape[2]
+    Kb = K[b]
+    if not pending:
+        if forget:
+            _forget_exact(K, Psi, Phi, nu, V, b, lam, nu_min)
+        for i in range(m):
+            Ki = Kb[i]
+            Ai = A[i]
+            for j in range(i + 1):
+                Ai[j] = Ki[j]
+        return
+    f, g, ph = _pending_head(Psi, Phi, nu, b, per, zeta, phi_p, forget, lam, nu_min)
+    for i in range(m):
+        p = ph[i]
+        Ki = Kb[i]
+        Ai = A[i]
+        for j in range(i):
+            v = (Ki[j] + p * ph[j]) * f
+            Ki[j] = v
+            Ai[j] = v
+        v = (Ki[i] + p * ph[i]) * f
+        v += g * V[i]
+        Ki[i] = v
+        Ai[i] = v
+    nu[b] = nu[b] * f
+
+
 @njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
-def _dot(a, b, n):
-    s = 0.0
-    for k in range(n):
-        s += a[k] * b[k]
-    return s
+def _chol_rows(A, m, inv, spare):
+    """In place, one matrix: A (n, m), rows 0..m-1 a symmetric positive definite matrix (lower
+    triangle read), rows m..n-1 right-hand sides b^T; afterwards the lower Cholesky factor C and
+    the rows (C^-1 b)^T (the recurrence continued below the matrix, as `_chol_lanes`).
+    Row-oriented, A[i, j] = (A[i, j] - sum_{k<j} A[i, k] A[j, k]) / A[j, j], register-blocked:
+    four rows against two columns, the eight sums over k < j accumulated together (each A[j, k]
+    loaded once for four rows, each A[i, k] once for two columns; `reassoc` lets LLVM vectorise
+    the sums over k), then both columns finished in order (the term k = j of the second); the
+    columns left of the block's diagonal and the diagonal block itself row by row. The sums'
+    order differs from dpotrf's and the reference's LU solve by rounding only (measured against
+    2 x 4 blocking: 10% faster at m = 100, the same at m = 50). `spare`: (m,) scratch standing in
+    for the missing rows of the last block."""
+    n = A.shape[0]
+    i = 0
+    while i < n:
+        R0 = A[i]
+        R1 = A[i + 1] if i + 1 < n else spare
+        R2 = A[i + 2] if i + 2 < n else spare
+        R3 = A[i + 3] if i + 3 < n else spare
+        jmax = min(i, m)
+        j = 0
+        while j + 2 <= jmax:
+            Q0, Q1 = A[j], A[j + 1]
+            s00 = s01 = s10 = s11 = s20 = s21 = s30 = s31 = 0.0
+            for k in range(j):
+                q0 = Q0[k]
+                q1 = Q1[k]
+                a = R0[k]
+                s00 += a * q0
+                s01 += a * q1
+                a = R1[k]
+                s10 += a * q0
+                s11 += a * q1
+                a = R2[k]
+                s20 += a * q0
+                s21 += a * q1
+                a = R3[k]
+                s30 += a * q0
+                s31 += a * q1
+            iv = inv[j]
+            x0 = (R0[j] - s00) * iv
+            x1 = (R1[j] - s10) * iv
+            x2 = (R2[j] - s20) * iv
+            x3 = (R3[j] - s30) * iv
+            R0[j], R1[j], R2[j], R3[j] = x0, x1, x2, x3
+            q = Q1[j]
+            iv = inv[j + 1]
+            R0[j + 1] = (R0[j + 1] - s01 - x0 * q) * iv
+            R1[j + 1] = (R1[j + 1] - s11 - x1 * q) * iv
+            R2[j + 1] = (R2[j + 1] - s21 - x2 * q) * iv
+            R3[j + 1] = (R3[j + 1] - s31 - x3 * q) * iv
+            j += 2
+        for r in range(min(4, n - i)):
+            ii = i + r
+            R = A[ii]
+            for jj in range(j, min(ii + 1, m)):
+                Q = A[jj]
+                s = 0.0
+                for k in range(jj):
+                    s += R[k] * Q[k]
+                if jj == ii:
+                    v = R[ii] - s
+                    c = math.sqrt(v) if v > 0.0 else math.nan
+                    R[ii] = c
+                    inv[ii] = 1.0 / c
+                else:
+                    R[jj] = (R[jj] - s) * inv[jj]
+        i += 4
 
 
 @njit(**_JIT)
-def exact_forget_predictive_lapack(K, Psi, Phi, nu, V, Lam0, work, per, forget, lam, nu_min, pending, zeta, phi_p):
-    """`exact_forget_predictive` with each K factorised by LAPACK's dpotrf (large bases)."""
+def _write_predictive_rows(work, b, per, d, m, Z, Lam0, Phi, nu, lam):
+    """loc, scale, dof of batch element b into work from Z[m + q, j] = (C^-1 [Psi^T, phi])[j, q]
+    (lam: (2, 2) scratch)."""
+    n, a = b // per, b % per
+    c = 1.0
+    zp = Z[m + d]
+    for j in range(m):
+        c += zp[j] * zp[j]
+    df = nu[b] - d + 1.0
+    f = c / df
+    for i in range(d):
+        zi = Z[m + i]
+        s = 0.0
+        for j in range(m):
+            s += zi[j] * zp[j]
+        work[n, LOC + a + i] = s
+        for k in range(d):
+            zk = Z[m + k]
+            q = 0.0
+            for j in range(m):
+                q += zi[j] * zk[j]
+            lam[i, k] = Lam0[i, k] + Phi[b, i, k] - q
+    _write_scale(work, n, a, d, f, lam, df)
+
+
+@njit(**_JIT)
+def exact_forget_predictive_rows(K, Psi, Phi, nu, V, Lam0, work, per, forget, lam, nu_min, pending, zeta, phi_p):
+    """`exact_forget_predictive` one matrix at a time (large bases): the pending update and
+    the forgetting written into K and A in one sweep, the factorisation with the forward
+    substitution by `_chol_rows`, then the predictive."""
     nb, d, m = Psi.shape
-    Zt = np.empty((d + 1, m))
-    Ks = np.empty((m, m))
-    Z = np.empty((m + d + 1, m, 1))
+    A = np.zeros((m + d + 1, m))
+    inv = np.empty(m)
+    spare = np.zeros(m)
     lam2 = np.empty((2, 2))
     for b in range(nb):
-        _update_forget(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget, lam, nu_min)
-        for i in range(m):
-            for j in range(i + 1):
-                Ks[i, j] = K[b, i, j]
-                Ks[j, i] = K[b, i, j]
-        C = np.linalg.cholesky(Ks)
+        _update_forget_rows(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget, lam, nu_min, A)
         n, a = b // per, b % per
-        for j in range(m):
-            for i in range(d):
-                Zt[i, j] = Psi[b, i, j]
-            Zt[d, j] = work[n, PHI + a * m + j]
-        for i in range(m):
-            inv = 1.0 / C[i, i]
-            for q in range(d + 1):
-                Zt[q, i] = (Zt[q, i] - _dot(C[i], Zt[q], i)) * inv
-        for q in range(d + 1):
+        for i in range(d):
+            Pi = Psi[b, i]
+            Ai = A[m + i]
             for j in range(m):
-                Z[m + q, j, 0] = Zt[q, j]
-        _write_predictive(work, b, per, d, m, Z, 0, Lam0, Phi, nu, lam2)
+                Ai[j] = Pi[j]
+        ph = work[n, PHI + a * m:PHI + (a + 1) * m]
+        Ai = A[m + d]
+        for j in range(m):
+            Ai[j] = ph[j]
+        _chol_rows(A, m, inv, spare)
+        _write_predictive_rows(work, b, per, d, m, A, Lam0, Phi, nu, lam2)
 
 
 @njit(**_JIT)
@@ -781,7 +857,7 @@ class CompiledStep:
         # 3. forgetting and predictive
         a1, a2, a3, nu = self._views()
         if self.exact:
-            fn = exact_forget_predictive if self.lanes else exact_forget_predictive_lapack
+            fn = exact_forget_predictive if self.lanes else exact_forget_predictive_rows
             args = (a1, a2, a3, nu, est._stats.V, est._stats.Lam0, work, self.per, forget, float(cfg.forgetting),
                     float(est.nu0)) + ((LANES,) if self.lanes else ()) + (self.pending, self.zeta, self.phi_p)
             fn(*args)
