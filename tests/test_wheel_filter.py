@@ -151,3 +151,34 @@ def test_the_mpf_takes_the_filtered_wheel_speeds():
                  Measurement(ax=ax, ay=0.5, yaw_rate=0.02))
         np.testing.assert_allclose(est.u_prev[1:3], expect, rtol=1e-14)
         ax_prev = ax
+
+
+def test_check_log_and_the_replay_summary_show_the_wheel_noise(tmp_path):
+    """A full-model log whose wheel speeds carry 0.05 rad/s of white noise: check-log prints
+    the estimate (within 10 %), and a replay's run summary records it and the MPF uses it."""
+    import json
+
+    from tirefilter.cli import main
+    from tirefilter.replay import check_log
+
+    rng = np.random.default_rng(4)
+    t = np.arange(1500) * DT
+    vx = 20.0 + 0.5 * np.sin(0.5 * t)
+    r = 0.05 * np.sin(1.3 * t)
+    omega = vx / 0.3
+    cols = {"t": t, "delta": 0.02 * np.sin(1.3 * t), "ax": 0.25 * np.cos(0.5 * t) + 0.1 * rng.standard_normal(t.size),
+            "ay": vx * r + 0.1 * rng.standard_normal(t.size), "yaw_rate": r + 0.003 * rng.standard_normal(t.size),
+            "omega_f": omega + 0.05 * rng.standard_normal(t.size),
+            "omega_r": omega * 1.002 + 0.05 * rng.standard_normal(t.size)}
+    log = tmp_path / "log.csv"
+    np.savetxt(log, np.column_stack(list(cols.values())), delimiter=",", header=",".join(cols), comments="")
+    veh = tmp_path / "v.toml"
+    veh.write_text('mass = 1500.0\nyaw_inertia = 2500.0\nlf = 1.2\nlr = 1.4\nwheel_radius = 0.3\ncg_height = 0.55\ndrive = "rear"\n'
+                   "Cf_y = 100000.0\nCr_y = 90000.0\nCx = 150000.0\n")
+    summary = check_log(log, veh)
+    assert summary.noise["sigma_omega"] == pytest.approx(0.05, rel=0.1)
+    assert f"wheel speeds {summary.noise['sigma_omega']:.3g} rad/s" in summary.format()
+    out = tmp_path / "res.csv"
+    assert main(["replay", str(log), "--vehicle", str(veh), "--out", str(out), "--quiet", "--particles", "50"]) == 0
+    run = json.loads(out.with_suffix(".json").read_text())
+    assert run["sensors"]["sigma_omega"] == summary.noise["sigma_omega"]
