@@ -173,8 +173,8 @@ def test_check_log_and_the_replay_summary_show_the_wheel_noise(tmp_path):
     log = tmp_path / "log.csv"
     np.savetxt(log, np.column_stack(list(cols.values())), delimiter=",", header=",".join(cols), comments="")
     veh = tmp_path / "v.toml"
-    veh.write_text('mass = 1500.0\nyaw_inertia = 2500.0\nlf = 1.2\nlr = 1.4\nwheel_radius = 0.3\ncg_height = 0.55\ndrive = "rear"\n'
-                   "Cf_y = 100000.0\nCr_y = 90000.0\nCx = 150000.0\n")
+    veh.write_text('mass = 1500.0\nyaw_inertia = 2500.0\nlf = 1.2\nlr = 1.4\nwheel_radius = 0.3\ncg_height = 0.55\n'
+                   'drive = "rear"\nCf_y = 100000.0\nCr_y = 90000.0\nCx = 150000.0\n')
     summary = check_log(log, veh)
     assert summary.noise["sigma_omega"] == pytest.approx(0.05, rel=0.1)
     assert f"wheel speeds {summary.noise['sigma_omega']:.3g} rad/s" in summary.format()
