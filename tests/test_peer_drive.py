@@ -236,15 +236,17 @@ def test_bad_drive_specs_get_clear_errors(kwargs, message):
 def test_default_replay_learns_cx_through_noisy_wheel_speeds(tmp_path):
     """The new user's drive of issue 13 (STD, vehicle 3, mixed maneuver, 18 m/s, seed 21, 60 s;
     wheel speeds with the peer sensors' 0.03 rad/s of white noise), replayed with the defaults:
-    Cx (mean over the last 30 s) within 15 % of `Cx_true` (-4.5 % measured). Taking the wheel
-    speeds as exact, as the MPF did before the wheel-speed filter, it ended 48.5 % low
-    (derivations Sec. 24; benchmarks/README, "Cx on the peer drives")."""
+    the bias of taking the noisy wheel speeds as exact is gone. Taken as exact, Cx (mean over the
+    last 30 s) ended -44.9 to -54.8 % over replay seeds 0-4; filtered (the default), -17.4 to
+    +46.3 %, -4.5 % with `tirefilter replay`'s seed 0 (derivations Sec. 24; benchmarks/README,
+    "Cx on the peer drives", `benchmarks/peer_cx_variants.py`). The bound is one-sided because
+    the filtered estimate's spread is wide on this drive; the lateral targets hold as well."""
     drive = simulate(DriveSpec(model="std", vehicle=3, maneuver="mixed", duration=60.0, seed=21, speed=18.0))
     log, vehicle = write_drive(drive, tmp_path / "drive.csv", tmp_path / "vehicle.toml")
     out = tmp_path / "result.csv"
     assert main(["replay", str(log), "--vehicle", str(vehicle), "--out", str(out), "--quiet"]) == 0
     score = score_replay(log, out, last=30.0)
-    assert abs(score["Cx_err"]) <= 15.0, score
+    assert score["Cx_err"] > -25.0, score
     _assert_targets(score)
 
 
