@@ -3,12 +3,14 @@ simulated by the CommonRoad vehicle models (`tirefilter peer-drive`; the `peer` 
 with data-sheet vehicle TOMLs (guessed nominal stiffness, no noise or bias keys).
 
     .venv/bin/python benchmarks/bench_peer.py [--models std mb] [--vehicles 1 2 3] [--seeds 0 1]
-        [--estimators mpf ekf kf augpf] [--maneuver mixed] [--duration 60] [--last 30]
+        [--estimators mpf ekf kf augpf] [--maneuver mixed] [--duration 60] [--speed 20] [--last 30]
         [--config FILE.toml] [--workers 1] [--readme]
 
 Per drive and estimator: the lateral stiffness error (mean of the estimate over the last
 `--last` seconds against the mean of `Cf_y_true`, `Cr_y_true` there, in %), the sideslip
 RMSE over the whole drive (deg; "zero guess" is the RMSE of a zero-sideslip guess), the
+longitudinal stiffness error of the estimators that have a Cx (the full-model MPF; the same
+mean against `Cx_true`, the driven axle's slip stiffness), the
 restarts of the particle filters, and the wall time of the replay; per drive also its
 largest |a^Y| and the IMU's a^Y gain 1 + g k from body roll (k the roll gradient; 1 for
 STD). Then the mean absolute errors per model and estimator. `--readme` writes the
@@ -43,10 +45,11 @@ def run_drive(job: tuple) -> list[dict]:
     from tirefilter.replay import read_log, replay_log, result_columns
     from tirefilter.vehicle.params import load_vehicle
 
-    model, vehicle_id, seed, estimators, maneuver, duration, last, config_path = job
+    model, vehicle_id, seed, estimators, maneuver, duration, speed, last, config_path = job
     config = read_toml(config_path) if config_path else {}
     t0 = time.perf_counter()
-    drive = simulate(DriveSpec(model=model, vehicle=vehicle_id, maneuver=maneuver, duration=duration, seed=seed))
+    drive = simulate(DriveSpec(model=model, vehicle=vehicle_id, maneuver=maneuver, duration=duration, seed=seed,
+                                speed=speed))
     gen_s = time.perf_counter() - t0
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -54,7 +57,7 @@ def run_drive(job: tuple) -> list[dict]:
         vehicle = load_vehicle(vehicle_path)
         log = read_log(log_path, vehicle)
     c = drive.columns
-    truth = {k: c[k] for k in ("t", "beta_true", "Cf_y_true", "Cr_y_true")}
+    truth = {k: c[k] for k in ("t", "beta_true", "Cf_y_true", "Cr_y_true", "Cx_true")}
     for name in estimators:
         est = build_log_estimator(name, vehicle, log.t, {s: log.signals[s] for s in log.available}, model="auto",
                                   particles=None, config=config, source=log.path)
@@ -73,20 +76,27 @@ def _fmt(x: float, spec: str) -> str:
     return "fails" if not math.isfinite(x) else format(x, spec)
 
 
+def _cx(x: float, spec: str) -> str:
+    """A Cx error cell: "-" where the estimator has no Cx (NaN)."""
+    return "-" if math.isnan(x) else _fmt(x, spec) + (" %" if math.isfinite(x) else "")
+
+
 def tables(rows: list[dict], args) -> str:
     lines = ["| model | vehicle | seed | max abs a^Y | IMU a^Y gain | estimator | Cf_y error | Cr_y error "
-             "| sideslip RMSE | zero guess | restarts | wall |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| Cx error | sideslip RMSE | zero guess | restarts | wall |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['model']} | {r['vehicle']} | {r['seed']} | {r['ay_max']:.1f} m/s^2 | "
                      f"{1 + 9.81 * r['roll_gradient']:.3f} | {r['estimator']} | "
                      f"{_fmt(r['Cf_y_err'], '+.1f')} % | {_fmt(r['Cr_y_err'], '+.1f')} % | "
+                     f"{_cx(r['Cx_err'], '+.1f')} | "
                      f"{_fmt(r['beta_rmse_deg'], '.3f')} deg | {r['beta_zero_rmse_deg']:.3f} deg | "
                      f"{'-' if r['restarts'] is None else r['restarts']} | {r['wall_s']:.0f} s |")
     lines += ["", "Mean over the drives (absolute errors; a failed replay counts as infinite):", "",
               "| model | estimator | mean abs Cf_y error | mean abs Cr_y error | worst abs error "
-              "| mean sideslip RMSE | drives within 10 % and 0.1 deg | restarts |",
-              "|---|---|---|---|---|---|---|---|"]
+              "| mean abs Cx error | worst abs Cx error | mean sideslip RMSE | drives within 10 % and 0.1 deg "
+              "| restarts |",
+              "|---|---|---|---|---|---|---|---|---|---|"]
     for model in args.models:
         for name in args.estimators:
             sel = [r for r in rows if r["model"] == model and r["estimator"] == name]
@@ -97,9 +107,13 @@ def tables(rows: list[dict], args) -> str:
             beta = np.array([r["beta_rmse_deg"] for r in sel])
             ok = sum(1 for a, b, c in zip(cf, cr, beta) if a <= 10 and b <= 10 and c <= 0.1)
             restarts = [r["restarts"] for r in sel if r["restarts"] is not None]
+            cx = np.array([abs(r["Cx_err"]) for r in sel])
+            cx_cells = ("- | -" if np.all(np.isnan(cx)) else
+                        f"{_fmt(float(np.mean(cx)), '.1f')} % | {_fmt(float(np.max(cx)), '.1f')} %")
             lines.append(f"| {model} | {name} | {_fmt(float(np.mean(cf)), '.1f')} % | "
                          f"{_fmt(float(np.mean(cr)), '.1f')} % | "
-                         f"{_fmt(float(max(cf.max(), cr.max())), '.1f')} % | {_fmt(float(np.mean(beta)), '.3f')} deg | "
+                         f"{_fmt(float(max(cf.max(), cr.max())), '.1f')} % | {cx_cells} | "
+                         f"{_fmt(float(np.mean(beta)), '.3f')} deg | "
                          f"{ok} / {len(sel)} | {sum(restarts) if restarts else '-'} |")
     return "\n".join(lines)
 
@@ -152,12 +166,14 @@ def main() -> None:
     ap.add_argument("--estimators", nargs="+", default=["mpf", "ekf", "kf", "augpf"])
     ap.add_argument("--maneuver", default="mixed")
     ap.add_argument("--duration", type=float, default=60.0)
+    ap.add_argument("--speed", type=float, default=20.0, help="set speed of the drives (m/s)")
     ap.add_argument("--last", type=float, default=30.0, help="window of the stiffness mean (s)")
     ap.add_argument("--config", help="estimator configuration TOML for every replay (default: none, the defaults)")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--readme", action="store_true", help="write the tables into benchmarks/README.md")
     args = ap.parse_args()
-    jobs = [(m, v, s, tuple(args.estimators), args.maneuver, args.duration, args.last, args.config)
+    jobs = [(m, v, s, tuple(args.estimators), args.maneuver, args.duration, args.speed, args.last,
+             args.config)
             for m in args.models for v in args.vehicles for s in args.seeds]
     t0 = time.perf_counter()
     rows = []
@@ -175,7 +191,8 @@ def main() -> None:
     table = tables(rows, args)
     command = "    .venv/bin/python benchmarks/bench_peer.py " + " ".join(sys.argv[1:])
     header = (f"{len(jobs)} drives ({', '.join(args.models)}; vehicles {', '.join(map(str, args.vehicles))}; seeds "
-              f"{', '.join(map(str, args.seeds))}), maneuver `{args.maneuver}`, {args.duration:g} s at 100 Hz; "
+              f"{', '.join(map(str, args.seeds))}), maneuver `{args.maneuver}`, {args.duration:g} s at 100 Hz, "
+              f"set speed {args.speed:g} m/s; "
               f"settings: {'`--config ' + args.config + '`' if args.config else 'the defaults (no --config)'}; "
               f"stiffness error over the last {args.last:g} s; run time {time.perf_counter() - t0:.0f} s.")
     print(header + "\n\n" + table)

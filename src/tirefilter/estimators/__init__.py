@@ -45,6 +45,7 @@ def mpf_config_for_scenario(scenario, *, model: str, particles: int | None, over
     from tirefilter.estimators.sensors import DISTURBANCE_RW
 
     kw["disturbance_rw"] = DISTURBANCE_RW if scenario.inputs.components.get("bank") else (0.0, 0.0, 0.0)
+    kw["sigma_omega"] = s.sigma_omega  # wheel-speed pre-filter where the wheels are noisy (derivations Sec. 24)
     return _mpf_config(model, particles=particles or est.get("particles"), sample_period=scenario.sample_period,
                        sigma=(s.sigma_ax, s.sigma_ay, s.sigma_yaw_rate),
                        x0_mean=tuple(x0.get("mean", (vx0, 0.0, 0.0))), overrides=overrides, **kw)
@@ -58,7 +59,8 @@ def mpf_config_for_log(vehicle, t, signals: dict, *, model: str, particles: int 
     `init_center` None = nominal, `init_std` 0.3), the white noise `sigma` and the bias
     model come from `sensors` (default `sensors.sensors_for_log`: the vehicle TOML's
     figures where given, else the noise estimated from the log and the MEMS bias
-    defaults), `sample_period` is the median time step of
+    defaults; `sigma_omega`, the wheel speeds' white noise, estimated from the log's wheel
+    speeds), `sample_period` is the median time step of
     the log, and the initial state mean is taken from the log's first finite samples:
     full model (v^X, 0, r) with v^X from `vx` or else from the undriven axle's wheel speed
     (R_w omega), lateral model (0, r); r is the first yaw-rate sample (0 if none).
@@ -89,7 +91,7 @@ def mpf_config_for_log(vehicle, t, signals: dict, *, model: str, particles: int 
     sensors = sensors or sensors_for_log(vehicle, signals)
     return _mpf_config(model, particles=particles, sample_period=float(np.median(dt)) if dt.size else None,
                        sigma=sensors.sigma, bias0_std=sensors.bias0_std, bias_rw=sensors.bias_rw, x0_mean=x0_mean,
-                       overrides=overrides)
+                       sigma_omega=sensors.sigma_omega, overrides=overrides)
 
 
 def _mpf_config(model: str, *, particles: int | None, sample_period: float | None, sigma, x0_mean, overrides: dict,

@@ -49,6 +49,10 @@ class SensorModel:
     held: tuple[float, float, float] = (math.nan,) * 3  # share of held (repeated) samples per channel
     disturbance_rw: tuple[float, float, float] = (0.0, 0.0, 0.0)  # wandering offsets (road bank, roll), per sqrt(s)
     warnings: tuple[str, ...] = field(default=())
+    # wheel-speed white noise (rad/s; 0: none, or none known), where it came from ("data", "scenario"); the
+    # MPF filters the wheel speeds with it (`[mpf] sigma_omega`, derivations Sec. 24)
+    sigma_omega: float = 0.0
+    sigma_omega_source: str = ""
 
     @property
     def bias_on(self) -> bool:
@@ -70,6 +74,8 @@ class SensorModel:
             "bias_source": self.bias_source,
             "held_share": dict(zip(CHANNELS, map(num, self.held))),
             "disturbance_rw": dict(zip(CHANNELS, self.disturbance_rw)),
+            "sigma_omega": float(self.sigma_omega),
+            "sigma_omega_source": self.sigma_omega_source,
             "warnings": list(self.warnings),
         }
 
@@ -89,6 +95,10 @@ class SensorModel:
             lines.append("wandering offsets (road bank and crown, body roll): random walk " + ", ".join(
                 f"{c} {_fmt(q)}" for c, q in zip(CHANNELS, self.disturbance_rw) if q > 0)
                 + " per sqrt(s), in the linear tire region")
+        if self.sigma_omega > 0:
+            src = f"estimated from {self.data_span}" if self.sigma_omega_source == "data" else self.sigma_omega_source
+            lines.append(f"wheel-speed noise (std): {_fmt(self.sigma_omega)} rad/s ({src}); the MPF filters the wheel "
+                         "speeds with it ([mpf] sigma_omega = 0: taken as exact)")
         return lines + [f"warning: {w}" for w in self.warnings]
 
     def with_config(self, sigma, bias0_std, bias_rw, channels=CHANNELS) -> "SensorModel":
@@ -123,6 +133,15 @@ def noise_from_data(signals: dict, span: str) -> tuple[tuple[float, ...], tuple[
         sig.append(white_noise_std(x) if x is not None else math.nan)
         held.append(held_share(x) if x is not None else math.nan)
     return tuple(sig), tuple(held)
+
+
+def wheel_noise_from_data(signals: dict) -> float:
+    """White-noise std (rad/s) of the wheel speeds `omega_f`, `omega_r` in `signals`: the root
+    mean square of the two channels' `white_noise_std` (one where the other is absent or has
+    too few samples); 0 without any estimate."""
+    found = [white_noise_std(signals[c]) for c in ("omega_f", "omega_r") if signals.get(c) is not None]
+    found = [v for v in found if math.isfinite(v)]
+    return math.sqrt(sum(v * v for v in found) / len(found)) if found else 0.0
 
 
 def _compare(sigma, sigma_data, sources, span: str) -> list[str]:
@@ -162,7 +181,8 @@ def sensors_for_log(vehicle, signals: dict, span: str = "the log") -> SensorMode
     return SensorModel(sigma=tuple(sigma), sigma_source=tuple(sources), sigma_data=sigma_data, data_span=span,
                        bias0_std=b0, bias_rw=rw,
                        bias_source="vehicle file" if given_bias else "defaults (automotive MEMS)",
-                       held=held, warnings=tuple(warnings))
+                       held=held, warnings=tuple(warnings), sigma_omega=wheel_noise_from_data(signals),
+                       sigma_omega_source="data")
 
 
 def sensors_for_scenario(spec) -> SensorModel:
@@ -174,7 +194,8 @@ def sensors_for_scenario(spec) -> SensorModel:
         v != 0 for v in (spec.bias0_ax, spec.bias0_ay, spec.bias0_yaw_rate))
     return SensorModel(sigma=(spec.sigma_ax, spec.sigma_ay, spec.sigma_yaw_rate), sigma_source=("scenario",) * 3,
                        bias0_std=bias0, bias_rw=rw,
-                       bias_source="scenario sensor spec" + ("" if has_bias else ": the sensors have no bias"))
+                       bias_source="scenario sensor spec" + ("" if has_bias else ": the sensors have no bias"),
+                       sigma_omega=float(spec.sigma_omega), sigma_omega_source="scenario")
 
 
 def checked_against(model: SensorModel, signals: dict, span: str) -> SensorModel:

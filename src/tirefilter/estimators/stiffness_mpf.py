@@ -29,6 +29,7 @@ from tirefilter.errors import ConfigError
 from tirefilter.estimators.base import Estimate, Inputs, Measurement, Posterior, particle_estimate
 from tirefilter.estimators.baseline_common import gate_open
 from tirefilter.estimators.sensors import DISTURBANCE_RW, MEMS_BIAS0_STD, MEMS_BIAS_RW
+from tirefilter.estimators.wheel_filter import WheelSpeedFilter
 from tirefilter.stats import NiW, effective_sample_size, normalize_log_weights, systematic_resample
 from tirefilter.stats.linalg import chol, chol_solve, logdet_chol, solve_lower
 from tirefilter.stats.student_t import t_conditional, t_logpdf_whitened, t_sample
@@ -119,6 +120,11 @@ class MPFConfig:
     # unmodelled offsets that wander (road bank and crown, body roll): a random walk per
     # sqrt(s) added to the bias's (derivations, Sec. 16); zero: the paper's bias model
     disturbance_rw: tuple[float, float, float] = DISTURBANCE_RW
+    # wheel-speed white noise (rad/s): > 0 filters the wheel speeds before the model takes them (full model;
+    # `wheel_filter.WheelSpeedFilter`, derivations Sec. 24: noisy wheel speeds bias Cx low); 0: taken as exact
+    # (the paper). A replay sets it from the log's wheel speeds, a scenario from its sensor spec
+    sigma_omega: float = 0.0
+    wheel_slip_rw: float = 0.02  # m/s per sqrt(s): random walk of an axle's slip speed R_w omega - v^X in that filter
     sample_period: float = 0.01  # s, used for the first step and as the bias-RW time base
     max_step: float = 0.02  # s, longest propagation step: longer sample intervals are sub-stepped
     gap_after: float = 0.5  # s: a longer time step is a gap: v^X drawn again from the wheel speeds (0: never)
@@ -154,7 +160,7 @@ class MPFConfig:
         for key in ("init_std", "init_half_width", "init_sigma", "gate_speed", "gate_steer", "gate_ay_max",
                     "gate_alpha_max", "gate_vy_std", "gate_warmup", "nu0_margin", "plausible_beta",
                     "plausible_yaw_rate", "restart_alpha", "restart_after", "restart_at_bound_after",
-                    "x0_vx_wheel_std", "vy_jitter"):
+                    "x0_vx_wheel_std", "vy_jitter", "wheel_slip_rw"):
             if not getattr(self, key) >= 0:
                 bad(key, f"must be >= 0, got {getattr(self, key)!r}")
         for key in ("sigma", "bias_rw", "bias0_std", "disturbance_rw", "x0_std", "state_noise"):
@@ -170,6 +176,10 @@ class MPFConfig:
             bad("init_sigma", "must be > 0")
         if not 0 < self.bound_low < self.bound_high:
             bad("bound_low", "need 0 < bound_low < bound_high")
+        if not (self.sigma_omega >= 0 and math.isfinite(self.sigma_omega)):
+            bad("sigma_omega", f"must be finite and >= 0 (0: wheel speeds taken as exact), got {self.sigma_omega!r}")
+        if not math.isfinite(self.wheel_slip_rw):
+            bad("wheel_slip_rw", f"must be finite, got {self.wheel_slip_rw!r}")
         if self.sample_period <= 0:
             bad("sample_period", "must be > 0")
         if not self.max_step > 0:
@@ -278,6 +288,10 @@ class StiffnessMPF:
         self.drift = np.zeros(self.n_w)  # smoothed whitened w_k - mu_{k|k-1} (adaptive forgetting)
         self.cx_weight_max = 0.0 if self.full else None  # the largest excitation weight of Cx so far (`_excite_cx`)
         self._reset_cx_excitation()
+        # the wheel-speed pre-filter (sigma_omega > 0, full model) and the last sample's measured a^X that drives it
+        self.wheels = (WheelSpeedFilter(self.cfg.sigma_omega, self.vehicle.wheel_radius, self.cfg.sigma[0],
+                                        self.cfg.wheel_slip_rw) if self.full and self.cfg.sigma_omega > 0 else None)
+        self._ax_prev = NAN
 
     def _draw_prior(self, x0_mean) -> None:
         """Particles from the initial distribution: stiffness statistics (or the carried
@@ -451,6 +465,8 @@ class StiffnessMPF:
         cfg = self.cfg
         self._lam_step = self.lam  # the factor this step forgets the statistics with (`_excite_cx`)
         u_now = np.array([u.delta, u.omega_f, u.omega_r, u.vx], float)
+        if self.wheels is not None:
+            self._filter_wheels(t, u_now, y)
         uk = u_now
         if self.u_prev is not None and not math.isfinite(u.delta + u.omega_f + u.omega_r + u.vx):
             # hold the last finite input where a sample is missing
@@ -572,6 +588,31 @@ class StiffnessMPF:
         if self.full:
             self._excite_cx(float(np.exp(self.logw) @ self.x[:, 0]), uk, dt)
         return self._estimate(ess)
+
+    def _filter_wheels(self, t: float, u_now: np.ndarray, y: Measurement) -> None:
+        """The measured wheel speeds u_now[1:3] replaced in place by the pre-filter's estimates
+        (`wheel_filter.WheelSpeedFilter`, derivations Sec. 24; a missing one stays missing). Its
+        drive over the step from the last sample: that sample's measured a^X minus the posterior
+        mean of its bias, plus the posterior mean of v^Y r (the particles as they stand, before
+        this sample's propagation). The first sample and the sample after a gap (`_gap`) start
+        the filter again at the measurements."""
+        f = self.wheels
+        if self.t_prev is None:
+            f.reset()
+            dt = self.cfg.sample_period
+        else:
+            dt = t - self.t_prev
+            if not dt > 0:  # (`step` reports it)
+                return
+            if self._gap(dt):
+                f.reset()
+        drive = NAN
+        if self.t_prev is not None and math.isfinite(self._ax_prev):
+            q = np.exp(self.logw)
+            b = float(q @ self.b[:, 0]) if self.bias_on else 0.0
+            drive = self._ax_prev - b + float(q @ (self.x[:, 1] * self.x[:, 2]))
+        self._ax_prev = y.ax
+        u_now[1:3] = f.step(dt, u_now[1:3], drive)
 
     def _state_noise_scale(self, dt: float) -> np.ndarray:
         """Std of the additive state noise over a step dt (nx,): `state_noise` sqrt(dt), and on

@@ -71,7 +71,8 @@ class LogSummary:
             out.append("white noise estimated from the log: " + ", ".join(
                 f"{c} {_g3(n['sigma_from_data'][c])}" + (f" (vehicle file: {_g3(n['sigma'][c])})"
                                                         if n["sigma_source"][c] == "vehicle file" else "")
-                for c in n["sigma_from_data"]) + " [m/s^2, rad/s]")
+                for c in n["sigma_from_data"]) + " [m/s^2, rad/s]"
+                + (f"; wheel speeds {_g3(n['sigma_omega'])} rad/s" if n.get("sigma_omega") else ""))
         out.append(f"speed < {ga['speed_min']:g} m/s (MPF gate speed): " + (
             f"{_pct(ga['share_speed_below'])} of samples (speed from {ga['speed_from']})" if ga["speed_from"]
             else "n/a (no vx; give a vehicle TOML for the speed from the wheel speeds)"))

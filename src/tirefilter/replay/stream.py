@@ -1,9 +1,10 @@
 """A log replayed without holding it in memory: a first pass over the file (`scan_log`)
 gathers what building an estimator and the start of a replay need (the sample times, the
-signals present, each signal's first sample, the IMU channels for the white-noise estimate
-of `estimators.sensors`, the plausibility warnings); the replay then reads the file again
-chunk by chunk (`LogScan.chunks`, `log.iter_log_chunks`). What is kept is 32 bytes a row
-(the times and three IMU channels: 23 MB for a 2-hour log at 100 Hz) plus one chunk.
+signals present, each signal's first sample, the IMU channels and wheel speeds for the
+white-noise estimates of `estimators.sensors`, the plausibility warnings); the replay then
+reads the file again chunk by chunk (`LogScan.chunks`, `log.iter_log_chunks`). What is kept
+is 48 bytes a row (the times, three IMU channels and two wheel speeds: 35 MB for a 2-hour log
+at 100 Hz; 32 bytes before the wheel speeds' noise was estimated) plus one chunk.
 """
 
 from __future__ import annotations
@@ -15,6 +16,8 @@ import numpy as np
 
 from tirefilter.replay.log import CHUNK_ROWS, SIGNALS, Timed, iter_log_chunks, vehicle_arg
 from tirefilter.replay.plausibility import IMU, Plausibility
+
+NOISE_CHANNELS = IMU + ("omega_f", "omega_r")  # kept whole for the white-noise estimates (IMU and wheel speeds)
 
 
 @dataclass
@@ -38,11 +41,12 @@ class LogScan(Timed):
     def available(self) -> tuple[str, ...]:
         return tuple(s for s in SIGNALS if s in self.first)
 
-    imu: dict[str, np.ndarray] = field(default_factory=dict)  # ax, ay, yaw_rate: (n,) each, for the noise estimate
+    # ax, ay, yaw_rate, omega_f, omega_r: (n,) each, for the noise estimates
+    imu: dict[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def signals(self) -> dict[str, np.ndarray]:
-        """What `estimators.build_log_estimator` reads of the signals: the IMU channels whole
+        """What `estimators.build_log_estimator` reads of the signals: the IMU channels and wheel speeds whole
         (their white noise is estimated from them, `estimators.sensors`), every other available
         signal as a one-sample array holding its first finite sample (its presence and first
         value are all that is used)."""
@@ -58,12 +62,12 @@ def scan_log(path, vehicle=None, *, vehicle_name: str | None = None, chunk_rows:
     bad file fails before the replay starts)."""
     vehicle, name = vehicle_arg(vehicle)
     vehicle_name = vehicle_name or name
-    times, first, plaus, imu = [], {}, Plausibility(), {c: [] for c in IMU}
+    times, first, plaus, imu = [], {}, Plausibility(), {c: [] for c in NOISE_CHANNELS}
     head = None
     for chunk in iter_log_chunks(path, vehicle, chunk_rows=chunk_rows, vehicle_name=vehicle_name):
         head = head or chunk
         times.append(chunk.t)
-        for c in IMU:
+        for c in NOISE_CHANNELS:
             if c in chunk.signals:
                 imu[c].append(chunk.signals[c])
         plaus.add(chunk)
