@@ -669,9 +669,10 @@ def resample_gate(logw, u0, resample, idx, x, b, P, gamma, mu, Lam, nu, a, B, sl
 
 @njit(inline="always", **_JIT)
 def _sample(idx, gamma, mu, Lam, nu, L11, nu_w, L12, Lc, v, z, chi, nu_draw, w, use_mask, bound, active, drift,
-            lo, hi, qw, ub, n_w, nc):
+            lo, hi, qw, ub, infl, n_w, nc):
     """Steps 3 and 5 of `sample_update` (its arguments, n_w and nc the sizes; ub (n_w,) the weighted
-    lean of the drift, accumulated)."""
+    lean of the drift, accumulated; infl the std factor of the draw about mu_c, sqrt(c) of the
+    surprise inflation, 1 when off)."""
     n = mu.shape[0]
     M = np.empty((max(nc, 1), n_w))
     ui = np.empty(n_w)
@@ -718,8 +719,8 @@ def _sample(idx, gamma, mu, Lam, nu, L11, nu_w, L12, Lc, v, z, chi, nu_draw, w, 
                 for k in range(j):
                     acc = acc - Lw[i, r, k] * Lw[i, j, k]
                 Lw[i, r, j] = acc * (1.0 / Ljj)
-    for i in range(n):  # the draw mu_c + chol(Lam_c) z sqrt(nu_draw / chi)
-        f = math.sqrt(nu_draw[i] / chi[i])
+    for i in range(n):  # the draw mu_c + chol(Lam_c) z sqrt(nu_draw / chi), times infl (surprise inflation)
+        f = math.sqrt(nu_draw[i] / chi[i]) * infl
         for j in range(n_w):
             t = 0.0
             for k in range(j + 1):
@@ -771,7 +772,7 @@ def _sample(idx, gamma, mu, Lam, nu, L11, nu_w, L12, Lc, v, z, chi, nu_draw, w, 
 
 @njit(**_JIT)
 def sample_update(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z, chi, nu_draw, w,
-                  use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw):
+                  use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw, infl):
     """Steps 3-5 of `StiffnessMPF.step`, in place. Per particle i (its weighting arrays h, D,
     L11, nu_w, L12, Lc, v at row idx[i], the ancestor when resampled):
     - w_i (into w) from the conditional of w given the first nc (accelerometer) residuals,
@@ -793,29 +794,29 @@ def sample_update(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, 
     accelerometers (n_w = 3, nc = 2) and the lateral one (n_w = 2, nc = 1) with the sizes as
     constants."""
     t1 = (idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z)
-    t2 = (chi, nu_draw, w, use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw)
+    t2 = (chi, nu_draw, w, use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw, infl)
     return _sample_update(t1, t2, mu.shape[1], nc)
 
 
 @njit(**_JIT)
 def sample_update_full(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z, chi, nu_draw, w,
-                       use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw):
+                       use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw, infl):
     """`sample_update` for the full model with both accelerometers (n_w = 3, nc = 2)."""
     if mu.shape[1] != 3 or nc != 2:
         raise ValueError("sample_update_full: n_w = 3, nc = 2 only")
     t1 = (idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z)
-    t2 = (chi, nu_draw, w, use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw)
+    t2 = (chi, nu_draw, w, use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw, infl)
     return _sample_update(t1, t2, 3, 2)
 
 
 @njit(**_JIT)
 def sample_update_lateral(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z, chi, nu_draw, w,
-                          use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw):
+                          use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw, infl):
     """`sample_update` for the lateral model with its accelerometer (n_w = 2, nc = 1)."""
     if mu.shape[1] != 2 or nc != 1:
         raise ValueError("sample_update_lateral: n_w = 2, nc = 1 only")
     t1 = (idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z)
-    t2 = (chi, nu_draw, w, use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw)
+    t2 = (chi, nu_draw, w, use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw, infl)
     return _sample_update(t1, t2, 2, 1)
 
 
@@ -824,7 +825,7 @@ def _sample_update(t1, t2, n_w, nc_):
     """`sample_update` with its arguments in t1, t2 (a call of more than 30 arguments compiles to f(*args),
     which numba does not inline) and the sizes given."""
     (idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z) = t1
-    (chi, nu_draw, w, use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw) = t2
+    (chi, nu_draw, w, use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw, infl) = t2
     n = mu.shape[0]
     nc = nc_
     na = avail.shape[0]
@@ -887,7 +888,7 @@ def _sample_update(t1, t2, n_w, nc_):
                 P[i, c, c2] = 0.5 * (Pn[c, c2] + Pn[c2, c])
     # 3. and 5.
     _sample(idx, gamma, mu, Lam, nu, L11, nu_w, L12, Lc, v, z, chi, nu_draw, w, use_mask, bound, active, drift, lo,
-            hi, qw, ub, n_w, nc)
+            hi, qw, ub, infl, n_w, nc)
     zd = math.nan
     if active and drift:
         finite = True

@@ -84,6 +84,10 @@ class MPFConfig:
     # (z > z_on = (1 - forgetting_min) / (1 - forgetting)): std per sqrt(s) vy_jitter sqrt(z - z_on), added
     # to state_noise's; 0: off
     vy_jitter: float = 0.0
+    # surprise inflation of the draw of w_k (derivations Sec. 24): with adaptive forgetting, the conditional
+    # scale of w_k is multiplied by c = max(1, 1 + surprise_inflation (z - 1)), z the smoothed innovation
+    # statistic (Sec. 17): 1 matches the predictive to the residuals the accelerometers show; 0: off
+    surprise_inflation: float = 0.0
     x0_vx_from_wheels: bool = True  # full model: centre vx on R_w omega of the undriven axle
     x0_vx_wheel_std: float = 0.02  # m/s, spread around it (the free-rolling wheel's slip)
     # observability gate (Sec. V) and linear-region gate
@@ -154,7 +158,7 @@ class MPFConfig:
         for key in ("init_std", "init_half_width", "init_sigma", "gate_speed", "gate_steer", "gate_ay_max",
                     "gate_alpha_max", "gate_vy_std", "gate_warmup", "nu0_margin", "plausible_beta",
                     "plausible_yaw_rate", "restart_alpha", "restart_after", "restart_at_bound_after",
-                    "x0_vx_wheel_std", "vy_jitter"):
+                    "x0_vx_wheel_std", "vy_jitter", "surprise_inflation"):
             if not getattr(self, key) >= 0:
                 bad(key, f"must be >= 0, got {getattr(self, key)!r}")
         for key in ("sigma", "bias_rw", "bias0_std", "disturbance_rw", "x0_std", "state_noise"):
@@ -551,7 +555,8 @@ class StiffnessMPF:
                                               L22_chol=Lc[:, :nc, :nc], x2_white=v[:, :nc])
         else:
             mu_c, Lam_c, nu_c = mu_w, L11, nu_w
-        w = t_sample(mu_c, Lam_c, nu_c, self.rng)
+        c_draw = self._draw_inflation()
+        w = t_sample(mu_c, Lam_c * c_draw if c_draw != 1.0 else Lam_c, nu_c, self.rng)
         learn = None
         if nc and cfg.outlier_prob < 1:  # per-particle outlier gate on the accelerometer residuals
             vc = solve_lower(Lc[:, :nc, :nc], e[:, :nc])
@@ -753,7 +758,7 @@ class StiffnessMPF:
             wk.idx, self.x, self.logw, st.gamma, st.mu, st.Lam, st.nu, self.b, self.P, wk.h, wk.D, wk.L11, wk.nu_w,
             wk.L12, wk.Lc, wk.v, nc, z, chi, nu_draw, wk.w, use_mask, self._outlier_bound(nc) if use_mask else 0.0,
             bool(a.size and self.bias_on), self.R, a, yk, self.active, drift, self.drift,
-            -math.expm1(-dt / cfg.drift_time), wk.lo, wk.hi, wk.mom, wk.q)
+            -math.expm1(-dt / cfg.drift_time), wk.lo, wk.hi, wk.mom, wk.q, math.sqrt(self._draw_inflation()))
         if zd == zd:  # `_track_drift` (the statistic is NaN when not computed)
             self._cap_forgetting(zd)
         if self.full:
@@ -824,6 +829,15 @@ class StiffnessMPF:
         s_k = float(np.exp(self.logw) @ nis)
         if math.isfinite(s_k):
             self._smooth_surprise(s_k, dt)
+
+    def _draw_inflation(self) -> float:
+        """c of the surprise inflation (derivations Sec. 24): the factor on the conditional scale of
+        the draw of w_k, max(1, 1 + surprise_inflation (z - 1)) with z the smoothed innovation
+        statistic of this sample (`_smooth_surprise`); 1 when off or with fixed forgetting."""
+        cfg = self.cfg
+        if cfg.surprise_inflation <= 0 or cfg.forgetting_mode != "adaptive":
+            return 1.0
+        return max(1.0, 1.0 + cfg.surprise_inflation * (self.surprise - 1.0))
 
     def _smooth_surprise(self, s_k: float, dt: float) -> None:
         """z_k: s_k smoothed over `surprise_time`; lambda_k = 1 - (1 - lambda) z_k, clipped."""
