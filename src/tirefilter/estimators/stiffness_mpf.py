@@ -280,6 +280,7 @@ class StiffnessMPF:
         self.linear_region = True  # |a^Y| below the gate's linear-region bound at the last sample
         self.lam = self.cfg.forgetting  # the forgetting factor applied at the next propagation
         self.drift = np.zeros(self.n_w)  # smoothed whitened w_k - mu_{k|k-1} (adaptive forgetting)
+        self._sigma2_rel = 0.0  # largest relative deviation spread of the last estimate (`_draw_inflation`)
         self.cx_weight_max = 0.0 if self.full else None  # the largest excitation weight of Cx so far (`_excite_cx`)
         self._reset_cx_excitation()
 
@@ -770,6 +771,7 @@ class StiffnessMPF:
         for the fused step: the same Estimate (tests/test_kernels.py compares every field) in a
         third of the time."""
         xm, xs, mb, vm, s2, bm = mom.tolist()
+        self._sigma2_rel = max(v / c**2 for v, c in zip(s2, self.C_ref.tolist()))  # (`_draw_inflation`'s bound)
         root, C = _sqrt_or_nan, self.C_nom.tolist()
         if self.full:  # params Cx, Cf_y, Cr_y; bias ax, ay, yaw rate
             return Estimate(active=bool(self.active), vx=xm[0], vy=xm[1], yaw_rate=xm[2], Cf_y=C[1] + mb[1],
@@ -837,7 +839,14 @@ class StiffnessMPF:
         cfg = self.cfg
         if cfg.surprise_inflation <= 0 or cfg.forgetting_mode != "adaptive":
             return 1.0
-        return max(1.0, 1.0 + cfg.surprise_inflation * (self.surprise - 1.0))
+        c = 1.0 + cfg.surprise_inflation * (self.surprise - 1.0)
+        # at most the prior's uncertainty of the stiffness, s^2 + init_sigma^2 (relative), over the
+        # deviation spread of the last estimate (eq. (27b))
+        s = cfg.init_std if cfg.init_distribution == "normal" else cfg.init_half_width / math.sqrt(3.0)
+        spread = getattr(self, "_sigma2_rel", 0.0)
+        if spread > 0:
+            c = min(c, (s * s + cfg.init_sigma**2) / spread)
+        return max(1.0, c)
 
     def _smooth_surprise(self, s_k: float, dt: float) -> None:
         """z_k: s_k smoothed over `surprise_time`; lambda_k = 1 - (1 - lambda) z_k, clipped."""
@@ -1001,6 +1010,7 @@ class StiffnessMPF:
         Esig = np.diagonal(self.stats.Lam, axis1=1, axis2=2) / (self.stats.nu - self.n_w - 1.0)[:, None]  # E[Sigma]
         var_mean = q @ (self.stats.gamma[:, None] * Esig) + spread  # posterior variance of the mean
         sigma2 = q @ Esig + spread  # eq. (27b), diagonal, with nu - n_w - 1
+        self._sigma2_rel = float(np.max(sigma2 / self.C_ref**2))  # (`_draw_inflation`'s bound)
         return self._estimate_from(ess, x_mean, x_std, mbar, var_mean, sigma2, q @ self.b)
 
     def _estimate_from(self, ess, x_mean, x_std, mbar, var_mean, sigma2, b_mean) -> Estimate:
