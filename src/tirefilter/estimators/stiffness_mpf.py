@@ -86,7 +86,8 @@ class MPFConfig:
     vy_jitter: float = 0.0
     # surprise inflation of the draw of w_k (derivations Sec. 24): with adaptive forgetting, the conditional
     # scale of w_k is multiplied by c = max(1, 1 + surprise_inflation (z - 1)), z the smoothed innovation
-    # statistic (Sec. 17): 1 matches the predictive to the residuals the accelerometers show; 0: off
+    # statistic (Sec. 17), at most the prior's relative variance of the stiffness over the last estimate's
+    # deviation spread: 1 matches the deviations' covariance to the residuals the accelerometers show; 0: off
     surprise_inflation: float = 0.0
     x0_vx_from_wheels: bool = True  # full model: centre vx on R_w omega of the undriven axle
     x0_vx_wheel_std: float = 0.02  # m/s, spread around it (the free-rolling wheel's slip)
