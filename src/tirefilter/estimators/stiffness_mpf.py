@@ -89,6 +89,9 @@ class MPFConfig:
     # statistic (Sec. 17), at most the prior's relative variance of the stiffness over the last estimate's
     # deviation spread: 1 matches the deviations' covariance to the residuals the accelerometers show; 0: off
     surprise_inflation: float = 0.0
+    # the draw the statistics learn from (eq. (19)) and the drift statistic sees: the inflated one (True) or
+    # the same draw at c = 1, mu_c + (w_k - mu_c) / sqrt(c) (False: only the state's propagation is inflated)
+    inflation_in_statistics: bool = True
     x0_vx_from_wheels: bool = True  # full model: centre vx on R_w omega of the undriven axle
     x0_vx_wheel_std: float = 0.02  # m/s, spread around it (the free-rolling wheel's slip)
     # observability gate (Sec. V) and linear-region gate
@@ -559,6 +562,8 @@ class StiffnessMPF:
             mu_c, Lam_c, nu_c = mu_w, L11, nu_w
         c_draw = self._draw_inflation()
         w = t_sample(mu_c, Lam_c * c_draw if c_draw != 1.0 else Lam_c, nu_c, self.rng)
+        # the draw the statistics learn from: the same one, or at c = 1 (`inflation_in_statistics`)
+        w_learn = w if c_draw == 1.0 or cfg.inflation_in_statistics else mu_c + (w - mu_c) / math.sqrt(c_draw)
         learn = None
         if nc and cfg.outlier_prob < 1:  # per-particle outlier gate on the accelerometer residuals
             vc = solve_lower(Lc[:, :nc, :nc], e[:, :nc])
@@ -569,10 +574,10 @@ class StiffnessMPF:
             self._bias_update(yk, h, D, a)
         if self.active:
             if nc:
-                self._track_drift(w - mu_w, L11, dt)  # before the update: mu_w may be the statistics' own array
+                self._track_drift(w_learn - mu_w, L11, dt)  # before the update: mu_w may be the statistics' own array
             lo = cfg.bound_low * self.C_ref - self.C_nom
             hi = cfg.bound_high * self.C_ref - self.C_nom
-            self.stats.update(w, learn)  # eq. (19) with the same w_k that drives the state
+            self.stats.update(w_learn, learn)  # eq. (19) with the w_k that drives the state (or its uninflated twin)
             self.stats.mu = np.clip(self.stats.mu, lo, hi)  # parameter projection (Sec. V)
         self.w_prev = w
         self._at_x = model_k  # the first stage of the next propagation, at this x and u
@@ -760,7 +765,7 @@ class StiffnessMPF:
             wk.idx, self.x, self.logw, st.gamma, st.mu, st.Lam, st.nu, self.b, self.P, wk.h, wk.D, wk.L11, wk.nu_w,
             wk.L12, wk.Lc, wk.v, nc, z, chi, nu_draw, wk.w, use_mask, self._outlier_bound(nc) if use_mask else 0.0,
             bool(a.size and self.bias_on), self.R, a, yk, self.active, drift, self.drift,
-            -math.expm1(-dt / cfg.drift_time), wk.lo, wk.hi, wk.mom, wk.q, math.sqrt(self._draw_inflation()))
+            -math.expm1(-dt / cfg.drift_time), wk.lo, wk.hi, wk.mom, wk.q, self._draw_factors())
         if zd == zd:  # `_track_drift` (the statistic is NaN when not computed)
             self._cap_forgetting(zd)
         if self.full:
@@ -848,6 +853,12 @@ class StiffnessMPF:
         if spread > 0:
             c = min(c, (s * s + cfg.init_sigma**2) / spread)
         return max(1.0, c)
+
+    def _draw_factors(self) -> np.ndarray:
+        """The compiled draw's std factors (2,): sqrt(c) for the draw that drives the state, and for
+        the one the statistics learn from sqrt(c) or 1 (`inflation_in_statistics`)."""
+        root = math.sqrt(self._draw_inflation())
+        return np.array([root, root if self.cfg.inflation_in_statistics else 1.0])
 
     def _smooth_surprise(self, s_k: float, dt: float) -> None:
         """z_k: s_k smoothed over `surprise_time`; lambda_k = 1 - (1 - lambda) z_k, clipped."""
