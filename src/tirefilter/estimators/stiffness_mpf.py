@@ -89,9 +89,9 @@ class MPFConfig:
     # statistic (Sec. 17), at most the prior's relative variance of the stiffness over the last estimate's
     # deviation spread: 1 matches the deviations' covariance to the residuals the accelerometers show; 0: off
     surprise_inflation: float = 0.0
-    # the draw the statistics learn from (eq. (19)) and the drift statistic sees: the inflated one (True) or
-    # the same draw at c = 1, mu_c + (w_k - mu_c) / sqrt(c) (False: only the state's propagation is inflated)
-    inflation_in_statistics: bool = True
+    # the draw the statistics learn from (eq. (19)) and the drift statistic sees: the same draw at c = 1,
+    # mu_c + (w_k - mu_c) / sqrt(c) (False: only the state's propagation is inflated), or the inflated one (True)
+    inflation_in_statistics: bool = False
     x0_vx_from_wheels: bool = True  # full model: centre vx on R_w omega of the undriven axle
     x0_vx_wheel_std: float = 0.02  # m/s, spread around it (the free-rolling wheel's slip)
     # observability gate (Sec. V) and linear-region gate
