@@ -543,3 +543,81 @@ def test_friction_gpssm_backends_equal_with_differing_dof(kind):
     assert_equal_to_rounding(pa.particles, pb.particles, "particles")
     for key in ("M", "Lam", "nu", "mu"):
         assert_equal_to_rounding(pa.stats[key], pb.stats[key], key)
+
+
+@pytest.mark.parametrize("in_stats", [True, False], ids=["inflated-statistics", "plain-statistics"])
+@pytest.mark.parametrize("model", ["full", "lateral"])
+def test_stiffness_mpf_backends_equal_with_surprise_inflation(model, in_stats, monkeypatch):
+    """The surprise inflation of the draw of w_k (`surprise_inflation`, derivations Sec. 25) through
+    the fused step: on this drive, whose truth is no single track with the nominal stiffness, the
+    innovation statistic z passes 2 (the draw's scale inflated by c = z, or by the bound of the
+    prior's spread), and the backends stay equal to rounding, with the statistics learning from the
+    inflated draw or from its twin at c = 1 (`inflation_in_statistics`)."""
+    fused = _count_fused_steps(monkeypatch)
+    vehicle = load_scenario("paper-sim").vehicle
+    runs = {}
+    for backend in ("numpy", "numba"):
+        cfg = MPFConfig(particles=24, model=model, backend=backend, resample_threshold=1.0, gate_warmup=0.05,
+                        gate_vy_std=10.0, gate_steer=0.0, bias_rw=(0.01, 0.01, 0.001), bias0_std=(0.1, 0.1, 0.01),
+                        surprise_inflation=1.0, init_std=3.0,  # (a wide prior: c is not held by its bound)
+                        inflation_in_statistics=in_stats)
+        est = StiffnessMPF(vehicle, cfg)
+        est.reset(np.random.default_rng(9))
+        rows, c_max = [], 1.0
+        for t, u, y in _mpf_samples(vehicle, 60):
+            c_max = max(c_max, est._draw_inflation())  # the factor the previous step drew with
+            rows.append(_mpf_outputs(est.step(t, u, y)))
+        runs[backend] = (np.array(rows), est, c_max)
+    (a, fast, c_fast), (b, ref, c_ref) = runs["numba"], runs["numpy"]
+    assert fused[id(fast)] == 59 and c_ref > 2.5 and c_fast == pytest.approx(c_ref, rel=1e-9)
+    assert np.isfinite(b[:, :7]).all()
+    assert_equal_to_rounding(a, b, "estimates")
+    pa, pb = fast.posterior(), ref.posterior()
+    assert_equal_to_rounding(pa.particles, pb.particles, "particles")
+    for key in ("gamma", "mu", "Lam", "nu", "bias", "bias_cov"):
+        assert_equal_to_rounding(pa.stats[key], pb.stats[key], key)
+
+
+@pytest.mark.parametrize("backend", ["numpy", "numba"])
+def test_surprise_inflation_scales_the_draw_about_the_conditional_mean(backend, monkeypatch):
+    """The draw with the conditional scale times c is mu_c + sqrt(c) (draw at c = 1 - mu_c) for the
+    same random numbers: from one filter state, one step with c = 1, 4 and 9 gives w(9) - w(1) =
+    2 (w(4) - w(1)) exactly (to rounding), in both backends."""
+    import copy
+
+    vehicle = load_scenario("paper-sim").vehicle
+    cfg = MPFConfig(particles=16, backend=backend, resample_threshold=0.0, gate_warmup=0.05, gate_vy_std=10.0,
+                    gate_steer=0.0, surprise_inflation=1.0)
+    est = StiffnessMPF(vehicle, cfg)
+    est.reset(np.random.default_rng(3))
+    samples = list(_mpf_samples(vehicle, 25))
+    for t, u, y in samples[:20]:
+        est.step(t, u, y)
+    w = {}
+    for c in (1.0, 4.0, 9.0):
+        e = copy.deepcopy(est)
+        monkeypatch.setattr(StiffnessMPF, "_draw_inflation", lambda self, c=c: c)
+        e.step(*samples[20])
+        w[c] = np.array(e.w_prev)
+    assert np.ptp(w[1.0], axis=0).min() > 0
+    assert_equal_to_rounding(w[9.0] - w[1.0], 2.0 * (w[4.0] - w[1.0]), "w")
+
+
+def test_surprise_inflation_factor():
+    """c = max(1, min(1 + k (z - 1), (s^2 + init_sigma^2) / sigma_rel^2)): 1 while the data fit (z <= 1),
+    with k = 0 and with fixed forgetting; at most the prior's relative variance of the stiffness over
+    the last estimate's relative deviation spread."""
+    vehicle = load_scenario("paper-sim").vehicle
+    for k, z, c in ((1.0, 0.5, 1.0), (1.0, 1.0, 1.0), (1.0, 7.0, 7.0), (0.5, 7.0, 4.0), (0.0, 7.0, 1.0)):
+        est = StiffnessMPF(vehicle, MPFConfig(particles=4, surprise_inflation=k))
+        est.reset(np.random.default_rng(0))
+        est.surprise = z
+        assert est._draw_inflation() == pytest.approx(c)
+        est._sigma2_rel = 0.01  # a deviation spread of 10%: c at most (0.3^2 + 0.1^2) / 0.1^2 = 10
+        assert est._draw_inflation() == pytest.approx(min(c, 10.0))
+        est.surprise = 50.0
+        assert est._draw_inflation() == pytest.approx(10.0 if k >= 0.5 else 1.0)
+    est = StiffnessMPF(vehicle, MPFConfig(particles=4, surprise_inflation=1.0, forgetting_mode="fixed"))
+    est.reset(np.random.default_rng(0))
+    est.surprise = 7.0
+    assert est._draw_inflation() == 1.0

@@ -176,6 +176,7 @@ def test_a_gap_draws_vx_again_from_the_undriven_wheels(backend):
     ({"cx_excitation_time": math.inf}, "cx_excitation_time"),
     ({"restart_at_bound_after": -1.0}, "must be >= 0"),
     ({"x0_vx_wheel_std": -0.1}, "must be >= 0"),
+    ({"surprise_inflation": -0.5}, "must be >= 0"),
 ])
 def test_bad_slip_and_restart_options_are_rejected(options, match):
     with pytest.raises(ConfigError, match=match):
@@ -190,6 +191,7 @@ def test_defaults_and_the_papers_variant():
     cfg = MPFConfig()
     assert (cfg.slip_hold, cfg.undriven_stiffness, cfg.x0_vx_wheel_std, cfg.restart_at_bound_after,
             cfg.cx_excitation_time) == ("interval", "learned", 0.02, 2.0, 1.0)
+    assert cfg.surprise_inflation == 0.0 and cfg.inflation_in_statistics is False  # (an option, derivations Sec. 25)
     vehicle = load_scenario("paper-sim").vehicle
     est = StiffnessMPF(vehicle)
     est.reset(np.random.default_rng(0))

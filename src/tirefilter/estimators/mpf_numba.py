@@ -669,9 +669,11 @@ def resample_gate(logw, u0, resample, idx, x, b, P, gamma, mu, Lam, nu, a, B, sl
 
 @njit(inline="always", **_JIT)
 def _sample(idx, gamma, mu, Lam, nu, L11, nu_w, L12, Lc, v, z, chi, nu_draw, w, use_mask, bound, active, drift,
-            lo, hi, qw, ub, n_w, nc):
+            lo, hi, qw, ub, infl, n_w, nc):
     """Steps 3 and 5 of `sample_update` (its arguments, n_w and nc the sizes; ub (n_w,) the weighted
-    lean of the drift, accumulated)."""
+    lean of the drift, accumulated; infl (2,) the std factors of the draw about mu_c, sqrt(c) of the
+    surprise inflation (1 when off), of the draw that drives the state (into w) and of the one the
+    drift and the statistics learn from (the same draw when they are equal))."""
     n = mu.shape[0]
     M = np.empty((max(nc, 1), n_w))
     ui = np.empty(n_w)
@@ -718,12 +720,17 @@ def _sample(idx, gamma, mu, Lam, nu, L11, nu_w, L12, Lc, v, z, chi, nu_draw, w, 
                 for k in range(j):
                     acc = acc - Lw[i, r, k] * Lw[i, j, k]
                 Lw[i, r, j] = acc * (1.0 / Ljj)
-    for i in range(n):  # the draw mu_c + chol(Lam_c) z sqrt(nu_draw / chi)
-        f = math.sqrt(nu_draw[i] / chi[i])
+    same = infl[0] == infl[1]
+    wl = w if same else np.empty_like(w)  # the draw the statistics learn from (surprise inflation)
+    for i in range(n):  # the draw mu_c + chol(Lam_c) z sqrt(nu_draw / chi), times infl (surprise inflation)
+        f0 = math.sqrt(nu_draw[i] / chi[i])
+        f, fl = f0 * infl[0], f0 * infl[1]
         for j in range(n_w):
             t = 0.0
             for k in range(j + 1):
                 t += Lw[i, j, k] * z[i, k]
+            if not same:
+                wl[i, j] = w[i, j] + t * fl
             w[i, j] = w[i, j] + t * f
     # 5. the drift of the adaptive forgetting (u = chol(L11)^-1 (w - mu), before the update: chol(L11) in
     # place of Lam_c's factor, then the solve), then the NiW update and the projection, each in a loop of its own
@@ -743,7 +750,7 @@ def _sample(idx, gamma, mu, Lam, nu, L11, nu_w, L12, Lc, v, z, chi, nu_draw, w, 
                 Lw[i, r, j] = acc * (1.0 / Ljj)
     for i in range(n if active and drift else 0):
         for j in range(n_w):
-            acc = w[i, j] - mu[i, j]
+            acc = wl[i, j] - mu[i, j]
             for k in range(j):
                 acc = acc - Lw[i, j, k] * ui[k]
             ui[j] = acc / Lw[i, j, j]
@@ -759,11 +766,11 @@ def _sample(idx, gamma, mu, Lam, nu, L11, nu_w, L12, Lc, v, z, chi, nu_draw, w, 
         g_new = g0 / (1.0 + g0)
         inv = 1.0 + g0
         for j in range(n_w):
-            zj = w[i, j] - mu[i, j]
+            zj = wl[i, j] - mu[i, j]
             for k in range(n_w):
-                Lam[i, j, k] = Lam[i, j, k] + zj * (w[i, k] - mu[i, k]) / inv
+                Lam[i, j, k] = Lam[i, j, k] + zj * (wl[i, k] - mu[i, k]) / inv
         for j in range(n_w):
-            m = mu[i, j] + g_new * (w[i, j] - mu[i, j])
+            m = mu[i, j] + g_new * (wl[i, j] - mu[i, j])
             mu[i, j] = min(max(m, lo[j]), hi[j])
         gamma[i] = g_new
         nu[i] = nu[i] + 1.0
@@ -771,13 +778,16 @@ def _sample(idx, gamma, mu, Lam, nu, L11, nu_w, L12, Lc, v, z, chi, nu_draw, w, 
 
 @njit(**_JIT)
 def sample_update(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z, chi, nu_draw, w,
-                  use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw):
+                  use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw,
+                  infl):
     """Steps 3-5 of `StiffnessMPF.step`, in place. Per particle i (its weighting arrays h, D,
     L11, nu_w, L12, Lc, v at row idx[i], the ancestor when resampled):
     - w_i (into w) from the conditional of w given the first nc (accelerometer) residuals,
       eq. (39)-(41) (`t_conditional` with `L22_chol`, `x2_white`): M = Lc^-1 L21,
       mu_c = mu + M^T v, Lam_c = (nu~ + v^T v) / (nu~ + nc) (L11 - M^T M), and `t_sample`'s
-      draw mu_c + chol(Lam_c) z sqrt(nu_draw / chi) with the caller's z (N, n_w), chi (N,);
+      draw mu_c + chol(Lam_c) z sqrt(nu_draw / chi) with the caller's z (N, n_w), chi (N,), its
+      spread about mu_c times infl[0] (sqrt(c) of the surprise inflation, derivations Sec. 25; 1: off),
+      and the statistics' update and the drift from the same draw with infl[1] in its place;
     - the outlier mask (`use_mask`): learn while |v_acc|^2 < bound;
     - the bias update (`_bias_update`, eq. (30), `do_bias`): S = P_aa + R_aa + D_a E[Sigma] D_a^T,
       K^T = S^-1 P_{a,:}, b += K (y_a - h_a - D_a mu - b_a), P -= P_{:,a} K^T, symmetrised;
@@ -793,29 +803,34 @@ def sample_update(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, 
     accelerometers (n_w = 3, nc = 2) and the lateral one (n_w = 2, nc = 1) with the sizes as
     constants."""
     t1 = (idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z)
-    t2 = (chi, nu_draw, w, use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw)
+    t2 = (chi, nu_draw, w, use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw,
+          infl)
     return _sample_update(t1, t2, mu.shape[1], nc)
 
 
 @njit(**_JIT)
 def sample_update_full(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z, chi, nu_draw, w,
-                       use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw):
+                       use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw,
+                       infl):
     """`sample_update` for the full model with both accelerometers (n_w = 3, nc = 2)."""
     if mu.shape[1] != 3 or nc != 2:
         raise ValueError("sample_update_full: n_w = 3, nc = 2 only")
     t1 = (idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z)
-    t2 = (chi, nu_draw, w, use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw)
+    t2 = (chi, nu_draw, w, use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw,
+          infl)
     return _sample_update(t1, t2, 3, 2)
 
 
 @njit(**_JIT)
 def sample_update_lateral(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z, chi, nu_draw, w,
-                          use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw):
+                          use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw,
+                          infl):
     """`sample_update` for the lateral model with its accelerometer (n_w = 2, nc = 1)."""
     if mu.shape[1] != 2 or nc != 1:
         raise ValueError("sample_update_lateral: n_w = 2, nc = 1 only")
     t1 = (idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z)
-    t2 = (chi, nu_draw, w, use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw)
+    t2 = (chi, nu_draw, w, use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw,
+          infl)
     return _sample_update(t1, t2, 2, 1)
 
 
@@ -824,7 +839,8 @@ def _sample_update(t1, t2, n_w, nc_):
     """`sample_update` with its arguments in t1, t2 (a call of more than 30 arguments compiles to f(*args),
     which numba does not inline) and the sizes given."""
     (idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z) = t1
-    (chi, nu_draw, w, use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw) = t2
+    (chi, nu_draw, w, use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw,
+     infl) = t2
     n = mu.shape[0]
     nc = nc_
     na = avail.shape[0]
@@ -887,7 +903,7 @@ def _sample_update(t1, t2, n_w, nc_):
                 P[i, c, c2] = 0.5 * (Pn[c, c2] + Pn[c2, c])
     # 3. and 5.
     _sample(idx, gamma, mu, Lam, nu, L11, nu_w, L12, Lc, v, z, chi, nu_draw, w, use_mask, bound, active, drift, lo,
-            hi, qw, ub, n_w, nc)
+            hi, qw, ub, infl, n_w, nc)
     zd = math.nan
     if active and drift:
         finite = True

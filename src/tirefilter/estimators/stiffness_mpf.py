@@ -85,6 +85,14 @@ class MPFConfig:
     # (z > z_on = (1 - forgetting_min) / (1 - forgetting)): std per sqrt(s) vy_jitter sqrt(z - z_on), added
     # to state_noise's; 0: off
     vy_jitter: float = 0.0
+    # surprise inflation of the draw of w_k (derivations Sec. 25): with adaptive forgetting, the conditional
+    # scale of w_k is multiplied by c = max(1, 1 + surprise_inflation (z - 1)), z the smoothed innovation
+    # statistic (Sec. 17), at most the prior's relative variance of the stiffness over the last estimate's
+    # deviation spread: 1 matches the deviations' covariance to the residuals the accelerometers show; 0: off
+    surprise_inflation: float = 0.0
+    # the draw the statistics learn from (eq. (19)) and the drift statistic sees: the same draw at c = 1,
+    # mu_c + (w_k - mu_c) / sqrt(c) (False: only the state's propagation is inflated), or the inflated one (True)
+    inflation_in_statistics: bool = False
     x0_vx_from_wheels: bool = True  # full model: centre vx on R_w omega of the undriven axle
     x0_vx_wheel_std: float = 0.02  # m/s, spread around it (the free-rolling wheel's slip)
     # observability gate (Sec. V) and linear-region gate
@@ -160,7 +168,7 @@ class MPFConfig:
         for key in ("init_std", "init_half_width", "init_sigma", "gate_speed", "gate_steer", "gate_ay_max",
                     "gate_alpha_max", "gate_vy_std", "gate_warmup", "nu0_margin", "plausible_beta",
                     "plausible_yaw_rate", "restart_alpha", "restart_after", "restart_at_bound_after",
-                    "x0_vx_wheel_std", "vy_jitter", "wheel_slip_rw"):
+                    "x0_vx_wheel_std", "vy_jitter", "wheel_slip_rw", "surprise_inflation"):
             if not getattr(self, key) >= 0:
                 bad(key, f"must be >= 0, got {getattr(self, key)!r}")
         for key in ("sigma", "bias_rw", "bias0_std", "disturbance_rw", "x0_std", "state_noise"):
@@ -286,6 +294,7 @@ class StiffnessMPF:
         self.linear_region = True  # |a^Y| below the gate's linear-region bound at the last sample
         self.lam = self.cfg.forgetting  # the forgetting factor applied at the next propagation
         self.drift = np.zeros(self.n_w)  # smoothed whitened w_k - mu_{k|k-1} (adaptive forgetting)
+        self._sigma2_rel = 0.0  # largest relative deviation spread of the last estimate (`_draw_inflation`)
         self.cx_weight_max = 0.0 if self.full else None  # the largest excitation weight of Cx so far (`_excite_cx`)
         self._reset_cx_excitation()
         # the wheel-speed pre-filter (sigma_omega > 0, full model) and the last sample's measured a^X that drives it
@@ -567,7 +576,10 @@ class StiffnessMPF:
                                               L22_chol=Lc[:, :nc, :nc], x2_white=v[:, :nc])
         else:
             mu_c, Lam_c, nu_c = mu_w, L11, nu_w
-        w = t_sample(mu_c, Lam_c, nu_c, self.rng)
+        c_draw = self._draw_inflation()
+        w = t_sample(mu_c, Lam_c * c_draw if c_draw != 1.0 else Lam_c, nu_c, self.rng)
+        # the draw the statistics learn from: the same one, or at c = 1 (`inflation_in_statistics`)
+        w_learn = w if c_draw == 1.0 or cfg.inflation_in_statistics else mu_c + (w - mu_c) / math.sqrt(c_draw)
         learn = None
         if nc and cfg.outlier_prob < 1:  # per-particle outlier gate on the accelerometer residuals
             vc = solve_lower(Lc[:, :nc, :nc], e[:, :nc])
@@ -578,10 +590,10 @@ class StiffnessMPF:
             self._bias_update(yk, h, D, a)
         if self.active:
             if nc:
-                self._track_drift(w - mu_w, L11, dt)  # before the update: mu_w may be the statistics' own array
+                self._track_drift(w_learn - mu_w, L11, dt)  # before the update: mu_w may be the statistics' own array
             lo = cfg.bound_low * self.C_ref - self.C_nom
             hi = cfg.bound_high * self.C_ref - self.C_nom
-            self.stats.update(w, learn)  # eq. (19) with the same w_k that drives the state
+            self.stats.update(w_learn, learn)  # eq. (19) with the w_k that drives the state (or its uninflated twin)
             self.stats.mu = np.clip(self.stats.mu, lo, hi)  # parameter projection (Sec. V)
         self.w_prev = w
         self._at_x = model_k  # the first stage of the next propagation, at this x and u
@@ -794,7 +806,7 @@ class StiffnessMPF:
             wk.idx, self.x, self.logw, st.gamma, st.mu, st.Lam, st.nu, self.b, self.P, wk.h, wk.D, wk.L11, wk.nu_w,
             wk.L12, wk.Lc, wk.v, nc, z, chi, nu_draw, wk.w, use_mask, self._outlier_bound(nc) if use_mask else 0.0,
             bool(a.size and self.bias_on), self.R, a, yk, self.active, drift, self.drift,
-            -math.expm1(-dt / cfg.drift_time), wk.lo, wk.hi, wk.mom, wk.q)
+            -math.expm1(-dt / cfg.drift_time), wk.lo, wk.hi, wk.mom, wk.q, self._draw_factors())
         if zd == zd:  # `_track_drift` (the statistic is NaN when not computed)
             self._cap_forgetting(zd)
         if self.full:
@@ -806,6 +818,7 @@ class StiffnessMPF:
         for the fused step: the same Estimate (tests/test_kernels.py compares every field) in a
         third of the time."""
         xm, xs, mb, vm, s2, bm = mom.tolist()
+        self._sigma2_rel = max(v / c**2 for v, c in zip(s2, self.C_ref.tolist()))  # (`_draw_inflation`'s bound)
         root, C = _sqrt_or_nan, self.C_nom.tolist()
         if self.full:  # params Cx, Cf_y, Cr_y; bias ax, ay, yaw rate
             return Estimate(active=bool(self.active), vx=xm[0], vy=xm[1], yaw_rate=xm[2], Cf_y=C[1] + mb[1],
@@ -865,6 +878,28 @@ class StiffnessMPF:
         s_k = float(np.exp(self.logw) @ nis)
         if math.isfinite(s_k):
             self._smooth_surprise(s_k, dt)
+
+    def _draw_inflation(self) -> float:
+        """c of the surprise inflation (derivations Sec. 25): the factor on the conditional scale of
+        the draw of w_k, max(1, 1 + surprise_inflation (z - 1)) with z the smoothed innovation
+        statistic of this sample (`_smooth_surprise`); 1 when off or with fixed forgetting."""
+        cfg = self.cfg
+        if cfg.surprise_inflation <= 0 or cfg.forgetting_mode != "adaptive":
+            return 1.0
+        c = 1.0 + cfg.surprise_inflation * (self.surprise - 1.0)
+        # at most the prior's uncertainty of the stiffness, s^2 + init_sigma^2 (relative), over the
+        # deviation spread of the last estimate (eq. (27b))
+        s = cfg.init_std if cfg.init_distribution == "normal" else cfg.init_half_width / math.sqrt(3.0)
+        spread = getattr(self, "_sigma2_rel", 0.0)
+        if spread > 0:
+            c = min(c, (s * s + cfg.init_sigma**2) / spread)
+        return max(1.0, c)
+
+    def _draw_factors(self) -> np.ndarray:
+        """The compiled draw's std factors (2,): sqrt(c) for the draw that drives the state, and for
+        the one the statistics learn from sqrt(c) or 1 (`inflation_in_statistics`)."""
+        root = math.sqrt(self._draw_inflation())
+        return np.array([root, root if self.cfg.inflation_in_statistics else 1.0])
 
     def _smooth_surprise(self, s_k: float, dt: float) -> None:
         """z_k: s_k smoothed over `surprise_time`; lambda_k = 1 - (1 - lambda) z_k, clipped."""
@@ -1028,6 +1063,7 @@ class StiffnessMPF:
         Esig = np.diagonal(self.stats.Lam, axis1=1, axis2=2) / (self.stats.nu - self.n_w - 1.0)[:, None]  # E[Sigma]
         var_mean = q @ (self.stats.gamma[:, None] * Esig) + spread  # posterior variance of the mean
         sigma2 = q @ Esig + spread  # eq. (27b), diagonal, with nu - n_w - 1
+        self._sigma2_rel = float(np.max(sigma2 / self.C_ref**2))  # (`_draw_inflation`'s bound)
         return self._estimate_from(ess, x_mean, x_std, mbar, var_mean, sigma2, q @ self.b)
 
     def _estimate_from(self, ess, x_mean, x_std, mbar, var_mean, sigma2, b_mean) -> Estimate:
