@@ -97,7 +97,7 @@ class MPFConfig:
     # of the a^Y sample (free of the sample's own noise, which selects the learning samples otherwise);
     # "measured": the sample; "measured-zero": the sample, a missing one (the guard's held and outlying
     # samples) counting as 0, which opens the gate at any load. A missing sample holds the last value.
-    gate_ay: str = "predicted"
+    gate_ay: str = "measured"
     informed_start: bool = True  # initial (r, vy) of each particle conditioned on the first samples
     outlier_prob: float = 1.0  # < 1: a particle skips learning when its residual is beyond this
     # chi-square quantile (off by default: it also rejects the residuals of a real surface change)
