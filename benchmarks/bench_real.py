@@ -5,13 +5,14 @@ data README mentions) and the EKF baseline with its default settings (state and 
 and the lateral stiffness the MPF converges to.
 
     .venv/bin/python benchmarks/bench_real.py [--particles 500] [--seeds 0 1 2] [--start T --end T]
-        [--config FILE.toml] [--mpf-only]
+        [--config FILE.toml] [--mpf-only] [--vehicle FILE.toml]
 
 Everything runs with default settings: the vehicle file holds the publishers' values only, so
 the sensor noise is estimated from the log and the IMU bias model is the MEMS default (the
 kf and ekf baselines use the same noise); `--config` applies an estimator configuration TOML
 (its [mpf] table, say) to the MPF runs; `--mpf-only` leaves out the kf and ekf rows (which no
-[mpf] setting changes). Sideslip RMSE in degrees over all samples and over
+[mpf] setting changes); `--vehicle` replaces examples/mbds-sideslip/vehicle.toml (for a
+diagnosis: the target is scored with the publishers' values). Sideslip RMSE in degrees over all samples and over
 |a^Y| < 4 m/s^2 (the linear tire region the MPF's gate learns in). Stiffness: the median over the samples where learning was
 active in the second half of the drive, and the final value.
 """
@@ -59,11 +60,13 @@ def main() -> None:
     ap.add_argument("--end", type=float)
     ap.add_argument("--config", help="estimator configuration TOML for the MPF runs (default: none, the defaults)")
     ap.add_argument("--mpf-only", action="store_true", help="only the MPF runs (no kf and ekf baselines)")
+    ap.add_argument("--vehicle", type=Path, default=EXAMPLE / "vehicle.toml",
+                    help="vehicle TOML (default: the example's, the publishers' values)")
     args = ap.parse_args()
     convert = _convert_module()
     if not convert.DATA.exists():
         raise SystemExit(f"the recording is not there: {convert.DATA} (see examples/mbds-sideslip/README.md)")
-    vehicle = load_vehicle(EXAMPLE / "vehicle.toml")
+    vehicle = load_vehicle(args.vehicle)
     with tempfile.TemporaryDirectory() as tmp:
         path = convert.convert(out=Path(tmp) / "log.csv", start=args.start, end=args.end)
         log = read_log(path, vehicle)
