@@ -324,7 +324,7 @@ def _gate_trace(vehicle, backend, gate_ay, ay_samples, r, delta, sigma_ay=0.05):
 def test_a_missing_ay_sample_does_not_open_the_linear_region_gate(backend):
     """A steady turn at a^Y = 5 m/s^2 (beyond gate_ay_max = 4) with every other a^Y sample
     missing (the guard's held samples): the gate stays closed on every sample (a missing
-    sample holds the last a^Y, derivations Sec. 24); counting a missing sample as 0, the old
+    sample holds the last a^Y, derivations Sec. 25); counting a missing sample as 0, the old
     rule, opens it on exactly the missing samples after the 1 s warm-up."""
     vehicle = load_scenario("paper-sim").vehicle
     r, delta = _steady_turn(vehicle, 5.0)

@@ -93,7 +93,7 @@ class MPFConfig:
     gate_alpha_max: float = 0.08  # rad
     gate_vy_std: float = 0.15  # m/s: learn only once the lateral velocity is known this well
     gate_warmup: float = 1.0  # s after the first sample with learning off: the state settles first
-    # the a^Y of the linear-region test (derivations, Sec. 24): "predicted": the filter's one-step prediction
+    # the a^Y of the linear-region test (derivations, Sec. 25): "predicted": the filter's one-step prediction
     # of the a^Y sample (free of the sample's own noise, which selects the learning samples otherwise);
     # "measured": the sample; "measured-zero": the sample, a missing one (the guard's held and outlying
     # samples) counting as 0, which opens the gate at any load. A missing sample holds the last value.
@@ -665,7 +665,7 @@ class StiffnessMPF:
         self.ay_pred = math.nan
         if math.isfinite(ay):
             self.ay_last = ay
-        elif cfg.gate_ay != "measured-zero":  # a missing sample is no evidence of the linear region (Sec. 24)
+        elif cfg.gate_ay != "measured-zero":  # a missing sample is no evidence of the linear region (Sec. 25)
             ay = self.ay_last
         ay_m = ay if math.isfinite(ay) else 0.0
         self.linear_region = abs(ay_m) < cfg.gate_ay_max
@@ -832,7 +832,7 @@ class StiffnessMPF:
 
     def _predict_ay(self, yk: np.ndarray, a: np.ndarray, e: np.ndarray, logw: np.ndarray | None = None) -> None:
         """`ay_pred`, the one-step prediction of the a^Y sample that the linear-region test reads
-        with `gate_ay = "predicted"` (derivations, Sec. 24): the sample less the residuals e
+        with `gate_ay = "predicted"` (derivations, Sec. 25): the sample less the residuals e
         (N, |a|) of the weighting, averaged with the predictive weights (`logw`, default the
         particles' before this sample's likelihood), i.e. sum_i w_{k-1}^i (h + b + d mu)^i_ay.
         NaN when the sample is missing."""
