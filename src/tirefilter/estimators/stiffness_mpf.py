@@ -994,6 +994,7 @@ class StiffnessMPF:
         self._reset_cx_excitation()  # the prior again: nothing of Cx learned
         self.t_start, self.t_prev, self.u_prev, self.active = t, t, uk, False
         self._contradiction_since = self._bound_since = None
+        self.ay_pred = math.nan  # (the old cloud's prediction)
         self._at_x = self._model(self.x, uk)
         self.w_prev = self.stats.mu.copy()  # the next propagation uses the prior means
         return self._estimate(float(self.cfg.particles))
