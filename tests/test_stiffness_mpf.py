@@ -302,3 +302,58 @@ def test_interval_slip_predicts_the_speed_across_a_torque_step(fmu_paths):
     assert np.all(start > 0.015) and np.all(interval < 0.1 * start), (start, interval)
     rms = {k: float(np.sqrt(np.mean(e**2))) for k, e in errs.items()}
     assert rms["interval"] < 0.1 * rms["start"], rms
+
+
+def _steady_turn(vehicle, ay, vx=20.0):
+    """Yaw rate and road-wheel angle of the linear single-track model in a steady turn at a^Y = ay."""
+    r, L = ay / vx, vehicle.lf + vehicle.lr
+    alpha_f = vehicle.mass * ay * vehicle.lr / L / vehicle.Cf_y
+    alpha_r = vehicle.mass * ay * vehicle.lf / L / vehicle.Cr_y
+    vy = vehicle.lr * r - vx * alpha_r
+    return r, alpha_f + (vy + vehicle.lf * r) / vx
+
+
+def _gate_trace(vehicle, backend, gate_ay, ay_samples, r, delta, sigma_ay=0.05):
+    est = StiffnessMPF(vehicle, MPFConfig(model="lateral", particles=200, backend=backend, gate_ay=gate_ay,
+                                          sigma=(0.05, sigma_ay, 0.0035), bias0_std=(0.0, 0.0, 0.0),
+                                          bias_rw=(0.0, 0.0, 0.0), disturbance_rw=(0.0, 0.0, 0.0)))
+    est.reset(np.random.default_rng(1))
+    return np.array([est.step(0.01 * k, Inputs(delta, math.nan, math.nan, 20.0), Measurement(math.nan, ay, r)).active
+                     for k, ay in enumerate(ay_samples)])
+
+
+@pytest.mark.parametrize("backend", ["numpy", "numba"])
+def test_a_missing_ay_sample_does_not_open_the_linear_region_gate(backend):
+    """A steady turn at a^Y = 5 m/s^2 (beyond gate_ay_max = 4) with every other a^Y sample
+    missing (the guard's held samples): the gate stays closed on every sample (a missing
+    sample holds the last a^Y, derivations Sec. 26); counting a missing sample as 0, the old
+    rule, opens it on exactly the missing samples after the 1 s warm-up."""
+    vehicle = load_scenario("paper-sim").vehicle
+    r, delta = _steady_turn(vehicle, 5.0)
+    k = np.arange(300)
+    ay = np.where(k % 2 == 1, math.nan, 5.0)
+    for gate_ay in ("measured", "predicted"):
+        assert not _gate_trace(vehicle, backend, gate_ay, ay, r, delta).any(), gate_ay
+    active = _gate_trace(vehicle, backend, "measured-zero", ay, r, delta)
+    assert np.array_equal(active, (k % 2 == 1) & (k >= 100))
+    with pytest.raises(ConfigError, match="gate_ay"):
+        StiffnessMPF(vehicle, MPFConfig(gate_ay="zero"))
+
+
+@pytest.mark.parametrize("backend", ["numpy", "numba"])
+def test_the_predicted_gate_does_not_select_samples_by_their_noise(backend):
+    """A steady turn with a^Y noise of 1 m/s^2 (seeded): at a true 4.5 m/s^2 the measured test
+    opens on exactly the samples whose noise took them below 4 (94 of 300 after warm-up, each
+    with a residual biased towards zero), the one-step prediction on none; at 3.0 m/s^2 the
+    prediction opens on all 300, the measured test loses the 48 that the noise took above 4."""
+    vehicle = load_scenario("paper-sim").vehicle
+    noise = np.random.default_rng(5).standard_normal(400)
+    after = np.arange(400) >= 100
+    for ay_true, n_predicted in ((4.5, 0), (3.0, 300)):
+        r, delta = _steady_turn(vehicle, ay_true)
+        y = ay_true + noise
+        measured = _gate_trace(vehicle, backend, "measured", y, r, delta, sigma_ay=1.0)
+        assert np.array_equal(measured, (y < 4.0) & after), ay_true
+        predicted = _gate_trace(vehicle, backend, "predicted", y, r, delta, sigma_ay=1.0)
+        assert predicted.sum() == n_predicted and not predicted[~after].any(), ay_true
+    assert (3.0 + noise[after] >= 4.0).sum() == 48

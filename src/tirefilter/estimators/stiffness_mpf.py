@@ -102,6 +102,11 @@ class MPFConfig:
     gate_alpha_max: float = 0.08  # rad
     gate_vy_std: float = 0.15  # m/s: learn only once the lateral velocity is known this well
     gate_warmup: float = 1.0  # s after the first sample with learning off: the state settles first
+    # the a^Y of the linear-region test (derivations, Sec. 26): "predicted": the filter's one-step prediction
+    # of the a^Y sample (free of the sample's own noise, which selects the learning samples otherwise);
+    # "measured": the sample; "measured-zero": the sample, a missing one (the guard's held and outlying
+    # samples) counting as 0, which opens the gate at any load. A missing sample holds the last value.
+    gate_ay: str = "measured"
     informed_start: bool = True  # initial (r, vy) of each particle conditioned on the first samples
     outlier_prob: float = 1.0  # < 1: a particle skips learning when its residual is beyond this
     # chi-square quantile (off by default: it also rejects the residuals of a real surface change)
@@ -146,6 +151,8 @@ class MPFConfig:
             bad("particles", f"N must be an integer >= 1, got {self.particles!r}")
         if not 0.0 < self.forgetting <= 1.0:
             bad("forgetting", f"lambda must be in (0, 1], got {self.forgetting!r}")
+        if self.gate_ay not in ("predicted", "measured", "measured-zero"):
+            bad("gate_ay", f"expected predicted, measured or measured-zero, got {self.gate_ay!r}")
         if self.forgetting_mode not in ("adaptive", "fixed"):
             bad("forgetting_mode", f"expected adaptive or fixed, got {self.forgetting_mode!r}")
         if not 0.0 < self.forgetting_min <= self.forgetting_max <= 1.0:
@@ -292,6 +299,8 @@ class StiffnessMPF:
         self._bound_since = None  # time since which a stiffness mean sits at a projection bound
         self.surprise = 1.0  # z_k of the adaptive forgetting: 1 while the data fit the predictive
         self.linear_region = True  # |a^Y| below the gate's linear-region bound at the last sample
+        self.ay_last = math.nan  # the last finite a^Y of the linear-region test (`gate_ay`)
+        self.ay_pred = math.nan  # the one-step prediction of this sample's a^Y (`gate_ay = "predicted"`)
         self.lam = self.cfg.forgetting  # the forgetting factor applied at the next propagation
         self.drift = np.zeros(self.n_w)  # smoothed whitened w_k - mu_{k|k-1} (adaptive forgetting)
         self._sigma2_rel = 0.0  # largest relative deviation spread of the last estimate (`_draw_inflation`)
@@ -535,6 +544,7 @@ class StiffnessMPF:
             Lc = chol(S)
             e = yk[a] - (h + self.b if every else h[:, a] + self.b[:, a]) - np.einsum("nij,nj->ni", Da, mu_w)
             v = solve_lower(Lc, e)
+            self._predict_ay(yk, a, e)
             if nc and start_logw is None:
                 self._adapt_forgetting(v[:, :nc], nu_w, dt)
             if start_logw is None:
@@ -704,11 +714,19 @@ class StiffnessMPF:
         sideslip, which the sampled w explains regardless), or a stiffness mean `pinned` at a
         projection bound for `restart_at_bound_after` s."""
         cfg = self.cfg
-        ay_m = y.ay if math.isfinite(y.ay) else 0.0
+        ay = self.ay_pred if cfg.gate_ay == "predicted" else y.ay
+        self.ay_pred = math.nan
+        if math.isfinite(ay):
+            self.ay_last = ay
+        elif cfg.gate_ay != "measured-zero":  # a missing sample is no evidence of the linear region (Sec. 26)
+            ay = self.ay_last
+        ay_m = ay if math.isfinite(ay) else 0.0
         self.linear_region = abs(ay_m) < cfg.gate_ay_max
-        self.active = gate_open(cfg, t=t, t_start=self.t_start, vx=vx_est, delta=uk[0], ay_meas=y.ay, alpha=alpha,
+        self.active = gate_open(cfg, t=t, t_start=self.t_start, vx=vx_est, delta=uk[0], ay_meas=ay, alpha=alpha,
                                 vy_std=vy_std)
-        contradiction = cfg.restart_alpha > 0 and alpha > cfg.restart_alpha and abs(ay_m) < cfg.gate_ay_max
+        # (the measured a^Y: a state locked onto a wrong slip predicts the large a^Y of that slip)
+        ay_y = y.ay if math.isfinite(y.ay) else 0.0
+        contradiction = cfg.restart_alpha > 0 and alpha > cfg.restart_alpha and abs(ay_y) < cfg.gate_ay_max
         self._contradiction_since = (self._contradiction_since or t) if contradiction else None
         if contradiction and t - self._contradiction_since >= cfg.restart_after:
             return True
@@ -759,6 +777,7 @@ class StiffnessMPF:
         adaptive = cfg.forgetting_mode == "adaptive"
         u_prev = self.u_prev
         self.t_prev, self.u_prev = t, uk
+        logw_pred = self.logw.copy() if cfg.gate_ay == "predicted" else None  # (`_predict_ay`)
         innovation, ess, count, nu_common = predict_weigh(
             self.x, u_prev, self.w_prev, wk.a, wk.B, wk.af, wk.ar, wk.slip, dt, cfg.max_step, wk.heun, wk.interval,
             self._jw, self._c_floor, noise, noise_scale, self.b, self.P, q, self.bias_on, self.active, self.lam,
@@ -767,6 +786,8 @@ class StiffnessMPF:
             adaptive, cfg.plausible_beta, cfg.plausible_yaw_rate, cfg.gate_speed)
         if math.isfinite(innovation):  # adaptive forgetting (`_adapt_forgetting`)
             self._smooth_surprise(innovation, dt)
+        if logw_pred is not None and a.size:
+            self._predict_ay(yk, a, wk.e, logw_pred)
         self.w_prev = wk.w
         # af, ar in the order before any resampling: the next propagation reads only a, B and slip
         self._at_x = (wk.a, wk.B, wk.af, wk.ar, wk.slip if self.full else None)
@@ -862,6 +883,19 @@ class StiffnessMPF:
         self.x, self.b, self.P = wk.x, wk.b, wk.P
         st.gamma, st.mu, st.Lam, st.nu = wk.gamma, wk.mu, wk.Lam, wk.nu
         self._at_x = (wk.a, wk.B, wk.af, wk.ar, wk.slip if self.full else None)
+
+    def _predict_ay(self, yk: np.ndarray, a: np.ndarray, e: np.ndarray, logw: np.ndarray | None = None) -> None:
+        """`ay_pred`, the one-step prediction of the a^Y sample that the linear-region test reads
+        with `gate_ay = "predicted"` (derivations, Sec. 26): the sample less the residuals e
+        (N, |a|) of the weighting, averaged with the predictive weights (`logw`, default the
+        particles' before this sample's likelihood), i.e. sum_i w_{k-1}^i (h + b + d mu)^i_ay.
+        NaN when the sample is missing."""
+        if self.cfg.gate_ay != "predicted":
+            return
+        q = [j for j in range(len(a)) if self.channels[a[j]] == 1]
+        if q:
+            lw = self.logw if logw is None else logw
+            self.ay_pred = float(yk[a[q[0]]] - np.exp(lw) @ e[:, q[0]])
 
     def _adapt_forgetting(self, v: np.ndarray, nu: np.ndarray, dt: float) -> None:
         """The forgetting factor of the next propagation from how well the accelerometers
@@ -1036,6 +1070,7 @@ class StiffnessMPF:
         self._reset_cx_excitation()  # the prior again: nothing of Cx learned
         self.t_start, self.t_prev, self.u_prev, self.active = t, t, uk, False
         self._contradiction_since = self._bound_since = None
+        self.ay_pred = math.nan  # (the old cloud's prediction)
         self._at_x = self._model(self.x, uk)
         self.w_prev = self.stats.mu.copy()  # the next propagation uses the prior means
         return self._estimate(float(self.cfg.particles))
