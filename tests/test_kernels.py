@@ -317,6 +317,12 @@ def test_stiffness_mpf_backends_equal(model, bias, restarts, paper, monkeypatch)
     assert ref.resamples >= 30 and fast.resamples == ref.resamples
     assert fast.restarts == ref.restarts and (ref.restarts >= 2 if restarts else ref.restarts == 0)
     assert np.isfinite(b[:, :7]).all()
+    _assert_mpf_runs_equal(a, b, fast, ref)
+
+
+def _assert_mpf_runs_equal(a: np.ndarray, b: np.ndarray, fast: StiffnessMPF, ref: StiffnessMPF) -> None:
+    """The numba filter `fast` (outputs a) and the numpy reference `ref` (outputs b) equal to
+    rounding: estimates, particles, log-weights and statistics."""
     assert_equal_to_rounding(a, b, "estimates")
     pa, pb = fast.posterior(), ref.posterior()
     assert_equal_to_rounding(pa.particles, pb.particles, "particles")
@@ -354,11 +360,7 @@ def test_stiffness_mpf_gap_step_takes_the_reference_path(monkeypatch):
     (a, fast), (b, ref) = runs["numba"], runs["numpy"]
     assert ref.gap_redraws == fast.gap_redraws == 1 and ref.restarts == fast.restarts == 0
     assert fused[id(ref)] == 0 and fused[id(fast)] == 60 - 2  # not the first sample, not the gap
-    assert_equal_to_rounding(a, b, "estimates")
-    pa, pb = fast.posterior(), ref.posterior()
-    assert_equal_to_rounding(pa.particles, pb.particles, "particles")
-    for key in ("gamma", "mu", "Lam", "nu", "bias", "bias_cov"):
-        assert_equal_to_rounding(pa.stats[key], pb.stats[key], key)
+    _assert_mpf_runs_equal(a, b, fast, ref)
 
 
 def test_stiffness_mpf_backends_equal_with_the_wheel_filter(monkeypatch):
@@ -378,11 +380,7 @@ def test_stiffness_mpf_backends_equal_with_the_wheel_filter(monkeypatch):
     assert ref.wheels is not None and fast.wheels is not None
     assert fused[id(fast)] == 60 - 2 and ref.gap_redraws == fast.gap_redraws == 1
     assert_equal_to_rounding(fast.wheels.s, ref.wheels.s, "filtered wheel speeds")
-    assert_equal_to_rounding(a, b, "estimates")
-    pa, pb = fast.posterior(), ref.posterior()
-    assert_equal_to_rounding(pa.particles, pb.particles, "particles")
-    for key in ("gamma", "mu", "Lam", "nu", "bias", "bias_cov"):
-        assert_equal_to_rounding(pa.stats[key], pb.stats[key], key)
+    _assert_mpf_runs_equal(a, b, fast, ref)
 
 
 OPTIONS = {"outlier-noise-euler": dict(outlier_prob=0.9, state_noise=(0.02, 0.01, 0.002), integrator="euler"),
@@ -408,11 +406,7 @@ def test_stiffness_mpf_backends_equal_options(options, model, monkeypatch):
     (a, fast), (b, ref) = runs["numba"], runs["numpy"]
     assert fused[id(fast)] == 59 and fast.resamples == ref.resamples >= 20
     assert np.isfinite(b[:, :7]).all()
-    assert_equal_to_rounding(a, b, "estimates")
-    pa, pb = fast.posterior(), ref.posterior()
-    assert_equal_to_rounding(pa.particles, pb.particles, "particles")
-    for key in ("gamma", "mu", "Lam", "nu", "bias", "bias_cov"):
-        assert_equal_to_rounding(pa.stats[key], pb.stats[key], key)
+    _assert_mpf_runs_equal(a, b, fast, ref)
 
 
 @pytest.mark.parametrize("model", ["full", "lateral"])
@@ -450,11 +444,7 @@ def test_stiffness_mpf_bound_restart_in_the_fused_step_equal(monkeypatch):
         runs[backend] = (_mpf_drive(est, 60), est)
     (a, fast), (b, ref) = runs["numba"], runs["numpy"]
     assert ref.restarts >= 2 and fast.restarts == ref.restarts and fused[id(fast)] == 59
-    assert_equal_to_rounding(a, b, "estimates")
-    pa, pb = fast.posterior(), ref.posterior()
-    assert_equal_to_rounding(pa.particles, pb.particles, "particles")
-    for key in ("gamma", "mu", "Lam", "nu", "bias", "bias_cov"):
-        assert_equal_to_rounding(pa.stats[key], pb.stats[key], key)
+    _assert_mpf_runs_equal(a, b, fast, ref)
 
 
 def test_friction_gpssm_compiled_state_pickles():
@@ -571,11 +561,7 @@ def test_stiffness_mpf_backends_equal_with_surprise_inflation(model, in_stats, m
     (a, fast, c_fast), (b, ref, c_ref) = runs["numba"], runs["numpy"]
     assert fused[id(fast)] == 59 and c_ref > 2.5 and c_fast == pytest.approx(c_ref, rel=1e-9)
     assert np.isfinite(b[:, :7]).all()
-    assert_equal_to_rounding(a, b, "estimates")
-    pa, pb = fast.posterior(), ref.posterior()
-    assert_equal_to_rounding(pa.particles, pb.particles, "particles")
-    for key in ("gamma", "mu", "Lam", "nu", "bias", "bias_cov"):
-        assert_equal_to_rounding(pa.stats[key], pb.stats[key], key)
+    _assert_mpf_runs_equal(a, b, fast, ref)
 
 
 @pytest.mark.parametrize("backend", ["numpy", "numba"])
