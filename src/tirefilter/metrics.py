@@ -454,7 +454,8 @@ def _finish(out: dict, warnings: list[str], restarts, resamples, gate_open_share
     out["cx_excitation"] = None if cx_excitation is None else float(cx_excitation)
     if cx_excitation is not None and cx_excitation < CX_EXCITED:
         warnings.append(f"Cx: no wheel-slip excitation (excitation weight at most {cx_excitation:.2f} of 1, "
-                        "derivations Sec. 23): its estimate is the prior's, not learned from this drive")
+                        "derivations Sec. 23): this drive cannot teach Cx, so its estimate is no measurement "
+                        "of it (it can drift from the vehicle file's value with the state and the a^X bias)")
     out["warnings"] = warnings
 
 
