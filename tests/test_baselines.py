@@ -233,3 +233,32 @@ def test_augpf_borrows_the_numpy_model_by_default_and_numba_gives_the_same(fmu_p
     assert np.nanmax(np.abs(rows["numba"] - rows["numpy"]) - 1e-9 * scale) <= 0
     with pytest.raises(ConfigError, match="backend: expected numba or numpy, got 'jax'"):
         build_estimator("augpf", scenario, model="auto", particles=20, config={"augpf": {"backend": "jax"}})
+
+
+@pytest.mark.parametrize("name", ["ekf", "rls", "augpf"])
+def test_a_missing_ay_sample_does_not_open_a_baselines_gate(name):
+    """The MPF's rule holds for every estimator's gate (`baseline_common.held_ay`, derivations
+    Sec. 26): in a steady turn at a^Y = 5 m/s^2, beyond gate_ay_max = 4, with every other a^Y
+    sample missing (the guard's held samples), the gate stays closed; at 3 m/s^2 it opens
+    after the 1 s warm-up, on the missing samples too (they hold the last a^Y)."""
+    from tirefilter.estimators import _baseline
+    from tirefilter.estimators.stiffness_mpf import MPFConfig
+
+    vehicle = load_scenario("paper-sim").vehicle
+    cfg = MPFConfig(model="lateral", particles=100, bias0_std=(0.0, 0.0, 0.0), bias_rw=(0.0, 0.0, 0.0),
+                    disturbance_rw=(0.0, 0.0, 0.0))
+    k = np.arange(300)
+    for ay_true, opens in ((5.0, False), (3.0, True)):
+        r, L = ay_true / 20.0, vehicle.lf + vehicle.lr
+        alpha_f = vehicle.mass * ay_true * vehicle.lr / L / vehicle.Cf_y
+        alpha_r = vehicle.mass * ay_true * vehicle.lf / L / vehicle.Cr_y
+        delta = alpha_f + (vehicle.lr * r - 20.0 * alpha_r + vehicle.lf * r) / 20.0  # the steady turn's steer
+        est = _baseline(name, vehicle, cfg, {})
+        est.reset(np.random.default_rng(1))
+        ay = np.where(k % 2 == 1, np.nan, ay_true)
+        active = np.array([est.step(0.01 * j, Inputs(delta, np.nan, np.nan, 20.0), Measurement(np.nan, a, r)).active
+                           for j, a in enumerate(ay)])
+        if opens:
+            assert active[k >= 110].all() and not active[k < 100].any(), (name, ay_true)
+        else:
+            assert not active.any(), (name, ay_true)

@@ -53,7 +53,7 @@ import numpy as np
 
 from tirefilter.errors import ConfigError
 from tirefilter.estimators.base import Estimate, Inputs, Measurement, Posterior, particle_estimate
-from tirefilter.estimators.baseline_common import GateOptions, check_common, gate_open, stiffness_prior
+from tirefilter.estimators.baseline_common import GateOptions, check_common, gate_open, held_ay, stiffness_prior
 from tirefilter.stats import effective_sample_size, normalize_log_weights, systematic_resample
 from tirefilter.stats.linalg import chol, chol_solve, logdet_chol, solve_lower
 from tirefilter.vehicle.params import VehicleParams
@@ -197,6 +197,7 @@ class AugmentedPF:
         self.u_prev = None
         self.t_prev = None
         self.t_start = None
+        self.ay_last = math.nan  # the last finite a^Y of the linear-region test (`held_ay`)
         self.active = False
         self.resamples = 0
         self.restarts = 0
@@ -318,7 +319,8 @@ class AugmentedPF:
         vy = self.x[:, -2]
         vy_std = math.sqrt(max(float(q @ (vy - q @ vy) ** 2), 0.0))
         alpha = max(abs(float(q @ model_k[2])), abs(float(q @ model_k[3])))
-        self.active = gate_open(cfg, t=t, t_start=self.t_start, vx=vx_est, delta=uk[0], ay_meas=y.ay, alpha=alpha,
+        ay_gate, self.ay_last = held_ay(y.ay, self.ay_last)
+        self.active = gate_open(cfg, t=t, t_start=self.t_start, vx=vx_est, delta=uk[0], ay_meas=ay_gate, alpha=alpha,
                                 vy_std=vy_std)
         self.w_prev = w
         self._at_x = model_k

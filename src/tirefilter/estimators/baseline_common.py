@@ -58,12 +58,21 @@ def gate_open(cfg, *, t: float, t_start: float, vx: float, delta: float, ay_meas
               vy_std: float) -> bool:
     """The learning gate of the MPF and the baselines (observability and linear tire region,
     Sec. V of the stiffness paper): speed above `gate_speed`, |steer| above `gate_steer`,
-    |measured a^Y| below `gate_ay_max` (a missing sample counts as 0), the larger |slip
+    |measured a^Y| below `gate_ay_max` (`held_ay`: a missing sample holds the last one; 0
+    before any), the larger |slip
     angle| estimate below `gate_alpha_max`, the lateral velocity known to `gate_vy_std`,
     and `gate_warmup` seconds since the first sample."""
     ay = ay_meas if math.isfinite(ay_meas) else 0.0
     return bool(vx > cfg.gate_speed and abs(delta) > cfg.gate_steer and abs(ay) < cfg.gate_ay_max
                 and alpha < cfg.gate_alpha_max and vy_std < cfg.gate_vy_std and t - t_start >= cfg.gate_warmup)
+
+
+def held_ay(ay: float, last: float) -> tuple[float, float]:
+    """(the a^Y that `gate_open`'s linear-region test reads, the last finite a^Y): the sample,
+    or where it is missing the last finite one. A sample the measurement guard marks missing
+    (a held repeat, an outlier) is no evidence of the linear region; counted as 0 it opened
+    the gate at any load (derivations Sec. 26). Every estimator's gate holds it this way."""
+    return (ay, ay) if math.isfinite(ay) else (last, last)
 
 
 def stiffness_prior(cfg, C_nom: np.ndarray, params: tuple[str, ...], source: str):

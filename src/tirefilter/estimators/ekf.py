@@ -53,8 +53,8 @@ import numpy as np
 
 from tirefilter.errors import ConfigError
 from tirefilter.estimators.base import Estimate, Inputs, Measurement, Posterior
-from tirefilter.estimators.baseline_common import (GateOptions, check_common, discretize_zoh, gate_open, small_solve,
-                                                    stiffness_prior)
+from tirefilter.estimators.baseline_common import (GateOptions, check_common, discretize_zoh, gate_open, held_ay,
+                                                    small_solve, stiffness_prior)
 from tirefilter.vehicle.params import VehicleParams
 from tirefilter.vehicle.single_track import GRAVITY
 
@@ -270,6 +270,7 @@ class StiffnessEKF:
         self.P = self.P0.copy()
         self.t_prev = None
         self.t_start = None
+        self.ay_last = math.nan  # the last finite a^Y of the linear-region test (`held_ay`)
         self.u_prev = None
         self.active = False
 
@@ -342,7 +343,8 @@ class StiffnessEKF:
         self.t_prev, self.u_prev = t, uk
         _, _, (af, ar) = self.mdl.dynamics(self.z, uk)
         vx = self.z[0] if self.full else uk[3]
-        self.active = gate_open(cfg, t=t, t_start=self.t_start, vx=vx, delta=uk[0], ay_meas=y.ay,
+        ay_gate, self.ay_last = held_ay(y.ay, self.ay_last)
+        self.active = gate_open(cfg, t=t, t_start=self.t_start, vx=vx, delta=uk[0], ay_meas=ay_gate,
                                 alpha=max(abs(af), abs(ar)), vy_std=math.sqrt(max(self.P[self.nx - 2, self.nx - 2], 0.0)))
         return self._estimate(vx)
 

@@ -45,8 +45,8 @@ import numpy as np
 
 from tirefilter.errors import ConfigError
 from tirefilter.estimators.base import Estimate, Inputs, Measurement, Posterior
-from tirefilter.estimators.baseline_common import (GateOptions, check_common, discretize_zoh, gate_open, small_solve,
-                                                    stiffness_prior)
+from tirefilter.estimators.baseline_common import (GateOptions, check_common, discretize_zoh, gate_open, held_ay,
+                                                    small_solve, stiffness_prior)
 from tirefilter.estimators.linear_kf import KFConfig, LinearKF
 from tirefilter.vehicle.params import VehicleParams
 from tirefilter.vehicle.single_track import GRAVITY
@@ -154,6 +154,7 @@ class RLSEstimator:
         self.s_res, self.n_res = 0.0, 0.0
         self.t_prev = None
         self.t_start = None
+        self.ay_last = math.nan  # the last finite a^Y of the linear-region test (`held_ay`)
         self.r_prev = None
         self.phi2_prev = None
         self.active = False
@@ -184,7 +185,8 @@ class RLSEstimator:
         if self.t_start is None:
             self.t_start = t
         vy_std = math.sqrt(max(self.kf.P[0, 0], 0.0))
-        self.active = gate_open(cfg, t=t, t_start=self.t_start, vx=vx, delta=delta, ay_meas=y.ay,
+        ay_gate, self.ay_last = held_ay(y.ay, self.ay_last)
+        self.active = gate_open(cfg, t=t, t_start=self.t_start, vx=vx, delta=delta, ay_meas=ay_gate,
                                 alpha=max(abs(af), abs(ar)), vy_std=vy_std)
         if self.active and rows:
             Phi, yv, wv = np.array(rows), np.array(ys), np.array(ws)

@@ -27,7 +27,7 @@ import numpy as np
 
 from tirefilter.errors import ConfigError
 from tirefilter.estimators.base import Estimate, Inputs, Measurement, Posterior, particle_estimate
-from tirefilter.estimators.baseline_common import gate_open
+from tirefilter.estimators.baseline_common import gate_open, held_ay
 from tirefilter.estimators.sensors import DISTURBANCE_RW, MEMS_BIAS0_STD, MEMS_BIAS_RW
 from tirefilter.estimators.wheel_filter import WheelSpeedFilter
 from tirefilter.stats import NiW, effective_sample_size, normalize_log_weights, systematic_resample
@@ -716,10 +716,8 @@ class StiffnessMPF:
         cfg = self.cfg
         ay = self.ay_pred if cfg.gate_ay == "predicted" else y.ay
         self.ay_pred = math.nan
-        if math.isfinite(ay):
-            self.ay_last = ay
-        elif cfg.gate_ay != "measured-zero":  # a missing sample is no evidence of the linear region (Sec. 26)
-            ay = self.ay_last
+        if cfg.gate_ay != "measured-zero":  # a missing sample is no evidence of the linear region (Sec. 26)
+            ay, self.ay_last = held_ay(ay, self.ay_last)
         ay_m = ay if math.isfinite(ay) else 0.0
         self.linear_region = abs(ay_m) < cfg.gate_ay_max
         self.active = gate_open(cfg, t=t, t_start=self.t_start, vx=vx_est, delta=uk[0], ay_meas=ay, alpha=alpha,
