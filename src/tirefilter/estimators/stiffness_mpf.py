@@ -93,6 +93,10 @@ class MPFConfig:
     # the draw the statistics learn from (eq. (19)) and the drift statistic sees: the same draw at c = 1,
     # mu_c + (w_k - mu_c) / sqrt(c) (False: only the state's propagation is inflated), or the inflated one (True)
     inflation_in_statistics: bool = False
+    # the inflation is armed only once the learning gate has been open this long (s, in total) since the start
+    # or the last restart (derivations Sec. 27): before, a surprise is the start's own error (the prior far
+    # from the truth, a v^Y / stiffness pair not yet separated by the steer), not a change; 0: from the start
+    inflation_after: float = 0.0
     x0_vx_from_wheels: bool = True  # full model: centre vx on R_w omega of the undriven axle
     x0_vx_wheel_std: float = 0.02  # m/s, spread around it (the free-rolling wheel's slip)
     # observability gate (Sec. V) and linear-region gate
@@ -175,7 +179,7 @@ class MPFConfig:
         for key in ("init_std", "init_half_width", "init_sigma", "gate_speed", "gate_steer", "gate_ay_max",
                     "gate_alpha_max", "gate_vy_std", "gate_warmup", "nu0_margin", "plausible_beta",
                     "plausible_yaw_rate", "restart_alpha", "restart_after", "restart_at_bound_after",
-                    "x0_vx_wheel_std", "vy_jitter", "wheel_slip_rw", "surprise_inflation"):
+                    "x0_vx_wheel_std", "vy_jitter", "wheel_slip_rw", "surprise_inflation", "inflation_after"):
             if not getattr(self, key) >= 0:
                 bad(key, f"must be >= 0, got {getattr(self, key)!r}")
         for key in ("sigma", "bias_rw", "bias0_std", "disturbance_rw", "x0_std", "state_noise"):
@@ -304,6 +308,8 @@ class StiffnessMPF:
         self.lam = self.cfg.forgetting  # the forgetting factor applied at the next propagation
         self.drift = np.zeros(self.n_w)  # smoothed whitened w_k - mu_{k|k-1} (adaptive forgetting)
         self._sigma2_rel = 0.0  # largest relative deviation spread of the last estimate (`_draw_inflation`)
+        self.learned_time = 0.0  # s with the learning gate open since the start or the last restart
+        self._t_gate = None  # the time of the last gate decision (`_gate_or_restart`)
         self.cx_weight_max = 0.0 if self.full else None  # the largest excitation weight of Cx so far (`_excite_cx`)
         self._reset_cx_excitation()
         # the wheel-speed pre-filter (sigma_omega > 0, full model) and the last sample's measured a^X that drives it
@@ -722,6 +728,9 @@ class StiffnessMPF:
         self.linear_region = abs(ay_m) < cfg.gate_ay_max
         self.active = gate_open(cfg, t=t, t_start=self.t_start, vx=vx_est, delta=uk[0], ay_meas=ay, alpha=alpha,
                                 vy_std=vy_std)
+        if self.active and self._t_gate is not None:  # (`inflation_after`)
+            self.learned_time += t - self._t_gate
+        self._t_gate = t
         # (the measured a^Y: a state locked onto a wrong slip predicts the large a^Y of that slip)
         ay_y = y.ay if math.isfinite(y.ay) else 0.0
         contradiction = cfg.restart_alpha > 0 and alpha > cfg.restart_alpha and abs(ay_y) < cfg.gate_ay_max
@@ -914,9 +923,10 @@ class StiffnessMPF:
     def _draw_inflation(self) -> float:
         """c of the surprise inflation (derivations Sec. 25): the factor on the conditional scale of
         the draw of w_k, max(1, 1 + surprise_inflation (z - 1)) with z the smoothed innovation
-        statistic of this sample (`_smooth_surprise`); 1 when off or with fixed forgetting."""
+        statistic of this sample (`_smooth_surprise`); 1 when off, with fixed forgetting, or before the
+        learning gate has been open `inflation_after` s since the start or the last restart."""
         cfg = self.cfg
-        if cfg.surprise_inflation <= 0 or cfg.forgetting_mode != "adaptive":
+        if cfg.surprise_inflation <= 0 or cfg.forgetting_mode != "adaptive" or self.learned_time < cfg.inflation_after:
             return 1.0
         c = 1.0 + cfg.surprise_inflation * (self.surprise - 1.0)
         # at most the prior's uncertainty of the stiffness, s^2 + init_sigma^2 (relative), over the
@@ -1068,6 +1078,7 @@ class StiffnessMPF:
         self._reset_cx_excitation()  # the prior again: nothing of Cx learned
         self.t_start, self.t_prev, self.u_prev, self.active = t, t, uk, False
         self._contradiction_since = self._bound_since = None
+        self.learned_time, self._t_gate = 0.0, None  # a new start: the inflation disarmed (`inflation_after`)
         self.ay_pred = math.nan  # (the old cloud's prediction)
         self._at_x = self._model(self.x, uk)
         self.w_prev = self.stats.mu.copy()  # the next propagation uses the prior means
