@@ -542,24 +542,34 @@ def test_stiffness_mpf_backends_equal_with_surprise_inflation(model, in_stats, m
     the fused step: on this drive, whose truth is no single track with the nominal stiffness, the
     innovation statistic z passes 2 (the draw's scale inflated by c = z, or by the bound of the
     prior's spread), and the backends stay equal to rounding, with the statistics learning from the
-    inflated draw or from its twin at c = 1 (`inflation_in_statistics`)."""
+    inflated draw or from its twin at c = 1 (`inflation_in_statistics`). With the plain statistics
+    the inflation is armed only after 0.1 s of open gate (`inflation_after`, derivations Sec. 27):
+    c = 1 before, in both backends."""
     fused = _count_fused_steps(monkeypatch)
     vehicle = load_scenario("paper-sim").vehicle
+    after = 0.0 if in_stats else 0.1
     runs = {}
     for backend in ("numpy", "numba"):
         cfg = MPFConfig(particles=24, model=model, backend=backend, resample_threshold=1.0, gate_warmup=0.05,
                         gate_vy_std=10.0, gate_steer=0.0, bias_rw=(0.01, 0.01, 0.001), bias0_std=(0.1, 0.1, 0.01),
                         surprise_inflation=1.0, init_std=3.0,  # (a wide prior: c is not held by its bound)
-                        inflation_in_statistics=in_stats)
+                        inflation_in_statistics=in_stats, inflation_after=after)
         est = StiffnessMPF(vehicle, cfg)
         est.reset(np.random.default_rng(9))
-        rows, c_max = [], 1.0
+        rows, c_max, c_disarmed = [], 1.0, []
         for t, u, y in _mpf_samples(vehicle, 60):
-            c_max = max(c_max, est._draw_inflation())  # the factor the previous step drew with
+            c = est._draw_inflation()  # the factor the previous step drew with
+            c_max = max(c_max, c)
+            if est.learned_time < after:
+                c_disarmed.append((c, est.surprise))
             rows.append(_mpf_outputs(est.step(t, u, y)))
-        runs[backend] = (np.array(rows), est, c_max)
-    (a, fast, c_fast), (b, ref, c_ref) = runs["numba"], runs["numpy"]
+        runs[backend] = (np.array(rows), est, c_max, c_disarmed)
+    (a, fast, c_fast, off_fast), (b, ref, c_ref, off_ref) = runs["numba"], runs["numpy"]
     assert fused[id(fast)] == 59 and c_ref > 2.5 and c_fast == pytest.approx(c_ref, rel=1e-9)
+    assert fast.learned_time == pytest.approx(ref.learned_time, abs=1e-12) and ref.learned_time > after + 0.2
+    if after > 0:  # disarmed while the gate had been open less than `after`, though z was above 1
+        assert len(off_ref) == len(off_fast) > 10 and all(c == 1.0 for c, _ in off_ref + off_fast)
+        assert max(z for _, z in off_ref) > 1.5
     assert np.isfinite(b[:, :7]).all()
     _assert_mpf_runs_equal(a, b, fast, ref)
 
@@ -595,15 +605,46 @@ def test_surprise_inflation_factor():
     the last estimate's relative deviation spread."""
     vehicle = load_scenario("paper-sim").vehicle
     for k, z, c in ((1.0, 0.5, 1.0), (1.0, 1.0, 1.0), (1.0, 7.0, 7.0), (0.5, 7.0, 4.0), (0.0, 7.0, 1.0)):
-        est = StiffnessMPF(vehicle, MPFConfig(particles=4, surprise_inflation=k))
+        est = StiffnessMPF(vehicle, MPFConfig(particles=4, surprise_inflation=k, inflation_after=2.0))
         est.reset(np.random.default_rng(0))
         est.surprise = z
+        est.learned_time = 1.99  # (`inflation_after`: not armed yet)
+        assert est._draw_inflation() == 1.0
+        est.learned_time = 2.0
         assert est._draw_inflation() == pytest.approx(c)
         est._sigma2_rel = 0.01  # a deviation spread of 10%: c at most (0.3^2 + 0.1^2) / 0.1^2 = 10
         assert est._draw_inflation() == pytest.approx(min(c, 10.0))
         est.surprise = 50.0
         assert est._draw_inflation() == pytest.approx(10.0 if k >= 0.5 else 1.0)
-    est = StiffnessMPF(vehicle, MPFConfig(particles=4, surprise_inflation=1.0, forgetting_mode="fixed"))
+    est = StiffnessMPF(vehicle, MPFConfig(particles=4, surprise_inflation=1.0, forgetting_mode="fixed",
+                                          inflation_after=0.0))
     est.reset(np.random.default_rng(0))
     est.surprise = 7.0
     assert est._draw_inflation() == 1.0
+
+
+@pytest.mark.parametrize("backend", ["numpy", "numba"])
+def test_inflation_armed_after_open_gate_time_and_disarmed_by_a_restart(backend):
+    """`learned_time` adds up the time steps with the learning gate open (here 10 ms each after
+    the warm-up, the gap of 50 ms before sample 30 too) and a restart sets it back to 0, so a new
+    start is no change either (`inflation_after`, derivations Sec. 27)."""
+    vehicle = load_scenario("paper-sim").vehicle
+    cfg = MPFConfig(particles=16, backend=backend, gate_warmup=0.05, gate_vy_std=10.0, gate_steer=0.0,
+                    surprise_inflation=1.0, inflation_after=0.3)
+    est = StiffnessMPF(vehicle, cfg)
+    est.reset(np.random.default_rng(4))
+    open_time, t_last = 0.0, None
+    samples = list(_mpf_samples(vehicle, 60))
+    for t, u, y in samples[:50]:
+        est.step(t, u, y)
+        if est.active and t_last is not None:
+            open_time += t - t_last
+        t_last = t
+        # (a surprise as large as a change's and a converged deviation spread of 10%, whose bound by the
+        # prior, Sec. 25, is 10: the next draw's c is 5 once armed)
+        est.surprise, est._sigma2_rel = 5.0, 0.01
+        assert est._draw_inflation() == (1.0 if est.learned_time < 0.3 else pytest.approx(5.0))
+    assert est.learned_time == pytest.approx(open_time, abs=1e-9) and 0.3 < open_time < 0.5
+    t, u, y = samples[50]
+    est._restart(t, est.u_prev, y)  # (the input vector of the last sample)
+    assert est.learned_time == 0.0 and est._draw_inflation() == 1.0

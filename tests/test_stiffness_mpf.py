@@ -177,6 +177,8 @@ def test_a_gap_draws_vx_again_from_the_undriven_wheels(backend):
     ({"restart_at_bound_after": -1.0}, "must be >= 0"),
     ({"x0_vx_wheel_std": -0.1}, "must be >= 0"),
     ({"surprise_inflation": -0.5}, "must be >= 0"),
+    ({"inflation_after": -1.0}, "must be >= 0"),
+    ({"inflation_after": math.nan}, "must be >= 0"),
 ])
 def test_bad_slip_and_restart_options_are_rejected(options, match):
     with pytest.raises(ConfigError, match=match):
