@@ -97,6 +97,9 @@ class MPFConfig:
     # or the last restart (derivations Sec. 27): before, a surprise is the start's own error (the prior far
     # from the truth, a v^Y / stiffness pair not yet separated by the steer), not a change; 0: from the start
     inflation_after: float = 0.0
+    # c at most the prior's relative variance of the stiffness over the last estimate's deviation spread (Sec. 25:
+    # keeps a start from inflating; with `inflation_after` the start is disarmed anyway, Sec. 27)
+    inflation_prior_bound: bool = True
     x0_vx_from_wheels: bool = True  # full model: centre vx on R_w omega of the undriven axle
     x0_vx_wheel_std: float = 0.02  # m/s, spread around it (the free-rolling wheel's slip)
     # observability gate (Sec. V) and linear-region gate
@@ -923,8 +926,9 @@ class StiffnessMPF:
     def _draw_inflation(self) -> float:
         """c of the surprise inflation (derivations Sec. 25): the factor on the conditional scale of
         the draw of w_k, max(1, 1 + surprise_inflation (z - 1)) with z the smoothed innovation
-        statistic of this sample (`_smooth_surprise`); 1 when off, with fixed forgetting, or before the
-        learning gate has been open `inflation_after` s since the start or the last restart."""
+        statistic of this sample (`_smooth_surprise`), bounded by the prior (`inflation_prior_bound`); 1 when
+        off, with fixed forgetting, or before the learning gate has been open `inflation_after` s since the
+        start or the last restart."""
         cfg = self.cfg
         if cfg.surprise_inflation <= 0 or cfg.forgetting_mode != "adaptive" or self.learned_time < cfg.inflation_after:
             return 1.0
@@ -933,7 +937,7 @@ class StiffnessMPF:
         # deviation spread of the last estimate (eq. (27b))
         s = cfg.init_std if cfg.init_distribution == "normal" else cfg.init_half_width / math.sqrt(3.0)
         spread = getattr(self, "_sigma2_rel", 0.0)
-        if spread > 0:
+        if spread > 0 and cfg.inflation_prior_bound:
             c = min(c, (s * s + cfg.init_sigma**2) / spread)
         return max(1.0, c)
 
