@@ -193,7 +193,9 @@ def test_defaults_and_the_papers_variant():
     cfg = MPFConfig()
     assert (cfg.slip_hold, cfg.undriven_stiffness, cfg.x0_vx_wheel_std, cfg.restart_at_bound_after,
             cfg.cx_excitation_time) == ("interval", "learned", 0.02, 2.0, 1.0)
-    assert cfg.surprise_inflation == 0.0 and cfg.inflation_in_statistics is False  # (an option, derivations Sec. 25)
+    # the surprise inflation of the draw (derivations Sec. 25) armed after 5 s of open gate, unbounded (Sec. 27)
+    assert (cfg.surprise_inflation, cfg.inflation_in_statistics, cfg.inflation_after,
+            cfg.inflation_prior_bound) == (1.0, False, 5.0, False)
     vehicle = load_scenario("paper-sim").vehicle
     est = StiffnessMPF(vehicle)
     est.reset(np.random.default_rng(0))

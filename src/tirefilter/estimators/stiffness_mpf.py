@@ -87,19 +87,19 @@ class MPFConfig:
     vy_jitter: float = 0.0
     # surprise inflation of the draw of w_k (derivations Sec. 25): with adaptive forgetting, the conditional
     # scale of w_k is multiplied by c = max(1, 1 + surprise_inflation (z - 1)), z the smoothed innovation
-    # statistic (Sec. 17), at most the prior's relative variance of the stiffness over the last estimate's
-    # deviation spread: 1 matches the deviations' covariance to the residuals the accelerometers show; 0: off
-    surprise_inflation: float = 0.0
+    # statistic (Sec. 17): 1 (the default, Sec. 27) matches the deviations' covariance to the residuals the
+    # accelerometers show; 0: off, the paper's draw
+    surprise_inflation: float = 1.0
     # the draw the statistics learn from (eq. (19)) and the drift statistic sees: the same draw at c = 1,
     # mu_c + (w_k - mu_c) / sqrt(c) (False: only the state's propagation is inflated), or the inflated one (True)
     inflation_in_statistics: bool = False
     # the inflation is armed only once the learning gate has been open this long (s, in total) since the start
     # or the last restart (derivations Sec. 27): before, a surprise is the start's own error (the prior far
     # from the truth, a v^Y / stiffness pair not yet separated by the steer), not a change; 0: from the start
-    inflation_after: float = 0.0
+    inflation_after: float = 5.0
     # c at most the prior's relative variance of the stiffness over the last estimate's deviation spread (Sec. 25:
     # keeps a start from inflating; with `inflation_after` the start is disarmed anyway, Sec. 27)
-    inflation_prior_bound: bool = True
+    inflation_prior_bound: bool = False
     x0_vx_from_wheels: bool = True  # full model: centre vx on R_w omega of the undriven axle
     x0_vx_wheel_std: float = 0.02  # m/s, spread around it (the free-rolling wheel's slip)
     # observability gate (Sec. V) and linear-region gate
