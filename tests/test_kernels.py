@@ -601,11 +601,17 @@ def test_surprise_inflation_scales_the_draw_about_the_conditional_mean(backend, 
 
 def test_surprise_inflation_factor():
     """c = max(1, min(1 + k (z - 1), (s^2 + init_sigma^2) / sigma_rel^2)): 1 while the data fit (z <= 1),
-    with k = 0 and with fixed forgetting; at most the prior's relative variance of the stiffness over
-    the last estimate's relative deviation spread."""
+    with k = 0 and with fixed forgetting; with `inflation_prior_bound` at most the prior's relative
+    variance of the stiffness over the last estimate's relative deviation spread (without it, the
+    default, not bounded: derivations Sec. 27)."""
     vehicle = load_scenario("paper-sim").vehicle
     for k, z, c in ((1.0, 0.5, 1.0), (1.0, 1.0, 1.0), (1.0, 7.0, 7.0), (0.5, 7.0, 4.0), (0.0, 7.0, 1.0)):
-        est = StiffnessMPF(vehicle, MPFConfig(particles=4, surprise_inflation=k, inflation_after=2.0))
+        free = StiffnessMPF(vehicle, MPFConfig(particles=4, surprise_inflation=k, inflation_after=0.0))
+        free.reset(np.random.default_rng(0))
+        free.surprise, free._sigma2_rel = z, 0.01
+        assert free._draw_inflation() == pytest.approx(c)
+        est = StiffnessMPF(vehicle, MPFConfig(particles=4, surprise_inflation=k, inflation_after=2.0,
+                                              inflation_prior_bound=True))
         est.reset(np.random.default_rng(0))
         est.surprise = z
         est.learned_time = 1.99  # (`inflation_after`: not armed yet)
