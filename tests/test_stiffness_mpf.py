@@ -64,8 +64,9 @@ def test_paper_sim_tracks_the_surface_change(fmu_paths, tmp_path):
     r, _, scenario = _run(tmp_path, load_scenario("paper-sim"), "full", seed=3, duration=40.0,
                           mpf={"backend": "numpy"})
     for param in ("Cf_y", "Cr_y"):
-        # a regression bound; the 4 s target of issue 3 is not met yet (benchmarks/bench_mpf.py)
-        assert settling_time(r, param, 30.0) < 8.0
+        # issue 13's 4 s target, met with the surprise inflation of the draw (derivations Sec. 25, 27): this run
+        # settles in 1.29 / 1.24 s
+        assert settling_time(r, param, 30.0) < 4.0
     assert stiffness_errors(r, scenario, "Cf_y")["mean_abs"] < 4.0
 
 
