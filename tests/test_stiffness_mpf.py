@@ -64,9 +64,8 @@ def test_paper_sim_tracks_the_surface_change(fmu_paths, tmp_path):
     r, _, scenario = _run(tmp_path, load_scenario("paper-sim"), "full", seed=3, duration=40.0,
                           mpf={"backend": "numpy"})
     for param in ("Cf_y", "Cr_y"):
-        # issue 13's 4 s target, met with the surprise inflation of the draw (derivations Sec. 25, 27): this run
-        # settles in 1.29 / 1.24 s
-        assert settling_time(r, param, 30.0) < 4.0
+        # a regression bound; the 4 s target of issue 3 is not met yet (benchmarks/bench_mpf.py)
+        assert settling_time(r, param, 30.0) < 8.0
     assert stiffness_errors(r, scenario, "Cf_y")["mean_abs"] < 4.0
 
 
@@ -194,9 +193,10 @@ def test_defaults_and_the_papers_variant():
     cfg = MPFConfig()
     assert (cfg.slip_hold, cfg.undriven_stiffness, cfg.x0_vx_wheel_std, cfg.restart_at_bound_after,
             cfg.cx_excitation_time) == ("interval", "learned", 0.02, 2.0, 1.0)
-    # the surprise inflation of the draw (derivations Sec. 25) armed after 5 s of open gate, unbounded (Sec. 27)
+    # the surprise inflation of the draw (derivations Sec. 25) an option; when on, armed after 5 s of open gate and
+    # unbounded (Sec. 27)
     assert (cfg.surprise_inflation, cfg.inflation_in_statistics, cfg.inflation_after,
-            cfg.inflation_prior_bound) == (1.0, False, 5.0, False)
+            cfg.inflation_prior_bound) == (0.0, False, 5.0, False)
     vehicle = load_scenario("paper-sim").vehicle
     est = StiffnessMPF(vehicle)
     est.reset(np.random.default_rng(0))

@@ -87,9 +87,9 @@ class MPFConfig:
     vy_jitter: float = 0.0
     # surprise inflation of the draw of w_k (derivations Sec. 25): with adaptive forgetting, the conditional
     # scale of w_k is multiplied by c = max(1, 1 + surprise_inflation (z - 1)), z the smoothed innovation
-    # statistic (Sec. 17): 1 (the default, Sec. 27) matches the deviations' covariance to the residuals the
-    # accelerometers show; 0: off, the paper's draw
-    surprise_inflation: float = 1.0
+    # statistic (Sec. 17): 1 matches the deviations' covariance to the residuals the accelerometers show; 0: off,
+    # the paper's draw (the default: on, an unmodelled IMU gain on a peer drive ends past 10%, Sec. 27)
+    surprise_inflation: float = 0.0
     # the draw the statistics learn from (eq. (19)) and the drift statistic sees: the same draw at c = 1,
     # mu_c + (w_k - mu_c) / sqrt(c) (False: only the state's propagation is inflated), or the inflated one (True)
     inflation_in_statistics: bool = False
