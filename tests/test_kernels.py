@@ -629,6 +629,30 @@ def test_surprise_inflation_factor():
     assert est._draw_inflation() == 1.0
 
 
+def test_inflation_against_the_surprise_level():
+    """`inflation_baseline_time` T > 0: c from z_k / max(1, zbar_k), zbar the normalised squared residual
+    smoothed over T (exactly: zbar += (1 - exp(-dt / T)) (s_k - zbar)), so a persistent surprise (zbar = z)
+    gives c = 1 and a jump over the level inflates by the ratio (derivations Sec. 27)."""
+    vehicle = load_scenario("paper-sim").vehicle
+    est = StiffnessMPF(vehicle, MPFConfig(particles=4, surprise_inflation=1.0, inflation_after=0.0,
+                                          inflation_baseline_time=2.0))
+    est.reset(np.random.default_rng(0))
+    est.surprise, est.surprise_level = 3.0, 3.0
+    assert est._draw_inflation() == 1.0
+    est.surprise, est.surprise_level = 6.0, 1.5
+    assert est._draw_inflation() == pytest.approx(4.0)
+    est.surprise_level = 0.5  # (a level below 1 does not sharpen it)
+    assert est._draw_inflation() == pytest.approx(6.0)
+    z0, zbar0 = est.surprise, est.surprise_level
+    est._smooth_surprise(20.0, 0.01)
+    assert est.surprise_level == pytest.approx(zbar0 + (1 - math.exp(-0.01 / 2.0)) * (20.0 - zbar0))
+    assert est.surprise == pytest.approx(z0 + (1 - math.exp(-0.01 / 0.15)) * (20.0 - z0))
+    off = StiffnessMPF(vehicle, MPFConfig(particles=4, surprise_inflation=1.0, inflation_after=0.0))
+    off.reset(np.random.default_rng(0))
+    off._smooth_surprise(20.0, 0.01)
+    assert off.surprise_level == 1.0  # (not tracked when off)
+
+
 @pytest.mark.parametrize("backend", ["numpy", "numba"])
 def test_inflation_armed_after_open_gate_time_and_disarmed_by_a_restart(backend):
     """`learned_time` adds up the time steps with the learning gate open (here 10 ms each after

@@ -179,6 +179,7 @@ def test_a_gap_draws_vx_again_from_the_undriven_wheels(backend):
     ({"surprise_inflation": -0.5}, "must be >= 0"),
     ({"inflation_after": -1.0}, "must be >= 0"),
     ({"inflation_after": math.nan}, "must be >= 0"),
+    ({"inflation_baseline_time": -2.0}, "must be >= 0"),
 ])
 def test_bad_slip_and_restart_options_are_rejected(options, match):
     with pytest.raises(ConfigError, match=match):

@@ -100,6 +100,9 @@ class MPFConfig:
     # c at most the prior's relative variance of the stiffness over the last estimate's deviation spread (Sec. 25:
     # keeps a start from inflating; with `inflation_after` the start is disarmed anyway, Sec. 27)
     inflation_prior_bound: bool = False
+    # > 0: c from the surprise over its own level, z_k / max(1, zbar_k), zbar the innovation statistic smoothed
+    # over this many seconds (a persistent model error is no change either, Sec. 27); 0: z_k against 1
+    inflation_baseline_time: float = 0.0
     x0_vx_from_wheels: bool = True  # full model: centre vx on R_w omega of the undriven axle
     x0_vx_wheel_std: float = 0.02  # m/s, spread around it (the free-rolling wheel's slip)
     # observability gate (Sec. V) and linear-region gate
@@ -182,7 +185,8 @@ class MPFConfig:
         for key in ("init_std", "init_half_width", "init_sigma", "gate_speed", "gate_steer", "gate_ay_max",
                     "gate_alpha_max", "gate_vy_std", "gate_warmup", "nu0_margin", "plausible_beta",
                     "plausible_yaw_rate", "restart_alpha", "restart_after", "restart_at_bound_after",
-                    "x0_vx_wheel_std", "vy_jitter", "wheel_slip_rw", "surprise_inflation", "inflation_after"):
+                    "x0_vx_wheel_std", "vy_jitter", "wheel_slip_rw", "surprise_inflation", "inflation_after",
+                    "inflation_baseline_time"):
             if not getattr(self, key) >= 0:
                 bad(key, f"must be >= 0, got {getattr(self, key)!r}")
         for key in ("sigma", "bias_rw", "bias0_std", "disturbance_rw", "x0_std", "state_noise"):
@@ -305,6 +309,7 @@ class StiffnessMPF:
         self._contradiction_since = None
         self._bound_since = None  # time since which a stiffness mean sits at a projection bound
         self.surprise = 1.0  # z_k of the adaptive forgetting: 1 while the data fit the predictive
+        self.surprise_level = 1.0  # z smoothed over `inflation_baseline_time` (`_draw_inflation`)
         self.linear_region = True  # |a^Y| below the gate's linear-region bound at the last sample
         self.ay_last = math.nan  # the last finite a^Y of the linear-region test (`gate_ay`)
         self.ay_pred = math.nan  # the one-step prediction of this sample's a^Y (`gate_ay = "predicted"`)
@@ -926,13 +931,15 @@ class StiffnessMPF:
     def _draw_inflation(self) -> float:
         """c of the surprise inflation (derivations Sec. 25): the factor on the conditional scale of
         the draw of w_k, max(1, 1 + surprise_inflation (z - 1)) with z the smoothed innovation
-        statistic of this sample (`_smooth_surprise`), bounded by the prior (`inflation_prior_bound`); 1 when
+        statistic of this sample (`_smooth_surprise`; over its own level with `inflation_baseline_time`),
+        bounded by the prior (`inflation_prior_bound`); 1 when
         off, with fixed forgetting, or before the learning gate has been open `inflation_after` s since the
         start or the last restart."""
         cfg = self.cfg
         if cfg.surprise_inflation <= 0 or cfg.forgetting_mode != "adaptive" or self.learned_time < cfg.inflation_after:
             return 1.0
-        c = 1.0 + cfg.surprise_inflation * (self.surprise - 1.0)
+        z = self.surprise / max(1.0, self.surprise_level) if cfg.inflation_baseline_time > 0 else self.surprise
+        c = 1.0 + cfg.surprise_inflation * (z - 1.0)
         # at most the prior's uncertainty of the stiffness, s^2 + init_sigma^2 (relative), over the
         # deviation spread of the last estimate (eq. (27b))
         s = cfg.init_std if cfg.init_distribution == "normal" else cfg.init_half_width / math.sqrt(3.0)
@@ -951,6 +958,8 @@ class StiffnessMPF:
         """z_k: s_k smoothed over `surprise_time`; lambda_k = 1 - (1 - lambda) z_k, clipped."""
         cfg = self.cfg
         self.surprise += -math.expm1(-dt / cfg.surprise_time) * (s_k - self.surprise)
+        if cfg.inflation_baseline_time > 0:
+            self.surprise_level += -math.expm1(-dt / cfg.inflation_baseline_time) * (s_k - self.surprise_level)
         self.lam = min(max(1.0 - (1.0 - cfg.forgetting) * self.surprise, cfg.forgetting_min), cfg.forgetting_max)
 
     def _cap_forgetting(self, z: float) -> None:
