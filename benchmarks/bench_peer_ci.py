@@ -40,8 +40,9 @@ def main() -> int:
     for cfg in [None, *args.configs]:
         out = Path(tempfile.mkdtemp(prefix="peer_ci_run_"))
         s = T._replay(out, log, vehicle, None if cfg is None else cfg.read_text())
-        rows.append(f"| {'defaults' if cfg is None else cfg.name} | {s['Cf_y_err']:+.1f}% | {s['Cr_y_err']:+.1f}% | "
-                    f"{s['Cx_err']:+.1f}% | {s['beta_rmse_deg']:.3f} deg |")
+        name = "defaults" if cfg is None else cfg.name
+        rows.append(f"| {name} | {s['Cf_y_err']:+.1f}% | {s['Cr_y_err']:+.1f}% | {s['Cx_err']:+.1f}% | "
+                    f"{s['beta_rmse_deg']:.3f} deg |")
     print(f"\n{args.kind} drive, last {T.LAST:g} s:\n\n| config | Cf_y | Cr_y | Cx | beta RMSE |\n|---|---|---|---|---|")
     print("\n".join(rows))
     return 0
