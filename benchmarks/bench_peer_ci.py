@@ -43,7 +43,8 @@ def main() -> int:
         name = "defaults" if cfg is None else cfg.name
         rows.append(f"| {name} | {s['Cf_y_err']:+.1f}% | {s['Cr_y_err']:+.1f}% | {s['Cx_err']:+.1f}% | "
                     f"{s['beta_rmse_deg']:.3f} deg |")
-    print(f"\n{args.kind} drive, last {T.LAST:g} s:\n\n| config | Cf_y | Cr_y | Cx | beta RMSE |\n|---|---|---|---|---|")
+    print(f"\n{args.kind} drive, last {T.LAST:g} s:\n")
+    print("| config | Cf_y | Cr_y | Cx | beta RMSE |\n|---|---|---|---|---|")
     print("\n".join(rows))
     return 0
 
