@@ -313,13 +313,38 @@ def _steady_turn(vehicle, ay, vx=20.0):
     return r, alpha_f + (vy + vehicle.lf * r) / vx
 
 
-def _gate_trace(vehicle, backend, gate_ay, ay_samples, r, delta, sigma_ay=0.05):
+def _gate_trace(vehicle, backend, gate_ay, ay_samples, r, delta, sigma_ay=0.05, ax_samples=None, **cfg):
     est = StiffnessMPF(vehicle, MPFConfig(model="lateral", particles=200, backend=backend, gate_ay=gate_ay,
                                           sigma=(0.05, sigma_ay, 0.0035), bias0_std=(0.0, 0.0, 0.0),
-                                          bias_rw=(0.0, 0.0, 0.0), disturbance_rw=(0.0, 0.0, 0.0)))
+                                          bias_rw=(0.0, 0.0, 0.0), disturbance_rw=(0.0, 0.0, 0.0), **cfg))
     est.reset(np.random.default_rng(1))
-    return np.array([est.step(0.01 * k, Inputs(delta, math.nan, math.nan, 20.0), Measurement(math.nan, ay, r)).active
-                     for k, ay in enumerate(ay_samples)])
+    ax = np.full(len(ay_samples), math.nan) if ax_samples is None else ax_samples
+    return np.array([est.step(0.01 * k, Inputs(delta, math.nan, math.nan, 20.0), Measurement(x, ay, r)).active
+                     for k, (x, ay) in enumerate(zip(ax, ay_samples))])
+
+
+@pytest.mark.parametrize("backend", ["numpy", "numba"])
+def test_the_combined_gate_closes_under_braking(backend):
+    """A steady turn at a^Y = 3 m/s^2 (inside gate_ay_max = 4) with a^X = -3 m/s^2 (braking)
+    from sample 150 to 249, one a^X sample missing in it: the lateral test (the paper's) keeps
+    the gate open on every sample after the 1 s warm-up; the combined one (|(a^X, a^Y)| = 4.24,
+    derivations Sec. 28) closes it on exactly the braking samples, the missing one holding the
+    last a^X; "auto" is the combined test in the lateral model."""
+    vehicle = load_scenario("paper-sim").vehicle
+    r, delta = _steady_turn(vehicle, 3.0)
+    k = np.arange(300)
+    braking = (k >= 150) & (k < 250)
+    ax = np.where(braking, -3.0, 0.0)
+    ax[200] = math.nan
+    ay = np.full(300, 3.0)
+    after = k >= 100
+    lateral = _gate_trace(vehicle, backend, "measured", ay, r, delta, ax_samples=ax, gate_accel="lateral")
+    assert np.array_equal(lateral, after)
+    for mode in ("combined", "auto"):
+        combined = _gate_trace(vehicle, backend, "measured", ay, r, delta, ax_samples=ax, gate_accel=mode)
+        assert np.array_equal(combined, after & ~braking), mode
+    with pytest.raises(ConfigError, match="gate_accel"):
+        StiffnessMPF(vehicle, MPFConfig(gate_accel="friction"))
 
 
 @pytest.mark.parametrize("backend", ["numpy", "numba"])

@@ -90,6 +90,11 @@ class MPFConfig:
     # statistic (Sec. 17), at most the prior's relative variance of the stiffness over the last estimate's
     # deviation spread: 1 matches the deviations' covariance to the residuals the accelerometers show; 0: off
     surprise_inflation: float = 0.0
+    # the draw of w_k beyond the linear tire region (the gate's linear-region test fails; derivations Sec. 28):
+    # "predictive": the conditional of the learned statistics (the paper); "prior": its scale widened as far
+    # as the prior's uncertainty of the stiffness allows (the bound of surprise_inflation, Sec. 25), so that
+    # the deviation can take the secant stiffness of a saturating tire while the statistics learn nothing
+    nonlinear_draw: str = "predictive"
     # the draw the statistics learn from (eq. (19)) and the drift statistic sees: the same draw at c = 1,
     # mu_c + (w_k - mu_c) / sqrt(c) (False: only the state's propagation is inflated), or the inflated one (True)
     inflation_in_statistics: bool = False
@@ -107,6 +112,11 @@ class MPFConfig:
     # "measured": the sample; "measured-zero": the sample, a missing one (the guard's held and outlying
     # samples) counting as 0, which opens the gate at any load. A missing sample holds the last value.
     gate_ay: str = "measured"
+    # the acceleration of the linear-region test (derivations, Sec. 28): "lateral": |a^Y| alone (the paper);
+    # "combined": the horizontal magnitude sqrt(a^X^2 + a^Y^2) (the friction circle: braking and traction use
+    # the tire's grip and move load between the axles), a missing a^X holding the last one; "auto": combined
+    # in the lateral model, which models no longitudinal force, lateral in the full one (it learns Cx there)
+    gate_accel: str = "lateral"
     informed_start: bool = True  # initial (r, vy) of each particle conditioned on the first samples
     outlier_prob: float = 1.0  # < 1: a particle skips learning when its residual is beyond this
     # chi-square quantile (off by default: it also rejects the residuals of a real surface change)
@@ -151,6 +161,10 @@ class MPFConfig:
             bad("particles", f"N must be an integer >= 1, got {self.particles!r}")
         if not 0.0 < self.forgetting <= 1.0:
             bad("forgetting", f"lambda must be in (0, 1], got {self.forgetting!r}")
+        if self.nonlinear_draw not in ("predictive", "prior"):
+            bad("nonlinear_draw", f"expected predictive or prior, got {self.nonlinear_draw!r}")
+        if self.gate_accel not in ("auto", "combined", "lateral"):
+            bad("gate_accel", f"expected auto, combined or lateral, got {self.gate_accel!r}")
         if self.gate_ay not in ("predicted", "measured", "measured-zero"):
             bad("gate_ay", f"expected predicted, measured or measured-zero, got {self.gate_ay!r}")
         if self.forgetting_mode not in ("adaptive", "fixed"):
@@ -227,6 +241,7 @@ class StiffnessMPF:
         self.full_share = other / v.Cx if self.cfg.undriven_stiffness in ("surface", "learned") else 0.0
         self.undriven_share = self.full_share if self.cfg.undriven_stiffness == "surface" else 0.0
         self.full = self.cfg.model == "full"
+        self._gate_combined = self.cfg.gate_accel == "combined" or (self.cfg.gate_accel == "auto" and not self.full)
         self.params = ("Cx", "Cf_y", "Cr_y") if self.full else ("Cf_y", "Cr_y")
         self.C_nom = np.array([v.Cx, v.Cf_y, v.Cr_y] if self.full else [v.Cf_y, v.Cr_y])
         self.n_w = len(self.params)
@@ -300,6 +315,7 @@ class StiffnessMPF:
         self.surprise = 1.0  # z_k of the adaptive forgetting: 1 while the data fit the predictive
         self.linear_region = True  # |a^Y| below the gate's linear-region bound at the last sample
         self.ay_last = math.nan  # the last finite a^Y of the linear-region test (`gate_ay`)
+        self.ax_last = math.nan  # the last finite a^X of the linear-region test (`gate_accel` combined)
         self.ay_pred = math.nan  # the one-step prediction of this sample's a^Y (`gate_ay = "predicted"`)
         self.lam = self.cfg.forgetting  # the forgetting factor applied at the next propagation
         self.drift = np.zeros(self.n_w)  # smoothed whitened w_k - mu_{k|k-1} (adaptive forgetting)
@@ -718,6 +734,10 @@ class StiffnessMPF:
         self.ay_pred = math.nan
         if cfg.gate_ay != "measured-zero":  # a missing sample is no evidence of the linear region (Sec. 26)
             ay, self.ay_last = held_ay(ay, self.ay_last)
+        if self._gate_combined:  # the friction circle's load, sqrt(a^X^2 + a^Y^2) (Sec. 28)
+            ax, self.ax_last = held_ay(y.ax, self.ax_last)
+            if math.isfinite(ax) and math.isfinite(ay):
+                ay = math.hypot(ax, ay)
         ay_m = ay if math.isfinite(ay) else 0.0
         self.linear_region = abs(ay_m) < cfg.gate_ay_max
         self.active = gate_open(cfg, t=t, t_start=self.t_start, vx=vx_est, delta=uk[0], ay_meas=ay, alpha=alpha,
@@ -916,16 +936,17 @@ class StiffnessMPF:
         the draw of w_k, max(1, 1 + surprise_inflation (z - 1)) with z the smoothed innovation
         statistic of this sample (`_smooth_surprise`); 1 when off or with fixed forgetting."""
         cfg = self.cfg
-        if cfg.surprise_inflation <= 0 or cfg.forgetting_mode != "adaptive":
+        beyond = cfg.nonlinear_draw == "prior" and not self.linear_region
+        if not beyond and (cfg.surprise_inflation <= 0 or cfg.forgetting_mode != "adaptive"):
             return 1.0
-        c = 1.0 + cfg.surprise_inflation * (self.surprise - 1.0)
+        c = math.inf if beyond else 1.0 + cfg.surprise_inflation * (self.surprise - 1.0)
         # at most the prior's uncertainty of the stiffness, s^2 + init_sigma^2 (relative), over the
         # deviation spread of the last estimate (eq. (27b))
         s = cfg.init_std if cfg.init_distribution == "normal" else cfg.init_half_width / math.sqrt(3.0)
         spread = getattr(self, "_sigma2_rel", 0.0)
         if spread > 0:
             c = min(c, (s * s + cfg.init_sigma**2) / spread)
-        return max(1.0, c)
+        return max(1.0, c) if math.isfinite(c) else 1.0
 
     def _draw_factors(self) -> np.ndarray:
         """The compiled draw's std factors (2,): sqrt(c) for the draw that drives the state, and for
