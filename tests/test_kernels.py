@@ -385,10 +385,10 @@ def test_stiffness_mpf_backends_equal_with_the_wheel_filter(monkeypatch):
 
 OPTIONS = {"outlier-noise-euler": dict(outlier_prob=0.9, state_noise=(0.02, 0.01, 0.002), integrator="euler"),
            "fixed-forgetting-subgap": dict(forgetting_mode="fixed", max_step=0.004, outlier_prob=0.99),
-           # derivations Sec. 28: the state noise from the data, the prior's draw beyond the linear region, the
-           # combined linear-region test, the statistics redrawn after the warm-up
-           "noise-from-data-sec28": dict(state_noise_from_data=True, state_noise_time=0.1, nonlinear_draw="prior",
-                                         gate_ay_max=0.5, gate_accel="combined", warmup_redraw=True)}
+           # derivations Sec. 28: the state noise from the data, the combined linear-region test, the statistics
+           # drawn again after the gate's first open sample
+           "noise-from-data-sec28": dict(state_noise_from_data=True, state_noise_time=0.1, gate_accel="combined",
+                                         warmup_redraw="gate")}
 
 
 @pytest.mark.parametrize("model", ["full", "lateral"])

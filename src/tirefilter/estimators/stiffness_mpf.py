@@ -96,11 +96,6 @@ class MPFConfig:
     # statistic (Sec. 17), at most the prior's relative variance of the stiffness over the last estimate's
     # deviation spread: 1 matches the deviations' covariance to the residuals the accelerometers show; 0: off
     surprise_inflation: float = 0.0
-    # the draw of w_k beyond the linear tire region (the gate's linear-region test fails; derivations Sec. 28):
-    # "predictive": the conditional of the learned statistics (the paper); "prior": its scale widened as far
-    # as the prior's uncertainty of the stiffness allows (the bound of surprise_inflation, Sec. 25), so that
-    # the deviation can take the secant stiffness of a saturating tire while the statistics learn nothing
-    nonlinear_draw: str = "predictive"
     # the draw the statistics learn from (eq. (19)) and the drift statistic sees: the same draw at c = 1,
     # mu_c + (w_k - mu_c) / sqrt(c) (False: only the state's propagation is inflated), or the inflated one (True)
     inflation_in_statistics: bool = False
@@ -113,9 +108,10 @@ class MPFConfig:
     gate_alpha_max: float = 0.08  # rad
     gate_vy_std: float = 0.15  # m/s: learn only once the lateral velocity is known this well
     gate_warmup: float = 1.0  # s after the first sample with learning off: the state settles first
-    # the stiffness statistics drawn again from the prior at the end of gate_warmup (derivations Sec. 28):
-    # the weights of the settling state select particles, and with them stiffness, without information on it
-    warmup_redraw: bool = False
+    # the stiffness statistics drawn again from the prior (derivations Sec. 28) at the end of gate_warmup
+    # ("warmup") or after the learning gate's first open sample ("gate"): the weights of the settling state
+    # select particles, and with them stiffness, without information on it; "off": never (the paper)
+    warmup_redraw: str = "off"
     # the a^Y of the linear-region test (derivations, Sec. 26): "predicted": the filter's one-step prediction
     # of the a^Y sample (free of the sample's own noise, which selects the learning samples otherwise);
     # "measured": the sample; "measured-zero": the sample, a missing one (the guard's held and outlying
@@ -170,8 +166,8 @@ class MPFConfig:
             bad("particles", f"N must be an integer >= 1, got {self.particles!r}")
         if not 0.0 < self.forgetting <= 1.0:
             bad("forgetting", f"lambda must be in (0, 1], got {self.forgetting!r}")
-        if self.nonlinear_draw not in ("predictive", "prior"):
-            bad("nonlinear_draw", f"expected predictive or prior, got {self.nonlinear_draw!r}")
+        if self.warmup_redraw not in ("off", "warmup", "gate"):
+            bad("warmup_redraw", f"expected off, warmup or gate, got {self.warmup_redraw!r}")
         if self.gate_accel not in ("auto", "combined", "lateral"):
             bad("gate_accel", f"expected auto, combined or lateral, got {self.gate_accel!r}")
         if self.gate_ay not in ("predicted", "measured", "measured-zero"):
@@ -533,8 +529,8 @@ class StiffnessMPF:
             uk[0] = 0.0
 
         # the stiffness statistics drawn again from the prior once the state has settled (`warmup_redraw`)
-        if (cfg.warmup_redraw and not self._redrawn and self.t_prev is not None
-                and t - self.t_start >= cfg.gate_warmup):
+        if cfg.warmup_redraw != "off" and not self._redrawn and self.t_prev is not None and (
+                self.active if cfg.warmup_redraw == "gate" else t - self.t_start >= cfg.gate_warmup):
             self._redrawn = True
             self._draw_prior_stats()
         # 1. propagate from the previous sample
@@ -985,17 +981,16 @@ class StiffnessMPF:
         the draw of w_k, max(1, 1 + surprise_inflation (z - 1)) with z the smoothed innovation
         statistic of this sample (`_smooth_surprise`); 1 when off or with fixed forgetting."""
         cfg = self.cfg
-        beyond = cfg.nonlinear_draw == "prior" and not self.linear_region
-        if not beyond and (cfg.surprise_inflation <= 0 or cfg.forgetting_mode != "adaptive"):
+        if cfg.surprise_inflation <= 0 or cfg.forgetting_mode != "adaptive":
             return 1.0
-        c = math.inf if beyond else 1.0 + cfg.surprise_inflation * (self.surprise - 1.0)
+        c = 1.0 + cfg.surprise_inflation * (self.surprise - 1.0)
         # at most the prior's uncertainty of the stiffness, s^2 + init_sigma^2 (relative), over the
         # deviation spread of the last estimate (eq. (27b))
         s = cfg.init_std if cfg.init_distribution == "normal" else cfg.init_half_width / math.sqrt(3.0)
         spread = getattr(self, "_sigma2_rel", 0.0)
         if spread > 0:
             c = min(c, (s * s + cfg.init_sigma**2) / spread)
-        return max(1.0, c) if math.isfinite(c) else 1.0
+        return max(1.0, c)
 
     def _draw_factors(self) -> np.ndarray:
         """The compiled draw's std factors (2,): sqrt(c) for the draw that drives the state, and for
