@@ -411,9 +411,8 @@ def _lateral_drive_with_process_noise(q_true: float, seed: int = 3, T: float = 3
 def test_state_noise_from_data_recovers_a_known_process_noise():
     """Covariance matching of the weights' corrections (derivations Sec. 28) against a known
     yaw-rate process noise (seeded): 0.1 rad/s per sqrt(s) is recovered within 10% (0.095), 0.03,
-    near the gyro's noise floor (0.0035 rad/s per sample), within 30% (0.022, low: the corrections
-    of a weakly informed component are partly taken for noise); without process noise the estimate
-    stays below 0.005. v^Y, which has none, stays below 0.01 m/s per sqrt(s) throughout."""
+    near the gyro's noise floor (0.0035 rad/s per sample), within 30% (0.022: low); without process
+    noise the estimate stays below 0.005. v^Y, which has none, stays below 0.01 m/s per sqrt(s) throughout."""
     for q_true, lo, hi in ((0.1, 0.09, 0.11), (0.03, 0.021, 0.039), (0.0, 0.0, 0.005)):
         q = _lateral_drive_with_process_noise(q_true)
         assert lo <= q[1] <= hi, (q_true, q)
