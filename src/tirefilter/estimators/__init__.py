@@ -89,9 +89,13 @@ def mpf_config_for_log(vehicle, t, signals: dict, *, model: str, particles: int 
 
     dt = np.diff(np.asarray(t, float))
     sensors = sensors or sensors_for_log(vehicle, signals)
+    # a recorded car: the model's process noise is unknown, so it comes from the data, and the log starts
+    # mid-drive with the state unknown, so the stiffness statistics are drawn again once the gate first opens
+    # (derivations Sec. 28; a co-simulated scenario keeps the paper's: no state noise, no redraw)
     return _mpf_config(model, particles=particles, sample_period=float(np.median(dt)) if dt.size else None,
                        sigma=sensors.sigma, bias0_std=sensors.bias0_std, bias_rw=sensors.bias_rw, x0_mean=x0_mean,
-                       sigma_omega=sensors.sigma_omega, overrides=overrides)
+                       sigma_omega=sensors.sigma_omega, state_noise_from_data=True, warmup_redraw="gate",
+                       overrides=overrides)
 
 
 def _mpf_config(model: str, *, particles: int | None, sample_period: float | None, sigma, x0_mean, overrides: dict,

@@ -81,6 +81,12 @@ class MPFConfig:
     x0_mean: tuple[float, ...] | None = None  # initial state mean (full: vx, vy, r)
     x0_std: tuple[float, ...] = (1.0, 0.5, 0.0175)  # full: vx, vy, r (lateral uses vy, r)
     state_noise: tuple[float, ...] = (0.0, 0.0, 0.0)  # additive process noise per sqrt(s), full: vx, vy, r
+    # process noise of the state from the data (derivations Sec. 28): the intensity per component that makes
+    # the corrections the weights make to the state's mean consistent with the spread they remove (covariance
+    # matching of the state corrections, Myers and Tapley 1976), smoothed over state_noise_time s; the applied
+    # intensity is the larger of it and state_noise's. False: state_noise alone (the paper: none)
+    state_noise_from_data: bool = False
+    state_noise_time: float = 10.0  # s
     # v^Y process noise while the adaptive forgetting's innovation statistic z holds lambda at its floor
     # (z > z_on = (1 - forgetting_min) / (1 - forgetting)): std per sqrt(s) vy_jitter sqrt(z - z_on), added
     # to state_noise's; 0: off
@@ -112,11 +118,20 @@ class MPFConfig:
     gate_alpha_max: float = 0.08  # rad
     gate_vy_std: float = 0.15  # m/s: learn only once the lateral velocity is known this well
     gate_warmup: float = 1.0  # s after the first sample with learning off: the state settles first
+    # the stiffness statistics drawn again from the prior (derivations Sec. 28) at the end of gate_warmup
+    # ("warmup") or after the learning gate's first open sample ("gate"): the weights of the settling state
+    # select particles, and with them stiffness, without information on it; "off": never (the paper)
+    warmup_redraw: str = "off"
     # the a^Y of the linear-region test (derivations, Sec. 26): "predicted": the filter's one-step prediction
     # of the a^Y sample (free of the sample's own noise, which selects the learning samples otherwise);
     # "measured": the sample; "measured-zero": the sample, a missing one (the guard's held and outlying
     # samples) counting as 0, which opens the gate at any load. A missing sample holds the last value.
     gate_ay: str = "measured"
+    # the acceleration of the linear-region test (derivations, Sec. 28): "lateral": |a^Y| alone (the paper);
+    # "combined": the horizontal magnitude sqrt(a^X^2 + a^Y^2) (the friction circle: braking and traction use
+    # the tire's grip and move load between the axles), a missing a^X holding the last one; "auto": combined
+    # in the lateral model, which models no longitudinal force, lateral in the full one (it learns Cx there)
+    gate_accel: str = "lateral"
     informed_start: bool = True  # initial (r, vy) of each particle conditioned on the first samples
     outlier_prob: float = 1.0  # < 1: a particle skips learning when its residual is beyond this
     # chi-square quantile (off by default: it also rejects the residuals of a real surface change)
@@ -161,6 +176,10 @@ class MPFConfig:
             bad("particles", f"N must be an integer >= 1, got {self.particles!r}")
         if not 0.0 < self.forgetting <= 1.0:
             bad("forgetting", f"lambda must be in (0, 1], got {self.forgetting!r}")
+        if self.warmup_redraw not in ("off", "warmup", "gate"):
+            bad("warmup_redraw", f"expected off, warmup or gate, got {self.warmup_redraw!r}")
+        if self.gate_accel not in ("auto", "combined", "lateral"):
+            bad("gate_accel", f"expected auto, combined or lateral, got {self.gate_accel!r}")
         if self.gate_ay not in ("predicted", "measured", "measured-zero"):
             bad("gate_ay", f"expected predicted, measured or measured-zero, got {self.gate_ay!r}")
         if self.forgetting_mode not in ("adaptive", "fixed"):
@@ -186,7 +205,7 @@ class MPFConfig:
                     "gate_alpha_max", "gate_vy_std", "gate_warmup", "nu0_margin", "plausible_beta",
                     "plausible_yaw_rate", "restart_alpha", "restart_after", "restart_at_bound_after",
                     "x0_vx_wheel_std", "vy_jitter", "wheel_slip_rw", "surprise_inflation", "inflation_after",
-                    "inflation_baseline_time"):
+                    "inflation_baseline_time", "state_noise_time"):
             if not getattr(self, key) >= 0:
                 bad(key, f"must be >= 0, got {getattr(self, key)!r}")
         for key in ("sigma", "bias_rw", "bias0_std", "disturbance_rw", "x0_std", "state_noise"):
@@ -238,6 +257,7 @@ class StiffnessMPF:
         self.full_share = other / v.Cx if self.cfg.undriven_stiffness in ("surface", "learned") else 0.0
         self.undriven_share = self.full_share if self.cfg.undriven_stiffness == "surface" else 0.0
         self.full = self.cfg.model == "full"
+        self._gate_combined = self.cfg.gate_accel == "combined" or (self.cfg.gate_accel == "auto" and not self.full)
         self.params = ("Cx", "Cf_y", "Cr_y") if self.full else ("Cf_y", "Cr_y")
         self.C_nom = np.array([v.Cx, v.Cf_y, v.Cr_y] if self.full else [v.Cf_y, v.Cr_y])
         self.n_w = len(self.params)
@@ -252,7 +272,7 @@ class StiffnessMPF:
         # residual is the model's error, not the road's (derivations, Sec. 16)
         self.q_bias, self.q_bias_nonlinear = q_sensor + q_road, q_sensor
         q = np.asarray(self.cfg.state_noise, float)[-(3 if self.full else 2):]
-        self.state_noise = q if np.any(q > 0) or self.cfg.vy_jitter > 0 else None
+        self.state_noise = q if np.any(q > 0) or self.cfg.vy_jitter > 0 or self.cfg.state_noise_from_data else None
         ref = np.asarray(self.cfg.init_reference if self.cfg.init_reference is not None else self.C_nom, float)
         center = np.asarray(self.cfg.init_center if self.cfg.init_center is not None else ref, float)
         if ref.shape != (self.n_w,) or center.shape != (self.n_w,):
@@ -305,6 +325,8 @@ class StiffnessMPF:
         self.active = False
         self.resamples = 0
         self.restarts = 0
+        self._redrawn = False  # `warmup_redraw` done
+        self.q_state = np.zeros(3 if self.full else 2)  # the state noise intensity from the data, per s
         self.gap_redraws = 0  # gaps after which v^X was drawn again from the wheel speeds
         self._contradiction_since = None
         self._bound_since = None  # time since which a stiffness mean sits at a projection bound
@@ -312,6 +334,7 @@ class StiffnessMPF:
         self.surprise_level = 1.0  # z smoothed over `inflation_baseline_time` (`_draw_inflation`)
         self.linear_region = True  # |a^Y| below the gate's linear-region bound at the last sample
         self.ay_last = math.nan  # the last finite a^Y of the linear-region test (`gate_ay`)
+        self.ax_last = math.nan  # the last finite a^X of the linear-region test (`gate_accel` combined)
         self.ay_pred = math.nan  # the one-step prediction of this sample's a^Y (`gate_ay = "predicted"`)
         self.lam = self.cfg.forgetting  # the forgetting factor applied at the next propagation
         self.drift = np.zeros(self.n_w)  # smoothed whitened w_k - mu_{k|k-1} (adaptive forgetting)
@@ -328,6 +351,11 @@ class StiffnessMPF:
     def _draw_prior(self, x0_mean) -> None:
         """Particles from the initial distribution: stiffness statistics (or the carried
         ones), state around x0_mean (default: the configured one), bias, equal weights."""
+        self._draw_prior_stats()
+        self._draw_prior_state(x0_mean)
+
+    def _draw_prior_stats(self) -> None:
+        """The stiffness statistics of every particle from the prior (or the carried ones)."""
         cfg, N, n, rng = self.cfg, self.cfg.particles, self.n_w, self.rng
         # prior spread of the mean, split between particles and each particle's NiW
         if cfg.init_distribution == "normal":
@@ -350,6 +378,9 @@ class StiffnessMPF:
             same = len(logw) == N and np.ptp(logw) == 0
             self.stats = stats.take(np.arange(N) if same else systematic_resample(logw, rng, N))
             self.stats.nu = np.maximum(self.stats.nu, nu0)
+
+    def _draw_prior_state(self, x0_mean) -> None:
+        cfg, N, rng = self.cfg, self.cfg.particles, self.rng
         x0_std = np.asarray(cfg.x0_std, float)
         if x0_mean is None:
             x0_mean = cfg.x0_mean if cfg.x0_mean is not None else ((20.0, 0.0, 0.0) if self.full else (0.0, 0.0))
@@ -511,6 +542,11 @@ class StiffnessMPF:
             uk = uk.copy() if uk is u_now else uk
             uk[0] = 0.0
 
+        # the stiffness statistics drawn again from the prior once the state has settled (`warmup_redraw`)
+        if cfg.warmup_redraw != "off" and not self._redrawn and self.t_prev is not None and (
+                self.active if cfg.warmup_redraw == "gate" else t - self.t_start >= cfg.gate_warmup):
+            self._redrawn = True
+            self._draw_prior_stats()
         # 1. propagate from the previous sample
         dt = t - self.t_prev if self.t_prev is not None else cfg.sample_period
         if self.t_prev is not None:
@@ -559,6 +595,7 @@ class StiffnessMPF:
             e = yk[a] - (h + self.b if every else h[:, a] + self.b[:, a]) - np.einsum("nij,nj->ni", Da, mu_w)
             v = solve_lower(Lc, e)
             self._predict_ay(yk, a, e)
+            logw_pred = self.logw
             if nc and start_logw is None:
                 self._adapt_forgetting(v[:, :nc], nu_w, dt)
             if start_logw is None:
@@ -568,6 +605,8 @@ class StiffnessMPF:
         plausible = self._plausible(uk)
         if plausible is False:
             return self._restart(t, uk, y)
+        if cfg.state_noise_from_data and start_logw is None and a.size:
+            self._match_state_noise(logw_pred, dt)
         ess = float(effective_sample_size(self.logw))
         if ess < cfg.resample_threshold * cfg.particles:
             idx = systematic_resample(self.logw, self.rng)
@@ -650,12 +689,32 @@ class StiffnessMPF:
         self._ax_prev = y.ax
         u_now[1:3] = f.step(dt, u_now[1:3], drive)
 
+    def _match_state_noise(self, logw_pred: np.ndarray, dt: float) -> None:
+        """`state_noise_from_data` (derivations Sec. 28): with the predictive weights logw_pred and
+        the weights after this sample's likelihood, both over the propagated particles x, the
+        correction of the state's mean d = m+ - m- and the spreads P-, P+ per component give
+        g = (d^2 - (P- - P+)) / dt + q, q the intensity applied in this propagation: the intensity
+        under which the corrections have the size the removed spread says (E[d^2] = P- - P+ for a
+        consistent filter). g is smoothed over `state_noise_time` into q_state (>= 0)."""
+        x = self.x
+        q0, q1 = np.exp(logw_pred), np.exp(self.logw)
+        q0, q1 = q0 / q0.sum(), q1 / q1.sum()
+        m0, m1 = q0 @ x, q1 @ x
+        p0, p1 = q0 @ (x - m0) ** 2, q1 @ (x - m1) ** 2
+        applied = np.square(self._state_noise_scale(dt)) / dt
+        g = ((m1 - m0) ** 2 - (p0 - p1)) / dt + applied
+        if np.all(np.isfinite(g)):
+            a = -math.expm1(-dt / self.cfg.state_noise_time)
+            self.q_state = np.maximum(self.q_state + a * (g - self.q_state), 0.0)
+
     def _state_noise_scale(self, dt: float) -> np.ndarray:
         """Std of the additive state noise over a step dt (nx,): `state_noise` sqrt(dt), and on
         v^Y also vy_jitter sqrt(z - z_on) sqrt(dt) while the adaptive forgetting's smoothed
         innovation statistic z of the previous sample exceeds z_on, the z that puts lambda at its
         floor `forgetting_min` (a change: benchmarks/README, "v^Y noise at a change")."""
         cfg, q = self.cfg, self.state_noise
+        if cfg.state_noise_from_data:
+            q = np.sqrt(np.maximum(q * q, self.q_state))
         # z at which the forgetting reaches its floor, 1 - (1 - lambda) z = lambda_min: the change statistic fires
         z_on = (1.0 - cfg.forgetting_min) / max(1.0 - cfg.forgetting, 1e-12)
         if cfg.vy_jitter > 0 and cfg.forgetting_mode == "adaptive" and self.surprise > z_on:
@@ -732,6 +791,10 @@ class StiffnessMPF:
         self.ay_pred = math.nan
         if cfg.gate_ay != "measured-zero":  # a missing sample is no evidence of the linear region (Sec. 26)
             ay, self.ay_last = held_ay(ay, self.ay_last)
+        if self._gate_combined:  # the friction circle's load, sqrt(a^X^2 + a^Y^2) (Sec. 28)
+            ax, self.ax_last = held_ay(y.ax, self.ax_last)
+            if math.isfinite(ax) and math.isfinite(ay):
+                ay = math.hypot(ax, ay)
         ay_m = ay if math.isfinite(ay) else 0.0
         self.linear_region = abs(ay_m) < cfg.gate_ay_max
         self.active = gate_open(cfg, t=t, t_start=self.t_start, vx=vx_est, delta=uk[0], ay_meas=ay, alpha=alpha,
@@ -792,7 +855,7 @@ class StiffnessMPF:
         adaptive = cfg.forgetting_mode == "adaptive"
         u_prev = self.u_prev
         self.t_prev, self.u_prev = t, uk
-        logw_pred = self.logw.copy() if cfg.gate_ay == "predicted" else None  # (`_predict_ay`)
+        logw_pred = self.logw.copy() if cfg.gate_ay == "predicted" or cfg.state_noise_from_data else None
         innovation, ess, count, nu_common = predict_weigh(
             self.x, u_prev, self.w_prev, wk.a, wk.B, wk.af, wk.ar, wk.slip, dt, cfg.max_step, wk.heun, wk.interval,
             self._jw, self._c_floor, noise, noise_scale, self.b, self.P, q, self.bias_on, self.active, self.lam,
@@ -801,7 +864,7 @@ class StiffnessMPF:
             adaptive, cfg.plausible_beta, cfg.plausible_yaw_rate, cfg.gate_speed)
         if math.isfinite(innovation):  # adaptive forgetting (`_adapt_forgetting`)
             self._smooth_surprise(innovation, dt)
-        if logw_pred is not None and a.size:
+        if logw_pred is not None and a.size and cfg.gate_ay == "predicted":  # (`_predict_ay`)
             self._predict_ay(yk, a, wk.e, logw_pred)
         self.w_prev = wk.w
         # af, ar in the order before any resampling: the next propagation reads only a, B and slip
@@ -811,6 +874,8 @@ class StiffnessMPF:
         if count < cfg.particles:  # some particles left the plausible region (`_plausible`)
             self.logw = normalize_log_weights(np.where(wk.ok, self.logw, -np.inf))
             ess = -1.0
+        if cfg.state_noise_from_data and a.size:
+            self._match_state_noise(logw_pred, dt)
         if ess < 0:
             ess = float(effective_sample_size(self.logw))
         resample = ess < cfg.resample_threshold * cfg.particles
