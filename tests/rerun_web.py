@@ -154,10 +154,12 @@ def check_views(img: np.ndarray, boxes, min_pixels: int = 40) -> list[str]:
     return problems
 
 
-def wait_loaded(page, boxes, timeout: float = LOAD_TIMEOUT, shot: Path | None = None) -> np.ndarray:
-    """Screenshots until every view shows data (the viewer has loaded and ingested the
-    recording) or `timeout`; returns the last screenshot (saved to `shot`). Under load the
-    viewer sometimes draws a frame with its time series empty; the next frames have them."""
+def wait_loaded(page, boxes, timeout: float = LOAD_TIMEOUT, shot: Path | None = None, poll: float = 1.0) -> np.ndarray:
+    """Screenshots, `poll` s apart, until every view shows data (the viewer has loaded and
+    ingested the recording) or `timeout`; returns the last screenshot (saved to `shot`).
+    Under load the viewer sometimes draws a frame with its time series empty; the next frames
+    have them. The viewer keeps drawing (software GL, a core's worth) while it is open, so a
+    shorter poll costs only the screenshots' encoding and ends the wait sooner."""
     from PIL import Image
 
     end = time.monotonic() + timeout
@@ -167,7 +169,7 @@ def wait_loaded(page, boxes, timeout: float = LOAD_TIMEOUT, shot: Path | None = 
             if shot:
                 Image.fromarray(img).save(shot)  # the very frame that was checked
             return img
-        time.sleep(3)
+        time.sleep(poll)
 
 
 def layout_grid(layout, active: tuple[int, int]):
