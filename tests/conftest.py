@@ -28,7 +28,7 @@ NOISE_OFF = {
 
 # ---- the compiled kernels: each compiled once per suite run, not once per xdist worker -----------
 # A clean clone has no numba cache (`cache=True` writes it beside the sources), and compiling the
-# kernels is about a quarter of a cold suite's CPU time (benchmarks/README.md, "Test suite time").
+# kernels was about 40 % of a cold suite's CPU time (benchmarks/README.md, "Test suite time").
 # Left to the tests, both workers of `make test` reach the same kernels at about the same time and
 # both compile them. With two or more workers, each worker first runs these small warm-up tasks,
 # each under a file lock shared by the workers: a task the other worker holds is skipped and

@@ -6,7 +6,7 @@ red, or when its frame is still the previous tab's (a blueprint not yet applied)
 view, the defect of issue 15). One short recording, one browser session, a 1200 x 750 page
 (the viewer draws continuously under software GL, at a cost that goes with the pixels: at
 1600 x 1000 the test took 1.5 times the CPU, benchmarks/README.md "Test suite time"): the
-viewer needs 20-50 s to start, the whole test about a minute."""
+viewer needs 20-50 s to start, the whole test 1.5 minutes on a loaded machine."""
 
 from __future__ import annotations
 
