@@ -1,14 +1,19 @@
 """Shared fixtures: the vehicle FMUs are built once (into fmu/build) if missing; the Python
-FMUs (estimator, driver; FMI 2.0 and 3.0) once per session, on first use."""
+FMUs (estimator, driver; FMI 2.0 and 3.0) once per session, on first use; under xdist, the
+compiled kernels compiled once for all workers, before the first test (`warm_up_kernels`)."""
 
 from __future__ import annotations
 
+import math
 import os
+import warnings
+from pathlib import Path
 
 # One BLAS thread: the batched solves of the numpy references are small, and OpenBLAS's
 # threads spin against each other on a loaded 2-core machine (a 100 x 100 batch took 30 s).
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
+import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 from tirefilter.cosim.fmu import build_vehicle_fmu, vehicle_fmu_path  # noqa: E402
@@ -19,6 +24,98 @@ NOISE_OFF = {
     "sigma_delta": 0.0, "bias_q_ax": 0.0, "bias_q_ay": 0.0, "bias_q_yaw_rate": 0.0, "bias0_std_ax": 0.0,
     "bias0_std_ay": 0.0, "bias0_std_yaw_rate": 0.0, "vx0_std": 0.0, "vy0_std": 0.0, "yaw_rate0_std": 0.0,
 }
+
+
+# ---- the compiled kernels: each compiled once per suite run, not once per xdist worker -----------
+# A clean clone has no numba cache (`cache=True` writes it beside the sources), and compiling the
+# kernels was about 40 % of a cold suite's CPU time (benchmarks/README.md, "Test suite time").
+# Left to the tests, both workers of `make test` reach the same kernels at about the same time and
+# both compile them. With two or more workers, each worker first runs these small warm-up tasks,
+# each under a file lock shared by the workers: a task the other worker holds is skipped and
+# come back to last, when its kernels are on disk and load in a fraction of a second; a task
+# done by either worker is marked done. The two workers so compile disjoint halves, in parallel.
+# The order (the MPF first on one worker, the GP-SSM first on the other) keeps them from
+# compiling the same helper kernels at the same time.
+def _warm_mpf(model: str, missing: bool = False) -> None:
+    from tirefilter.estimators.base import Inputs, Measurement
+    from tirefilter.estimators.stiffness_mpf import MPFConfig, StiffnessMPF
+    from tirefilter.scenarios import load_scenario
+
+    vehicle = load_scenario("paper-sim").vehicle
+    omega = 20.0 / vehicle.wheel_radius
+    est = StiffnessMPF(vehicle, MPFConfig(particles=8, model=model))
+    est.reset(np.random.default_rng(0))
+    # missing: only the first compiled step (k = 1), with a^Y missing: the entry points with the
+    # sizes as variables, not the full model's (another worker may be compiling those)
+    for k in range(2 if missing else 6):
+        ay = math.nan if (missing and k == 1) else 0.5
+        est.step(0.01 * k, Inputs(delta=0.01, omega_f=omega, omega_r=omega, vx=20.0),
+                 Measurement(ax=0.0, ay=ay, yaw_rate=0.03))
+
+
+def _warm_gpssm(**config) -> None:
+    from tirefilter.estimators.base import Inputs, Measurement
+    from tirefilter.estimators.friction_gpssm import FrictionGPSSM, GPSSMConfig
+    from tirefilter.scenarios import load_scenario
+
+    est = FrictionGPSSM(load_scenario("friction-snow").vehicle, GPSSMConfig(particles=8, **config))
+    est.reset(np.random.default_rng(0))
+    for k in range(8):
+        est.step(0.04 * k, Inputs(delta=0.02, vx=15.0), Measurement(ax=0.0, ay=1.0, yaw_rate=0.05))
+    est.friction()  # the curve: the statistics' flush, features and moments on the grid
+    est.posterior()
+
+
+WARM_UP = {  # name: task; the first three and the rest share no large kernel
+    "mpf-full": lambda: _warm_mpf("full"),
+    "mpf-lateral": lambda: _warm_mpf("lateral"),
+    "mpf-missing": lambda: _warm_mpf("full", missing=True),
+    "gpssm-axle-exact": lambda: _warm_gpssm(basis="axle"),
+    "gpssm-tensor-rank1": lambda: _warm_gpssm(stats="rank1"),
+    "gpssm-tensor-exact": lambda: _warm_gpssm(),
+}
+
+
+def warm_up_kernels(lock_dir: Path, reverse: bool = False) -> list[str]:
+    """Run the `WARM_UP` tasks not yet marked done in `lock_dir` (in reverse order when
+    `reverse`); returns the names of those this process ran first-hand (compiled, unless
+    the disk cache had them)."""
+    import fcntl
+
+    names = list(WARM_UP)[::-1] if reverse else list(WARM_UP)
+    ran, later = [], []
+    for blocking in (False, True):
+        for name in (names if not blocking else later):
+            done = lock_dir / f"{name}.done"
+            if done.exists():
+                continue
+            with open(lock_dir / f"{name}.lock", "w") as lock:
+                try:
+                    fcntl.flock(lock, fcntl.LOCK_EX | (0 if blocking else fcntl.LOCK_NB))
+                except BlockingIOError:
+                    later.append(name)  # the other worker compiles it: come back when it is on disk
+                    continue
+                if done.exists():
+                    continue
+                try:
+                    WARM_UP[name]()
+                except Exception as exc:  # the tests that use these kernels will say what is wrong
+                    warnings.warn(f"kernel warm-up {name!r} failed: {exc!r}", stacklevel=1)
+                    continue
+                done.touch()
+                ran.append(name)
+    return ran
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _kernels_compiled_once(tmp_path_factory, worker_id):
+    """With two or more xdist workers: `warm_up_kernels` before the first test of each
+    worker (a single process compiles on first use, as before)."""
+    if worker_id == "master" or int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")) < 2:
+        return
+    lock_dir = tmp_path_factory.getbasetemp().parent / "numba-warm-up"  # shared by the workers
+    lock_dir.mkdir(exist_ok=True)
+    warm_up_kernels(lock_dir, reverse=int(worker_id.removeprefix("gw")) % 2 == 1)
 
 
 @pytest.fixture(scope="session")

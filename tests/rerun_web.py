@@ -154,20 +154,31 @@ def check_views(img: np.ndarray, boxes, min_pixels: int = 40) -> list[str]:
     return problems
 
 
-def wait_loaded(page, boxes, timeout: float = LOAD_TIMEOUT, shot: Path | None = None) -> np.ndarray:
-    """Screenshots until every view shows data (the viewer has loaded and ingested the
-    recording) or `timeout`; returns the last screenshot (saved to `shot`). Under load the
-    viewer sometimes draws a frame with its time series empty; the next frames have them."""
+def changed(img: np.ndarray, before: np.ndarray, fraction: float = 0.02) -> bool:
+    """Whether more than `fraction` of the pixels differ between two screenshots."""
+    return img.shape != before.shape or float(np.any(img != before, axis=2).mean()) > fraction
+
+
+def wait_loaded(page, boxes, timeout: float = LOAD_TIMEOUT, shot: Path | None = None, poll: float = 1.0,
+                changed_from: np.ndarray | None = None) -> np.ndarray:
+    """Screenshots, `poll` s apart, until every view shows data (the viewer has loaded and
+    ingested the recording) or `timeout`; returns the last screenshot (saved to `shot`).
+    Under load the viewer sometimes draws a frame with its time series empty; the next frames
+    have them. `changed_from`: only a frame that differs from this one counts (the previous
+    tab's: until a new blueprint is applied the old tab's frame would pass the new views'
+    checks). The viewer keeps drawing (software GL, a core's worth) while it is open, so a
+    short poll costs only the screenshots' encoding and ends the wait sooner."""
     from PIL import Image
 
     end = time.monotonic() + timeout
     while True:
         img = pixels(page)
-        if not [p for p in check_views(img, boxes) if "empty" in p] or time.monotonic() > end:
+        fresh = changed_from is None or changed(img, changed_from)
+        if (fresh and not [p for p in check_views(img, boxes) if "empty" in p]) or time.monotonic() > end:
             if shot:
                 Image.fromarray(img).save(shot)  # the very frame that was checked
             return img
-        time.sleep(3)
+        time.sleep(poll)
 
 
 def layout_grid(layout, active: tuple[int, int]):
