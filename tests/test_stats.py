@@ -213,7 +213,8 @@ def test_batch_means_sandwich_equals_the_batch_sums_without_forgetting():
 
 
 def test_batch_means_sandwich_forgets_per_batch():
-    """With memory M each closed batch of length T decays the older ones by exp(-T / M)."""
+    """With memory M each closed batch of length T decays the older ones by exp(-T / M); with
+    per-sample factors lambda_k, by their product over the batch."""
     from tirefilter.stats.sandwich import BatchMeansSandwich
 
     bm = BatchMeansSandwich(1, batch=0.5, memory=2.0)
@@ -224,6 +225,12 @@ def test_batch_means_sandwich_forgets_per_batch():
     np.testing.assert_allclose(bm.B, [[keep * 50.0**2 + 100.0**2]], rtol=1e-12)
     np.testing.assert_allclose(bm.B0, [[keep * 50.0 + 200.0]], rtol=1e-12)
     np.testing.assert_allclose(bm.A, [[keep * 50.0 + 50.0]], rtol=1e-12)
+
+    per_sample = BatchMeansSandwich(1, batch=0.5, memory=np.inf)  # the MPF's way: lambda_k per sample
+    for k in range(100):
+        per_sample.update(np.array([1.0 if k < 50 else 2.0]), np.array([1.0]), 0.01, 0.99)
+    np.testing.assert_allclose(per_sample.B, [[0.99**50 * 50.0**2 + 100.0**2]], rtol=1e-12)
+    np.testing.assert_allclose(per_sample.A, [[0.99**50 * 50.0 + 50.0]], rtol=1e-12)
 
 
 @pytest.mark.parametrize("phi", [0.0, 0.6])

@@ -148,8 +148,9 @@ class MPFConfig:
     # autocorrelation time (the misfit that a linear tire leaves over the visited slips is correlated in
     # time; the model assumes it white); "off": the paper's posterior of the mean
     std_calibration: str = "sandwich"
-    calibration_batch: float = 0.5  # s of open gate per batch of the sandwich's long-run covariance
-    calibration_memory: float = 10.0  # s of open gate: time constant of the sandwich's forgetting
+    # s of open gate per batch of the sandwich's long-run covariance; the batches forget with the statistics'
+    # own factors lambda_k (eq. (20)), so that the sandwich remembers what the mean remembers
+    calibration_batch: float = 1.0
 
     def validated(self) -> "MPFConfig":
         def bad(key, problem):
@@ -215,8 +216,6 @@ class MPFConfig:
             bad("std_calibration", f"expected sandwich or off, got {self.std_calibration!r}")
         if not (self.calibration_batch > 0 and math.isfinite(self.calibration_batch)):
             bad("calibration_batch", f"must be finite and > 0, got {self.calibration_batch!r}")
-        if not self.calibration_memory > 0:
-            bad("calibration_memory", f"must be > 0 (inf: no forgetting), got {self.calibration_memory!r}")
         return self
 
 
@@ -325,7 +324,7 @@ class StiffnessMPF:
                                         self.cfg.wheel_slip_rw) if self.full and self.cfg.sigma_omega > 0 else None)
         self._ax_prev = NAN
         self._e_ay = NAN  # this sample's a^Y residual, predictive-weighted mean (`_predict_ay`)
-        self._calib = (BatchMeansSandwich(2, self.cfg.calibration_batch, self.cfg.calibration_memory)
+        self._calib = (BatchMeansSandwich(2, self.cfg.calibration_batch, math.inf)
                        if self.cfg.std_calibration == "sandwich" else None)
 
     def _draw_prior(self, x0_mean) -> None:
@@ -516,7 +515,7 @@ class StiffnessMPF:
             af = delta - (est.vy + v.lf * est.yaw_rate) * inv_vx
             ar = (v.lr * est.yaw_rate - est.vy) * inv_vx
             d = np.array([af * math.cos(delta), ar])
-            cal.update(d * self._e_ay, d, dt)
+            cal.update(d * self._e_ay, d, dt, self._lam_step)  # forgotten as the statistics are (eq. (20))
         f = cal.factor
         if f[0] == 1.0 and f[1] == 1.0:
             return est

@@ -9,8 +9,10 @@ the scores s_k = d_k e_k (White 1982; Newey and West 1987). B is estimated by ba
 the outer products of the score sums over batches of `batch` seconds. The ratio to the same
 sandwich with B0 = sum s_k s_k' (the lag-0 part, what white residuals would give) is, per
 coefficient, the integrated autocorrelation time of its scores, and is scale-free: neither
-the residual variance nor the regressors' scale enter it. Both statistics forget with
-exp(-T / memory) per batch of length T (seconds of samples actually fed).
+the residual variance nor the regressors' scale enter it. All three statistics forget, per
+closed batch of length T (seconds of samples actually fed), with exp(-T / memory) times the
+product of the per-sample factors passed to `update` (the MPF passes its statistics' lambda_k,
+so that the sandwich remembers what the mean remembers).
 """
 
 from __future__ import annotations
@@ -23,7 +25,8 @@ import numpy as np
 class BatchMeansSandwich:
     """Online batch-means estimate of the sandwich factor of an n-vector of coefficients.
 
-    `update(s, d, dt)` feeds one sample: its score s = d e (n,) and its regressor d (n,);
+    `update(s, d, dt, forget)` feeds one sample: its score s = d e (n,), its regressor d (n,),
+    its duration dt and its forgetting factor (1: none);
     `factor` (n,) is sqrt(max(1, [A^-1 B A^-1]_jj / [A^-1 B0 A^-1]_jj)), updated when a
     batch closes (1 until the first one has)."""
 
@@ -44,13 +47,15 @@ class BatchMeansSandwich:
         self._S0 = np.zeros((n, n))
         self._A = np.zeros((n, n))
         self._T = 0.0
+        self._log_keep = 0.0  # sum of log(forget) over the open batch
         self.batches = 0
         self.factor = np.ones(n)
         self.ratio = np.ones(n)  # the unclipped ratio of the last closed batch (1 before)
 
-    def update(self, s: np.ndarray, d: np.ndarray, dt: float) -> None:
-        if not (np.all(np.isfinite(s)) and np.all(np.isfinite(d)) and dt > 0):
+    def update(self, s: np.ndarray, d: np.ndarray, dt: float, forget: float = 1.0) -> None:
+        if not (np.all(np.isfinite(s)) and np.all(np.isfinite(d)) and dt > 0 and 0 < forget <= 1):
             return
+        self._log_keep += math.log(forget)
         self._S += s
         self._S0 += np.outer(s, s)
         self._A += np.outer(d, d)
@@ -59,7 +64,7 @@ class BatchMeansSandwich:
             self._close()
 
     def _close(self) -> None:
-        keep = math.exp(-self._T / self.memory)
+        keep = math.exp(self._log_keep - self._T / self.memory)
         self.A = keep * self.A + self._A
         self.B = keep * self.B + np.outer(self._S, self._S)
         self.B0 = keep * self.B0 + self._S0
@@ -67,6 +72,7 @@ class BatchMeansSandwich:
         self._S0[:] = 0.0
         self._A[:] = 0.0
         self._T = 0.0
+        self._log_keep = 0.0
         self.batches += 1
         ratio = sandwich_ratio(self.A, self.B, self.B0)
         if ratio is not None:
