@@ -390,7 +390,7 @@ def test_std_calibration_scales_the_lateral_std_by_the_sandwich_factor_only(fmu_
             af = delta - (e1.vy + v.lf * e1.yaw_rate) / max(e1.vx, 1.0)
             ar = (v.lr * e1.yaw_rate - e1.vy) / max(e1.vx, 1.0)
             d = np.array([af * math.cos(delta), ar])
-            ref.update(d * e_ay, d, 0.01, lam)
+            ref.update(d * e_ay, d, 0.01, lam ** (1.0 / MPFConfig().calibration_memory))
         assert e1.Cf_y_std == pytest.approx(e0.Cf_y_std * ref.factor[0], rel=1e-12)
         assert e1.Cr_y_std == pytest.approx(e0.Cr_y_std * ref.factor[1], rel=1e-12)
         grown += e1.Cf_y_std > e0.Cf_y_std
@@ -401,6 +401,7 @@ def test_std_calibration_options_are_checked():
     vehicle = load_scenario("paper-sim").vehicle
     assert MPFConfig().std_calibration == "sandwich"
     for options, match in (({"std_calibration": "hac"}, "expected sandwich or off"),
-                           ({"calibration_batch": 0.0}, "calibration_batch")):
+                           ({"calibration_batch": 0.0}, "calibration_batch"),
+                           ({"calibration_memory": 0.0}, "calibration_memory")):
         with pytest.raises(ConfigError, match=match):
             StiffnessMPF(vehicle, MPFConfig(**options))

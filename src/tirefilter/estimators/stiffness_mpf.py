@@ -148,9 +148,9 @@ class MPFConfig:
     # autocorrelation time (the misfit that a linear tire leaves over the visited slips is correlated in
     # time; the model assumes it white); "off": the paper's posterior of the mean
     std_calibration: str = "sandwich"
-    # s of open gate per batch of the sandwich's long-run covariance; the batches forget with the statistics'
-    # own factors lambda_k (eq. (20)), so that the sandwich remembers what the mean remembers
-    calibration_batch: float = 1.0
+    calibration_batch: float = 1.0  # s of open gate per batch of the sandwich's long-run covariance
+    # the sandwich's memory in units of the statistics' (eq. (20)): its batches forget with lambda_k^(1 / this)
+    calibration_memory: float = 2.0
 
     def validated(self) -> "MPFConfig":
         def bad(key, problem):
@@ -212,6 +212,8 @@ class MPFConfig:
             bad("gap_after", f"must be finite and >= 0 (0: never), got {self.gap_after!r}")
         if self.backend not in ("numba", "numpy"):
             bad("backend", f"expected numba or numpy, got {self.backend!r}")
+        if not (self.calibration_memory > 0 and math.isfinite(self.calibration_memory)):
+            bad("calibration_memory", f"must be finite and > 0, got {self.calibration_memory!r}")
         if self.std_calibration not in ("sandwich", "off"):
             bad("std_calibration", f"expected sandwich or off, got {self.std_calibration!r}")
         if not (self.calibration_batch > 0 and math.isfinite(self.calibration_batch)):
@@ -515,7 +517,8 @@ class StiffnessMPF:
             af = delta - (est.vy + v.lf * est.yaw_rate) * inv_vx
             ar = (v.lr * est.yaw_rate - est.vy) * inv_vx
             d = np.array([af * math.cos(delta), ar])
-            cal.update(d * self._e_ay, d, dt, self._lam_step)  # forgotten as the statistics are (eq. (20))
+            # forgotten with the statistics' factor (eq. (20)), over calibration_memory times their memory
+            cal.update(d * self._e_ay, d, dt, self._lam_step ** (1.0 / self.cfg.calibration_memory))
         f = cal.factor
         if f[0] == 1.0 and f[1] == 1.0:
             return est
