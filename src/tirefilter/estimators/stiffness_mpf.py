@@ -148,7 +148,7 @@ class MPFConfig:
     # autocorrelation time (the misfit that a linear tire leaves over the visited slips is correlated in
     # time; the model assumes it white); "off": the paper's posterior of the mean
     std_calibration: str = "sandwich"
-    calibration_batch: float = 1.0  # s of open gate per batch of the sandwich's long-run covariance
+    calibration_batch: float = 0.75  # s of open gate per batch of the sandwich's long-run covariance
     # the sandwich's memory in units of the statistics' (eq. (20)): its batches forget with lambda_k^(1 / this)
     calibration_memory: float = 2.0
 
