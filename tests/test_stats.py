@@ -175,3 +175,93 @@ def test_small_batched_linear_algebra_matches_numpy(n):
     np.testing.assert_allclose(solve_upper_t(L, b), np.linalg.solve(np.swapaxes(L, 1, 2), b[..., None])[..., 0],
                                rtol=1e-10)
     np.testing.assert_allclose(logdet_chol(L), np.linalg.slogdet(S)[1], rtol=1e-12, atol=1e-12)
+
+
+# ---- batch-means sandwich (stats/sandwich.py, derivations Sec. 29) ---------------------------
+def _ar1(phi: float, n: int, rng: np.random.Generator) -> np.ndarray:
+    """A stationary AR(1) sequence with unit innovation variance."""
+    from scipy.signal import lfilter
+
+    e = rng.standard_normal(n)
+    e[0] /= np.sqrt(1.0 - phi * phi)  # start in the stationary distribution
+    return lfilter([1.0], [1.0, -phi], e)
+
+
+def test_batch_means_sandwich_equals_the_batch_sums_without_forgetting():
+    """Fed sample by sample with infinite memory, A, B and B0 are the sums over the closed
+    batches, and the ratio is the sandwich's diagonal ratio, exactly."""
+    from tirefilter.stats.sandwich import BatchMeansSandwich, sandwich_ratio
+
+    rng = np.random.default_rng(3)
+    n, m = 10, 7  # samples per batch, batches
+    d = rng.standard_normal((n * m, 2))
+    s = d * rng.standard_normal((n * m, 1))
+    bm = BatchMeansSandwich(2, batch=n * 0.01, memory=np.inf)
+    for k in range(n * m):
+        bm.update(s[k], d[k], 0.01)
+    S = s.reshape(m, n, 2).sum(axis=1)
+    A, B, B0 = d.T @ d, S.T @ S, s.T @ s
+    assert bm.batches == m
+    np.testing.assert_allclose(bm.A, A, rtol=1e-12)
+    np.testing.assert_allclose(bm.B, B, rtol=1e-12)
+    np.testing.assert_allclose(bm.B0, B0, rtol=1e-12)
+    Ai = np.linalg.inv(A)
+    want = np.diag(Ai @ B @ Ai) / np.diag(Ai @ B0 @ Ai)
+    np.testing.assert_allclose(bm.ratio, want, rtol=1e-10)
+    np.testing.assert_allclose(sandwich_ratio(A, B, B0), want, rtol=1e-10)
+    np.testing.assert_allclose(bm.factor, np.sqrt(np.maximum(want, 1.0)), rtol=1e-10)
+
+
+def test_batch_means_sandwich_forgets_per_batch():
+    """With memory M each closed batch of length T decays the older ones by exp(-T / M); with
+    per-sample factors lambda_k, by their product over the batch."""
+    from tirefilter.stats.sandwich import BatchMeansSandwich
+
+    bm = BatchMeansSandwich(1, batch=0.5, memory=2.0)
+    for k in range(100):  # 2 batches of 50 samples, score 1 then 2
+        v = 1.0 if k < 50 else 2.0
+        bm.update(np.array([v]), np.array([1.0]), 0.01)
+    keep = np.exp(-0.5 / 2.0)
+    np.testing.assert_allclose(bm.B, [[keep * 50.0**2 + 100.0**2]], rtol=1e-12)
+    np.testing.assert_allclose(bm.B0, [[keep * 50.0 + 200.0]], rtol=1e-12)
+    np.testing.assert_allclose(bm.A, [[keep * 50.0 + 50.0]], rtol=1e-12)
+
+    per_sample = BatchMeansSandwich(1, batch=0.5, memory=np.inf)  # the MPF's way: lambda_k per sample
+    for k in range(100):
+        per_sample.update(np.array([1.0 if k < 50 else 2.0]), np.array([1.0]), 0.01, 0.99)
+    np.testing.assert_allclose(per_sample.B, [[0.99**50 * 50.0**2 + 100.0**2]], rtol=1e-12)
+    np.testing.assert_allclose(per_sample.A, [[0.99**50 * 50.0 + 50.0]], rtol=1e-12)
+
+
+@pytest.mark.parametrize("phi", [0.0, 0.6])
+def test_batch_means_ratio_is_the_autocorrelation_time_of_an_ar1_score(phi):
+    """Scores that are a stationary AR(1) with coefficient phi: the expected ratio of a batch
+    of n samples is 1 + 2 sum_{l<n} (1 - l/n) phi^l (-> (1 + phi)/(1 - phi), the integrated
+    autocorrelation time); white scores give 1. Two coefficients with independent scores and
+    a diagonal A each get their own. K = 2000 batches: the ratio's relative standard error is
+    sqrt(2/K) = 3.2%; tolerance 4 of them (fixed seed)."""
+    from tirefilter.stats.sandwich import BatchMeansSandwich
+
+    rng = np.random.default_rng(11)
+    n, K = 50, 2000
+    s = np.stack([_ar1(phi, n * K, rng), _ar1(0.0, n * K, rng)], axis=1)
+    bm = BatchMeansSandwich(2, batch=n * 0.01, memory=np.inf)
+    one = np.ones(2)
+    for k in range(n * K):
+        bm.update(s[k], one if k % 2 else np.array([1.0, -1.0]), 0.01)  # A diagonal over each pair
+    lags = np.arange(1, n)
+    want = 1.0 + 2.0 * np.sum((1.0 - lags / n) * phi**lags)
+    tol = 4.0 * np.sqrt(2.0 / K)
+    assert abs(bm.ratio[0] / want - 1.0) < tol
+    assert abs(bm.ratio[1] - 1.0) < tol
+    if phi > 0:
+        assert want > 3.5  # (1 + 0.6) / 0.4 = 4 less the finite-batch term: far from white
+
+
+def test_batch_means_sandwich_rejects_bad_settings():
+    from tirefilter.stats.sandwich import BatchMeansSandwich
+
+    with pytest.raises(ValueError, match="batch"):
+        BatchMeansSandwich(2, batch=0.0, memory=1.0)
+    with pytest.raises(ValueError, match="memory"):
+        BatchMeansSandwich(2, batch=1.0, memory=0.0)

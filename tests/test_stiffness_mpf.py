@@ -456,3 +456,51 @@ def test_warmup_redraw_draws_the_stiffness_statistics_again(when, monkeypatch):
     assert 95 <= first_open <= 101 and all(active[first_open:]), first_open
     expected = {"off": [None], "warmup": [None, 100], "gate": [None, first_open + 1]}[when]
     assert draws == expected, draws
+
+
+@pytest.mark.parametrize("backend", ["numpy", "numba"])
+def test_std_calibration_scales_the_lateral_std_by_the_sandwich_factor_only(fmu_paths, backend):
+    """`std_calibration = "sandwich"` (the default, derivations Sec. 29) changes nothing but the
+    lateral `*_std`: the same seed gives the same estimates as "off", the paper's posterior of
+    the mean, and each lateral std is the paper's times the factor of a batch-means sandwich fed
+    independently, while learning, with this sample's predictive a^Y residual, the slips at the
+    posterior-mean state and the statistics' forgetting factor."""
+    from tirefilter.stats.sandwich import BatchMeansSandwich
+
+    scenario, r = _synthetic_steps(600)
+    runs = {}
+    for mode in ("off", "sandwich"):
+        est = build_estimator("mpf", scenario, model="full", particles=100,
+                              config={"mpf": {"std_calibration": mode, "backend": backend}})
+        est.reset(np.random.default_rng(5))
+        out = []
+        for k in range(len(r["t"])):
+            e = est.step(r["t"][k], Inputs(r["meas_delta"][k], r["meas_omega_f"][k], r["meas_omega_r"][k]),
+                         Measurement(r["meas_ax"][k], r["meas_ay"][k], r["meas_yaw_rate"][k]))
+            out.append((e, est.active, est._e_ay, float(est.u_prev[0]), est._lam_step))
+        runs[mode] = out
+    v = scenario.vehicle
+    ref = BatchMeansSandwich(2, MPFConfig().calibration_batch, math.inf)
+    grown = 0
+    for k, ((e0, *_), (e1, active, e_ay, delta, lam)) in enumerate(zip(runs["off"], runs["sandwich"])):
+        assert (e1.Cf_y, e1.Cr_y, e1.Cx, e1.vy, e1.Cx_std, e1.Cf_y_sigma) == (e0.Cf_y, e0.Cr_y, e0.Cx, e0.vy,
+                                                                             e0.Cx_std, e0.Cf_y_sigma)
+        if active and math.isfinite(e_ay):
+            af = delta - (e1.vy + v.lf * e1.yaw_rate) / max(e1.vx, 1.0)
+            ar = (v.lr * e1.yaw_rate - e1.vy) / max(e1.vx, 1.0)
+            d = np.array([af * math.cos(delta), ar])
+            ref.update(d * e_ay, d, 0.01, lam ** (1.0 / MPFConfig().calibration_memory))
+        assert e1.Cf_y_std == pytest.approx(e0.Cf_y_std * ref.factor[0], rel=1e-12)
+        assert e1.Cr_y_std == pytest.approx(e0.Cr_y_std * ref.factor[1], rel=1e-12)
+        grown += e1.Cf_y_std > e0.Cf_y_std
+    assert ref.batches >= 3 and grown > 0  # the gate opened and the factor moved off 1
+
+
+def test_std_calibration_options_are_checked():
+    vehicle = load_scenario("paper-sim").vehicle
+    assert MPFConfig().std_calibration == "sandwich"
+    for options, match in (({"std_calibration": "hac"}, "expected sandwich or off"),
+                           ({"calibration_batch": 0.0}, "calibration_batch"),
+                           ({"calibration_memory": 0.0}, "calibration_memory")):
+        with pytest.raises(ConfigError, match=match):
+            StiffnessMPF(vehicle, MPFConfig(**options))

@@ -21,7 +21,7 @@ Gaussian bias estimate (b, P) of the IMU channels. One step at sample k:
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
@@ -32,6 +32,7 @@ from tirefilter.estimators.sensors import DISTURBANCE_RW, MEMS_BIAS0_STD, MEMS_B
 from tirefilter.estimators.wheel_filter import WheelSpeedFilter
 from tirefilter.stats import NiW, effective_sample_size, normalize_log_weights, systematic_resample
 from tirefilter.stats.linalg import chol, chol_solve, logdet_chol, solve_lower
+from tirefilter.stats.sandwich import BatchMeansSandwich
 from tirefilter.stats.student_t import t_conditional, t_logpdf_whitened, t_sample
 from tirefilter.vehicle.params import VehicleParams
 from tirefilter.vehicle.single_track import GRAVITY
@@ -167,6 +168,14 @@ class MPFConfig:
     max_step: float = 0.02  # s, longest propagation step: longer sample intervals are sub-stepped
     gap_after: float = 0.5  # s: a longer time step is a gap: v^X drawn again from the wheel speeds (0: never)
     backend: str = "numba"  # "numba": the compiled step (mpf_numba.py) | "numpy": the reference
+    # the posterior std of the lateral stiffness means (derivations Sec. 29): "sandwich": `*_std` of eq. (27)
+    # times the batch-means sandwich factor of the scores of the a^Y residual, sqrt of their integrated
+    # autocorrelation time (the misfit that a linear tire leaves over the visited slips is correlated in
+    # time; the model assumes it white); "off": the paper's posterior of the mean
+    std_calibration: str = "sandwich"
+    calibration_batch: float = 0.75  # s of open gate per batch of the sandwich's long-run covariance
+    # the sandwich's memory in units of the statistics' (eq. (20)): its batches forget with lambda_k^(1 / this)
+    calibration_memory: float = 2.0
 
     def validated(self) -> "MPFConfig":
         def bad(key, problem):
@@ -233,6 +242,12 @@ class MPFConfig:
             bad("gap_after", f"must be finite and >= 0 (0: never), got {self.gap_after!r}")
         if self.backend not in ("numba", "numpy"):
             bad("backend", f"expected numba or numpy, got {self.backend!r}")
+        if not (self.calibration_memory > 0 and math.isfinite(self.calibration_memory)):
+            bad("calibration_memory", f"must be finite and > 0, got {self.calibration_memory!r}")
+        if self.std_calibration not in ("sandwich", "off"):
+            bad("std_calibration", f"expected sandwich or off, got {self.std_calibration!r}")
+        if not (self.calibration_batch > 0 and math.isfinite(self.calibration_batch)):
+            bad("calibration_batch", f"must be finite and > 0, got {self.calibration_batch!r}")
         return self
 
 
@@ -347,6 +362,9 @@ class StiffnessMPF:
         self.wheels = (WheelSpeedFilter(self.cfg.sigma_omega, self.vehicle.wheel_radius, self.cfg.sigma[0],
                                         self.cfg.wheel_slip_rw) if self.full and self.cfg.sigma_omega > 0 else None)
         self._ax_prev = NAN
+        self._e_ay = NAN  # this sample's a^Y residual, predictive-weighted mean (`_predict_ay`)
+        self._calib = (BatchMeansSandwich(2, self.cfg.calibration_batch, math.inf)
+                       if self.cfg.std_calibration == "sandwich" else None)
 
     def _draw_prior(self, x0_mean) -> None:
         """Particles from the initial distribution: stiffness statistics (or the carried
@@ -525,6 +543,33 @@ class StiffnessMPF:
 
     # ---- the filter -------------------------------------------------------------------
     def step(self, t: float, u: Inputs, y: Measurement) -> Estimate:
+        dt = t - self.t_prev if self.t_prev is not None else self.cfg.sample_period
+        self._e_ay = NAN
+        est = self._step(t, u, y)
+        return est if self._calib is None else self._calibrate(est, dt)
+
+    def _calibrate(self, est: Estimate, dt: float) -> Estimate:
+        """`*_std` of the lateral stiffnesses times the batch-means sandwich factor (derivations
+        Sec. 29, `stats.sandwich`): while learning, the score of this sample's a^Y residual e (the
+        predictive-weighted mean of the weighting's residuals) for the two lateral deviations is
+        d e with d = (alpha_f cos delta, alpha_r), the slips at the posterior-mean state (the
+        columns of eq. (12)'s d up to the factor (1 + k g) / m, which cancels in the ratio)."""
+        cal = self._calib
+        if self.active and math.isfinite(self._e_ay) and dt > 0:
+            v = self.vehicle
+            delta = float(self.u_prev[0])
+            inv_vx = 1.0 / max(est.vx, 1.0)
+            af = delta - (est.vy + v.lf * est.yaw_rate) * inv_vx
+            ar = (v.lr * est.yaw_rate - est.vy) * inv_vx
+            d = np.array([af * math.cos(delta), ar])
+            # forgotten with the statistics' factor (eq. (20)), over calibration_memory times their memory
+            cal.update(d * self._e_ay, d, dt, self._lam_step ** (1.0 / self.cfg.calibration_memory))
+        f = cal.factor
+        if f[0] == 1.0 and f[1] == 1.0:
+            return est
+        return replace(est, Cf_y_std=est.Cf_y_std * float(f[0]), Cr_y_std=est.Cr_y_std * float(f[1]))
+
+    def _step(self, t: float, u: Inputs, y: Measurement) -> Estimate:
         cfg = self.cfg
         self._lam_step = self.lam  # the factor this step forgets the statistics with (`_excite_cx`)
         u_now = np.array([u.delta, u.omega_f, u.omega_r, u.vx], float)
@@ -855,7 +900,10 @@ class StiffnessMPF:
         adaptive = cfg.forgetting_mode == "adaptive"
         u_prev = self.u_prev
         self.t_prev, self.u_prev = t, uk
-        logw_pred = self.logw.copy() if cfg.gate_ay == "predicted" or cfg.state_noise_from_data else None
+        # the predictive weights (`_predict_ay`: the gate's a^Y prediction, the residual of `_calibrate`;
+        # `_match_state_noise`)
+        logw_pred = self.logw.copy() if (cfg.gate_ay == "predicted" or cfg.state_noise_from_data
+                                         or self._calib is not None) else None
         innovation, ess, count, nu_common = predict_weigh(
             self.x, u_prev, self.w_prev, wk.a, wk.B, wk.af, wk.ar, wk.slip, dt, cfg.max_step, wk.heun, wk.interval,
             self._jw, self._c_floor, noise, noise_scale, self.b, self.P, q, self.bias_on, self.active, self.lam,
@@ -864,7 +912,7 @@ class StiffnessMPF:
             adaptive, cfg.plausible_beta, cfg.plausible_yaw_rate, cfg.gate_speed)
         if math.isfinite(innovation):  # adaptive forgetting (`_adapt_forgetting`)
             self._smooth_surprise(innovation, dt)
-        if logw_pred is not None and a.size and cfg.gate_ay == "predicted":  # (`_predict_ay`)
+        if logw_pred is not None and a.size and (cfg.gate_ay == "predicted" or self._calib is not None):
             self._predict_ay(yk, a, wk.e, logw_pred)
         self.w_prev = wk.w
         # af, ar in the order before any resampling: the next propagation reads only a, B and slip
@@ -970,12 +1018,14 @@ class StiffnessMPF:
         (N, |a|) of the weighting, averaged with the predictive weights (`logw`, default the
         particles' before this sample's likelihood), i.e. sum_i w_{k-1}^i (h + b + d mu)^i_ay.
         NaN when the sample is missing."""
-        if self.cfg.gate_ay != "predicted":
+        if self.cfg.gate_ay != "predicted" and self._calib is None:
             return
         q = [j for j in range(len(a)) if self.channels[a[j]] == 1]
         if q:
             lw = self.logw if logw is None else logw
-            self.ay_pred = float(yk[a[q[0]]] - np.exp(lw) @ e[:, q[0]])
+            self._e_ay = float(np.exp(lw) @ e[:, q[0]])  # (the residual of `_calibrate`, Sec. 29)
+            if self.cfg.gate_ay == "predicted":
+                self.ay_pred = float(yk[a[q[0]]] - self._e_ay)
 
     def _adapt_forgetting(self, v: np.ndarray, nu: np.ndarray, dt: float) -> None:
         """The forgetting factor of the next propagation from how well the accelerometers
@@ -1154,6 +1204,8 @@ class StiffnessMPF:
             self.logw = normalize_log_weights(self._informed_start(uk, yk))
         self.restarts += 1
         self._reset_cx_excitation()  # the prior again: nothing of Cx learned
+        if self._calib is not None:
+            self._calib.reset()
         self.t_start, self.t_prev, self.u_prev, self.active = t, t, uk, False
         self._contradiction_since = self._bound_since = None
         self.learned_time, self._t_gate = 0.0, None  # a new start: the inflation disarmed (`inflation_after`)

@@ -1,0 +1,96 @@
+"""Batch-means sandwich: how much wider the posterior of a regression coefficient is when
+its per-sample scores are correlated in time (derivations, Sec. 29).
+
+A linear-Gaussian posterior of a coefficient vector theta from samples y_k = d_k' theta +
+e_k with white e_k has the covariance A^-1 (A = sum d_k d_k' / s^2, the information). When
+the residuals e_k are correlated, as the misfit of a linear tire over the visited slips is,
+the variance of the estimate is the sandwich A^-1 B A^-1 with B the long-run covariance of
+the scores s_k = d_k e_k (White 1982; Newey and West 1987). B is estimated by batch means:
+the outer products of the score sums over batches of `batch` seconds. The ratio to the same
+sandwich with B0 = sum s_k s_k' (the lag-0 part, what white residuals would give) is, per
+coefficient, the integrated autocorrelation time of its scores, and is scale-free: neither
+the residual variance nor the regressors' scale enter it. All three statistics forget, per
+closed batch of length T (seconds of samples actually fed), with exp(-T / memory) times the
+product of the per-sample factors passed to `update` (the MPF passes its statistics' lambda_k,
+so that the sandwich remembers what the mean remembers).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+class BatchMeansSandwich:
+    """Online batch-means estimate of the sandwich factor of an n-vector of coefficients.
+
+    `update(s, d, dt, forget)` feeds one sample: its score s = d e (n,), its regressor d (n,),
+    its duration dt and its forgetting factor (1: none);
+    `factor` (n,) is sqrt(max(1, [A^-1 B A^-1]_jj / [A^-1 B0 A^-1]_jj)), updated when a
+    batch closes (1 until the first one has)."""
+
+    def __init__(self, n: int, batch: float, memory: float):
+        if not (batch > 0 and math.isfinite(batch)):
+            raise ValueError(f"batch must be finite and > 0, got {batch!r}")
+        if not memory > 0:
+            raise ValueError(f"memory must be > 0 (inf: no forgetting), got {memory!r}")
+        self.n, self.batch, self.memory = int(n), float(batch), float(memory)
+        self.reset()
+
+    def reset(self) -> None:
+        n = self.n
+        self.A = np.zeros((n, n))  # sum of d d' over the closed batches, forgotten
+        self.B = np.zeros((n, n))  # sum over the closed batches of (sum s)(sum s)', forgotten
+        self.B0 = np.zeros((n, n))  # sum over the closed batches of sum s s', forgotten
+        self._S = np.zeros(n)  # the open batch: score sum, its sum of s s' and of d d', its length
+        self._S0 = np.zeros((n, n))
+        self._A = np.zeros((n, n))
+        self._T = 0.0
+        self._log_keep = 0.0  # sum of log(forget) over the open batch
+        self.batches = 0
+        self.factor = np.ones(n)
+        self.ratio = np.ones(n)  # the unclipped ratio of the last closed batch (1 before)
+
+    def update(self, s: np.ndarray, d: np.ndarray, dt: float, forget: float = 1.0) -> None:
+        if not (np.all(np.isfinite(s)) and np.all(np.isfinite(d)) and dt > 0 and 0 < forget <= 1):
+            return
+        self._log_keep += math.log(forget)
+        self._S += s
+        self._S0 += np.outer(s, s)
+        self._A += np.outer(d, d)
+        self._T += dt
+        if self._T >= self.batch * (1.0 - 1e-9):
+            self._close()
+
+    def _close(self) -> None:
+        keep = math.exp(self._log_keep - self._T / self.memory)
+        self.A = keep * self.A + self._A
+        self.B = keep * self.B + np.outer(self._S, self._S)
+        self.B0 = keep * self.B0 + self._S0
+        self._S[:] = 0.0
+        self._S0[:] = 0.0
+        self._A[:] = 0.0
+        self._T = 0.0
+        self._log_keep = 0.0
+        self.batches += 1
+        ratio = sandwich_ratio(self.A, self.B, self.B0)
+        if ratio is not None:
+            self.ratio = ratio
+            self.factor = np.sqrt(np.maximum(1.0, ratio))
+
+
+def sandwich_ratio(A: np.ndarray, B: np.ndarray, B0: np.ndarray) -> np.ndarray | None:
+    """diag(A^-1 B A^-1) / diag(A^-1 B0 A^-1) (n,), or None where A is singular or a
+    diagonal of the lag-0 sandwich is not positive."""
+    try:
+        Ai = np.linalg.inv(A)
+    except np.linalg.LinAlgError:
+        return None
+    if not np.all(np.isfinite(Ai)):
+        return None
+    v = np.einsum("ij,jk,ik->i", Ai, B, Ai)
+    v0 = np.einsum("ij,jk,ik->i", Ai, B0, Ai)
+    if not np.all(v0 > 0):
+        return None
+    return v / v0
