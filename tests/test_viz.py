@@ -71,6 +71,30 @@ def test_eq26_density_equals_the_scipy_student_t_mixture_and_integrates_to_one()
         assert np.trapezoid(got * (grid - m) ** 2, grid) == pytest.approx(var, rel=2e-3)
 
 
+def test_a_calibrated_std_widens_the_density_about_its_mean_by_its_factor():
+    """The MPF's posterior carries `std_factor` when its lateral `*_std` is calibrated
+    (derivations Sec. 29): the density drawn is eq. (26) stretched about its mean, whose mean
+    stays and whose std (integrated on a grid) is the factor times eq. (26)'s."""
+    s = _niw(seed=3)
+    plain = niw_mean_marginals(**s)
+    f = np.array([1.0, 1.7, 2.3])
+    post = Posterior(np.zeros((len(s["gamma"]), 3)), s["log_weights"],
+                     {k: s[k] for k in ("gamma", "mu", "Lam", "nu", "C_nominal", "params")} | {"std_factor": f})
+    wide = stiffness_mixture(post)
+    for j, p in enumerate(s["params"]):
+        grid = s["C_nominal"][j] * np.linspace(1.0 - 0.4 * f[j], 1.0 + 0.4 * f[j], 40001)
+        moments = []
+        for mix in (plain, wide):
+            d = mix.pdf(p, grid)
+            m = np.trapezoid(d * grid, grid)
+            moments.append((m, math.sqrt(np.trapezoid(d * (grid - m) ** 2, grid))))
+        (m0, s0), (m1, s1) = moments
+        assert m1 == pytest.approx(m0, rel=1e-6)
+        assert s1 == pytest.approx(f[j] * s0, rel=2e-3)
+    with pytest.raises(ValueError, match="std_factor"):
+        stiffness_mixture(Posterior(post.particles, post.log_weights, post.stats | {"std_factor": [1.0, 0.5, 1.0]}))
+
+
 def test_niw_marginal_of_the_mean_matches_monte_carlo():
     """The Student-t marginal of one particle's mean, against draws of
     Sigma ~ iW(nu, Lam), mu | Sigma ~ N(mu_hat, gamma Sigma)."""

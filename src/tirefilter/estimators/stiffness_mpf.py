@@ -1299,10 +1299,12 @@ class StiffnessMPF:
         self._carried = (normalize_log_weights(logw), stats)
 
     def posterior(self) -> Posterior:
-        return Posterior(self.x.copy(), self.logw.copy(),
-                         {"gamma": self.stats.gamma.copy(), "mu": self.stats.mu.copy(), "Lam": self.stats.Lam.copy(),
-                          "nu": self.stats.nu.copy(), "bias": self.b.copy(), "bias_cov": self.P.copy(),
-                          "C_nominal": self.C_nom.copy(), "params": self.params})
+        stats = {"gamma": self.stats.gamma.copy(), "mu": self.stats.mu.copy(), "Lam": self.stats.Lam.copy(),
+                 "nu": self.stats.nu.copy(), "bias": self.b.copy(), "bias_cov": self.P.copy(),
+                 "C_nominal": self.C_nom.copy(), "params": self.params}
+        if self._calib is not None:  # the factor of the calibrated lateral *_std (Sec. 29), 1 for Cx
+            stats["std_factor"] = np.concatenate([np.ones(len(self.params) - 2), self._calib.factor])
+        return Posterior(self.x.copy(), self.logw.copy(), stats)
 
 
 class _MPFWork:

@@ -29,7 +29,7 @@ Student-t tail beyond that point, < 1e-10 for the settings here).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.special import gammaln, ndtr, stdtr
@@ -90,6 +90,18 @@ def niw_mean_marginals(log_weights, gamma, mu, Lam, nu, C_nominal, params) -> Mi
     var = np.asarray(gamma, float)[:, None] * np.diagonal(np.asarray(Lam, float), axis1=1, axis2=2) / df[:, None]
     return Mixture(tuple(params), _weights(log_weights), np.asarray(C_nominal, float) + mu, np.sqrt(var), df,
                    "eq26-student-t")
+
+
+def widened(mix: Mixture, factor) -> Mixture:
+    """The mixture stretched about its mean by `factor` (n,) per parameter: each component's
+    location moved to m + f (loc - m) and its scale times f, so that the mean stays and the
+    std of the whole mixture is f times its own, exactly (the MPF's calibrated `*_std`,
+    derivations Sec. 29, is the std of eq. (26) times the sandwich factor)."""
+    f = np.asarray(factor, float)
+    if f.shape != (len(mix.params),) or not np.all(f >= 1.0):
+        raise ValueError(f"std_factor must be {len(mix.params)} values >= 1, got {factor!r}")
+    m = mix.weights @ mix.loc
+    return replace(mix, loc=m + f * (mix.loc - m), scale=mix.scale * f)
 
 
 def gaussian_marginals(log_weights, mean, std, params) -> Mixture:
@@ -233,8 +245,9 @@ def stiffness_mixture(posterior, estimate=None, *, params=None, gaussian: bool =
     names = tuple(stats.get("params", params or ()))
     logw = getattr(posterior, "log_weights", None)
     if names and all(k in stats for k in ("gamma", "mu", "Lam", "nu", "C_nominal")):
-        return niw_mean_marginals(logw, stats["gamma"], stats["mu"], stats["Lam"], stats["nu"], stats["C_nominal"],
-                                  names)
+        mix = niw_mean_marginals(logw, stats["gamma"], stats["mu"], stats["Lam"], stats["nu"], stats["C_nominal"],
+                                 names)
+        return mix if "std_factor" not in stats else widened(mix, stats["std_factor"])
     if names and "stiffness_mean" in stats and "stiffness_std" in stats:
         mean = np.atleast_2d(stats["stiffness_mean"])
         return gaussian_marginals(logw if logw is not None and len(logw) == len(mean) else np.zeros(len(mean)),
