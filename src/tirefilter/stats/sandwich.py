@@ -53,12 +53,12 @@ class BatchMeansSandwich:
         self.ratio = np.ones(n)  # the unclipped ratio of the last closed batch (1 before)
 
     def update(self, s: np.ndarray, d: np.ndarray, dt: float, forget: float = 1.0) -> None:
-        if not (np.all(np.isfinite(s)) and np.all(np.isfinite(d)) and dt > 0 and 0 < forget <= 1):
+        if not (dt > 0 and 0 < forget <= 1 and math.isfinite(float(s @ s) + float(d @ d))):  # (one test for all)
             return
         self._log_keep += math.log(forget)
         self._S += s
-        self._S0 += np.outer(s, s)
-        self._A += np.outer(d, d)
+        self._S0 += s[:, None] * s  # (np.outer, without its Python wrapper)
+        self._A += d[:, None] * d
         self._T += dt
         if self._T >= self.batch * (1.0 - 1e-9):
             self._close()
