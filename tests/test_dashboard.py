@@ -505,9 +505,13 @@ def test_friction_estimators_get_their_curve_against_truth(dashboard, monkeypatc
 def test_the_friction_gpssm_live_and_from_its_friction_csv(dashboard, tmp_path):
     d = dashboard
     d._scenario.value, d._estimator.value, d._particles.value = "friction-snow", "gpssm", 20
+    published = d.updates
     for _ in range(3):
         d.command("step")
-    wait_for(lambda: d.status()["rows"] == 3 and d._friction["r"].visible, what="the GP-SSM's curves")
+    # every step command ends in a publication: after the third the worker waits for commands, and
+    # the estimator can be read from this thread (its statistics' lazy update is not for two threads)
+    wait_for(lambda: d.status()["rows"] == 3 and d.updates >= published + 3 and d._friction["r"].visible,
+             what="the GP-SSM's curves")
     curve = d._run.estimator.friction()
     truth = friction_truth(d._run.scenario, curve.alpha, d._history.last("true_surface"))
     want = friction_data(curve, truth, "f")

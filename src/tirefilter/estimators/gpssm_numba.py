@@ -798,15 +798,17 @@ class CompiledStep:
 
     def flush(self) -> None:
         """Apply a pending update of the exact statistics now (before anything reads them)."""
+        # (each flag cleared once its work is done: a reader never sees it cleared over statistics
+        # that are still stale)
         if self.pending:
-            self.pending = False
             K, Psi, Phi, nu = self._views()
             d, m = Psi.shape[1:]  # per particle and step: `per` batch rows of d outputs and m features
             exact_update(Phi, Psi, K, nu, self.zeta.reshape(-1, d), self.phi_p.reshape(-1, m))
             self.stale_upper = True  # the reference's update writes both triangles; the lower one is kept
+            self.pending = False
         if self.stale_upper:
-            self.stale_upper = False
             mirror(self._views()[0])
+            self.stale_upper = False
 
     def _views(self):
         st = self.est._stats
