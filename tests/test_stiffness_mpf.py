@@ -411,7 +411,16 @@ def _lateral_drive_with_process_noise(q_true: float, seed: int = 3, T: float = 3
         est.step(t, Inputs(delta, math.nan, math.nan, vx),
                  Measurement(math.nan, ay + sig[1] * rng.standard_normal(), r + sig[2] * rng.standard_normal()))
         vy, r = vy + dt * (ay - vx * r), r + dt * rdot + q_true * math.sqrt(dt) * rng.standard_normal()
+    q = est.state_noise_estimated()  # what the run summary reports (config_dict, `tirefilter replay`)
+    assert est.config_dict()["state_noise_estimated"] == q
+    np.testing.assert_array_equal([q["vy"], q["yaw_rate"]], np.sqrt(est.q_state))
     return np.sqrt(est.q_state)
+
+
+def test_state_noise_is_reported_only_where_it_is_estimated():
+    est = StiffnessMPF(load_scenario("paper-sim").vehicle, MPFConfig(model="lateral", particles=20))
+    est.reset(np.random.default_rng(0))
+    assert est.state_noise_estimated() is None and "state_noise_estimated" not in est.config_dict()
 
 
 def test_state_noise_from_data_recovers_a_known_process_noise():

@@ -91,6 +91,10 @@ def cmd_replay(args) -> int:
           + f", seed {args.seed}")
     _print_timing(summary, log.duration)
     _print_sensors(estimator)
+    q = estimator.state_noise_estimated() if callable(getattr(estimator, "state_noise_estimated", None)) else None
+    if q:
+        print("state process noise (std per sqrt(s)), estimated from the log at its end: "
+              + ", ".join(f"{n} {v:.3g}" for n, v in q.items()) + " [m/s, rad/s] (derivations Sec. 28)")
     final = summary.final or {}
     estimates = [f"{p} {final[p]:.4g} +- {final[p + '_std']:.2g}" for p in ("Cf_y", "Cr_y", "Cx")
                  if final.get(p) is not None and final.get(p + "_std") is not None]

@@ -95,7 +95,7 @@ class MPFConfig:
     # surprise inflation of the draw of w_k (derivations Sec. 25): with adaptive forgetting, the conditional
     # scale of w_k is multiplied by c = max(1, 1 + surprise_inflation (z - 1)), z the smoothed innovation
     # statistic (Sec. 17): 1 matches the deviations' covariance to the residuals the accelerometers show; 0: off,
-    # the paper's draw (the default: on, an unmodelled IMU gain on a peer drive ends past 10%, Sec. 27)
+    # the paper's draw (the default: with it on, an unmodelled IMU gain on a peer drive ends past 10%, Sec. 27)
     surprise_inflation: float = 0.0
     # the draw the statistics learn from (eq. (19)) and the drift statistic sees: the same draw at c = 1,
     # mu_c + (w_k - mu_c) / sqrt(c) (False: only the state's propagation is inflated), or the inflated one (True)
@@ -328,7 +328,18 @@ class StiffnessMPF:
     def config_dict(self) -> dict:
         d = asdict(self.cfg)
         d.update(params=list(self.params), C_nominal=self.C_nom.tolist())
+        q = self.state_noise_estimated()
+        if q is not None:
+            d["state_noise_estimated"] = q
         return d
+
+    def state_noise_estimated(self) -> dict | None:
+        """The state's process noise as estimated from the data so far (`state_noise_from_data`,
+        derivations Sec. 28), std per sqrt(s) by state component; None when it is not estimated."""
+        if not self.cfg.state_noise_from_data or not hasattr(self, "q_state"):
+            return None
+        names = ("vx", "vy", "yaw_rate") if self.full else ("vy", "yaw_rate")
+        return {n: math.sqrt(float(q)) for n, q in zip(names, self.q_state)}
 
     # ---- initialisation ---------------------------------------------------------------
     def reset(self, rng: np.random.Generator) -> None:
@@ -967,7 +978,8 @@ class StiffnessMPF:
         for the fused step: the same Estimate (tests/test_kernels.py compares every field) in a
         third of the time."""
         xm, xs, mb, vm, s2, bm = mom.tolist()
-        self._sigma2_rel = max(v / c**2 for v, c in zip(s2, self.C_ref.tolist()))  # (`_draw_inflation`'s bound)
+        if self.cfg.inflation_prior_bound:  # (`_draw_inflation`'s bound)
+            self._sigma2_rel = max(v / c**2 for v, c in zip(s2, self.C_ref.tolist()))
         root, C = _sqrt_or_nan, self.C_nom.tolist()
         if self.full:  # params Cx, Cf_y, Cr_y; bias ax, ay, yaw rate
             return Estimate(active=bool(self.active), vx=xm[0], vy=xm[1], yaw_rate=xm[2], Cf_y=C[1] + mb[1],
@@ -1058,7 +1070,7 @@ class StiffnessMPF:
         # at most the prior's uncertainty of the stiffness, s^2 + init_sigma^2 (relative), over the
         # deviation spread of the last estimate (eq. (27b))
         s = cfg.init_std if cfg.init_distribution == "normal" else cfg.init_half_width / math.sqrt(3.0)
-        spread = getattr(self, "_sigma2_rel", 0.0)
+        spread = self._sigma2_rel
         if spread > 0 and cfg.inflation_prior_bound:
             c = min(c, (s * s + cfg.init_sigma**2) / spread)
         return max(1.0, c)
@@ -1237,7 +1249,8 @@ class StiffnessMPF:
         Esig = np.diagonal(self.stats.Lam, axis1=1, axis2=2) / (self.stats.nu - self.n_w - 1.0)[:, None]  # E[Sigma]
         var_mean = q @ (self.stats.gamma[:, None] * Esig) + spread  # posterior variance of the mean
         sigma2 = q @ Esig + spread  # eq. (27b), diagonal, with nu - n_w - 1
-        self._sigma2_rel = float(np.max(sigma2 / self.C_ref**2))  # (`_draw_inflation`'s bound)
+        if self.cfg.inflation_prior_bound:  # (`_draw_inflation`'s bound)
+            self._sigma2_rel = float(np.max(sigma2 / self.C_ref**2))
         return self._estimate_from(ess, x_mean, x_std, mbar, var_mean, sigma2, q @ self.b)
 
     def _estimate_from(self, ess, x_mean, x_std, mbar, var_mean, sigma2, b_mean) -> Estimate:
