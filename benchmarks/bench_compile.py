@@ -21,6 +21,9 @@ from conftest import WARM_UP  # noqa: E402
 
 
 def main() -> int:
+    import argparse
+
+    argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter).parse_args()
     print(f"NUMBA_CACHE_DIR={os.environ.get('NUMBA_CACHE_DIR', '(beside the sources)')}, "
           f"load average {os.getloadavg()[0]:.1f}")
     print(f"{'task':20s} {'compile s':>10s} {'CPU s':>8s} {'wall s':>8s}")

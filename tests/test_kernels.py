@@ -605,6 +605,8 @@ def test_surprise_inflation_scales_the_draw_about_the_conditional_mean(backend, 
         e.step(*samples[20])
         w[c] = np.array(e.w_prev)
     assert np.ptp(w[1.0], axis=0).min() > 0
+    # c reaches the draw (without this, a c that does nothing passes the equality below as 0 == 0)
+    assert np.abs(w[4.0] - w[1.0]).max() > 1e-3 * np.abs(w[1.0]).max()
     assert_equal_to_rounding(w[9.0] - w[1.0], 2.0 * (w[4.0] - w[1.0]), "w")
 
 

@@ -247,6 +247,7 @@ def test_default_replay_learns_cx_through_noisy_wheel_speeds(tmp_path):
     assert main(["replay", str(log), "--vehicle", str(vehicle), "--out", str(out), "--quiet"]) == 0
     score = score_replay(log, out, last=30.0)
     assert score["Cx_err"] > -25.0, score
+    assert score["Cx_err"] < 60.0, score  # (seeds 0-4 of this replay: -17.4 to +46.3%)
     _assert_targets(score)
 
 
