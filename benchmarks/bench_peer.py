@@ -36,14 +36,32 @@ README = Path(__file__).resolve().parent / "README.md"
 HEADING = "## Peer drives (`benchmarks/bench_peer.py`, issue 13 point 6)"
 
 
-def run_drive(job: tuple) -> list[dict]:
-    """Generate one drive and replay it with every estimator; one row per estimator."""
-    from tirefilter.config import read_toml
+def replay_drive(drive, name: str, config: dict, seed: int, last: float):
+    """Replay the peer drive `drive` through its CSV log and vehicle TOML, as a user would,
+    with estimator `name` and `config`; returns its scores against the drive's truth (last
+    `last` s, `peer.score`) and the estimator."""
     from tirefilter.estimators import build_log_estimator
-    from tirefilter.peer.drive import DriveSpec, simulate, write_drive
+    from tirefilter.peer.drive import write_drive
     from tirefilter.peer.score import score
     from tirefilter.replay import read_log, replay_log, result_columns
     from tirefilter.vehicle.params import load_vehicle
+
+    with tempfile.TemporaryDirectory() as tmp:
+        log_path, vehicle_path = write_drive(drive, Path(tmp) / "drive.csv", Path(tmp) / "vehicle.toml")
+        vehicle = load_vehicle(vehicle_path)
+        log = read_log(log_path, vehicle)
+    est = build_log_estimator(name, vehicle, log.t, {s: log.signals[s] for s in log.available}, model="auto",
+                              particles=None, config=config, source=log.path)
+    _, kept = replay_log(log, estimator=est, seed=seed, keep_rows=True)
+    c = drive.columns
+    truth = {k: c[k] for k in ("t", "beta_true", "Cf_y_true", "Cr_y_true", "Cx_true")}
+    return score(truth, dict(zip(result_columns(log), kept.T)), last=last), est
+
+
+def run_drive(job: tuple) -> list[dict]:
+    """Generate one drive and replay it with every estimator; one row per estimator."""
+    from tirefilter.config import read_toml
+    from tirefilter.peer.drive import DriveSpec, simulate
 
     model, vehicle_id, seed, estimators, maneuver, duration, speed, last, config_path = job
     config = read_toml(config_path) if config_path else {}
@@ -52,22 +70,12 @@ def run_drive(job: tuple) -> list[dict]:
                                 speed=speed))
     gen_s = time.perf_counter() - t0
     rows = []
-    with tempfile.TemporaryDirectory() as tmp:
-        log_path, vehicle_path = write_drive(drive, Path(tmp) / "drive.csv", Path(tmp) / "vehicle.toml")
-        vehicle = load_vehicle(vehicle_path)
-        log = read_log(log_path, vehicle)
-    c = drive.columns
-    truth = {k: c[k] for k in ("t", "beta_true", "Cf_y_true", "Cr_y_true", "Cx_true")}
     for name in estimators:
-        est = build_log_estimator(name, vehicle, log.t, {s: log.signals[s] for s in log.available}, model="auto",
-                                  particles=None, config=config, source=log.path)
         t1 = time.perf_counter()
-        summary, kept = replay_log(log, estimator=est, seed=seed, keep_rows=True)
-        r = dict(zip(result_columns(log), kept.T))
-        s = score(truth, r, last=last)
+        s, est = replay_drive(drive, name, config, seed, last)
         rows.append({"model": model, "vehicle": vehicle_id, "seed": seed, "estimator": name, **s,
                      "restarts": getattr(est, "restarts", None), "wall_s": time.perf_counter() - t1,
-                     "gen_s": gen_s, "ay_max": float(np.max(np.abs(c["ay_true"]))),
+                     "gen_s": gen_s, "ay_max": float(np.max(np.abs(drive.columns["ay_true"]))),
                      "roll_gradient": drive.roll_gradient})
     return rows
 

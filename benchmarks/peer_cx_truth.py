@@ -33,18 +33,13 @@ def main() -> None:
     import vehiclemodels.utils.tire_model as tm
     from vehiclemodels.utils.acceleration_constraints import acceleration_constraints
 
-    from tirefilter.peer.drive import RATE, SUBSTEPS, DriveSpec, integrate, steer_gain
-    from tirefilter.peer.maneuvers import make_profile
+    from tirefilter.peer.drive import DriveSpec, trajectory
     from tirefilter.peer.model import G_PEER, load_model
 
     spec = DriveSpec(model="std", vehicle=args.vehicle, maneuver=args.maneuver, duration=args.duration,
                      seed=args.seed, speed=args.speed)
     model = load_model(spec.model, spec.vehicle, spec.camber)
-    maneuver_seed, _ = np.random.SeedSequence(spec.seed).spawn(2)  # as drive.simulate
-    profile = make_profile(spec.maneuver, spec.duration, speed=spec.speed, ay=spec.ay, steer_gain=steer_gain(model),
-                           straight=spec.straight, dt=0.5 / (RATE * SUBSTEPS),
-                           rng=np.random.default_rng(maneuver_seed))
-    _, X, U = integrate(model, profile)
+    _, X, U, _ = trajectory(spec, model)  # the drive `tirefilter peer-drive` samples
     p = model.p
     m, lf, lr = p.m, p.a, p.b
     L = lf + lr

@@ -16,28 +16,14 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import tempfile
 import time
-from pathlib import Path
 
 
 def replay(drive, config: dict, seed: int, last: float) -> dict:
-    from tirefilter.estimators import build_log_estimator
-    from tirefilter.peer.drive import write_drive
-    from tirefilter.peer.score import score
-    from tirefilter.replay import read_log, replay_log, result_columns
-    from tirefilter.vehicle.params import load_vehicle
+    from bench_peer import replay_drive  # benchmarks/, the script's folder
 
-    with tempfile.TemporaryDirectory() as tmp:
-        log_path, vehicle_path = write_drive(drive, Path(tmp) / "drive.csv", Path(tmp) / "vehicle.toml")
-        vehicle = load_vehicle(vehicle_path)
-        log = read_log(log_path, vehicle)
-    est = build_log_estimator("mpf", vehicle, log.t, {s: log.signals[s] for s in log.available}, model="auto",
-                              particles=None, config=config, source=log.path)
-    _, kept = replay_log(log, estimator=est, seed=seed, keep_rows=True)
-    c = drive.columns
-    truth = {k: c[k] for k in ("t", "beta_true", "Cf_y_true", "Cr_y_true", "Cx_true")}
-    return {**score(truth, dict(zip(result_columns(log), kept.T)), last=last), "sigma_omega": est.cfg.sigma_omega}
+    scores, est = replay_drive(drive, "mpf", config, seed, last)
+    return {**scores, "sigma_omega": est.cfg.sigma_omega}
 
 
 def main() -> None:

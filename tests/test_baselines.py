@@ -241,6 +241,8 @@ def test_a_missing_ay_sample_does_not_open_a_baselines_gate(name):
     Sec. 26): in a steady turn at a^Y = 5 m/s^2, beyond gate_ay_max = 4, with every other a^Y
     sample missing (the guard's held samples), the gate stays closed; at 3 m/s^2 it opens
     after the 1 s warm-up, on the missing samples too (they hold the last a^Y)."""
+    from test_stiffness_mpf import _steady_turn  # tests/, on the path as the other test helpers
+
     from tirefilter.estimators import _baseline
     from tirefilter.estimators.stiffness_mpf import MPFConfig
 
@@ -249,10 +251,7 @@ def test_a_missing_ay_sample_does_not_open_a_baselines_gate(name):
                     disturbance_rw=(0.0, 0.0, 0.0))
     k = np.arange(300)
     for ay_true, opens in ((5.0, False), (3.0, True)):
-        r, L = ay_true / 20.0, vehicle.lf + vehicle.lr
-        alpha_f = vehicle.mass * ay_true * vehicle.lr / L / vehicle.Cf_y
-        alpha_r = vehicle.mass * ay_true * vehicle.lf / L / vehicle.Cr_y
-        delta = alpha_f + (vehicle.lr * r - 20.0 * alpha_r + vehicle.lf * r) / 20.0  # the steady turn's steer
+        r, delta = _steady_turn(vehicle, ay_true)
         est = _baseline(name, vehicle, cfg, {})
         est.reset(np.random.default_rng(1))
         ay = np.where(k % 2 == 1, np.nan, ay_true)

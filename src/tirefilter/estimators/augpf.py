@@ -319,7 +319,7 @@ class AugmentedPF:
         vy = self.x[:, -2]
         vy_std = math.sqrt(max(float(q @ (vy - q @ vy) ** 2), 0.0))
         alpha = max(abs(float(q @ model_k[2])), abs(float(q @ model_k[3])))
-        ay_gate, self.ay_last = held_ay(y.ay, self.ay_last)
+        ay_gate = self.ay_last = held_ay(y.ay, self.ay_last)
         self.active = gate_open(cfg, t=t, t_start=self.t_start, vx=vx_est, delta=uk[0], ay_meas=ay_gate, alpha=alpha,
                                 vy_std=vy_std)
         self.w_prev = w

@@ -67,12 +67,12 @@ def gate_open(cfg, *, t: float, t_start: float, vx: float, delta: float, ay_meas
                 and alpha < cfg.gate_alpha_max and vy_std < cfg.gate_vy_std and t - t_start >= cfg.gate_warmup)
 
 
-def held_ay(ay: float, last: float) -> tuple[float, float]:
-    """(the a^Y that `gate_open`'s linear-region test reads, the last finite a^Y): the sample,
-    or where it is missing the last finite one. A sample the measurement guard marks missing
-    (a held repeat, an outlier) is no evidence of the linear region; counted as 0 it opened
-    the gate at any load (derivations Sec. 26). Every estimator's gate holds it this way."""
-    return (ay, ay) if math.isfinite(ay) else (last, last)
+def held_ay(ay: float, last: float) -> float:
+    """The a^Y that `gate_open`'s linear-region test reads, and the caller keeps as `last`: the
+    sample, or where it is missing the last finite one. A sample the measurement guard marks
+    missing (a held repeat, an outlier) is no evidence of the linear region; counted as 0 it
+    opened the gate at any load (derivations Sec. 26). Every estimator's gate holds it this way."""
+    return ay if math.isfinite(ay) else last
 
 
 def stiffness_prior(cfg, C_nom: np.ndarray, params: tuple[str, ...], source: str):

@@ -343,7 +343,7 @@ class StiffnessEKF:
         self.t_prev, self.u_prev = t, uk
         _, _, (af, ar) = self.mdl.dynamics(self.z, uk)
         vx = self.z[0] if self.full else uk[3]
-        ay_gate, self.ay_last = held_ay(y.ay, self.ay_last)
+        ay_gate = self.ay_last = held_ay(y.ay, self.ay_last)
         self.active = gate_open(cfg, t=t, t_start=self.t_start, vx=vx, delta=uk[0], ay_meas=ay_gate,
                                 alpha=max(abs(af), abs(ar)), vy_std=math.sqrt(max(self.P[self.nx - 2, self.nx - 2], 0.0)))
         return self._estimate(vx)

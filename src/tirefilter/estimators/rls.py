@@ -185,7 +185,7 @@ class RLSEstimator:
         if self.t_start is None:
             self.t_start = t
         vy_std = math.sqrt(max(self.kf.P[0, 0], 0.0))
-        ay_gate, self.ay_last = held_ay(y.ay, self.ay_last)
+        ay_gate = self.ay_last = held_ay(y.ay, self.ay_last)
         self.active = gate_open(cfg, t=t, t_start=self.t_start, vx=vx, delta=delta, ay_meas=ay_gate,
                                 alpha=max(abs(af), abs(ar)), vy_std=vy_std)
         if self.active and rows:

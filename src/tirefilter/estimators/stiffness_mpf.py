@@ -846,9 +846,9 @@ class StiffnessMPF:
         ay = self.ay_pred if cfg.gate_ay == "predicted" else y.ay
         self.ay_pred = math.nan
         if cfg.gate_ay != "measured-zero":  # a missing sample is no evidence of the linear region (Sec. 26)
-            ay, self.ay_last = held_ay(ay, self.ay_last)
+            ay = self.ay_last = held_ay(ay, self.ay_last)
         if self._gate_combined:  # the friction circle's load, sqrt(a^X^2 + a^Y^2) (Sec. 28)
-            ax, self.ax_last = held_ay(y.ax, self.ax_last)
+            ax = self.ax_last = held_ay(y.ax, self.ax_last)
             if math.isfinite(ax) and math.isfinite(ay):
                 ay = math.hypot(ax, ay)
         ay_m = ay if math.isfinite(ay) else 0.0

@@ -134,14 +134,21 @@ def integrate(model: PeerModel, profile: Profile, rate: float = RATE, substeps: 
     return np.arange(n) / rate, X, U
 
 
+def trajectory(spec: DriveSpec, model: PeerModel) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.random.SeedSequence]:
+    """The drive's maneuver integrated on `model`: times, states and controls at the sample
+    rate, and the seed left for the sensors (one `SeedSequence(spec.seed)` spawns both)."""
+    maneuver_seed, sensor_seed = np.random.SeedSequence(spec.seed).spawn(2)
+    profile = make_profile(spec.maneuver, spec.duration, speed=spec.speed, ay=spec.ay, steer_gain=steer_gain(model),
+                           straight=spec.straight, dt=0.5 / (RATE * SUBSTEPS),
+                           rng=np.random.default_rng(maneuver_seed))
+    t, X, U = integrate(model, profile)
+    return t, X, U, sensor_seed
+
+
 def simulate(spec: DriveSpec) -> PeerDrive:
     """Generate the drive `spec`: integrate, sample, add the sensors."""
     model = load_model(spec.model, spec.vehicle, spec.camber)
-    maneuver_seed, sensor_seed = np.random.SeedSequence(spec.seed).spawn(2)
-    maneuver_rng = np.random.default_rng(maneuver_seed)
-    profile = make_profile(spec.maneuver, spec.duration, speed=spec.speed, ay=spec.ay, steer_gain=steer_gain(model),
-                           straight=spec.straight, dt=0.5 / (RATE * SUBSTEPS), rng=maneuver_rng)
-    t, X, U = integrate(model, profile)
+    t, X, U, sensor_seed = trajectory(spec, model)
     rows = [model.sample(x, u) for x, u in zip(X, U)]
     true = {key: np.array([r[key] for r in rows]) for key in rows[0]}
     meas, bias = measure(t, true, spec.sensors, sensor_seed)
