@@ -57,6 +57,7 @@ import numpy as np
 from numba import njit
 
 from tirefilter.errors import ConfigError
+from tirefilter.estimators.base import Estimate
 from tirefilter.stats.mniw_numba import _factor, _phi1, _rank1_forget1, _rank1_update1, exact_update
 from tirefilter.stats.particles_numba import systematic_into
 from tirefilter.stats.student_t import t_draws
@@ -161,42 +162,6 @@ def _pending_head(Psi, Phi, nu, b, per, zeta, phi_p, forget, lam, nu_min):
         for j in range(m):
             Pi[j] = (Pi[j] + zi * ph[j]) * f
     return f, 1.0 - f, ph
-
-
-@njit(**_JIT)
-def _update_forget_lane(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget, lam, nu_min, A, w):
-    """Batch element b: the pending update (eq. (27a)-(27c), (28f)) then the forgetting
-    (eq. (29)), in one sweep over K with the reference's operations in the reference's order
-    ((K + phi phi^T) * f, then + (1 - f) V on the diagonal), each entry of K's lower triangle
-    written to K and to lane w of A (A[i, j, w] = K[b, i, j]) as it is computed: one pass over
-    K instead of two. K's lower triangle only: the upper one is restored by `mirror` before
-    anything else reads K (the reference's K is exactly symmetric: p_i p_j = p_j p_i and the
-    forgetting is elementwise)."""
-    m = Psi.shape[2]
-    Kb = K[b]
-    if not pending:
-        if forget:
-            _forget_exact(K, Psi, Phi, nu, V, b, lam, nu_min)
-        for i in range(m):
-            Ki = Kb[i]
-            Ai = A[i]
-            for j in range(i + 1):
-                Ai[j, w] = Ki[j]
-        return
-    f, g, ph = _pending_head(Psi, Phi, nu, b, per, zeta, phi_p, forget, lam, nu_min)
-    for i in range(m):
-        p = ph[i]
-        Ki = Kb[i]
-        Ai = A[i]
-        for j in range(i):
-            v = (Ki[j] + p * ph[j]) * f
-            Ki[j] = v
-            Ai[j, w] = v
-        v = (Ki[i] + p * ph[i]) * f
-        v += g * V[i]
-        Ki[i] = v
-        Ai[i, w] = v
-    nu[b] = nu[b] * f
 
 
 @njit(inline="always", **_JIT)
@@ -320,24 +285,98 @@ def _chol_lanes(A, m, W, inv):
 
 
 @njit(**_JIT)
-def exact_forget_predictive(K, Psi, Phi, nu, V, Lam0, work, per, forget, lam, nu_min, lanes, pending, zeta, phi_p):
-    """Flat batch K (B, m, m) = Sigma + V, Psi (B, d, m), Phi (B, d, d), nu (B,), per batch
-    elements per particle (tensor 1, axle 2). In one pass over each element's statistics:
-    with `pending` the previous step's update (eq. (27), zeta (N, 2) at features phi_p),
-    with `forget` eq. (29), then the predictive St(M phi, c Lambda / (nu - d + 1),
-    nu - d + 1) (eq. (31)-(32)) into work, `lanes` elements at a time (`_chol_lanes`)."""
+def _lane_heads(Psi, Phi, nu, b0, nw, per, pending, zeta, phi_p, forget, lam, nu_min, fv, gv, phl):
+    """The per-element start of a block's pass, lanes w < nw (batch elements b0 + w): with
+    `pending` the previous step's update of Phi, Psi and nu (eq. (27a)-(27b), (28f)) scaled by
+    the forgetting factor f (`_pending_head`) and its features phl[:, w]; without, the
+    forgetting of Phi, Psi and nu (`_forget_exact` but K); then nu *= f (as the reference, after
+    nu += 1). fv[w] = f and gv[w] = 1 - f for the sweep over K; the padding lanes f = 1, 1 - f =
+    0, zero features (their identity matrix stays the identity)."""
+    d, m = Psi.shape[1], Psi.shape[2]
+    W = fv.shape[0]
+    for w in range(W):
+        if w >= nw:
+            fv[w], gv[w] = 1.0, 0.0
+            for j in range(m):
+                phl[j, w] = 0.0
+            continue
+        b = b0 + w
+        if pending:
+            f, g, ph = _pending_head(Psi, Phi, nu, b, per, zeta, phi_p, forget, lam, nu_min)
+            for j in range(m):
+                phl[j, w] = ph[j]
+        else:
+            f = _factor(lam, nu_min, nu[b])
+            for i in range(d):
+                for k in range(d):
+                    Phi[b, i, k] = Phi[b, i, k] * f
+                Pi = Psi[b, i]
+                for j in range(m):
+                    Pi[j] = Pi[j] * f
+            g = 1.0 - f
+        nu[b] = nu[b] * f
+        fv[w], gv[w] = f, g
+
+
+@njit(**_JIT)
+def exact_forget_predictive(Kl, Psi, Phi, nu, V, Lam0, work, per, forget, lam, nu_min, pending, zeta, phi_p):
+    """The exact statistics' pass below `LANES_BELOW` functions, with K = Sigma + V kept by the
+    compiled step in lanes (`Kl` (blocks, m, m, LANES): Kl[b // LANES, i, j, b % LANES] = K[b, i,
+    j], lower triangle; the padding lanes of the last block the identity; `lanes_load`,
+    `lanes_store`). Psi (B, d, m), Phi (B, d, d), nu (B,): the flat batch, per batch elements
+    per particle (axle 2). In one pass over each block of lanes: with `pending` the previous
+    step's update (eq. (27), zeta (N, 2) at features phi_p), with `forget` eq. (29), written
+    into Kl and into the factorisation's matrix A in one sweep, every operation a vector one
+    over the lanes; then the factorisation with the forward substitution (`_chol_lanes`) and the
+    predictive St(M phi, c Lambda / (nu - d + 1), nu - d + 1) (eq. (31)-(32)) into work. Per
+    element the reference's operations in the reference's order ((K + phi phi^T) * f, then
+    + (1 - f) V on the diagonal; without a pending update K * f, then + (1 - f) V): the lanes
+    layout only changes which element an instruction works on, not what it computes."""
     nb, d, m = Psi.shape
-    W = lanes
-    A = np.zeros((m + d + 1, m, W))
+    W = Kl.shape[3]
+    A = np.empty((m + d + 1, m, W))
     inv = np.empty((m, W))
     acc = np.empty((1 + d + d * d, W))
     lam2 = np.empty((2, 2))
-    for b0 in range(0, nb, W):
+    fv = np.empty(W)
+    gv = np.empty(W)
+    phl = np.empty((m, W))
+    for blk in range(Kl.shape[0]):
+        b0 = blk * W
         nw = min(W, nb - b0)
+        Kb = Kl[blk]
+        if pending or forget:
+            _lane_heads(Psi, Phi, nu, b0, nw, per, pending, zeta, phi_p, forget, lam, nu_min, fv, gv, phl)
+        for i in range(m):
+            Ki = Kb[i]
+            Ai = A[i]
+            if pending:
+                pi = phl[i]
+                for j in range(i + 1):
+                    kij = Ki[j]
+                    aij = Ai[j]
+                    pj = phl[j]
+                    for w in range(W):
+                        kij[w] = (kij[w] + pi[w] * pj[w]) * fv[w]
+                kii = Ki[i]
+                for w in range(W):
+                    kii[w] += gv[w] * V[i]
+            elif forget:
+                for j in range(i + 1):
+                    kij = Ki[j]
+                    for w in range(W):
+                        kij[w] *= fv[w]
+                kii = Ki[i]
+                for w in range(W):
+                    kii[w] += gv[w] * V[i]
+            for j in range(i + 1):
+                kij = Ki[j]
+                aij = Ai[j]
+                for w in range(W):
+                    aij[w] = kij[w]
         for w in range(W):
             if w < nw:
                 b = b0 + w
-                _update_forget_lane(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget, lam, nu_min, A, w)
                 n, a = b // per, b % per
                 for i in range(d):
                     Pi = Psi[b, i]
@@ -348,12 +387,37 @@ def exact_forget_predictive(K, Psi, Phi, nu, V, Lam0, work, per, forget, lam, nu
                 Ai = A[m + d]
                 for j in range(m):
                     Ai[j, w] = ph[j]
-            else:  # padding lanes: identity, zero right-hand sides
-                for i in range(m + d + 1):
-                    for j in range(min(i + 1, m)):
-                        A[i, j, w] = 1.0 if i == j else 0.0
+            else:  # padding lanes: zero right-hand sides
+                for i in range(m, m + d + 1):
+                    for j in range(m):
+                        A[i, j, w] = 0.0
         _chol_lanes(A, m, W, inv)
         _write_predictive_lanes(work, b0, nw, per, d, m, A, Lam0, Phi, nu, acc, lam2)
+
+
+@njit(**_JIT)
+def lanes_load(K, Kl):
+    """Kl[b // W, i, j, b % W] = K[b, i, j] (lower triangle), the padding lanes the identity."""
+    nblk, m, W = Kl.shape[0], Kl.shape[1], Kl.shape[3]
+    nb = K.shape[0]
+    for blk in range(nblk):
+        for w in range(W):
+            b = blk * W + w
+            for i in range(m):
+                for j in range(i + 1):
+                    Kl[blk, i, j, w] = K[b, i, j] if b < nb else (1.0 if i == j else 0.0)
+
+
+@njit(**_JIT)
+def lanes_store(Kl, K):
+    """K[b, i, j] = Kl[b // W, i, j, b % W], lower triangle."""
+    W = Kl.shape[3]
+    nb, m = K.shape[0], K.shape[1]
+    for b in range(nb):
+        blk, w = b // W, b % W
+        for i in range(m):
+            for j in range(i + 1):
+                K[b, i, j] = Kl[blk, i, j, w]
 
 
 @njit(**_JIT)
@@ -547,7 +611,7 @@ def rank1_forget_predictive(M, P, Lam, nu, work, per, forget, lam, nu_min, bound
 
 # ---- 3. weights ---------------------------------------------------------------------------------
 @njit(**_JIT)
-def weigh(x, work, logw, c0, c1, ay, yr, R0, R1, have_ay, have_r, learned):
+def weigh(x, work, logw, c0, c1, ay, yr, R0, R1, have_ay, have_r, learned, add):
     """Eq. (22) with zeta integrated out; returns (ESS, predicted a^Y, predicted yaw rate) and
     writes the normalised log-weights (as `normalize_log_weights`) and, for the learned
     measurement, work[:, SC:E + 1] = S c, the a^Y marginal's scale and the residual."""
@@ -600,7 +664,7 @@ def weigh(x, work, logw, c0, c1, ay, yr, R0, R1, have_ay, have_r, learned):
     s2 = 0.0
     for i in range(n):
         s2 += math.exp(2.0 * logw[i])
-    return 1.0 / s2, pred_ay, pred_r
+    return 1.0 / s2, pred_ay, pred_r, common_dof(work, add)
 
 
 # ---- 4. resampling copies -----------------------------------------------------------------------
@@ -671,6 +735,61 @@ def gather_lower(K, idx):
 
 
 @njit(**_JIT)
+def _copy_lanes(Kl, per, i, j):
+    """Particle j's batch elements' K (lower triangles) into particle i's, in the lanes layout."""
+    W, m = Kl.shape[3], Kl.shape[1]
+    for a in range(per):
+        s, t = j * per + a, i * per + a
+        bs, ws, bt, wt = s // W, s % W, t // W, t % W
+        for r in range(m):
+            for c in range(r + 1):
+                Kl[bt, r, c, wt] = Kl[bs, r, c, ws]
+
+
+@njit(**_JIT)
+def gather_lanes(Kl, idx, per):
+    """`gather_lower` for K in lanes (`exact_forget_predictive`), in place, the same order."""
+    n = idx.shape[0]
+    if _sorted(idx):
+        for i in range(n):
+            if idx[i] > i:
+                _copy_lanes(Kl, per, i, idx[i])
+        for i in range(n - 1, -1, -1):
+            if idx[i] < i:
+                _copy_lanes(Kl, per, i, idx[i])
+    else:
+        B = Kl.copy()
+        W, m = Kl.shape[3], Kl.shape[1]
+        for i in range(n):
+            for a in range(per):
+                s, t = idx[i] * per + a, i * per + a
+                for r in range(m):
+                    for c in range(r + 1):
+                        Kl[t // W, r, c, t % W] = B[s // W, r, c, s % W]
+
+
+@njit(**_JIT)
+def resample(logw, u0, arrays, K, per, lanes, add, work):
+    """Systematic resampling after its uniform u0 (`systematic_ancestors`), its copies in place
+    (`gather_rows` for every (N, k) array; K's lower triangles by `gather_lanes` when `lanes`,
+    else `gather_lower` (K (N, per, m, m)); none when K is empty: the rank-one statistics), the
+    log-weights set to -log N; returns `common_dof(work, add)` after the copies."""
+    n = logw.shape[0]
+    idx = np.empty(n, np.int64)
+    systematic_into(logw, u0, idx)
+    gather_rows(arrays, idx)
+    if K.shape[0] > 0:
+        if lanes:
+            gather_lanes(K, idx, per)
+        else:
+            gather_lower(K, idx)
+    v = -math.log(n)
+    for i in range(n):
+        logw[i] = v
+    return common_dof(work, add)
+
+
+@njit(**_JIT)
 def mirror(K):
     """K[b] upper triangle = lower triangle transposed, for every b."""
     nb, m = K.shape[0], K.shape[1]
@@ -693,7 +812,7 @@ def _chol2_apply(s00, s10, s11, z0, z1):
 
 
 @njit(**_JIT)
-def sample(x, work, logw, z, u, zeta, mu, conditional):
+def sample(x, work, logw, z, u, zeta, mu, conditional, keep_phi, phi_p):
     """zeta ~ St (the t conditional given the a^Y residual when `conditional`, else the
     predictive) from z ~ N(0, I), u ~ chi2(dof'), as `student_t.t_sample`; mu = mu~ + zeta.
     Returns the weighted means and std of x and the mean slip angles."""
@@ -731,6 +850,11 @@ def sample(x, work, logw, z, u, zeta, mu, conditional):
         q = math.exp(logw[i])
         v0 += q * (x[i, 0] - m0) ** 2
         v1 += q * (x[i, 1] - m1) ** 2
+    if keep_phi:  # the features of the pending update (exact statistics while learning)
+        k = phi_p.shape[1]
+        for i in range(n):
+            for j in range(k):
+                phi_p[i, j] = work[i, PHI + j]
     return m0, m1, math.sqrt(max(v0, 0.0)), math.sqrt(max(v1, 0.0)), mf, mr
 
 
@@ -767,13 +891,16 @@ def _flat(a, tail: int):
 
 class CompiledStep:
     """The compiled step of one `FrictionGPSSM` (built at its `reset`): the work array and
-    flat views of the statistics' arrays (the statistics are updated in place)."""
+    flat views of the statistics' arrays (the statistics are updated in place); below
+    `LANES_BELOW` functions with the exact statistics also K in lanes (`Kl`, the statistics'
+    K written back by `flush`)."""
 
     def __init__(self, est):
         from tirefilter.stats.mniw_numba import NumbaMNIW, NumbaMNIWRank1
 
         cfg, N = est.cfg, est.cfg.particles
         self.est = est
+        self.N = N
         self.tensor = est.d == 2
         self.per = 1 if self.tensor else 2
         size = est.basis.size
@@ -792,14 +919,69 @@ class CompiledStep:
         if not isinstance(st, (NumbaMNIW, NumbaMNIWRank1)):
             raise TypeError("the compiled step needs the compiled statistics (backend numba)")
         self.lanes = size < LANES_BELOW
+        # exact statistics in lanes: K lives in Kl between `flush`es (kl_loaded: Kl holds K, the
+        # statistics' K is stale; loaded from the statistics at the next step after a flush)
+        nb = N * self.per
+        self.Kl = (np.zeros(((nb + LANES - 1) // LANES, size, size, LANES)) if self.exact and self.lanes
+                   else np.zeros((0, 0, 0, 0)))
+        self.kl_loaded = False
         v = est.vehicle
         self.veh = (float(est.Fz[0]), float(est.Fz[1]), float(v.mass), float(v.lf), float(v.lr),
                     float(v.yaw_inertia))
+        # the configuration's scalars, read once (the configuration is frozen)
+        self.max_step = float(cfg.max_step)
+        self.sn = np.asarray(cfg.state_noise, float)
+        self.noise = bool(cfg.state_noise[0] > 0 or cfg.state_noise[1] > 0)
+        self.gate_speed = float(cfg.gate_speed)
+        self.lam = float(cfg.forgetting)
+        self.nu0 = float(est.nu0)
+        self.learned = cfg.measurement_friction == "learned"
+        self.threshold = cfg.resample_threshold * N
+        self.R0, self.R1 = float(est.R[0]), float(est.R[1])
+        self.sqrt_R1 = math.sqrt(est.R[1])
+        self._cache = None  # views of the statistics and the particles (`_arrays`); not pickled
+        self._prior = self._stiff = self._slope = None
+
+    def __getstate__(self):  # views would come back as copies: rebuilt after unpickling
+        state = dict(self.__dict__)
+        state["_cache"] = None
+        return state
+
+    def _arrays(self):
+        """(flat statistics' views, the resampling's (N, k) views, K for the resampling copies),
+        rebuilt when the statistics or the particles' arrays were replaced."""
+        est = self.est
+        st = est._stats
+        c = self._cache
+        if c is not None and c[0] is st and c[1] is est.x:
+            return c
+        N = self.N
+        if self.exact:
+            views = (_flat(st.K, 2), _flat(st.Psi, 2), _flat(st.Phi, 2), st.nu.reshape(-1))
+            rows = (st.Psi, st.Phi)
+        else:
+            views = (_flat(st.M, 2), _flat(st.P, 2), _flat(st.Lam, 2), st.nu.reshape(-1))
+            rows = (st.M, st.P, st.Lam)
+        rows = tuple(a.reshape(N, -1) for a in rows) + (st.nu.reshape(N, -1), est.x, self.work)
+        if not self.exact:
+            kcopy = self.Kl  # empty: nothing beyond the rows
+        elif self.lanes:
+            kcopy = self.Kl
+        else:
+            kcopy = st.K.reshape((N, self.per) + st.K.shape[-2:])
+        if c is not None and c[0] is not st:
+            self.kl_loaded = False  # other statistics: K from them
+        self._cache = c = (st, est.x, views, rows, kcopy)
+        return c
 
     def flush(self) -> None:
         """Apply a pending update of the exact statistics now (before anything reads them)."""
         # (each flag cleared once its work is done: a reader never sees it cleared over statistics
         # that are still stale)
+        if self.kl_loaded:  # K's lower triangle back from the lanes
+            lanes_store(self.Kl, self._views()[0])
+            self.stale_upper = True
+            self.kl_loaded = False  # the step loads it again (a reader may change the statistics)
         if self.pending:
             K, Psi, Phi, nu = self._views()
             d, m = Psi.shape[1:]  # per particle and step: `per` batch rows of d outputs and m features
@@ -811,42 +993,50 @@ class CompiledStep:
             self.stale_upper = False
 
     def _views(self):
-        st = self.est._stats
-        if self.exact:
-            return _flat(st.K, 2), _flat(st.Psi, 2), _flat(st.Phi, 2), st.nu.reshape(-1)
-        return _flat(st.M, 2), _flat(st.P, 2), _flat(st.Lam, 2), st.nu.reshape(-1)
+        return self._arrays()[2]
 
     def _rows(self):
         """Every per-particle array as (N, k) views, for the resampling copies."""
-        st, N = self.est._stats, self.est.cfg.particles
-        arrays = (st.Psi, st.Phi) if self.exact else (st.M, st.P, st.Lam)
-        return tuple(a.reshape(N, -1) for a in arrays) + (st.nu.reshape(N, -1), self.est.x, self.work)
+        return self._arrays()[3]
+
+    def _estimate(self, ess, vx, moments):
+        """`FrictionGPSSM._estimate` with the exact statistics and no MPF: the stiffness fields
+        (`_curve_slope` without M: the last snapshot's or the prior's) built again only when
+        the snapshot's slope or the prior changed."""
+        est = self.est
+        if est._slope is not self._slope or est.prior is not self._prior:
+            self._slope, self._prior = est._slope, est.prior
+            self._stiff = {k: float(v) for k, v in est._curve_slope(None, None).items()}
+        m0, m1, s0, s1 = moments
+        return Estimate(active=est.active, vx=vx, vy=float(m0), yaw_rate=float(m1), ess=ess,
+                        state_std=(0.0, float(s0), float(s1)), **self._stiff)
 
     def step(self, t, uk, delta: float, vx: float, y):
         est = self.est
-        cfg, N, rng = est.cfg, est.cfg.particles, est.rng
+        N, rng = self.N, est.rng
         work, Fz0, Fz1, mass, lf, lr, Iz = self.work, *self.veh
+        _, _, (a1, a2, a3, nu), rows, kcopy = self._arrays()
         # 1. propagate with the friction drawn at k-1 (eq. (1)), forget (eq. (29), fused into 2.)
         forget = False
         propagate, n_sub, h, cd, vx_prev = False, 0, 0.0, 1.0, 0.0
         if est.t_prev is None:
             if math.isfinite(y.yaw_rate):
-                est.x[:, 1] = y.yaw_rate + math.sqrt(est.R[1]) * rng.standard_normal(N)
+                est.x[:, 1] = y.yaw_rate + self.sqrt_R1 * rng.standard_normal(N)
         else:
             dt = t - est.t_prev
             if dt <= 0:
                 raise ConfigError("inputs", "t", f"time must increase: {t} after {est.t_prev}")
-            n_sub = max(1, math.ceil(dt / cfg.max_step - 1e-9))
+            n_sub = max(1, math.ceil(dt / self.max_step - 1e-9))
             h = dt / n_sub
-            cd, vx_prev, propagate = math.cos(est.u_prev[0]), float(est.u_prev[1]), True
-            sn = cfg.state_noise
-            if sn[0] > 0 or sn[1] > 0:
+            u_prev = est.u_prev
+            cd, vx_prev, propagate = math.cos(u_prev[0]), float(u_prev[1]), True
+            if self.noise:
                 front(est.x, est.mu, work, True, n_sub, h, cd, vx_prev, Fz0, Fz1, mass, lf, lr, Iz, delta, vx,
                       self.L, self.m1, self.keep, self.keep_r, self.tensor, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0)
-                est.x[:] = est.x + math.sqrt(dt) * np.asarray(sn, float) * rng.standard_normal(est.x.shape)
+                est.x[:] = est.x + math.sqrt(dt) * self.sn * rng.standard_normal(est.x.shape)
                 propagate = False
             forget = est.active
-        est.active = bool(vx > cfg.gate_speed and est.learning_started)
+        est.active = active = bool(vx > self.gate_speed and est.learning_started)
         # 2. slip angles (clipped, counted), features, prior
         p = est.prior
         n_out = front(est.x, est.mu, work, propagate, n_sub, h, cd, vx_prev, Fz0, Fz1, mass, lf, lr, Iz, delta, vx,
@@ -857,43 +1047,45 @@ class CompiledStep:
             est.clipped += n_out
             est.clipped_steps += 1
         # 3. forgetting and predictive
-        a1, a2, a3, nu = self._views()
         if self.exact:
-            fn = exact_forget_predictive if self.lanes else exact_forget_predictive_rows
-            args = (a1, a2, a3, nu, est._stats.V, est._stats.Lam0, work, self.per, forget, float(cfg.forgetting),
-                    float(est.nu0)) + ((LANES,) if self.lanes else ()) + (self.pending, self.zeta, self.phi_p)
-            fn(*args)
-            self.pending, self.stale_upper = False, True
+            V, Lam0 = est._stats.V, est._stats.Lam0
+            if self.lanes:
+                if not self.kl_loaded:
+                    lanes_load(a1, self.Kl)
+                    self.kl_loaded = True
+                exact_forget_predictive(self.Kl, a2, a3, nu, V, Lam0, work, self.per, forget, self.lam, self.nu0,
+                                        self.pending, self.zeta, self.phi_p)
+            else:
+                exact_forget_predictive_rows(a1, a2, a3, nu, V, Lam0, work, self.per, forget, self.lam, self.nu0,
+                                             self.pending, self.zeta, self.phi_p)
+                self.stale_upper = True
+            self.pending = False
         else:
-            rank1_forget_predictive(a1, a2, a3, nu, work, self.per, forget, float(cfg.forgetting), float(est.nu0),
+            rank1_forget_predictive(a1, a2, a3, nu, work, self.per, forget, self.lam, self.nu0,
                                     bool(est._stats.bounded), float(est._stats.trace0))
         # 4. weights (eq. (22)), resampling
-        have_ay = math.isfinite(y.ay)
-        learned = cfg.measurement_friction == "learned"
-        ess, pa, pr_ = weigh(est.x, work, est.logw, Fz0 * math.cos(delta) / mass, Fz1 / mass, float(y.ay),
-                             float(y.yaw_rate), float(est.R[0]), float(est.R[1]), have_ay,
-                             math.isfinite(y.yaw_rate), learned)
+        yay, yr = float(y.ay), float(y.yaw_rate)
+        have_ay = math.isfinite(yay)
+        learned = self.learned
+        conditional = have_ay and learned
+        add = 1.0 if conditional else 0.0
+        ess, pa, pr_, c = weigh(est.x, work, est.logw, Fz0 * math.cos(delta) / mass, Fz1 / mass, yay, yr, self.R0,
+                                self.R1, have_ay, math.isfinite(yr), learned, add)
         est.prediction = (pa, pr_)
-        if ess < cfg.resample_threshold * N:
-            idx = systematic_ancestors(est.logw, float(rng.random((1,))[0]))  # as stats.systematic_resample
-            gather_rows(self._rows(), idx)
-            if self.exact:
-                K = self.est._stats.K
-                gather_lower(K.reshape((N, self.per) + K.shape[-2:]), idx)
-            est.logw[:] = -math.log(N)
+        if ess < self.threshold:  # as stats.systematic_resample, its uniform first
+            c = resample(est.logw, float(rng.random((1,))[0]), rows, kcopy, self.per, self.lanes, add, work)
             est.resamples += 1
         # 5. zeta (t conditional given the a^Y residual), mu, learning
-        conditional = have_ay and learned
-        c = common_dof(work, 1.0 if conditional else 0.0)
         if math.isnan(c):  # dof differing between particles (or NaN): as the reference
             z, u = t_draws(work[:, DOF] + 1.0 if conditional else work[:, DOF], (N, 2), rng)
+            u = np.ascontiguousarray(u, float)
         else:  # t_draws' generator calls for a common dof, without its checks
             z, u = rng.standard_normal((N, 2)), rng.chisquare(c, (N,))
-        m0, m1, s0, s1, mf, mr = sample(est.x, work, est.logw, z, np.ascontiguousarray(u, float), self.zeta, est.mu,
-                                        conditional)
-        if est.active:
+        exact_active = active and self.exact
+        m0, m1, s0, s1, mf, mr = sample(est.x, work, est.logw, z, u, self.zeta, est.mu, conditional, exact_active,
+                                        self.phi_p)
+        if active:
             if self.exact:  # applied in the next step's pass over the statistics (or by `flush`)
-                self.phi_p[:] = work[:, PHI:]
                 self.pending = True
             else:
                 rank1_update(a1, a2, a3, nu, work, self.zeta, self.per)
@@ -904,4 +1096,6 @@ class CompiledStep:
                 est._path[0, jf] += (1.0, mr)
                 est._path[1, jr] += (1.0, mf)
         est.t_prev, est.u_prev, est.last_t = t, uk, t
+        if self.exact and est.mpf_estimate is None:
+            return self._estimate(ess, vx, (m0, m1, s0, s1))
         return est._estimate(ess, vx, (m0, m1, s0, s1))
