@@ -77,6 +77,17 @@ def _magic(B, C, D, E, s):
     return D * math.sin(C * math.atan(Bs - E * (Bs - math.atan(Bs))))
 
 
+@njit(inline="always", **_JIT)
+def _phi_next(sf, cf, sf1, cf1, sr, cr, sr1, cr1, n):
+    """One step of `_phi1`'s recurrence for every particle, front and rear: sin((j + 1) a) =
+    sin(j a) cos a + cos(j a) sin a, cos((j + 1) a) = cos(j a) cos a - sin(j a) sin a."""
+    for i in range(n):
+        s, c = sf[i], cf[i]
+        sf[i], cf[i] = s * cf1[i] + c * sf1[i], c * cf1[i] - s * sf1[i]
+        s, c = sr[i], cr[i]
+        sr[i], cr[i] = s * cr1[i] + c * sr1[i], c * cr1[i] - s * sr1[i]
+
+
 @njit(**_JIT)
 def front(x, mu, work, propagate, n_sub, h, cd, vx_prev, Fz0, Fz1, mass, lf, lr, Iz, delta, vx, L, m, keep,
           keep_r, tensor, pB0, pB1, pC, pD0, pD1, pE):
@@ -84,13 +95,19 @@ def front(x, mu, work, propagate, n_sub, h, cd, vx_prev, Fz0, Fz1, mass, lf, lr,
     held), then work[:, AF:PR + 1] = alpha_f, alpha_r (eq. (4), clipped to [-L, L]),
     mu~_f, mu~_r and work[:, PHI:] the features (tensor: phi_keep; axle: front then rear
     row; tensor: keep = the front function's index j1, keep_r = the rear one's j2). Returns
-    the number of particles with a slip angle outside [-L, L]."""
+    the number of particles with a slip angle outside [-L, L].
+    Two loops over the particles: the libm calls (atan, sin, cos) per particle, then the
+    basis's angle-addition recurrence (`_phi1`, the same operations in the same order) for
+    all particles at once, one vector operation per function: per particle the recurrence is
+    a chain of dependent multiply-adds, which in one loop body per particle nothing overlaps."""
     n = x.shape[0]
     nk = keep.shape[0]
-    pf = np.empty(m)
-    pr = np.empty(m)
     vxc = max(vx, 1.0)
     out = 0
+    k0 = math.pi / (2.0 * L)
+    r = 1.0 / math.sqrt(L)
+    sc = np.empty((8, n))  # sin and cos of the first angle, front and rear; the recurrence's state
+    sf1, cf1, sr1, cr1, sf, cf, sr, cr = sc[0], sc[1], sc[2], sc[3], sc[4], sc[5], sc[6], sc[7]
     for i in range(n):
         x0, x1 = x[i, 0], x[i, 1]
         if propagate:
@@ -111,15 +128,35 @@ def front(x, mu, work, propagate, n_sub, h, cd, vx_prev, Fz0, Fz1, mass, lf, lr,
         work[i, AF], work[i, AR] = af, ar
         work[i, PF] = _magic(pB0, pC, pD0, pE, af)
         work[i, PR] = _magic(pB1, pC, pD1, pE, ar)
-        _phi1(af, L, m, pf)
-        _phi1(ar, L, m, pr)
-        if tensor:  # keep[k] = j1 * m + j2: keep_f = j1, keep_r = j2 (no division per feature)
+        a = k0 * (af + L)
+        sf1[i], cf1[i] = math.sin(a), math.cos(a)
+        a = k0 * (ar + L)
+        sr1[i], cr1[i] = math.sin(a), math.cos(a)
+    for i in range(n):
+        sf[i], cf[i], sr[i], cr[i] = sf1[i], cf1[i], sr1[i], cr1[i]
+    if tensor:
+        P = np.empty((2, m, n))
+        Pf, Pr = P[0], P[1]
+        for j in range(m):
+            pfj, prj = Pf[j], Pr[j]
+            for i in range(n):
+                pfj[i] = sf[i] * r
+                prj[i] = sr[i] * r
+            _phi_next(sf, cf, sf1, cf1, sr, cr, sr1, cr1, n)
+        for i in range(n):  # keep[k] = j1 * m + j2: keep_f = j1, keep_r = j2 (no division per feature)
             for k in range(nk):
-                work[i, PHI + k] = pf[keep[k]] * pr[keep_r[k]]
-        else:
-            for k in range(nk):
-                work[i, PHI + k] = pf[keep[k]]
-                work[i, PHI + nk + k] = pr[keep[k]]
+                work[i, PHI + k] = Pf[keep[k], i] * Pr[keep_r[k], i]
+    else:
+        col = np.full(m, -1, np.int64)  # the feature column of function j, -1 where not kept
+        for k in range(nk):
+            col[keep[k]] = k
+        for j in range(m):
+            cj = col[j]
+            if cj >= 0:
+                for i in range(n):
+                    work[i, PHI + cj] = sf[i] * r
+                    work[i, PHI + nk + cj] = sr[i] * r
+            _phi_next(sf, cf, sf1, cf1, sr, cr, sr1, cr1, n)
     return out
 
 
