@@ -959,7 +959,8 @@ class CompiledStep:
         # exact statistics in lanes: K lives in Kl between `flush`es (kl_loaded: Kl holds K, the
         # statistics' K is stale; loaded from the statistics at the next step after a flush)
         nb = N * self.per
-        self.Kl = (np.zeros(((nb + LANES - 1) // LANES, size, size, LANES)) if self.exact and self.lanes
+        W = min(LANES, -(-nb // 4) * 4)  # fewer lanes for a small batch (each lane's numbers are its own)
+        self.Kl = (np.zeros((-(-nb // W), size, size, W)) if self.exact and self.lanes
                    else np.zeros((0, 0, 0, 0)))
         self.kl_loaded = False
         v = est.vehicle
