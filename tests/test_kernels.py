@@ -547,6 +547,29 @@ def test_friction_gpssm_axle_lanes_state_pickles_and_equals_reference(particles)
         assert_equal_to_rounding(fast.posterior().stats[key], ref.posterior().stats[key], key)
 
 
+def test_friction_gpssm_compiled_estimate_equals_the_reference_estimate():
+    """The compiled step's Estimate (`CompiledStep._estimate`: a template's fields with the step's)
+    has every field of `FrictionGPSSM._estimate` on the same moments, bit for bit, before and
+    after a friction snapshot (which sets the learned slope) and after the prior changed."""
+    import dataclasses
+
+    from tirefilter.estimators.base import Estimate
+
+    est = FrictionGPSSM(load_scenario("friction-snow").vehicle, GPSSMConfig(particles=11, basis="axle"))
+    _drive(est, 8)
+    moments = (0.125, -0.5, 0.25, 0.0625)
+    for change in ("none", "snapshot", "prior"):
+        if change == "snapshot":
+            est.friction()
+        elif change == "prior":
+            est.prior = dataclasses.replace(est.prior, B=(3.0, 4.0))
+        for _ in range(2):  # built anew, then from the template
+            fast, ref = est._compiled._estimate(0.7, 15.0, moments), est._estimate(0.7, 15.0, moments)
+            assert type(fast) is Estimate and fast == ref
+            for a, b in zip(dataclasses.astuple(fast), dataclasses.astuple(ref)):
+                assert type(a) is type(b) and (a == b or (a != a and b != b)), (fast, ref)
+
+
 def test_stiffness_mpf_fused_state_pickles():
     """The fused step's arrays (`_MPFWork`: the particles' arrays, their spares, the model's
     first stage) survive pickling mid-run (the estimator FMU's saved state, Dask): the

@@ -63,6 +63,8 @@ from tirefilter.stats.particles_numba import systematic_into
 from tirefilter.stats.student_t import t_draws
 
 _JIT = dict(cache=True, nogil=True)
+NAN = math.nan
+_new = object.__new__
 LANES = 32  # batch elements factorised together (eight AVX2 vectors of float64; measured best of 8-32)
 LANES_BELOW = 32  # basis size from which `_chol_rows` factorises each matrix alone instead
 
@@ -978,7 +980,7 @@ class CompiledStep:
         self.R0, self.R1 = float(est.R[0]), float(est.R[1])
         self.sqrt_R1 = math.sqrt(est.R[1])
         self._cache = None  # views of the statistics and the particles (`_arrays`); not pickled
-        self._prior = self._stiff = self._slope = None
+        self._prior = self._template = self._slope = None
 
     def __getstate__(self):  # views would come back as copies: rebuilt after unpickling
         state = dict(self.__dict__)
@@ -1038,16 +1040,23 @@ class CompiledStep:
         return self._arrays()[3]
 
     def _estimate(self, ess, vx, moments):
-        """`FrictionGPSSM._estimate` with the exact statistics and no MPF: the stiffness fields
-        (`_curve_slope` without M: the last snapshot's or the prior's) built again only when
-        the snapshot's slope or the prior changed."""
+        """`FrictionGPSSM._estimate` with the exact statistics and no MPF, the same fields: the
+        stiffness fields (`_curve_slope` without M: the last snapshot's or the prior's) and the
+        Estimate's defaults built by `Estimate` again only when the snapshot's slope or the prior
+        changed; per step a copy of that template's fields with this step's (a frozen dataclass's
+        `__init__` sets its 18 fields one by one: 3-5 us a step)."""
         est = self.est
         if est._slope is not self._slope or est.prior is not self._prior:
             self._slope, self._prior = est._slope, est.prior
-            self._stiff = {k: float(v) for k, v in est._curve_slope(None, None).items()}
+            stiff = {k: float(v) for k, v in est._curve_slope(None, None).items()}
+            self._template = Estimate(active=False, vx=NAN, vy=NAN, yaw_rate=NAN, ess=NAN, **stiff).__dict__
         m0, m1, s0, s1 = moments
-        return Estimate(active=est.active, vx=vx, vy=float(m0), yaw_rate=float(m1), ess=ess,
-                        state_std=(0.0, float(s0), float(s1)), **self._stiff)
+        e = _new(Estimate)
+        fields = e.__dict__
+        fields.update(self._template)
+        fields.update(active=est.active, vx=vx, vy=float(m0), yaw_rate=float(m1), ess=ess,
+                      state_std=(0.0, float(s0), float(s1)))
+        return e
 
     def step(self, t, uk, delta: float, vx: float, y):
         est = self.est
