@@ -3,50 +3,65 @@ path of `FrictionGPSSM.step`, the same arithmetic as the numpy reference in
 `friction_gpssm.py` (tested equal to 1e-12 relative in tests/test_kernels.py with the same
 random numbers, resampling included).
 
-One step is eight kernel calls at most; the random numbers are drawn outside them with the reference's
-generator calls, in the reference's order (yaw-rate start or state noise, the resampling
-uniform, the Student-t draws `student_t.t_draws`), so both backends follow one path:
+One step is four kernel calls (five on a resampling step); the random numbers are drawn outside
+them with the reference's generator calls, in the reference's order (yaw-rate start or state
+noise, the resampling uniform, the Student-t draws `student_t.t_draws`), so both backends follow
+one path:
   1. `front`: propagation (eq. (1), Euler sub-steps), slip angles (eq. (4)) clipped to
      [-L, L], the basis (eq. (10b)) by the angle-addition recurrence
      sin((k+1) a) = sin(k a) cos a + cos(k a) sin a (one sin and one cos per slip angle
-     instead of one sin per function), the Pacejka prior (Sec. 4);
+     instead of one sin per function), the Pacejka prior (Sec. 4); the libm calls in one loop
+     over the particles, the recurrence in a second one over all particles at once (a vector
+     operation per function: per particle it is a chain of dependent multiply-adds);
   2. one pass over the statistics: for the exact statistics the previous step's update
      (eq. (27), kept pending until now), the forgetting (eq. (29)) and the predictive
      (eq. (31)-(32)), `exact_forget_predictive` (`_rows` from `LANES_BELOW` functions);
      for the rank-one ones the forgetting and the predictive, `rank1_forget_predictive`;
   3. `weigh`: the Student-t a^Y and Gaussian yaw-rate likelihoods (eq. (22)), the one-step
-     prediction, log-sum-exp normalisation and the ESS;
-  4. `systematic_ancestors`, `gather_rows`, `gather_lower`: systematic resampling (the
-     uniform drawn as `stats.systematic_resample` draws it) and its copies, in place (sorted
-     ancestors: only the rows that change are copied);
-  5. `common_dof` (whether every particle draws with the same dof: the step then makes
-     `t_draws`' two generator calls itself, `t_draws` otherwise), `sample`: the conditional
-     Student-t draw of zeta (the locally optimal proposal), mu = mu~ + zeta and the weighted
-     moments for the estimate;
+     prediction, log-sum-exp normalisation and the ESS, and `common_dof` (whether every
+     particle draws with the same dof: the step then makes `t_draws`' two generator calls
+     itself, `t_draws` otherwise);
+  4. `resample` (when the ESS is low): systematic resampling (`systematic_ancestors`, the
+     uniform drawn as `stats.systematic_resample` draws it) and its copies, in place
+     (`gather_rows`, `gather_lanes` / `gather_lower`; sorted ancestors: only the rows that
+     change are copied), the log-weights reset, `common_dof` again;
+  5. `sample`: the conditional Student-t draw of zeta (the locally optimal proposal), mu = mu~
+     + zeta, the weighted moments for the estimate and, while the exact statistics learn, the
+     features of the pending update;
   6. `rank1_update` (rank-one statistics, eq. (27)/(28) as recursive least squares); the exact
      statistics' update waits for the next step's pass (`CompiledStep.flush` applies it with
      `exact_update` when the statistics are read in between).
 
 The step keeps only the lower triangle of the exact statistics' K = Sigma + V up to date
-(`flush` mirrors it). The exact predictive factorises K (m x m) per batch element, and only forward
-substitution is needed: with Z = C^-1 [Psi^T, phi] (C C^T = K), Psi K^-1 Psi^T = Z_Psi^T Z_Psi,
-phi^T K^-1 phi = |z_phi|^2 and M phi = Z_Psi^T z_phi. Below `LANES_BELOW` basis functions (the
-per-axle basis) the factorisation runs on `LANES` batch elements at once, one SIMD lane each
-(the matrices interleaved as (m, m, LANES), so every inner loop is a vector operation over
-lanes), in three stages per block of lanes: each element's pending update and forgetting,
-written into K and into its lane in the same sweep (`_update_forget_lane`), the factorisation
-with the forward substitution (`_chol_lanes`), and the predictive's sums over the basis
-accumulated over all lanes at once before each lane's scalar tail (`_write_predictive_lanes`;
-reading each lane's sums apart, strided by the lane count, cost 10-20% of the pass at m = 10).
-From `LANES_BELOW` up (the tensor bases) each matrix is factorised alone by a
-register-blocked row Cholesky (`_chol_rows`: four rows against two columns, the sums over the
-columns vectorised), about 0.6 of LAPACK's dpotrf called per matrix at m = 100 and 0.9 of the lanes
-at m = 50 (benchmarks/README.md, "The GP-SSM's factorisation (fourth pass)").
-No exact low-rank update of the factor exists under the paper's forgetting
+(`flush` mirrors it); below `LANES_BELOW` functions it keeps K in lanes (`CompiledStep.Kl`,
+below) and writes it back into the statistics only at `flush`. The exact predictive factorises K
+(m x m) per batch element, and only forward substitution is needed: with Z = C^-1 [Psi^T, phi]
+(C C^T = K), Psi K^-1 Psi^T = Z_Psi^T Z_Psi, phi^T K^-1 phi = |z_phi|^2 and M phi = Z_Psi^T
+z_phi. Below `LANES_BELOW` basis functions (the per-axle basis) the factorisation runs on
+`LANES` batch elements at once, one SIMD lane each (the matrices interleaved as (m, m, LANES),
+so every inner loop is a vector operation over lanes; fewer lanes when the batch is smaller), in
+three stages per block of lanes: the pending update and the forgetting, a vector operation over
+the lanes per entry of K, since the step keeps K itself in lanes between `flush`es (`Kl`
+(blocks, m, m, LANES), loaded from the statistics by `lanes_load` at the first step after a
+flush, written back by `lanes_store`; issue 14, stop 24: the sweep over each element's K apart,
+written into its lane strided by the lane count, took half of the pass), each entry written into
+the factorisation's matrix in the same sweep (`_lane_heads` does each element's scalar part),
+the factorisation with the forward substitution (`_chol_lanes`), and the predictive's sums over
+the basis accumulated over all lanes at once before each lane's scalar tail
+(`_write_predictive_lanes`; reading each lane's sums apart, strided by the lane count, cost
+10-20% of the pass at m = 10). From `LANES_BELOW` up (the tensor bases) each matrix is
+factorised alone by a register-blocked row Cholesky (`_chol_rows`: four rows against two
+columns, the sums over the columns vectorised), about 0.6 of LAPACK's dpotrf called per matrix
+at m = 100 and 0.9 of the lanes at m = 50 (benchmarks/README.md, "The GP-SSM's factorisation
+(fourth pass)"). No exact low-rank update of the factor exists under the paper's forgetting
 (docs/derivations.md, Sec. 20): each step refactorises.
 
 Per-particle quantities of the step live in one (N, columns) array `work` (columns below),
-so resampling copies them with the statistics in one call.
+so resampling copies them with the statistics in one call. The Python around the kernels is
+kept short (at N = 8 the per-axle step is mostly this fixed cost): the flat views
+of the statistics and the configuration's scalars are made once (`CompiledStep._arrays`,
+rebuilt when the statistics or the particles' arrays are replaced, not pickled), and the
+Estimate is a copy of a template's fields (`CompiledStep._estimate`).
 """
 
 from __future__ import annotations
@@ -814,8 +829,7 @@ def resample(logw, u0, arrays, K, per, lanes, add, work):
     else `gather_lower` (K (N, per, m, m)); none when K is empty: the rank-one statistics), the
     log-weights set to -log N; returns `common_dof(work, add)` after the copies."""
     n = logw.shape[0]
-    idx = np.empty(n, np.int64)
-    systematic_into(logw, u0, idx)
+    idx = systematic_ancestors(logw, u0)
     gather_rows(arrays, idx)
     if K.shape[0] > 0:
         if lanes:
