@@ -892,15 +892,16 @@ def sample(x, work, logw, z, u, zeta, mu, conditional, keep_phi, phi_p):
         mu[i, 0] = work[i, PF] + zeta[i, 0]
         mu[i, 1] = work[i, PR] + zeta[i, 1]
     m0 = m1 = mf = mr = 0.0
+    qs = np.empty(n)  # the weights, exponentiated once for both sums
     for i in range(n):
-        q = math.exp(logw[i])
+        q = qs[i] = math.exp(logw[i])
         m0 += q * x[i, 0]
         m1 += q * x[i, 1]
         mf += q * work[i, AF]
         mr += q * work[i, AR]
     v0 = v1 = 0.0
     for i in range(n):
-        q = math.exp(logw[i])
+        q = qs[i]
         v0 += q * (x[i, 0] - m0) ** 2
         v1 += q * (x[i, 1] - m1) ** 2
     if keep_phi:  # the features of the pending update (exact statistics while learning)
