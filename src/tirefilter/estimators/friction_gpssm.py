@@ -306,7 +306,6 @@ class FrictionGPSSM:
 
     # ---- the filter -------------------------------------------------------------------
     def step(self, t: float, u: Inputs, y: Measurement) -> Estimate:
-        cfg, N, rng = self.cfg, self.cfg.particles, self.rng
         delta, vx = float(u.delta), float(u.vx)  # a missing input: the previous one (scalars: a few us a step)
         if self.u_prev is not None:
             delta = delta if math.isfinite(delta) else float(self.u_prev[0])
@@ -322,6 +321,7 @@ class FrictionGPSSM:
             self._combined_prior(t)
         if self._compiled is not None:  # the same step, compiled (estimators/gpssm_numba.py)
             return self._compiled.step(t, uk, delta, vx, y)
+        cfg, N, rng = self.cfg, self.cfg.particles, self.rng
 
         # 1. propagate with the friction drawn at k-1, forget (eq. (29))
         if self.t_prev is None:

@@ -995,7 +995,7 @@ class CompiledStep:
         self.R0, self.R1 = float(est.R[0]), float(est.R[1])
         self.sqrt_R1 = math.sqrt(est.R[1])
         self._cache = None  # views of the statistics and the particles (`_arrays`); not pickled
-        self._prior = self._template = self._slope = None
+        self._prior = self._template = self._slope = self._front_prior = self._pargs = None
 
     def __getstate__(self):  # views would come back as copies: rebuilt after unpickling
         state = dict(self.__dict__)
@@ -1101,9 +1101,11 @@ class CompiledStep:
         est.active = active = bool(vx > self.gate_speed and est.learning_started)
         # 2. slip angles (clipped, counted), features, prior
         p = est.prior
+        if p is not self._front_prior:  # the prior's parameters as floats, again when the prior changes
+            self._front_prior = p
+            self._pargs = (float(p.B[0]), float(p.B[1]), float(p.C), float(p.D[0]), float(p.D[1]), float(p.E))
         n_out = front(est.x, est.mu, work, propagate, n_sub, h, cd, vx_prev, Fz0, Fz1, mass, lf, lr, Iz, delta, vx,
-                      self.L, self.m1, self.keep, self.keep_r, self.tensor, float(p.B[0]), float(p.B[1]), float(p.C),
-                      float(p.D[0]), float(p.D[1]), float(p.E))
+                      self.L, self.m1, self.keep, self.keep_r, self.tensor, *self._pargs)
         est.slip_evaluations += N
         if n_out:
             est.clipped += n_out
