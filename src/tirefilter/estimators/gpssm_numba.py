@@ -1003,30 +1003,26 @@ class CompiledStep:
         return state
 
     def _arrays(self):
-        """(flat statistics' views, the resampling's (N, k) views, K for the resampling copies),
-        rebuilt when the statistics or the particles' arrays were replaced."""
+        """(statistics, particles, flat statistics' views, the resampling's (N, k) views, K for the
+        resampling copies, the statistics' arrays), rebuilt when the statistics, their arrays or
+        the particles' array were replaced (K then loaded into the lanes again)."""
         est = self.est
         st = est._stats
+        arrays = (st.K, st.Psi, st.Phi, st.nu) if self.exact else (st.M, st.P, st.Lam, st.nu)
         c = self._cache
-        if c is not None and c[0] is st and c[1] is est.x:
+        if c is not None and c[0] is st and c[1] is est.x and all(a is b for a, b in zip(arrays, c[5])):
             return c
         N = self.N
-        if self.exact:
-            views = (_flat(st.K, 2), _flat(st.Psi, 2), _flat(st.Phi, 2), st.nu.reshape(-1))
-            rows = (st.Psi, st.Phi)
-        else:
-            views = (_flat(st.M, 2), _flat(st.P, 2), _flat(st.Lam, 2), st.nu.reshape(-1))
-            rows = (st.M, st.P, st.Lam)
+        views = (_flat(arrays[0], 2), _flat(arrays[1], 2), _flat(arrays[2], 2), arrays[3].reshape(-1))
+        rows = (st.Psi, st.Phi) if self.exact else (st.M, st.P, st.Lam)
         rows = tuple(a.reshape(N, -1) for a in rows) + (st.nu.reshape(N, -1), est.x, self.work)
-        if not self.exact:
-            kcopy = self.Kl  # empty: nothing beyond the rows
-        elif self.lanes:
-            kcopy = self.Kl
-        else:
+        if self.exact and not self.lanes:
             kcopy = st.K.reshape((N, self.per) + st.K.shape[-2:])
-        if c is not None and c[0] is not st:
-            self.kl_loaded = False  # other statistics: K from them
-        self._cache = c = (st, est.x, views, rows, kcopy)
+        else:
+            kcopy = self.Kl  # lanes, or empty (rank-one statistics: nothing beyond the rows)
+        if c is not None:
+            self.kl_loaded = False  # other statistics' arrays: K from them
+        self._cache = c = (st, est.x, views, rows, kcopy, arrays)
         return c
 
     def flush(self) -> None:
@@ -1077,7 +1073,7 @@ class CompiledStep:
         est = self.est
         N, rng = self.N, est.rng
         work, Fz0, Fz1, mass, lf, lr, Iz = self.work, *self.veh
-        _, _, (a1, a2, a3, nu), rows, kcopy = self._arrays()
+        _, _, (a1, a2, a3, nu), rows, kcopy, _ = self._arrays()
         # 1. propagate with the friction drawn at k-1 (eq. (1)), forget (eq. (29), fused into 2.)
         forget = False
         propagate, n_sub, h, cd, vx_prev = False, 0, 0.0, 1.0, 0.0
