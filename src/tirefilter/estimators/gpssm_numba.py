@@ -476,8 +476,12 @@ def lanes_store(Kl, K):
 
 @njit(**_JIT)
 def _update_forget_rows(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget, lam, nu_min, A):
-    """`_update_forget_lane` with A (>= m, m) one matrix (A[i, j] = K[b, i, j]), the same
-    operations in the same order."""
+    """Batch element b: the pending update (eq. (27a)-(27c), (28f)) then the forgetting
+    (eq. (29)), in one sweep over K with the reference's operations in the reference's order
+    ((K + phi phi^T) * f, then + (1 - f) V on the diagonal), each entry of K's lower triangle
+    written to K and to A (>= m, m), A[i, j] = K[b, i, j], as it is computed. K's lower triangle
+    only: the upper one is restored by `mirror` before anything else reads K (the reference's K
+    is exactly symmetric: p_i p_j = p_j p_i and the forgetting is elementwise)."""
     m = Psi.shape[2]
     Kb = K[b]
     if not pending:
@@ -1008,10 +1012,13 @@ class CompiledStep:
         the particles' array were replaced (K then loaded into the lanes again)."""
         est = self.est
         st = est._stats
-        arrays = (st.K, st.Psi, st.Phi, st.nu) if self.exact else (st.M, st.P, st.Lam, st.nu)
+        a0, a1, a2 = (st.K, st.Psi, st.Phi) if self.exact else (st.M, st.P, st.Lam)
         c = self._cache
-        if c is not None and c[0] is st and c[1] is est.x and all(a is b for a, b in zip(arrays, c[5])):
-            return c
+        if c is not None:  # (`is` one by one: a generator over the four costs about a microsecond)
+            a = c[5]
+            if c[0] is st and c[1] is est.x and a[0] is a0 and a[1] is a1 and a[2] is a2 and a[3] is st.nu:
+                return c
+        arrays = (a0, a1, a2, st.nu)
         N = self.N
         views = (_flat(arrays[0], 2), _flat(arrays[1], 2), _flat(arrays[2], 2), arrays[3].reshape(-1))
         rows = (st.Psi, st.Phi) if self.exact else (st.M, st.P, st.Lam)
