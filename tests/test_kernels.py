@@ -570,6 +570,17 @@ def test_friction_gpssm_compiled_estimate_equals_the_reference_estimate():
                 assert type(a) is type(b) and (a == b or (a != a and b != b)), (fast, ref)
 
 
+def test_friction_gpssm_bin_equals_searchsorted():
+    """`FrictionGPSSM._bin` (bisection on the grid as a list) is np.searchsorted's bin clipped to the
+    grid, for slip angles inside, outside and on the grid points, infinities, -0.0 and NaN."""
+    est = FrictionGPSSM(load_scenario("friction-snow").vehicle, GPSSMConfig(particles=3))
+    g = est.grid
+    vals = np.concatenate([np.random.default_rng(8).uniform(-1.2 * g[-1], 1.2 * g[-1], 2000), g,
+                           [np.inf, -np.inf, np.nan, 0.0, -0.0]])
+    for a in vals.tolist():
+        assert est._bin(a) == min(max(int(np.searchsorted(g, a)), 0), len(g) - 1), a
+
+
 def test_stiffness_mpf_fused_state_pickles():
     """The fused step's arrays (`_MPFWork`: the particles' arrays, their spares, the model's
     first stage) survive pickling mid-run (the estimator FMU's saved state, Dask): the

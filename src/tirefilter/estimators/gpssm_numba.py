@@ -1158,10 +1158,13 @@ class CompiledStep:
                 rank1_update(a1, a2, a3, nu, work, self.zeta, self.per)
             v = est.visited
             est.visited = [min(v[0], mf), max(v[1], mf), min(v[2], mr), max(v[3], mr)]
-            if self.tensor:
+            if self.tensor:  # the reference's `_path[0, jf] += (1.0, mr)`, element by element
                 jf, jr = est._bin(mf), est._bin(mr)
-                est._path[0, jf] += (1.0, mr)
-                est._path[1, jr] += (1.0, mf)
+                path = est._path
+                path[0, jf, 0] += 1.0
+                path[0, jf, 1] += mr
+                path[1, jr, 0] += 1.0
+                path[1, jr, 1] += mf
         est.t_prev, est.u_prev, est.last_t = t, uk, t
         if self.exact and est.mpf_estimate is None:
             return self._estimate(ess, vx, (m0, m1, s0, s1))
