@@ -48,7 +48,8 @@ from tirefilter.estimators import build_estimator  # noqa: E402
 from tirefilter.estimators import gpssm_numba  # noqa: E402
 
 clock = time.thread_time_ns
-PASSES = ("front", "exact_forget_predictive", "exact_forget_predictive_lapack", "exact_forget_predictive_rows", "rank1_forget_predictive", "weigh",
+PASSES = ("front", "exact_forget_predictive", "exact_forget_predictive_lapack", "exact_forget_predictive_rows",
+          "rank1_forget_predictive", "weigh", "resample", "lanes_load", "lanes_store",
           "systematic_ancestors", "gather_rows", "gather_lower", "sample", "rank1_update", "t_draws", "common_dof",
           "exact_update", "mirror")
 

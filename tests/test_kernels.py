@@ -179,6 +179,31 @@ def test_resampling_copies_equal_indexing(order):
         assert np.array_equal(K[..., low], want_K[..., low])
 
 
+@pytest.mark.parametrize("order", ["sorted", "shuffled"])
+@pytest.mark.parametrize("n", [3, 23])
+def test_lanes_copies_equal_indexing(order, n):
+    """K in lanes (`lanes_load`, `gather_lanes`, `lanes_store`; 2 batch elements per particle,
+    8 lanes: the last block partly padding, whose lanes stay the identity): the lower triangles
+    after the copies equal K[idx]'s, in place for sorted ancestors and through a copy otherwise."""
+    from tirefilter.estimators.gpssm_numba import gather_lanes, lanes_load, lanes_store
+
+    rng = np.random.default_rng(6)
+    low = np.tril(np.ones((4, 4), bool))
+    for _ in range(10):
+        idx = np.sort(rng.integers(0, n, n))
+        if order == "shuffled":
+            idx = rng.permutation(idx)
+        K = rng.standard_normal((n, 2, 4, 4))
+        Kl = np.full((-(-2 * n // 8), 4, 4, 8), np.nan)
+        lanes_load(K.reshape(2 * n, 4, 4), Kl)
+        gather_lanes(Kl, idx, 2)
+        got = np.zeros_like(K)
+        lanes_store(Kl, got.reshape(2 * n, 4, 4))
+        assert np.array_equal(got[..., low], K[idx][..., low])
+        pad = Kl.reshape(-1, 4, 4, 8).transpose(0, 3, 1, 2).reshape(-1, 4, 4)[2 * n:]
+        assert np.array_equal(pad[:, low], np.broadcast_to(np.eye(4)[low], (len(pad), low.sum())))
+
+
 def test_systematic_ancestors_equal_reference():
     """The compiled systematic resampling equals `stats.systematic_resample` from the same
     generator state, for peaked, flat and degenerate weights."""
@@ -482,6 +507,78 @@ def test_friction_gpssm_compiled_state_pickles():
         rest.append((e.vy, e.yaw_rate, e.ess, e.Cf_y, e.Cr_y))
     assert np.array_equal(np.vstack([b, rest]), a)
     assert np.array_equal(copy.posterior().stats["M"], whole.posterior().stats["M"])
+
+
+@pytest.mark.parametrize("particles", [3, 37])
+def test_friction_gpssm_axle_lanes_state_pickles_and_equals_reference(particles):
+    """The per-axle basis keeps K in the compiled step's lanes between flushes (`Kl`): a run
+    pickled mid-run (K only in the lanes, an update pending) resumes as the uninterrupted one,
+    and a run with friction snapshots (K written back and loaded again) equals the numpy
+    reference; N = 3 (6 batch elements: 8 lanes, 2 of them padding) and N = 37 (3 blocks)."""
+    import pickle
+
+    vehicle = load_scenario("friction-snow").vehicle
+    cfg = GPSSMConfig(particles=particles, basis="axle", resample_threshold=1.0)
+    whole, part = FrictionGPSSM(vehicle, cfg), FrictionGPSSM(vehicle, cfg)
+    a = _drive(whole, 20)
+    b = _drive(part, 12)
+    assert part._compiled.pending and part._compiled.kl_loaded  # K lives in the lanes now
+    copy = pickle.loads(pickle.dumps(part))
+    rng = np.random.default_rng(5)
+    for _ in range(12):  # the measurement noise of the first 12 steps, as _drive drew it
+        rng.standard_normal(2)
+    rest = []
+    for k in range(12, 20):
+        t = 0.04 * k
+        delta = 0.03 * math.sin(2 * math.pi * 0.5 * t)
+        r = 15.0 * delta / 2.8
+        ay, yaw_rate = 15.0 * r + 0.05 * rng.standard_normal(), r + 0.003 * rng.standard_normal()
+        e = copy.step(t, Inputs(delta=delta, vx=15.0), Measurement(ay=ay, yaw_rate=yaw_rate))
+        rest.append((e.vy, e.yaw_rate, e.ess, e.Cf_y, e.Cr_y))
+    assert np.array_equal(np.vstack([b, rest]), a)
+    assert np.array_equal(copy.posterior().stats["M"], whole.posterior().stats["M"])
+    ref = FrictionGPSSM(vehicle, GPSSMConfig(particles=particles, basis="axle", resample_threshold=1.0,
+                                             backend="numpy"))
+    fast = FrictionGPSSM(vehicle, cfg)
+    c, d = _drive(fast, 20, 3), _drive(ref, 20, 3)
+    assert fast.resamples == ref.resamples >= 10
+    assert_equal_to_rounding(c, d, "estimates")
+    for key in ("M", "Lam", "nu"):
+        assert_equal_to_rounding(fast.posterior().stats[key], ref.posterior().stats[key], key)
+
+
+def test_friction_gpssm_compiled_estimate_equals_the_reference_estimate():
+    """The compiled step's Estimate (`CompiledStep._estimate`: a template's fields with the step's)
+    has every field of `FrictionGPSSM._estimate` on the same moments, bit for bit, before and
+    after a friction snapshot (which sets the learned slope) and after the prior changed."""
+    import dataclasses
+
+    from tirefilter.estimators.base import Estimate
+
+    est = FrictionGPSSM(load_scenario("friction-snow").vehicle, GPSSMConfig(particles=11, basis="axle"))
+    _drive(est, 8)
+    moments = (0.125, -0.5, 0.25, 0.0625)
+    for change in ("none", "snapshot", "prior"):
+        if change == "snapshot":
+            est.friction()
+        elif change == "prior":
+            est.prior = dataclasses.replace(est.prior, B=(3.0, 4.0))
+        for _ in range(2):  # built anew, then from the template
+            fast, ref = est._compiled._estimate(0.7, 15.0, moments), est._estimate(0.7, 15.0, moments)
+            assert type(fast) is Estimate and fast == ref
+            for a, b in zip(dataclasses.astuple(fast), dataclasses.astuple(ref)):
+                assert type(a) is type(b) and (a == b or (a != a and b != b)), (fast, ref)
+
+
+def test_friction_gpssm_bin_equals_searchsorted():
+    """`FrictionGPSSM._bin` (bisection on the grid as a list) is np.searchsorted's bin clipped to the
+    grid, for slip angles inside, outside and on the grid points, infinities, -0.0 and NaN."""
+    est = FrictionGPSSM(load_scenario("friction-snow").vehicle, GPSSMConfig(particles=3))
+    g = est.grid
+    vals = np.concatenate([np.random.default_rng(8).uniform(-1.2 * g[-1], 1.2 * g[-1], 2000), g,
+                           [np.inf, -np.inf, np.nan, 0.0, -0.0]])
+    for a in vals.tolist():
+        assert est._bin(a) == min(max(int(np.searchsorted(g, a)), 0), len(g) - 1), a
 
 
 def test_stiffness_mpf_fused_state_pickles():

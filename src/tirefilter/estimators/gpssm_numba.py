@@ -3,50 +3,65 @@ path of `FrictionGPSSM.step`, the same arithmetic as the numpy reference in
 `friction_gpssm.py` (tested equal to 1e-12 relative in tests/test_kernels.py with the same
 random numbers, resampling included).
 
-One step is eight kernel calls at most; the random numbers are drawn outside them with the reference's
-generator calls, in the reference's order (yaw-rate start or state noise, the resampling
-uniform, the Student-t draws `student_t.t_draws`), so both backends follow one path:
+One step is four kernel calls (five on a resampling step); the random numbers are drawn outside
+them with the reference's generator calls, in the reference's order (yaw-rate start or state
+noise, the resampling uniform, the Student-t draws `student_t.t_draws`), so both backends follow
+one path:
   1. `front`: propagation (eq. (1), Euler sub-steps), slip angles (eq. (4)) clipped to
      [-L, L], the basis (eq. (10b)) by the angle-addition recurrence
      sin((k+1) a) = sin(k a) cos a + cos(k a) sin a (one sin and one cos per slip angle
-     instead of one sin per function), the Pacejka prior (Sec. 4);
+     instead of one sin per function), the Pacejka prior (Sec. 4); the libm calls in one loop
+     over the particles, the recurrence in a second one over all particles at once (a vector
+     operation per function: per particle it is a chain of dependent multiply-adds);
   2. one pass over the statistics: for the exact statistics the previous step's update
      (eq. (27), kept pending until now), the forgetting (eq. (29)) and the predictive
      (eq. (31)-(32)), `exact_forget_predictive` (`_rows` from `LANES_BELOW` functions);
      for the rank-one ones the forgetting and the predictive, `rank1_forget_predictive`;
   3. `weigh`: the Student-t a^Y and Gaussian yaw-rate likelihoods (eq. (22)), the one-step
-     prediction, log-sum-exp normalisation and the ESS;
-  4. `systematic_ancestors`, `gather_rows`, `gather_lower`: systematic resampling (the
-     uniform drawn as `stats.systematic_resample` draws it) and its copies, in place (sorted
-     ancestors: only the rows that change are copied);
-  5. `common_dof` (whether every particle draws with the same dof: the step then makes
-     `t_draws`' two generator calls itself, `t_draws` otherwise), `sample`: the conditional
-     Student-t draw of zeta (the locally optimal proposal), mu = mu~ + zeta and the weighted
-     moments for the estimate;
+     prediction, log-sum-exp normalisation and the ESS, and `common_dof` (whether every
+     particle draws with the same dof: the step then makes `t_draws`' two generator calls
+     itself, `t_draws` otherwise);
+  4. `resample` (when the ESS is low): systematic resampling (`systematic_ancestors`, the
+     uniform drawn as `stats.systematic_resample` draws it) and its copies, in place
+     (`gather_rows`, `gather_lanes` / `gather_lower`; sorted ancestors: only the rows that
+     change are copied), the log-weights reset, `common_dof` again;
+  5. `sample`: the conditional Student-t draw of zeta (the locally optimal proposal), mu = mu~
+     + zeta, the weighted moments for the estimate and, while the exact statistics learn, the
+     features of the pending update;
   6. `rank1_update` (rank-one statistics, eq. (27)/(28) as recursive least squares); the exact
      statistics' update waits for the next step's pass (`CompiledStep.flush` applies it with
      `exact_update` when the statistics are read in between).
 
 The step keeps only the lower triangle of the exact statistics' K = Sigma + V up to date
-(`flush` mirrors it). The exact predictive factorises K (m x m) per batch element, and only forward
-substitution is needed: with Z = C^-1 [Psi^T, phi] (C C^T = K), Psi K^-1 Psi^T = Z_Psi^T Z_Psi,
-phi^T K^-1 phi = |z_phi|^2 and M phi = Z_Psi^T z_phi. Below `LANES_BELOW` basis functions (the
-per-axle basis) the factorisation runs on `LANES` batch elements at once, one SIMD lane each
-(the matrices interleaved as (m, m, LANES), so every inner loop is a vector operation over
-lanes), in three stages per block of lanes: each element's pending update and forgetting,
-written into K and into its lane in the same sweep (`_update_forget_lane`), the factorisation
-with the forward substitution (`_chol_lanes`), and the predictive's sums over the basis
-accumulated over all lanes at once before each lane's scalar tail (`_write_predictive_lanes`;
-reading each lane's sums apart, strided by the lane count, cost 10-20% of the pass at m = 10).
-From `LANES_BELOW` up (the tensor bases) each matrix is factorised alone by a
-register-blocked row Cholesky (`_chol_rows`: four rows against two columns, the sums over the
-columns vectorised), about 0.6 of LAPACK's dpotrf called per matrix at m = 100 and 0.9 of the lanes
-at m = 50 (benchmarks/README.md, "The GP-SSM's factorisation (fourth pass)").
-No exact low-rank update of the factor exists under the paper's forgetting
+(`flush` mirrors it); below `LANES_BELOW` functions it keeps K in lanes (`CompiledStep.Kl`,
+below) and writes it back into the statistics only at `flush`. The exact predictive factorises K
+(m x m) per batch element, and only forward substitution is needed: with Z = C^-1 [Psi^T, phi]
+(C C^T = K), Psi K^-1 Psi^T = Z_Psi^T Z_Psi, phi^T K^-1 phi = |z_phi|^2 and M phi = Z_Psi^T
+z_phi. Below `LANES_BELOW` basis functions (the per-axle basis) the factorisation runs on
+`LANES` batch elements at once, one SIMD lane each (the matrices interleaved as (m, m, LANES),
+so every inner loop is a vector operation over lanes; fewer lanes when the batch is smaller), in
+three stages per block of lanes: the pending update and the forgetting, a vector operation over
+the lanes per entry of K, since the step keeps K itself in lanes between `flush`es (`Kl`
+(blocks, m, m, LANES), loaded from the statistics by `lanes_load` at the first step after a
+flush, written back by `lanes_store`; issue 14, stop 24: the sweep over each element's K apart,
+written into its lane strided by the lane count, took half of the pass), each entry written into
+the factorisation's matrix in the same sweep (`_lane_heads` does each element's scalar part),
+the factorisation with the forward substitution (`_chol_lanes`), and the predictive's sums over
+the basis accumulated over all lanes at once before each lane's scalar tail
+(`_write_predictive_lanes`; reading each lane's sums apart, strided by the lane count, cost
+10-20% of the pass at m = 10). From `LANES_BELOW` up (the tensor bases) each matrix is
+factorised alone by a register-blocked row Cholesky (`_chol_rows`: four rows against two
+columns, the sums over the columns vectorised), about 0.6 of LAPACK's dpotrf called per matrix
+at m = 100 and 0.9 of the lanes at m = 50 (benchmarks/README.md, "The GP-SSM's factorisation
+(fourth pass)"). No exact low-rank update of the factor exists under the paper's forgetting
 (docs/derivations.md, Sec. 20): each step refactorises.
 
 Per-particle quantities of the step live in one (N, columns) array `work` (columns below),
-so resampling copies them with the statistics in one call.
+so resampling copies them with the statistics in one call. The Python around the kernels is
+kept short (at N = 8 the per-axle step is mostly this fixed cost): the flat views
+of the statistics and the configuration's scalars are made once (`CompiledStep._arrays`,
+rebuilt when the statistics or the particles' arrays are replaced, not pickled), and the
+Estimate is a copy of a template's fields (`CompiledStep._estimate`).
 """
 
 from __future__ import annotations
@@ -57,11 +72,14 @@ import numpy as np
 from numba import njit
 
 from tirefilter.errors import ConfigError
+from tirefilter.estimators.base import Estimate
 from tirefilter.stats.mniw_numba import _factor, _phi1, _rank1_forget1, _rank1_update1, exact_update
 from tirefilter.stats.particles_numba import systematic_into
 from tirefilter.stats.student_t import t_draws
 
 _JIT = dict(cache=True, nogil=True)
+NAN = math.nan
+_new = object.__new__
 LANES = 32  # batch elements factorised together (eight AVX2 vectors of float64; measured best of 8-32)
 LANES_BELOW = 32  # basis size from which `_chol_rows` factorises each matrix alone instead
 
@@ -76,6 +94,17 @@ def _magic(B, C, D, E, s):
     return D * math.sin(C * math.atan(Bs - E * (Bs - math.atan(Bs))))
 
 
+@njit(inline="always", **_JIT)
+def _phi_next(sf, cf, sf1, cf1, sr, cr, sr1, cr1, n):
+    """One step of `_phi1`'s recurrence for every particle, front and rear: sin((j + 1) a) =
+    sin(j a) cos a + cos(j a) sin a, cos((j + 1) a) = cos(j a) cos a - sin(j a) sin a."""
+    for i in range(n):
+        s, c = sf[i], cf[i]
+        sf[i], cf[i] = s * cf1[i] + c * sf1[i], c * cf1[i] - s * sf1[i]
+        s, c = sr[i], cr[i]
+        sr[i], cr[i] = s * cr1[i] + c * sr1[i], c * cr1[i] - s * sr1[i]
+
+
 @njit(**_JIT)
 def front(x, mu, work, propagate, n_sub, h, cd, vx_prev, Fz0, Fz1, mass, lf, lr, Iz, delta, vx, L, m, keep,
           keep_r, tensor, pB0, pB1, pC, pD0, pD1, pE):
@@ -83,13 +112,19 @@ def front(x, mu, work, propagate, n_sub, h, cd, vx_prev, Fz0, Fz1, mass, lf, lr,
     held), then work[:, AF:PR + 1] = alpha_f, alpha_r (eq. (4), clipped to [-L, L]),
     mu~_f, mu~_r and work[:, PHI:] the features (tensor: phi_keep; axle: front then rear
     row; tensor: keep = the front function's index j1, keep_r = the rear one's j2). Returns
-    the number of particles with a slip angle outside [-L, L]."""
+    the number of particles with a slip angle outside [-L, L].
+    Two loops over the particles: the libm calls (atan, sin, cos) per particle, then the
+    basis's angle-addition recurrence (`_phi1`, the same operations in the same order) for
+    all particles at once, one vector operation per function: per particle the recurrence is
+    a chain of dependent multiply-adds, which in one loop body per particle nothing overlaps."""
     n = x.shape[0]
     nk = keep.shape[0]
-    pf = np.empty(m)
-    pr = np.empty(m)
     vxc = max(vx, 1.0)
     out = 0
+    k0 = math.pi / (2.0 * L)
+    r = 1.0 / math.sqrt(L)
+    sc = np.empty((8, n))  # sin and cos of the first angle, front and rear; the recurrence's state
+    sf1, cf1, sr1, cr1, sf, cf, sr, cr = sc[0], sc[1], sc[2], sc[3], sc[4], sc[5], sc[6], sc[7]
     for i in range(n):
         x0, x1 = x[i, 0], x[i, 1]
         if propagate:
@@ -110,15 +145,35 @@ def front(x, mu, work, propagate, n_sub, h, cd, vx_prev, Fz0, Fz1, mass, lf, lr,
         work[i, AF], work[i, AR] = af, ar
         work[i, PF] = _magic(pB0, pC, pD0, pE, af)
         work[i, PR] = _magic(pB1, pC, pD1, pE, ar)
-        _phi1(af, L, m, pf)
-        _phi1(ar, L, m, pr)
-        if tensor:  # keep[k] = j1 * m + j2: keep_f = j1, keep_r = j2 (no division per feature)
+        a = k0 * (af + L)
+        sf1[i], cf1[i] = math.sin(a), math.cos(a)
+        a = k0 * (ar + L)
+        sr1[i], cr1[i] = math.sin(a), math.cos(a)
+    for i in range(n):
+        sf[i], cf[i], sr[i], cr[i] = sf1[i], cf1[i], sr1[i], cr1[i]
+    if tensor:
+        P = np.empty((2, m, n))
+        Pf, Pr = P[0], P[1]
+        for j in range(m):
+            pfj, prj = Pf[j], Pr[j]
+            for i in range(n):
+                pfj[i] = sf[i] * r
+                prj[i] = sr[i] * r
+            _phi_next(sf, cf, sf1, cf1, sr, cr, sr1, cr1, n)
+        for i in range(n):  # keep[k] = j1 * m + j2: keep_f = j1, keep_r = j2 (no division per feature)
             for k in range(nk):
-                work[i, PHI + k] = pf[keep[k]] * pr[keep_r[k]]
-        else:
-            for k in range(nk):
-                work[i, PHI + k] = pf[keep[k]]
-                work[i, PHI + nk + k] = pr[keep[k]]
+                work[i, PHI + k] = Pf[keep[k], i] * Pr[keep_r[k], i]
+    else:
+        col = np.full(m, -1, np.int64)  # the feature column of function j, -1 where not kept
+        for k in range(nk):
+            col[keep[k]] = k
+        for j in range(m):
+            cj = col[j]
+            if cj >= 0:
+                for i in range(n):
+                    work[i, PHI + cj] = sf[i] * r
+                    work[i, PHI + nk + cj] = sr[i] * r
+            _phi_next(sf, cf, sf1, cf1, sr, cr, sr1, cr1, n)
     return out
 
 
@@ -161,42 +216,6 @@ def _pending_head(Psi, Phi, nu, b, per, zeta, phi_p, forget, lam, nu_min):
         for j in range(m):
             Pi[j] = (Pi[j] + zi * ph[j]) * f
     return f, 1.0 - f, ph
-
-
-@njit(**_JIT)
-def _update_forget_lane(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget, lam, nu_min, A, w):
-    """Batch element b: the pending update (eq. (27a)-(27c), (28f)) then the forgetting
-    (eq. (29)), in one sweep over K with the reference's operations in the reference's order
-    ((K + phi phi^T) * f, then + (1 - f) V on the diagonal), each entry of K's lower triangle
-    written to K and to lane w of A (A[i, j, w] = K[b, i, j]) as it is computed: one pass over
-    K instead of two. K's lower triangle only: the upper one is restored by `mirror` before
-    anything else reads K (the reference's K is exactly symmetric: p_i p_j = p_j p_i and the
-    forgetting is elementwise)."""
-    m = Psi.shape[2]
-    Kb = K[b]
-    if not pending:
-        if forget:
-            _forget_exact(K, Psi, Phi, nu, V, b, lam, nu_min)
-        for i in range(m):
-            Ki = Kb[i]
-            Ai = A[i]
-            for j in range(i + 1):
-                Ai[j, w] = Ki[j]
-        return
-    f, g, ph = _pending_head(Psi, Phi, nu, b, per, zeta, phi_p, forget, lam, nu_min)
-    for i in range(m):
-        p = ph[i]
-        Ki = Kb[i]
-        Ai = A[i]
-        for j in range(i):
-            v = (Ki[j] + p * ph[j]) * f
-            Ki[j] = v
-            Ai[j, w] = v
-        v = (Ki[i] + p * ph[i]) * f
-        v += g * V[i]
-        Ki[i] = v
-        Ai[i, w] = v
-    nu[b] = nu[b] * f
 
 
 @njit(inline="always", **_JIT)
@@ -320,24 +339,98 @@ def _chol_lanes(A, m, W, inv):
 
 
 @njit(**_JIT)
-def exact_forget_predictive(K, Psi, Phi, nu, V, Lam0, work, per, forget, lam, nu_min, lanes, pending, zeta, phi_p):
-    """Flat batch K (B, m, m) = Sigma + V, Psi (B, d, m), Phi (B, d, d), nu (B,), per batch
-    elements per particle (tensor 1, axle 2). In one pass over each element's statistics:
-    with `pending` the previous step's update (eq. (27), zeta (N, 2) at features phi_p),
-    with `forget` eq. (29), then the predictive St(M phi, c Lambda / (nu - d + 1),
-    nu - d + 1) (eq. (31)-(32)) into work, `lanes` elements at a time (`_chol_lanes`)."""
+def _lane_heads(Psi, Phi, nu, b0, nw, per, pending, zeta, phi_p, forget, lam, nu_min, fv, gv, phl):
+    """The per-element start of a block's pass, lanes w < nw (batch elements b0 + w): with
+    `pending` the previous step's update of Phi, Psi and nu (eq. (27a)-(27b), (28f)) scaled by
+    the forgetting factor f (`_pending_head`) and its features phl[:, w]; without, the
+    forgetting of Phi, Psi and nu (`_forget_exact` but K); then nu *= f (as the reference, after
+    nu += 1). fv[w] = f and gv[w] = 1 - f for the sweep over K; the padding lanes f = 1, 1 - f =
+    0, zero features (their identity matrix stays the identity)."""
+    d, m = Psi.shape[1], Psi.shape[2]
+    W = fv.shape[0]
+    for w in range(W):
+        if w >= nw:
+            fv[w], gv[w] = 1.0, 0.0
+            for j in range(m):
+                phl[j, w] = 0.0
+            continue
+        b = b0 + w
+        if pending:
+            f, g, ph = _pending_head(Psi, Phi, nu, b, per, zeta, phi_p, forget, lam, nu_min)
+            for j in range(m):
+                phl[j, w] = ph[j]
+        else:
+            f = _factor(lam, nu_min, nu[b])
+            for i in range(d):
+                for k in range(d):
+                    Phi[b, i, k] = Phi[b, i, k] * f
+                Pi = Psi[b, i]
+                for j in range(m):
+                    Pi[j] = Pi[j] * f
+            g = 1.0 - f
+        nu[b] = nu[b] * f
+        fv[w], gv[w] = f, g
+
+
+@njit(**_JIT)
+def exact_forget_predictive(Kl, Psi, Phi, nu, V, Lam0, work, per, forget, lam, nu_min, pending, zeta, phi_p):
+    """The exact statistics' pass below `LANES_BELOW` functions, with K = Sigma + V kept by the
+    compiled step in lanes (`Kl` (blocks, m, m, LANES): Kl[b // LANES, i, j, b % LANES] = K[b, i,
+    j], lower triangle; the padding lanes of the last block the identity; `lanes_load`,
+    `lanes_store`). Psi (B, d, m), Phi (B, d, d), nu (B,): the flat batch, per batch elements
+    per particle (axle 2). In one pass over each block of lanes: with `pending` the previous
+    step's update (eq. (27), zeta (N, 2) at features phi_p), with `forget` eq. (29), written
+    into Kl and into the factorisation's matrix A in one sweep, every operation a vector one
+    over the lanes; then the factorisation with the forward substitution (`_chol_lanes`) and the
+    predictive St(M phi, c Lambda / (nu - d + 1), nu - d + 1) (eq. (31)-(32)) into work. Per
+    element the reference's operations in the reference's order ((K + phi phi^T) * f, then
+    + (1 - f) V on the diagonal; without a pending update K * f, then + (1 - f) V): the lanes
+    layout only changes which element an instruction works on, not what it computes."""
     nb, d, m = Psi.shape
-    W = lanes
-    A = np.zeros((m + d + 1, m, W))
+    W = Kl.shape[3]
+    A = np.empty((m + d + 1, m, W))
     inv = np.empty((m, W))
     acc = np.empty((1 + d + d * d, W))
     lam2 = np.empty((2, 2))
-    for b0 in range(0, nb, W):
+    fv = np.empty(W)
+    gv = np.empty(W)
+    phl = np.empty((m, W))
+    for blk in range(Kl.shape[0]):
+        b0 = blk * W
         nw = min(W, nb - b0)
+        Kb = Kl[blk]
+        if pending or forget:
+            _lane_heads(Psi, Phi, nu, b0, nw, per, pending, zeta, phi_p, forget, lam, nu_min, fv, gv, phl)
+        for i in range(m):
+            Ki = Kb[i]
+            Ai = A[i]
+            if pending:
+                pi = phl[i]
+                for j in range(i + 1):
+                    kij = Ki[j]
+                    aij = Ai[j]
+                    pj = phl[j]
+                    for w in range(W):
+                        kij[w] = (kij[w] + pi[w] * pj[w]) * fv[w]
+                kii = Ki[i]
+                for w in range(W):
+                    kii[w] += gv[w] * V[i]
+            elif forget:
+                for j in range(i + 1):
+                    kij = Ki[j]
+                    for w in range(W):
+                        kij[w] *= fv[w]
+                kii = Ki[i]
+                for w in range(W):
+                    kii[w] += gv[w] * V[i]
+            for j in range(i + 1):
+                kij = Ki[j]
+                aij = Ai[j]
+                for w in range(W):
+                    aij[w] = kij[w]
         for w in range(W):
             if w < nw:
                 b = b0 + w
-                _update_forget_lane(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget, lam, nu_min, A, w)
                 n, a = b // per, b % per
                 for i in range(d):
                     Pi = Psi[b, i]
@@ -348,18 +441,47 @@ def exact_forget_predictive(K, Psi, Phi, nu, V, Lam0, work, per, forget, lam, nu
                 Ai = A[m + d]
                 for j in range(m):
                     Ai[j, w] = ph[j]
-            else:  # padding lanes: identity, zero right-hand sides
-                for i in range(m + d + 1):
-                    for j in range(min(i + 1, m)):
-                        A[i, j, w] = 1.0 if i == j else 0.0
+            else:  # padding lanes: zero right-hand sides
+                for i in range(m, m + d + 1):
+                    for j in range(m):
+                        A[i, j, w] = 0.0
         _chol_lanes(A, m, W, inv)
         _write_predictive_lanes(work, b0, nw, per, d, m, A, Lam0, Phi, nu, acc, lam2)
 
 
 @njit(**_JIT)
+def lanes_load(K, Kl):
+    """Kl[b // W, i, j, b % W] = K[b, i, j] (lower triangle), the padding lanes the identity."""
+    nblk, m, W = Kl.shape[0], Kl.shape[1], Kl.shape[3]
+    nb = K.shape[0]
+    for blk in range(nblk):
+        for w in range(W):
+            b = blk * W + w
+            for i in range(m):
+                for j in range(i + 1):
+                    Kl[blk, i, j, w] = K[b, i, j] if b < nb else (1.0 if i == j else 0.0)
+
+
+@njit(**_JIT)
+def lanes_store(Kl, K):
+    """K[b, i, j] = Kl[b // W, i, j, b % W], lower triangle."""
+    W = Kl.shape[3]
+    nb, m = K.shape[0], K.shape[1]
+    for b in range(nb):
+        blk, w = b // W, b % W
+        for i in range(m):
+            for j in range(i + 1):
+                K[b, i, j] = Kl[blk, i, j, w]
+
+
+@njit(**_JIT)
 def _update_forget_rows(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget, lam, nu_min, A):
-    """`_update_forget_lane` with A (>= m, m) one matrix (A[i, j] = K[b, i, j]), the same
-    operations in the same order."""
+    """Batch element b: the pending update (eq. (27a)-(27c), (28f)) then the forgetting
+    (eq. (29)), in one sweep over K with the reference's operations in the reference's order
+    ((K + phi phi^T) * f, then + (1 - f) V on the diagonal), each entry of K's lower triangle
+    written to K and to A (>= m, m), A[i, j] = K[b, i, j], as it is computed. K's lower triangle
+    only: the upper one is restored by `mirror` before anything else reads K (the reference's K
+    is exactly symmetric: p_i p_j = p_j p_i and the forgetting is elementwise)."""
     m = Psi.shape[2]
     Kb = K[b]
     if not pending:
@@ -547,7 +669,7 @@ def rank1_forget_predictive(M, P, Lam, nu, work, per, forget, lam, nu_min, bound
 
 # ---- 3. weights ---------------------------------------------------------------------------------
 @njit(**_JIT)
-def weigh(x, work, logw, c0, c1, ay, yr, R0, R1, have_ay, have_r, learned):
+def weigh(x, work, logw, c0, c1, ay, yr, R0, R1, have_ay, have_r, learned, add):
     """Eq. (22) with zeta integrated out; returns (ESS, predicted a^Y, predicted yaw rate) and
     writes the normalised log-weights (as `normalize_log_weights`) and, for the learned
     measurement, work[:, SC:E + 1] = S c, the a^Y marginal's scale and the residual."""
@@ -600,7 +722,7 @@ def weigh(x, work, logw, c0, c1, ay, yr, R0, R1, have_ay, have_r, learned):
     s2 = 0.0
     for i in range(n):
         s2 += math.exp(2.0 * logw[i])
-    return 1.0 / s2, pred_ay, pred_r
+    return 1.0 / s2, pred_ay, pred_r, common_dof(work, add)
 
 
 # ---- 4. resampling copies -----------------------------------------------------------------------
@@ -671,6 +793,60 @@ def gather_lower(K, idx):
 
 
 @njit(**_JIT)
+def _copy_lanes(Kl, per, i, j):
+    """Particle j's batch elements' K (lower triangles) into particle i's, in the lanes layout."""
+    W, m = Kl.shape[3], Kl.shape[1]
+    for a in range(per):
+        s, t = j * per + a, i * per + a
+        bs, ws, bt, wt = s // W, s % W, t // W, t % W
+        for r in range(m):
+            for c in range(r + 1):
+                Kl[bt, r, c, wt] = Kl[bs, r, c, ws]
+
+
+@njit(**_JIT)
+def gather_lanes(Kl, idx, per):
+    """`gather_lower` for K in lanes (`exact_forget_predictive`), in place, the same order."""
+    n = idx.shape[0]
+    if _sorted(idx):
+        for i in range(n):
+            if idx[i] > i:
+                _copy_lanes(Kl, per, i, idx[i])
+        for i in range(n - 1, -1, -1):
+            if idx[i] < i:
+                _copy_lanes(Kl, per, i, idx[i])
+    else:
+        B = Kl.copy()
+        W, m = Kl.shape[3], Kl.shape[1]
+        for i in range(n):
+            for a in range(per):
+                s, t = idx[i] * per + a, i * per + a
+                for r in range(m):
+                    for c in range(r + 1):
+                        Kl[t // W, r, c, t % W] = B[s // W, r, c, s % W]
+
+
+@njit(**_JIT)
+def resample(logw, u0, arrays, K, per, lanes, add, work):
+    """Systematic resampling after its uniform u0 (`systematic_ancestors`), its copies in place
+    (`gather_rows` for every (N, k) array; K's lower triangles by `gather_lanes` when `lanes`,
+    else `gather_lower` (K (N, per, m, m)); none when K is empty: the rank-one statistics), the
+    log-weights set to -log N; returns `common_dof(work, add)` after the copies."""
+    n = logw.shape[0]
+    idx = systematic_ancestors(logw, u0)
+    gather_rows(arrays, idx)
+    if K.shape[0] > 0:
+        if lanes:
+            gather_lanes(K, idx, per)
+        else:
+            gather_lower(K, idx)
+    v = -math.log(n)
+    for i in range(n):
+        logw[i] = v
+    return common_dof(work, add)
+
+
+@njit(**_JIT)
 def mirror(K):
     """K[b] upper triangle = lower triangle transposed, for every b."""
     nb, m = K.shape[0], K.shape[1]
@@ -693,7 +869,7 @@ def _chol2_apply(s00, s10, s11, z0, z1):
 
 
 @njit(**_JIT)
-def sample(x, work, logw, z, u, zeta, mu, conditional):
+def sample(x, work, logw, z, u, zeta, mu, conditional, keep_phi, phi_p):
     """zeta ~ St (the t conditional given the a^Y residual when `conditional`, else the
     predictive) from z ~ N(0, I), u ~ chi2(dof'), as `student_t.t_sample`; mu = mu~ + zeta.
     Returns the weighted means and std of x and the mean slip angles."""
@@ -720,17 +896,23 @@ def sample(x, work, logw, z, u, zeta, mu, conditional):
         mu[i, 0] = work[i, PF] + zeta[i, 0]
         mu[i, 1] = work[i, PR] + zeta[i, 1]
     m0 = m1 = mf = mr = 0.0
+    qs = np.empty(n)  # the weights, exponentiated once for both sums
     for i in range(n):
-        q = math.exp(logw[i])
+        q = qs[i] = math.exp(logw[i])
         m0 += q * x[i, 0]
         m1 += q * x[i, 1]
         mf += q * work[i, AF]
         mr += q * work[i, AR]
     v0 = v1 = 0.0
     for i in range(n):
-        q = math.exp(logw[i])
+        q = qs[i]
         v0 += q * (x[i, 0] - m0) ** 2
         v1 += q * (x[i, 1] - m1) ** 2
+    if keep_phi:  # the features of the pending update (exact statistics while learning)
+        k = phi_p.shape[1]
+        for i in range(n):
+            for j in range(k):
+                phi_p[i, j] = work[i, PHI + j]
     return m0, m1, math.sqrt(max(v0, 0.0)), math.sqrt(max(v1, 0.0)), mf, mr
 
 
@@ -767,13 +949,16 @@ def _flat(a, tail: int):
 
 class CompiledStep:
     """The compiled step of one `FrictionGPSSM` (built at its `reset`): the work array and
-    flat views of the statistics' arrays (the statistics are updated in place)."""
+    flat views of the statistics' arrays (the statistics are updated in place); below
+    `LANES_BELOW` functions with the exact statistics also K in lanes (`Kl`, the statistics'
+    K written back by `flush`)."""
 
     def __init__(self, est):
         from tirefilter.stats.mniw_numba import NumbaMNIW, NumbaMNIWRank1
 
         cfg, N = est.cfg, est.cfg.particles
         self.est = est
+        self.N = N
         self.tensor = est.d == 2
         self.per = 1 if self.tensor else 2
         size = est.basis.size
@@ -792,14 +977,69 @@ class CompiledStep:
         if not isinstance(st, (NumbaMNIW, NumbaMNIWRank1)):
             raise TypeError("the compiled step needs the compiled statistics (backend numba)")
         self.lanes = size < LANES_BELOW
+        # exact statistics in lanes: K lives in Kl between `flush`es (kl_loaded: Kl holds K, the
+        # statistics' K is stale; loaded from the statistics at the next step after a flush)
+        nb = N * self.per
+        W = min(LANES, -(-nb // 4) * 4)  # fewer lanes for a small batch (each lane's numbers are its own)
+        self.Kl = (np.zeros((-(-nb // W), size, size, W)) if self.exact and self.lanes
+                   else np.zeros((0, 0, 0, 0)))
+        self.kl_loaded = False
         v = est.vehicle
         self.veh = (float(est.Fz[0]), float(est.Fz[1]), float(v.mass), float(v.lf), float(v.lr),
                     float(v.yaw_inertia))
+        # the configuration's scalars, read once (the configuration is frozen)
+        self.max_step = float(cfg.max_step)
+        self.sn = np.asarray(cfg.state_noise, float)
+        self.noise = bool(cfg.state_noise[0] > 0 or cfg.state_noise[1] > 0)
+        self.gate_speed = float(cfg.gate_speed)
+        self.lam = float(cfg.forgetting)
+        self.nu0 = float(est.nu0)
+        self.learned = cfg.measurement_friction == "learned"
+        self.threshold = cfg.resample_threshold * N
+        self.R0, self.R1 = float(est.R[0]), float(est.R[1])
+        self.sqrt_R1 = math.sqrt(est.R[1])
+        self._cache = None  # views of the statistics and the particles (`_arrays`); not pickled
+        self._prior = self._template = self._slope = self._front_prior = self._pargs = None
+
+    def __getstate__(self):  # views would come back as copies: rebuilt after unpickling
+        state = dict(self.__dict__)
+        state["_cache"] = None
+        return state
+
+    def _arrays(self):
+        """(statistics, particles, flat statistics' views, the resampling's (N, k) views, K for the
+        resampling copies, the statistics' arrays), rebuilt when the statistics, their arrays or
+        the particles' array were replaced (K then loaded into the lanes again)."""
+        est = self.est
+        st = est._stats
+        a0, a1, a2 = (st.K, st.Psi, st.Phi) if self.exact else (st.M, st.P, st.Lam)
+        c = self._cache
+        if c is not None:  # (`is` one by one: a generator over the four costs about a microsecond)
+            a = c[5]
+            if c[0] is st and c[1] is est.x and a[0] is a0 and a[1] is a1 and a[2] is a2 and a[3] is st.nu:
+                return c
+        arrays = (a0, a1, a2, st.nu)
+        N = self.N
+        views = (_flat(arrays[0], 2), _flat(arrays[1], 2), _flat(arrays[2], 2), arrays[3].reshape(-1))
+        rows = (st.Psi, st.Phi) if self.exact else (st.M, st.P, st.Lam)
+        rows = tuple(a.reshape(N, -1) for a in rows) + (st.nu.reshape(N, -1), est.x, self.work)
+        if self.exact and not self.lanes:
+            kcopy = st.K.reshape((N, self.per) + st.K.shape[-2:])
+        else:
+            kcopy = self.Kl  # lanes, or empty (rank-one statistics: nothing beyond the rows)
+        if c is not None:
+            self.kl_loaded = False  # other statistics' arrays: K from them
+        self._cache = c = (st, est.x, views, rows, kcopy, arrays)
+        return c
 
     def flush(self) -> None:
         """Apply a pending update of the exact statistics now (before anything reads them)."""
         # (each flag cleared once its work is done: a reader never sees it cleared over statistics
         # that are still stale)
+        if self.kl_loaded:  # K's lower triangle back from the lanes
+            lanes_store(self.Kl, self._views()[0])
+            self.stale_upper = True
+            self.kl_loaded = False  # the step loads it again (a reader may change the statistics)
         if self.pending:
             K, Psi, Phi, nu = self._views()
             d, m = Psi.shape[1:]  # per particle and step: `per` batch rows of d outputs and m features
@@ -811,97 +1051,121 @@ class CompiledStep:
             self.stale_upper = False
 
     def _views(self):
-        st = self.est._stats
-        if self.exact:
-            return _flat(st.K, 2), _flat(st.Psi, 2), _flat(st.Phi, 2), st.nu.reshape(-1)
-        return _flat(st.M, 2), _flat(st.P, 2), _flat(st.Lam, 2), st.nu.reshape(-1)
+        return self._arrays()[2]
 
     def _rows(self):
         """Every per-particle array as (N, k) views, for the resampling copies."""
-        st, N = self.est._stats, self.est.cfg.particles
-        arrays = (st.Psi, st.Phi) if self.exact else (st.M, st.P, st.Lam)
-        return tuple(a.reshape(N, -1) for a in arrays) + (st.nu.reshape(N, -1), self.est.x, self.work)
+        return self._arrays()[3]
+
+    def _estimate(self, ess, vx, moments):
+        """`FrictionGPSSM._estimate` with the exact statistics and no MPF, the same fields: the
+        stiffness fields (`_curve_slope` without M: the last snapshot's or the prior's) and the
+        Estimate's defaults built by `Estimate` again only when the snapshot's slope or the prior
+        changed; per step a copy of that template's fields with this step's (a frozen dataclass's
+        `__init__` sets its 18 fields one by one: 3-5 us a step)."""
+        est = self.est
+        if est._slope is not self._slope or est.prior is not self._prior:
+            self._slope, self._prior = est._slope, est.prior
+            stiff = {k: float(v) for k, v in est._curve_slope(None, None).items()}
+            self._template = Estimate(active=False, vx=NAN, vy=NAN, yaw_rate=NAN, ess=NAN, **stiff).__dict__
+        m0, m1, s0, s1 = moments
+        e = _new(Estimate)
+        fields = e.__dict__
+        fields.update(self._template)
+        fields.update(active=est.active, vx=vx, vy=float(m0), yaw_rate=float(m1), ess=ess,
+                      state_std=(0.0, float(s0), float(s1)))
+        return e
 
     def step(self, t, uk, delta: float, vx: float, y):
         est = self.est
-        cfg, N, rng = est.cfg, est.cfg.particles, est.rng
+        N, rng = self.N, est.rng
         work, Fz0, Fz1, mass, lf, lr, Iz = self.work, *self.veh
+        _, _, (a1, a2, a3, nu), rows, kcopy, _ = self._arrays()
         # 1. propagate with the friction drawn at k-1 (eq. (1)), forget (eq. (29), fused into 2.)
         forget = False
         propagate, n_sub, h, cd, vx_prev = False, 0, 0.0, 1.0, 0.0
         if est.t_prev is None:
             if math.isfinite(y.yaw_rate):
-                est.x[:, 1] = y.yaw_rate + math.sqrt(est.R[1]) * rng.standard_normal(N)
+                est.x[:, 1] = y.yaw_rate + self.sqrt_R1 * rng.standard_normal(N)
         else:
             dt = t - est.t_prev
             if dt <= 0:
                 raise ConfigError("inputs", "t", f"time must increase: {t} after {est.t_prev}")
-            n_sub = max(1, math.ceil(dt / cfg.max_step - 1e-9))
+            n_sub = max(1, math.ceil(dt / self.max_step - 1e-9))
             h = dt / n_sub
-            cd, vx_prev, propagate = math.cos(est.u_prev[0]), float(est.u_prev[1]), True
-            sn = cfg.state_noise
-            if sn[0] > 0 or sn[1] > 0:
+            u_prev = est.u_prev
+            cd, vx_prev, propagate = math.cos(u_prev[0]), float(u_prev[1]), True
+            if self.noise:
                 front(est.x, est.mu, work, True, n_sub, h, cd, vx_prev, Fz0, Fz1, mass, lf, lr, Iz, delta, vx,
                       self.L, self.m1, self.keep, self.keep_r, self.tensor, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0)
-                est.x[:] = est.x + math.sqrt(dt) * np.asarray(sn, float) * rng.standard_normal(est.x.shape)
+                est.x[:] = est.x + math.sqrt(dt) * self.sn * rng.standard_normal(est.x.shape)
                 propagate = False
             forget = est.active
-        est.active = bool(vx > cfg.gate_speed and est.learning_started)
+        est.active = active = bool(vx > self.gate_speed and est.learning_started)
         # 2. slip angles (clipped, counted), features, prior
         p = est.prior
+        if p is not self._front_prior:  # the prior's parameters as floats, again when the prior changes
+            self._front_prior = p
+            self._pargs = (float(p.B[0]), float(p.B[1]), float(p.C), float(p.D[0]), float(p.D[1]), float(p.E))
         n_out = front(est.x, est.mu, work, propagate, n_sub, h, cd, vx_prev, Fz0, Fz1, mass, lf, lr, Iz, delta, vx,
-                      self.L, self.m1, self.keep, self.keep_r, self.tensor, float(p.B[0]), float(p.B[1]), float(p.C),
-                      float(p.D[0]), float(p.D[1]), float(p.E))
+                      self.L, self.m1, self.keep, self.keep_r, self.tensor, *self._pargs)
         est.slip_evaluations += N
         if n_out:
             est.clipped += n_out
             est.clipped_steps += 1
         # 3. forgetting and predictive
-        a1, a2, a3, nu = self._views()
         if self.exact:
-            fn = exact_forget_predictive if self.lanes else exact_forget_predictive_rows
-            args = (a1, a2, a3, nu, est._stats.V, est._stats.Lam0, work, self.per, forget, float(cfg.forgetting),
-                    float(est.nu0)) + ((LANES,) if self.lanes else ()) + (self.pending, self.zeta, self.phi_p)
-            fn(*args)
-            self.pending, self.stale_upper = False, True
+            V, Lam0 = est._stats.V, est._stats.Lam0
+            if self.lanes:
+                if not self.kl_loaded:
+                    lanes_load(a1, self.Kl)
+                    self.kl_loaded = True
+                exact_forget_predictive(self.Kl, a2, a3, nu, V, Lam0, work, self.per, forget, self.lam, self.nu0,
+                                        self.pending, self.zeta, self.phi_p)
+            else:
+                exact_forget_predictive_rows(a1, a2, a3, nu, V, Lam0, work, self.per, forget, self.lam, self.nu0,
+                                             self.pending, self.zeta, self.phi_p)
+                self.stale_upper = True
+            self.pending = False
         else:
-            rank1_forget_predictive(a1, a2, a3, nu, work, self.per, forget, float(cfg.forgetting), float(est.nu0),
+            rank1_forget_predictive(a1, a2, a3, nu, work, self.per, forget, self.lam, self.nu0,
                                     bool(est._stats.bounded), float(est._stats.trace0))
         # 4. weights (eq. (22)), resampling
-        have_ay = math.isfinite(y.ay)
-        learned = cfg.measurement_friction == "learned"
-        ess, pa, pr_ = weigh(est.x, work, est.logw, Fz0 * math.cos(delta) / mass, Fz1 / mass, float(y.ay),
-                             float(y.yaw_rate), float(est.R[0]), float(est.R[1]), have_ay,
-                             math.isfinite(y.yaw_rate), learned)
+        yay, yr = float(y.ay), float(y.yaw_rate)
+        have_ay = math.isfinite(yay)
+        learned = self.learned
+        conditional = have_ay and learned
+        add = 1.0 if conditional else 0.0
+        ess, pa, pr_, c = weigh(est.x, work, est.logw, Fz0 * math.cos(delta) / mass, Fz1 / mass, yay, yr, self.R0,
+                                self.R1, have_ay, math.isfinite(yr), learned, add)
         est.prediction = (pa, pr_)
-        if ess < cfg.resample_threshold * N:
-            idx = systematic_ancestors(est.logw, float(rng.random((1,))[0]))  # as stats.systematic_resample
-            gather_rows(self._rows(), idx)
-            if self.exact:
-                K = self.est._stats.K
-                gather_lower(K.reshape((N, self.per) + K.shape[-2:]), idx)
-            est.logw[:] = -math.log(N)
+        if ess < self.threshold:  # as stats.systematic_resample, its uniform first
+            c = resample(est.logw, float(rng.random((1,))[0]), rows, kcopy, self.per, self.lanes, add, work)
             est.resamples += 1
         # 5. zeta (t conditional given the a^Y residual), mu, learning
-        conditional = have_ay and learned
-        c = common_dof(work, 1.0 if conditional else 0.0)
         if math.isnan(c):  # dof differing between particles (or NaN): as the reference
             z, u = t_draws(work[:, DOF] + 1.0 if conditional else work[:, DOF], (N, 2), rng)
+            u = np.ascontiguousarray(u, float)
         else:  # t_draws' generator calls for a common dof, without its checks
             z, u = rng.standard_normal((N, 2)), rng.chisquare(c, (N,))
-        m0, m1, s0, s1, mf, mr = sample(est.x, work, est.logw, z, np.ascontiguousarray(u, float), self.zeta, est.mu,
-                                        conditional)
-        if est.active:
+        exact_active = active and self.exact
+        m0, m1, s0, s1, mf, mr = sample(est.x, work, est.logw, z, u, self.zeta, est.mu, conditional, exact_active,
+                                        self.phi_p)
+        if active:
             if self.exact:  # applied in the next step's pass over the statistics (or by `flush`)
-                self.phi_p[:] = work[:, PHI:]
                 self.pending = True
             else:
                 rank1_update(a1, a2, a3, nu, work, self.zeta, self.per)
             v = est.visited
             est.visited = [min(v[0], mf), max(v[1], mf), min(v[2], mr), max(v[3], mr)]
-            if self.tensor:
+            if self.tensor:  # the reference's `_path[0, jf] += (1.0, mr)`, element by element
                 jf, jr = est._bin(mf), est._bin(mr)
-                est._path[0, jf] += (1.0, mr)
-                est._path[1, jr] += (1.0, mf)
+                path = est._path
+                path[0, jf, 0] += 1.0
+                path[0, jf, 1] += mr
+                path[1, jr, 0] += 1.0
+                path[1, jr, 1] += mf
         est.t_prev, est.u_prev, est.last_t = t, uk, t
+        if self.exact and est.mpf_estimate is None:
+            return self._estimate(ess, vx, (m0, m1, s0, s1))
         return est._estimate(ess, vx, (m0, m1, s0, s1))
