@@ -432,10 +432,18 @@ def test_stiffness_mpf_fused_estimate_equals_the_reference_estimate(model):
     r = est._wk.mom.tolist()
     ref = dataclasses.astuple(est._estimate_from(0.7, r[0][:nx], r[1][:nx], r[2][:n_w], r[3][:n_w], r[4][:n_w],
                                                  r[5][:m]))
-    fused = dataclasses.astuple(est._estimate_fused(0.7, est._wk.mom))
+    obj = est._estimate_fused(0.7, est._wk.mom)
+    fused = dataclasses.astuple(obj)
     assert len(fused) == len(ref) and any(isinstance(v, float) and math.isnan(v) for v in ref) == (model == "lateral")
     for a, b in zip(fused, ref):
         assert type(a) is type(b) and (a == b or (a != a and b != b)), (fused, ref)
+    # its fields are filled without Estimate's __init__: every field, and nothing __init__ would add
+    from tirefilter.estimators.base import Estimate
+
+    assert not hasattr(Estimate, "__post_init__") and not hasattr(Estimate, "__slots__")
+    assert type(obj) is Estimate and obj.__dict__.keys() == {f.name for f in dataclasses.fields(Estimate)}
+    built = Estimate(**{f.name: getattr(obj, f.name) for f in dataclasses.fields(Estimate)})
+    assert repr(built) == repr(obj)  # (every field, in order; NaN where not estimated)
 
 
 def test_stiffness_mpf_bound_restart_in_the_fused_step_equal(monkeypatch):

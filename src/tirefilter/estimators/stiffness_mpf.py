@@ -38,6 +38,7 @@ from tirefilter.vehicle.params import VehicleParams
 from tirefilter.vehicle.single_track import GRAVITY
 
 NAN = math.nan
+_new_object = object.__new__  # (`StiffnessMPF._estimate_fused`)
 
 
 @dataclass(frozen=True)
@@ -294,6 +295,7 @@ class StiffnessMPF:
             raise ConfigError("mpf configuration", "init_center",
                               f"needs {self.n_w} values ({', '.join(self.params)})")
         self.C_ref, self.C_center = ref, center
+        self._C_nom_list = self.C_nom.tolist()  # (`_estimate_fused`)
         self._cx_p0 = self._cx_prior_var() if self.full else 0.0  # (`_excite_cx`)
         self._lf, self._lr = float(v.lf), float(v.lr)  # (`_calibrate_moments`)
         self._calib_power = 1.0 / self.cfg.calibration_memory  # (`_calibrate`)
@@ -997,26 +999,34 @@ class StiffnessMPF:
         """`_estimate_from` on the moments that `sample_update` left in the rows of mom, written out
         for the fused step: the same Estimate (tests/test_kernels.py compares every field) in a
         third of the time. With `dt` (the fused step) and `std_calibration = "sandwich"`, the
-        calibration's update and factors (`_calibrate_moments`) go into the one Estimate built."""
+        calibration's update and factors (`_calibrate_moments`) go into the one Estimate built.
+        The frozen dataclass's fields are filled directly (every field: its generated __init__
+        sets each through object.__setattr__, several us per step); Estimate has no
+        __post_init__ and no __slots__ (tests/test_kernels.py checks both and compares the
+        object with the constructor's)."""
         xm, xs, mb, vm, s2, bm = mom.tolist()
         if self.cfg.inflation_prior_bound:  # (`_draw_inflation`'s bound)
             self._sigma2_rel = max(v / c**2 for v, c in zip(s2, self.C_ref.tolist()))
-        root, C = _sqrt_or_nan, self.C_nom.tolist()
+        root, C = _sqrt_or_nan, self._C_nom_list
         f0 = f1 = 1.0
+        est = _new_object(Estimate)
         if self.full:  # params Cx, Cf_y, Cr_y; bias ax, ay, yaw rate
             if dt is not None and self._calib is not None:
                 f0, f1 = self._calibrate_moments(xm[0], xm[1], xm[2], dt)
-            return Estimate(active=bool(self.active), vx=xm[0], vy=xm[1], yaw_rate=xm[2], Cf_y=C[1] + mb[1],
-                            Cr_y=C[2] + mb[2], Cx=C[0] + mb[0], Cf_y_std=root(vm[1]) * f0, Cr_y_std=root(vm[2]) * f1,
-                            Cx_std=root(vm[0]), Cf_y_sigma=root(s2[1]), Cr_y_sigma=root(s2[2]), Cx_sigma=root(s2[0]),
-                            b_ax=bm[0], b_ay=bm[1], b_yaw_rate=bm[2], ess=float(ess), state_std=(xs[0], xs[1], xs[2]))
+            est.__dict__.update(active=bool(self.active), vx=xm[0], vy=xm[1], yaw_rate=xm[2], Cf_y=C[1] + mb[1],
+                                Cr_y=C[2] + mb[2], Cx=C[0] + mb[0], Cf_y_std=root(vm[1]) * f0,
+                                Cr_y_std=root(vm[2]) * f1, Cx_std=root(vm[0]), Cf_y_sigma=root(s2[1]),
+                                Cr_y_sigma=root(s2[2]), Cx_sigma=root(s2[0]), b_ax=bm[0], b_ay=bm[1], b_yaw_rate=bm[2],
+                                ess=float(ess), state_std=(xs[0], xs[1], xs[2]))
+            return est
         vx = float(self.u_prev[3])
         if dt is not None and self._calib is not None:
             f0, f1 = self._calibrate_moments(vx, xm[0], xm[1], dt)
-        return Estimate(active=bool(self.active), vx=vx, vy=xm[0], yaw_rate=xm[1],
-                        Cf_y=C[0] + mb[0], Cr_y=C[1] + mb[1], Cf_y_std=root(vm[0]) * f0, Cr_y_std=root(vm[1]) * f1,
-                        Cf_y_sigma=root(s2[0]), Cr_y_sigma=root(s2[1]), b_ay=bm[0], b_yaw_rate=bm[1], ess=float(ess),
-                        state_std=(0.0, xs[0], xs[1]))
+        est.__dict__.update(active=bool(self.active), vx=vx, vy=xm[0], yaw_rate=xm[1], Cf_y=C[0] + mb[0],
+                            Cr_y=C[1] + mb[1], Cx=NAN, Cf_y_std=root(vm[0]) * f0, Cr_y_std=root(vm[1]) * f1, Cx_std=NAN,
+                            Cf_y_sigma=root(s2[0]), Cr_y_sigma=root(s2[1]), Cx_sigma=NAN, b_ax=NAN, b_ay=bm[0],
+                            b_yaw_rate=bm[1], ess=float(ess), state_std=(0.0, xs[0], xs[1]))
+        return est
 
     def _ay_residual(self, a: np.ndarray, logw_pred: np.ndarray, wk: "_MPFWork") -> None:
         """`_predict_ay`'s `_e_ay` for the fused step, the residual of the calibration (Sec. 29):
