@@ -430,162 +430,22 @@ def _weigh(x, a, B, full, roll_gain, h, D, nu, nu_w, gamma, Lam, L11, avail, L12
         ll[i] = cn - 0.5 * logdet - 0.5 * (dof + p) * math.log1p(vv / dof)
 
 
-# ---- the fused step's arrays: four flat buffers -------------------------------------------------
-# Every array of the fused step lives in one of four float64 buffers that `stiffness_mpf._MPFWork`
-# allocates once: the particles' own arrays (`own`) and their spares for resampling (`spare`, the
-# same layout), the per-particle intermediates (`work`) and the filter's constants (`const`). A
-# pass takes the buffers and cuts its views out of them (a few ns each), instead of some 30 array
-# arguments, each of which costs numba's dispatcher about 0.1-0.2 us per call to type and unbox
-# (benchmarks/README.md, "The MPF step's Python (stop 24)"). The layouts are plain slicing,
-# run by numpy for the views the Python side keeps and compiled into the passes: one layout.
-def own_views(buf, n, nx, n_w, m):
-    """The particles' own arrays in `buf`: x (n, nx), b (n, m), P (n, m, m), gamma (n,),
-    mu (n, n_w), Lam (n, n_w, n_w), nu (n,), the model's first stage a (n, 3), B (n, 3, n_w),
-    slip (2, n); and the length they take."""
-    o = 0
-    x = buf[o:o + n * nx].reshape((n, nx))
-    o += n * nx
-    b = buf[o:o + n * m].reshape((n, m))
-    o += n * m
-    P = buf[o:o + n * m * m].reshape((n, m, m))
-    o += n * m * m
-    gamma = buf[o:o + n]
-    o += n
-    mu = buf[o:o + n * n_w].reshape((n, n_w))
-    o += n * n_w
-    Lam = buf[o:o + n * n_w * n_w].reshape((n, n_w, n_w))
-    o += n * n_w * n_w
-    nu = buf[o:o + n]
-    o += n
-    a = buf[o:o + n * 3].reshape((n, 3))
-    o += n * 3
-    B = buf[o:o + n * 3 * n_w].reshape((n, 3, n_w))
-    o += n * 3 * n_w
-    slip = buf[o:o + 2 * n].reshape((2, n))
-    o += 2 * n
-    return x, b, P, gamma, mu, Lam, nu, a, B, slip, o
-
-
-def own_size(n, nx, n_w, m):
-    return n * (nx + m + m * m + 1 + n_w + n_w * n_w + 1 + 3 + 3 * n_w + 2)
-
-
-def work_views(buf, n, nx, n_w, m):
-    """The fused step's per-particle intermediates in `buf`: af, ar, nu_w (nu~), ll (the
-    log-likelihood), nu_draw, q (exp log w after resampling) (n,); h, e, v (n, m); D (n, m, n_w);
-    L11 (n, n_w, n_w); L12 (n, n_w, m); Lc (n, m, m); w (n, n_w); the moments mom
-    (6, max(nx, n_w, m)); and the length they take."""
-    o = 0
-    af = buf[o:o + n]
-    o += n
-    ar = buf[o:o + n]
-    o += n
-    nu_w = buf[o:o + n]
-    o += n
-    ll = buf[o:o + n]
-    o += n
-    nu_draw = buf[o:o + n]
-    o += n
-    q = buf[o:o + n]
-    o += n
-    h = buf[o:o + n * m].reshape((n, m))
-    o += n * m
-    e = buf[o:o + n * m].reshape((n, m))
-    o += n * m
-    v = buf[o:o + n * m].reshape((n, m))
-    o += n * m
-    D = buf[o:o + n * m * n_w].reshape((n, m, n_w))
-    o += n * m * n_w
-    L11 = buf[o:o + n * n_w * n_w].reshape((n, n_w, n_w))
-    o += n * n_w * n_w
-    L12 = buf[o:o + n * n_w * m].reshape((n, n_w, m))
-    o += n * n_w * m
-    Lc = buf[o:o + n * m * m].reshape((n, m, m))
-    o += n * m * m
-    w = buf[o:o + n * n_w].reshape((n, n_w))
-    o += n * n_w
-    k = max(max(nx, n_w), m)
-    mom = buf[o:o + 6 * k].reshape((6, k))
-    o += 6 * k
-    return af, ar, nu_w, ll, nu_draw, q, h, e, v, D, L11, L12, Lc, w, mom, o
-
-
-def work_size(n, nx, n_w, m):
-    return n * (6 + 3 * m + m * n_w + n_w * n_w + n_w * m + m * m + n_w) + 6 * max(nx, n_w, m)
-
-
-def const_views(buf, n_w, m):
-    """The filter's constants in `buf`: jw, c_floor (2,) of the interval slip; R (m, m); the
-    projection bounds lo, hi and the bound restart's pin_lo, pin_hi (n_w,); the bias random
-    walk's intensity in and beyond the linear region (m,); (max_step, roll_gain,
-    plausible_beta, plausible_yaw_rate, gate_speed); and the length they take."""
-    o = 0
-    jw = buf[o:o + 2]
-    o += 2
-    c_floor = buf[o:o + 2]
-    o += 2
-    R = buf[o:o + m * m].reshape((m, m))
-    o += m * m
-    lo = buf[o:o + n_w]
-    o += n_w
-    hi = buf[o:o + n_w]
-    o += n_w
-    pin_lo = buf[o:o + n_w]
-    o += n_w
-    pin_hi = buf[o:o + n_w]
-    o += n_w
-    q_lin = buf[o:o + m]
-    o += m
-    q_nonlin = buf[o:o + m]
-    o += m
-    fs = buf[o:o + 5]
-    o += 5
-    return jw, c_floor, R, lo, hi, pin_lo, pin_hi, q_lin, q_nonlin, fs, o
-
-
-def const_size(n_w, m):
-    return 4 + m * m + 4 * n_w + 2 * m + 5
-
-
-_own_views = njit(inline="always", **_JIT)(own_views)
-_work_views = njit(inline="always", **_JIT)(work_views)
-_const_views = njit(inline="always", **_JIT)(const_views)
-
-
 # ---- the three passes --------------------------------------------------------------------------
-@njit(inline="always", **_JIT)
-def _pw_args(own, work, const, ok, logw, u_prev, uk, y, avail, vp, noise, noise_scale, dt, heun, interval, linear,
-             bias_on, forget, lam, nu_min, full, rear_drive, nc, want_nis):
-    """`_predict_weigh`'s argument tuples from the buffers (the model's sizes from `full`)."""
-    n = logw.shape[0]
-    nx = 3 if full else 2
-    x, b, P, gamma, mu, Lam, nu, a, B, slip, _ = _own_views(own, n, nx, nx, nx)
-    af, ar, nu_w, ll, _nd, _q, h, e, v, D, L11, L12, Lc, w, _m, _ = _work_views(work, n, nx, nx, nx)
-    jw, c_floor, R, _lo, _hi, _pl, _ph, q_lin, q_nonlin, fs, _ = _const_views(const, nx, nx)
-    q = q_lin if linear else q_nonlin
-    t1 = (x, u_prev, w, a, B, af, ar, slip, dt, fs[0], heun, interval, jw, c_floor, noise, noise_scale, b, P, q,
-          bias_on, forget, lam, nu_min, gamma, mu, Lam)
-    t2 = (nu, uk, y, avail, R, fs[1], vp, full, rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc, want_nis,
-          fs[2], fs[3], fs[4])
-    return t1, t2
-
-
 @njit(**_JIT)
-def predict_weigh(own, work, const, ok, logw, u_prev, uk, y, avail, vp, noise, noise_scale, dt, heun, interval, linear,
-                  bias_on, forget, lam, nu_min, full, rear_drive, nc, want_nis):
-    """Steps 1 and 2 of `StiffnessMPF.step`, in place, on the buffers of `own_views` (x, the bias
-    b, P, the NiW statistics, the model's first stage a, B, slip), `work_views` and `const_views`.
-    Per particle: the first stage of the propagation, a (N, 3), B (N, 3, n_w), slip (2, N) kept
-    from the last sample, or with `interval` (full model, slip_hold = "interval") the model at x
-    with the wheel slip averaged over the step (`_slip_over_step`, jw, c_floor as there, towards
-    the slip of uk); propagate x (N, nx) (`_propagate`: eq. (9), the last draw w held,
-    `max_step` sub-steps), add the state noise noise_scale * noise (the caller's normals; noise
-    of shape (0, nx) when off), predict the bias covariance P += diag(q dt) (eq. (29); q in the
-    linear region or beyond it, `linear`), forget (`NiW.forget`, eq. (20), when `forget`),
-    evaluate the model at x_k with uk (`_model`: a, B, af, ar, slip, the first stage of the
-    next propagation), mark the plausible particles (`_plausible`: ok), and for the channels
-    `avail` (indices into the model's m channels; y (m,)) weigh as `step` does: h, D of
-    `_measurement`, L11 = (1 + gamma) / nu~ Lam, L12 = (D_a L11)^T,
+def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise, noise_scale,
+                  b, P, q, bias_on, forget, lam, nu_min, gamma, mu, Lam, nu, uk, y, avail, R, roll_gain, vp, full,
+                  rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc, want_nis, beta, yaw_max, gate_speed):
+    """Steps 1 and 2 of `StiffnessMPF.step`, in place. Per particle: the first stage of the
+    propagation, a (N, 3), B (N, 3, n_w), slip (2, N) kept from the last sample, or with
+    `interval` (full model, slip_hold = "interval") the model at x with the wheel slip averaged
+    over the step (`_slip_over_step`, jw, c_floor as there, towards the slip of uk); propagate
+    x (N, nx) (`_propagate`: eq. (9), w_prev held, `max_step` sub-steps), add the state noise
+    noise_scale * noise (the caller's normals; noise of shape (0, nx) when off), predict the
+    bias covariance P += diag(q dt) (eq. (29)), forget (`NiW.forget`, eq. (20), when
+    `forget`), evaluate the model at x_k with uk (`_model`: a, B, af, ar, slip, the first
+    stage of the next propagation), mark the plausible particles (`_plausible`: ok), and for
+    the channels `avail` (indices into the model's m channels; y (m,)) weigh as `step` does:
+    h, D of `_measurement`, L11 = (1 + gamma) / nu~ Lam, L12 = (D_a L11)^T,
     S = D_a L11 D_a^T + (nu~ - 2) / nu~ (R + P)_aa (P only with `bias_on`), Lc = chol(S),
     e = y_a - h_a - b_a - D_a mu, v = Lc^-1 e and ll, the Student-t log-density
     (`t_logpdf_whitened`; its log-Gamma terms once per distinct nu~).
@@ -598,31 +458,42 @@ def predict_weigh(own, work, const, ok, logw, u_prev, uk, y, avail, vp, noise, n
     `predict_weigh_full` and `predict_weigh_lateral` are the same for the full model with every
     channel (n_w = na = 3) and the lateral one (n_w = na = 2) with the sizes as constants, so that
     the compiler unrolls the small loops: each compiles on its first call only."""
-    t1, t2 = _pw_args(own, work, const, ok, logw, u_prev, uk, y, avail, vp, noise, noise_scale, dt, heun, interval,
-                      linear, bias_on, forget, lam, nu_min, full, rear_drive, nc, want_nis)
-    return _predict_weigh(t1, t2, 3 if full else 2, avail.shape[0])
+    t1 = (x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise, noise_scale, b, P,
+          q, bias_on, forget, lam, nu_min, gamma, mu, Lam)
+    t2 = (nu, uk, y, avail, R, roll_gain, vp, full, rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc,
+          want_nis, beta, yaw_max, gate_speed)
+    return _predict_weigh(t1, t2, mu.shape[1], avail.shape[0])
 
 
 @njit(**_JIT)
-def predict_weigh_full(own, work, const, ok, logw, u_prev, uk, y, avail, vp, noise, noise_scale, dt, heun, interval,
-                       linear, bias_on, forget, lam, nu_min, full, rear_drive, nc, want_nis):
+def predict_weigh_full(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise,
+                       noise_scale, b, P, q, bias_on, forget, lam, nu_min, gamma, mu, Lam, nu, uk, y, avail, R,
+                       roll_gain, vp, full, rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc, want_nis,
+                       beta, yaw_max, gate_speed):
     """`predict_weigh` for the full model with every channel (n_w = na = 3)."""
-    if not full or avail.shape[0] != 3:
+    if mu.shape[1] != 3 or avail.shape[0] != 3:
         raise ValueError("predict_weigh_full: n_w = na = 3 only")
-    t1, t2 = _pw_args(own, work, const, ok, logw, u_prev, uk, y, avail, vp, noise, noise_scale, dt, heun, interval,
-                      linear, bias_on, forget, lam, nu_min, full, rear_drive, nc, want_nis)
+    t1 = (x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise, noise_scale, b, P,
+          q, bias_on, forget, lam, nu_min, gamma, mu, Lam)
+    t2 = (nu, uk, y, avail, R, roll_gain, vp, full, rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc,
+          want_nis, beta, yaw_max, gate_speed)
     return _predict_weigh(t1, t2, 3, 3)
 
 
 @njit(**_JIT)
-def predict_weigh_lateral(own, work, const, ok, logw, u_prev, uk, y, avail, vp, noise, noise_scale, dt, heun,
-                          interval, linear, bias_on, forget, lam, nu_min, full, rear_drive, nc, want_nis):
+def predict_weigh_lateral(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise,
+                          noise_scale, b, P, q, bias_on, forget, lam, nu_min, gamma, mu, Lam, nu, uk, y, avail, R,
+                          roll_gain, vp, full, rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc, want_nis,
+                          beta, yaw_max, gate_speed):
     """`predict_weigh` for the lateral model with every channel (n_w = na = 2)."""
-    if full or avail.shape[0] != 2:
+    if mu.shape[1] != 2 or avail.shape[0] != 2:
         raise ValueError("predict_weigh_lateral: n_w = na = 2 only")
-    t1, t2 = _pw_args(own, work, const, ok, logw, u_prev, uk, y, avail, vp, noise, noise_scale, dt, heun, interval,
-                      linear, bias_on, forget, lam, nu_min, full, rear_drive, nc, want_nis)
+    t1 = (x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise, noise_scale, b, P,
+          q, bias_on, forget, lam, nu_min, gamma, mu, Lam)
+    t2 = (nu, uk, y, avail, R, roll_gain, vp, full, rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc,
+          want_nis, beta, yaw_max, gate_speed)
     return _predict_weigh(t1, t2, 2, 2)
+
 
 @njit(inline="always", **_JIT)
 def _predict_weigh(t1, t2, n_w, na):
@@ -736,30 +607,17 @@ def _take_rows(src, dst, idx):
 
 
 @njit(**_JIT)
-def resample_gate(logw, u0, resample, idx, own, spare, work, const, full):
-    """Resampling and the gate's moments, on the buffers of `predict_weigh`: `resample`:
-    systematic resampling (`systematic_resample` with the caller's uniform u0) into idx, the
-    particles' own arrays copied by idx into `spare` (the same layout; the caller swaps the two
-    buffers), logw uniform; else idx = 0..N-1. The weighting's arrays (h, D, L11, ...) are not
-    copied: `sample_update` reads them through idx. Returns the gate's moments over the
-    (resampled) particles, E[vx] (full model), the std of vy and max(|E[af]|, |E[ar]|), and
-    whether the posterior mean of mu lies at or beyond pin_lo or pin_hi in some component (the
-    bound restart, `_pinned`). The weights exp(logw) after resampling go into the work's q, for
-    `sample_update`."""
-    n = logw.shape[0]
-    nx = 3 if full else 2  # (= n_w = m)
-    x, b, P, gamma, mu, Lam, nu, a, B, slip, _ = _own_views(own, n, nx, nx, nx)
-    x2, b2, P2, gamma2, mu2, Lam2, nu2, a2, B2, slip2, _ = _own_views(spare, n, nx, nx, nx)
-    af, ar, _nw, _ll, _nd, qw, _h, _e, _v, _D, _L11, _L12, _Lc, _w, _m, _ = _work_views(work, n, nx, nx, nx)
-    _jw, _cf, _R, _lo, _hi, pin_lo, pin_hi, _ql, _qn, _fs, _ = _const_views(const, nx, nx)
-    return _resample_gate(logw, u0, resample, idx, x, b, P, gamma, mu, Lam, nu, a, B, slip, x2, b2, P2, gamma2, mu2,
-                          Lam2, nu2, a2, B2, slip2, af, ar, full, pin_lo, pin_hi, qw)
-
-
-@njit(inline="always", **_JIT)
-def _resample_gate(logw, u0, resample, idx, x, b, P, gamma, mu, Lam, nu, a, B, slip, x2, b2, P2, gamma2, mu2, Lam2,
-                   nu2, a2, B2, slip2, af, ar, full, pin_lo, pin_hi, qw):
-    """`resample_gate` on the arrays (x2, ... the spares)."""
+def resample_gate(logw, u0, resample, idx, x, b, P, gamma, mu, Lam, nu, a, B, slip, x2, b2, P2, gamma2, mu2, Lam2,
+                  nu2, a2, B2, slip2, af, ar, full, pin_lo, pin_hi, qw):
+    """Resampling and the gate's moments. `resample`: systematic resampling
+    (`systematic_resample` with the caller's uniform u0) into idx, the particles' arrays
+    (x, b, P, the statistics, the model's first stage a, B, slip) copied by idx into their
+    spares (x2, ...; the caller swaps), logw uniform; else idx = 0..N-1. The arrays of the
+    weighting (h, D, L11, ...) are not copied: `sample_update` reads them through idx.
+    Returns the gate's moments over the (resampled) particles, E[vx] (full model), the std
+    of vy and max(|E[af]|, |E[ar]|), and whether the posterior mean of mu lies at or beyond
+    pin_lo or pin_hi (n_w,) in some component (the bound restart, `_pinned`). The weights
+    exp(logw) after resampling go into qw (N,), for `sample_update`."""
     n = logw.shape[0]
     if resample:
         systematic_into(logw, u0, idx)
@@ -918,29 +776,14 @@ def _sample(idx, gamma, mu, Lam, nu, L11, nu_w, L12, Lc, v, z, chi, nu_draw, w, 
         nu[i] = nu[i] + 1.0
 
 
-@njit(inline="always", **_JIT)
-def _su_args(idx, logw, own, work, const, nc, z, chi, nu_draw, use_mask, bound, do_bias, avail, y, active, drift,
-             drift_state, drift_a, infl, full):
-    """`_sample_update`'s argument tuples from the buffers (the model's sizes from `full`)."""
-    n = logw.shape[0]
-    nx = 3 if full else 2  # (= n_w = m)
-    x, b, P, gamma, mu, Lam, nu, _a, _B, _s, _ = _own_views(own, n, nx, nx, nx)
-    _af, _ar, nu_w, _ll, _nd, qw, h, _e, v, D, L11, L12, Lc, w, mom, _ = _work_views(work, n, nx, nx, nx)
-    _jw, _cf, R, lo, hi, _pl, _ph, _ql, _qn, _fs, _ = _const_views(const, nx, nx)
-    t1 = (idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z)
-    t2 = (chi, nu_draw, w, use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw,
-          infl)
-    return t1, t2
-
-
 @njit(**_JIT)
-def sample_update(idx, logw, own, work, const, nc, z, chi, nu_draw, use_mask, bound, do_bias, avail, y, active, drift,
-                  drift_state, drift_a, infl, full):
-    """Steps 3-5 of `StiffnessMPF.step`, in place, on the buffers of `predict_weigh`. Per
-    particle i (its weighting arrays h, D, L11, nu_w, L12, Lc, v at row idx[i], the ancestor when
-    resampled):
-    - w_i (into the work's w) from the conditional of w given the first nc (accelerometer)
-      residuals, eq. (39)-(41) (`t_conditional` with `L22_chol`, `x2_white`): M = Lc^-1 L21,
+def sample_update(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z, chi, nu_draw, w,
+                  use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw,
+                  infl):
+    """Steps 3-5 of `StiffnessMPF.step`, in place. Per particle i (its weighting arrays h, D,
+    L11, nu_w, L12, Lc, v at row idx[i], the ancestor when resampled):
+    - w_i (into w) from the conditional of w given the first nc (accelerometer) residuals,
+      eq. (39)-(41) (`t_conditional` with `L22_chol`, `x2_white`): M = Lc^-1 L21,
       mu_c = mu + M^T v, Lam_c = (nu~ + v^T v) / (nu~ + nc) (L11 - M^T M), and `t_sample`'s
       draw mu_c + chol(Lam_c) z sqrt(nu_draw / chi) with the caller's z (N, n_w), chi (N,), its
       spread about mu_c times infl[0] (sqrt(c) of the surprise inflation, derivations Sec. 25; 1: off),
@@ -951,39 +794,45 @@ def sample_update(idx, logw, own, work, const, nc, z, chi, nu_draw, use_mask, bo
     - gate open (`active`): the whitened lean chol(L11)^-1 (w_i - mu_i) of `_track_drift`
       (`drift`), then `NiW.update` (eq. (19)) and the projection of mu onto [lo, hi] (Sec. V).
     Then `_track_drift`'s smoothing of the weighted mean lean into drift_state (n_w,) with
-    the factor drift_a, and `_estimate`'s moments after the update into the rows of the work's
-    mom (6, max(nx, n_w, m)): x mean, x std, mean of mu, posterior variance of the mean,
+    the factor drift_a, and `_estimate`'s moments after the update into the rows of mom
+    (6, >= max(nx, n_w, m)): x mean, x std, mean of mu, posterior variance of the mean,
     sigma^2 of eq. (27b), bias mean. Returns the drift statistic z' of `_track_drift`, NaN
     when not computed (or when the lean is not finite: the reference then keeps its state).
-    The weights exp(logw) are read from the work's q, as `resample_gate` left them.
+    The weights exp(logw) are read from qw (N,), as `resample_gate` left them.
     `sample_update_full` and `sample_update_lateral` are the same for the full model with both
     accelerometers (n_w = 3, nc = 2) and the lateral one (n_w = 2, nc = 1) with the sizes as
     constants."""
-    t1, t2 = _su_args(idx, logw, own, work, const, nc, z, chi, nu_draw, use_mask, bound, do_bias, avail, y, active,
-                      drift, drift_state, drift_a, infl, full)
-    return _sample_update(t1, t2, 3 if full else 2, nc)
+    t1 = (idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z)
+    t2 = (chi, nu_draw, w, use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw,
+          infl)
+    return _sample_update(t1, t2, mu.shape[1], nc)
 
 
 @njit(**_JIT)
-def sample_update_full(idx, logw, own, work, const, nc, z, chi, nu_draw, use_mask, bound, do_bias, avail, y, active,
-                       drift, drift_state, drift_a, infl, full):
+def sample_update_full(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z, chi, nu_draw, w,
+                       use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw,
+                       infl):
     """`sample_update` for the full model with both accelerometers (n_w = 3, nc = 2)."""
-    if not full or nc != 2:
+    if mu.shape[1] != 3 or nc != 2:
         raise ValueError("sample_update_full: n_w = 3, nc = 2 only")
-    t1, t2 = _su_args(idx, logw, own, work, const, nc, z, chi, nu_draw, use_mask, bound, do_bias, avail, y, active,
-                      drift, drift_state, drift_a, infl, full)
+    t1 = (idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z)
+    t2 = (chi, nu_draw, w, use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw,
+          infl)
     return _sample_update(t1, t2, 3, 2)
 
 
 @njit(**_JIT)
-def sample_update_lateral(idx, logw, own, work, const, nc, z, chi, nu_draw, use_mask, bound, do_bias, avail, y, active,
-                          drift, drift_state, drift_a, infl, full):
+def sample_update_lateral(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z, chi, nu_draw, w,
+                          use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw,
+                          infl):
     """`sample_update` for the lateral model with its accelerometer (n_w = 2, nc = 1)."""
-    if full or nc != 1:
+    if mu.shape[1] != 2 or nc != 1:
         raise ValueError("sample_update_lateral: n_w = 2, nc = 1 only")
-    t1, t2 = _su_args(idx, logw, own, work, const, nc, z, chi, nu_draw, use_mask, bound, do_bias, avail, y, active,
-                      drift, drift_state, drift_a, infl, full)
+    t1 = (idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z)
+    t2 = (chi, nu_draw, w, use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw,
+          infl)
     return _sample_update(t1, t2, 2, 1)
+
 
 @njit(inline="always", **_JIT)
 def _sample_update(t1, t2, n_w, nc_):

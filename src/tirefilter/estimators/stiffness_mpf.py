@@ -321,8 +321,6 @@ class StiffnessMPF:
             from tirefilter.estimators import mpf_numba
 
             self._nb = mpf_numba
-            if self.__dict__.get("_wk") is not None:  # the particles' arrays back into the work's buffers
-                self._work()
 
     def _outlier_bound(self, nc: int) -> float:
         cache = self.__dict__.setdefault("_bounds", {})
@@ -913,17 +911,19 @@ class StiffnessMPF:
         allocated once (`_MPFWork`), with the random numbers drawn here by the reference's
         generator calls in the reference's order: the same numbers as the numpy path
         (tests/test_kernels.py). The rare branches (restarts) go through the reference methods."""
-        cfg, nb, rng = self.cfg, self._nb, self.rng
+        cfg, nb, rng, st = self.cfg, self._nb, self.rng, self.stats
         wk = self._work()
         if self.state_noise is not None:  # optional regularisation against sample impoverishment
             noise, noise_scale = rng.standard_normal(self.x.shape), self._state_noise_scale(dt)
         else:
             noise, noise_scale = wk.no_noise, wk.no_scale
+        q = self.q_bias if self.linear_region else self.q_bias_nonlinear
         ch = self.channels
         yl = [y.ax, y.ay, y.yaw_rate] if self.full else [y.ay, y.yaw_rate]
         yk = np.array(yl, float)
         if math.isfinite(sum(yl)):  # the kernels compiled for this model's sizes (mpf_numba.predict_weigh_full ...)
-            a, nc, predict_weigh, sample_update = wk.avail_all, wk.nc_all, wk.predict_weigh_all, wk.sample_update_all
+            a, nc = wk.avail_all, wk.nc_all
+            predict_weigh, sample_update = getattr(nb, wk.kernels_all[0]), getattr(nb, wk.kernels_all[1])
         else:
             predict_weigh, sample_update = nb.predict_weigh, nb.sample_update
             a = np.flatnonzero(np.isfinite(yk))
@@ -937,11 +937,12 @@ class StiffnessMPF:
         if wk.keep_pred:
             logw_pred = wk.logw_pred
             np.copyto(logw_pred, self.logw)
-        # (the particles' arrays, the last draw w_prev and the weighting's arrays are views of wk's buffers)
         innovation, ess, count, nu_common = predict_weigh(
-            wk.own, wk.work, wk.const, wk.ok, self.logw, u_prev, uk, yk, a, self._vp, noise, noise_scale, dt, wk.heun,
-            wk.interval, self.linear_region, self.bias_on, self.active, self.lam, self.nu0, self.full, self.rear_drive,
-            nc, adaptive)
+            self.x, u_prev, self.w_prev, wk.a, wk.B, wk.af, wk.ar, wk.slip, dt, cfg.max_step, wk.heun, wk.interval,
+            self._jw, self._c_floor, noise, noise_scale, self.b, self.P, q, self.bias_on, self.active, self.lam,
+            self.nu0, st.gamma, st.mu, st.Lam, st.nu, uk, yk, a, self.R, self.roll_gain, self._vp, self.full,
+            self.rear_drive, wk.h, wk.D, wk.L11, wk.nu_w, wk.L12, wk.Lc, wk.e, wk.v, wk.ll, wk.ok, self.logw, nc,
+            adaptive, cfg.plausible_beta, cfg.plausible_yaw_rate, cfg.gate_speed)
         if math.isfinite(innovation):  # adaptive forgetting (`_adapt_forgetting`)
             self._smooth_surprise(innovation, dt)
         if wk.predicted_ay and a.size:  # (the calibration's residual alone waits for the gate: `_ay_residual`)
@@ -960,8 +961,9 @@ class StiffnessMPF:
             ess = float(effective_sample_size(self.logw))
         resample = ess < cfg.resample_threshold * cfg.particles
         u0 = float(rng.random((1,))[0]) if resample else 0.0
-        vx_est, vy_std, alpha, pinned = nb.resample_gate(self.logw, u0, resample, wk.idx, wk.own, wk.spare, wk.work,
-                                                         wk.const, self.full)
+        vx_est, vy_std, alpha, pinned = nb.resample_gate(
+            self.logw, u0, resample, wk.idx, self.x, self.b, self.P, st.gamma, st.mu, st.Lam, st.nu, wk.a, wk.B,
+            wk.slip, *wk.spares, wk.af, wk.ar, self.full, wk.pin_lo, wk.pin_hi, wk.q)
         if resample:
             self._swap_work(wk)
             self.resamples += 1
@@ -980,15 +982,17 @@ class StiffnessMPF:
             nu_draw = wk.nu_w[wk.idx] + nc if nc else wk.nu_w[wk.idx]
             chi = rng.chisquare(nu_draw)
         use_mask = bool(nc and cfg.outlier_prob < 1)
+        st = self.stats
         drift = bool(self.active and nc and adaptive)
         if drift and self.drift is not wk.drift_checked:  # (the kernel writes into it)
             if not (self.drift.flags.c_contiguous and self.drift.dtype == np.float64):
                 self.drift = np.array(self.drift, float)
             wk.drift_checked = self.drift
         zd = sample_update(
-            wk.idx, self.logw, wk.own, wk.work, wk.const, nc, z, chi, nu_draw, use_mask,
-            self._outlier_bound(nc) if use_mask else 0.0, bool(a.size and self.bias_on), a, yk, self.active, drift,
-            self.drift, -math.expm1(-dt / cfg.drift_time), self._draw_factors(wk.ones2), self.full)
+            wk.idx, self.x, self.logw, st.gamma, st.mu, st.Lam, st.nu, self.b, self.P, wk.h, wk.D, wk.L11, wk.nu_w,
+            wk.L12, wk.Lc, wk.v, nc, z, chi, nu_draw, wk.w, use_mask, self._outlier_bound(nc) if use_mask else 0.0,
+            bool(a.size and self.bias_on), self.R, a, yk, self.active, drift, self.drift,
+            -math.expm1(-dt / cfg.drift_time), wk.lo, wk.hi, wk.mom, wk.q, self._draw_factors(wk.ones2))
         if zd == zd:  # `_track_drift` (the statistic is NaN when not computed)
             self._cap_forgetting(zd)
         if self.full:
@@ -1371,86 +1375,57 @@ class StiffnessMPF:
 
 
 class _MPFWork:
-    """The arrays of `StiffnessMPF._step_compiled`, allocated once per filter as views of four
-    flat buffers that the compiled passes take whole (`mpf_numba.own_views`, `work_views`,
-    `const_views`: one argument each instead of some 30 arrays, whose typing and unboxing
-    numba's dispatcher pays at every call): the particles' own arrays (x, b, P, the NiW
-    statistics, the model's first stage a, B, slip) in `own`, their spares for resampling in
-    `spare` (the same layout; `swap` exchanges the two), the weighting's per-particle arrays for
-    all m channels (the first na columns are used when samples are missing), the draw w and the
-    moments in `work`, and the filter's constants in `const`."""
+    """The arrays of `StiffnessMPF._step_compiled`, allocated once per filter: the
+    particles' own arrays (x, b, P, the NiW statistics, the model's first stage a, B, slip)
+    with a spare of each for resampling, and the weighting's per-particle arrays for all m
+    channels (the first na columns are used when samples are missing)."""
 
     OWN = ("x", "b", "P", "gamma", "mu", "Lam", "nu", "a", "B", "slip")
     OWN2 = tuple(name + "2" for name in OWN)
-    WORK = ("af", "ar", "nu_w", "ll", "nu_draw", "q", "h", "e", "v", "D", "L11", "L12", "Lc", "w", "mom")
-    CONST = ("jw", "c_floor", "R", "lo", "hi", "pin_lo", "pin_hi", "q_lin", "q_nonlin", "fs")
-    # (views and kernels: rebuilt by `_link` after unpickling, not pickled)
-    _LINKED = OWN + OWN2 + WORK + CONST + ("spares", "e_cols", "predict_weigh_all", "sample_update_all")
 
     def __init__(self, mpf: "StiffnessMPF", N: int, nx: int, n_w: int, m: int):
-        from tirefilter.estimators import mpf_numba as nb
-
-        if not nx == n_w == m:  # (the passes take the model's sizes from `full`)
-            raise ValueError(f"the fused step needs nx = n_w = m, got {nx}, {n_w}, {m}")
-        cfg = mpf.cfg
-        self.dims, self.full = (N, nx, n_w, m), mpf.full
-        self.own, self.spare = np.zeros(nb.own_size(N, nx, n_w, m)), np.zeros(nb.own_size(N, nx, n_w, m))
-        self.work = np.zeros(nb.work_size(N, nx, n_w, m))
-        self.const = np.zeros(nb.const_size(n_w, m))
-        self._link()
-        self.jw[:], self.c_floor[:], self.R[:] = mpf._jw, mpf._c_floor, mpf.R
-        self.lo[:] = cfg.bound_low * mpf.C_ref - mpf.C_nom
-        self.hi[:] = cfg.bound_high * mpf.C_ref - mpf.C_nom
-        self.pin_lo[:], self.pin_hi[:] = mpf._pin_bounds()
-        self.q_lin[:], self.q_nonlin[:] = mpf.q_bias, mpf.q_bias_nonlinear
-        self.fs[:] = (cfg.max_step, mpf.roll_gain, cfg.plausible_beta, cfg.plausible_yaw_rate, cfg.gate_speed)
+        shapes = dict(x=(N, nx), b=(N, m), P=(N, m, m), gamma=(N,), mu=(N, n_w), Lam=(N, n_w, n_w), nu=(N,),
+                      a=(N, 3), B=(N, 3, n_w), slip=(2, N))
+        for name, shape in shapes.items():
+            setattr(self, name, np.zeros(shape))
+            setattr(self, name + "2", np.zeros(shape))
+        self.af, self.ar, self.nu_w, self.ll, self.nu_draw, self.q = (np.zeros(N) for _ in range(6))
+        self.h, self.e, self.v = np.zeros((N, m)), np.zeros((N, m)), np.zeros((N, m))
+        self.D, self.L11 = np.zeros((N, m, n_w)), np.zeros((N, n_w, n_w))
+        self.L12, self.Lc = np.zeros((N, n_w, m)), np.zeros((N, m, m))
+        self.w = np.zeros((N, n_w))
         self.ok = np.zeros(N, bool)
         self.idx = np.arange(N)
+        self.mom = np.zeros((6, max(nx, n_w, m)))
+        self.pin_lo, self.pin_hi = mpf._pin_bounds()
         self.no_noise, self.no_scale = np.zeros((0, nx)), np.zeros(nx)
         self.avail_all = np.arange(m)
         self.nc_all = sum(c in (0, 1) for c in mpf.channels)
-        self.heun = cfg.integrator == "heun"
-        self.interval = mpf.full and cfg.slip_hold == "interval"
+        self.heun = mpf.cfg.integrator == "heun"
+        self.interval = mpf.full and mpf.cfg.slip_hold == "interval"
+        cfg = mpf.cfg
+        # the kernels compiled for this model's sizes when every channel is there (looked up by name in the step:
+        # the kernel module is not state)
+        self.kernels_all = ("predict_weigh_full", "sample_update_full") if mpf.full else (
+            "predict_weigh_lateral", "sample_update_lateral")
         # the predictive weights kept for `_predict_ay` and `_match_state_noise` (the calibration's residual,
         # `_ay_residual`, Sec. 29; the gate's a^Y prediction, Sec. 26; the state noise from the data, Sec. 28)
         self.predicted_ay = cfg.gate_ay == "predicted"
         self.keep_pred = self.predicted_ay or cfg.state_noise_from_data or mpf._calib is not None
         self.logw_pred, self.q_pred = np.zeros(N), np.zeros(N)
+        self.e_cols = [self.e[:, j] for j in range(m)]  # (views: e is never reallocated)
         self.ay_col = mpf.channels.index(1)  # the a^Y column of e when every channel is there
         self.ones2 = np.ones(2)  # `_draw_factors` without the surprise inflation
         self.drift_checked = None  # the drift statistic's array once checked C-contiguous float64
+        self.lo = cfg.bound_low * mpf.C_ref - mpf.C_nom
+        self.hi = cfg.bound_high * mpf.C_ref - mpf.C_nom
 
-    def _link(self) -> None:
-        """The named views of the buffers, and the kernels compiled for this model's sizes when
-        every channel is there (mpf_numba.predict_weigh_full ...)."""
-        from tirefilter.estimators import mpf_numba as nb
-
-        N, nx, n_w, m = self.dims
-        d = self.__dict__
-        for names, views, size in ((self.OWN, nb.own_views(self.own, N, nx, n_w, m), self.own.size),
-                                   (self.OWN2, nb.own_views(self.spare, N, nx, n_w, m), self.spare.size),
-                                   (self.WORK, nb.work_views(self.work, N, nx, n_w, m), self.work.size),
-                                   (self.CONST, nb.const_views(self.const, n_w, m), self.const.size)):
-            if views[-1] != size:
-                raise AssertionError("mpf_numba's buffer layout and its size disagree")
-            d.update(zip(names, views[:-1]))
-        self.spares = tuple(map(d.__getitem__, self.OWN2))
-        self.e_cols = [self.e[:, j] for j in range(m)]
-        self.predict_weigh_all, self.sample_update_all = (nb.predict_weigh_full, nb.sample_update_full) if self.full \
-            else (nb.predict_weigh_lateral, nb.sample_update_lateral)
-
-    def __getstate__(self):
-        return {k: v for k, v in self.__dict__.items() if k not in self._LINKED}
-
-    def __setstate__(self, state):
-        self.__dict__.update(state)
-        self._link()
+        self.spares = tuple(getattr(self, name + "2") for name in self.OWN)
 
     def swap(self) -> None:
         """The spares become the particles' arrays and the other way round (`spares` is always
-        the tuple of the arrays named OWN2, views of `spare`)."""
+        the tuple of the arrays named OWN2)."""
         d = self.__dict__
-        self.own, self.spare = self.spare, self.own
         own, self.spares = self.spares, tuple(map(d.__getitem__, self.OWN))
         d.update(zip(self.OWN, own))
         d.update(zip(self.OWN2, self.spares))
