@@ -1039,7 +1039,7 @@ class StiffnessMPF:
         once the gate is open: a closed gate does not feed the sandwich."""
         j = wk.ay_col if a is wk.avail_all else next((j for j in range(len(a)) if self.channels[a[j]] == 1), -1)
         if j >= 0:
-            self._e_ay = float(np.exp(logw_pred, out=wk.q_pred) @ wk.e_cols[j])
+            self._e_ay = float(np.dot(np.exp(logw_pred, out=wk.q_pred), wk.e_cols[j]))  # (`@`'s own dot, bit for bit)
 
     def _work(self) -> "_MPFWork":
         """The fused step's arrays, the particles' own arrays among them: an array that the
