@@ -499,9 +499,13 @@ def test_stiffness_mpf_fused_state_pickles():
     import pickle
 
     vehicle = load_scenario("paper-sim").vehicle
-    cfg = MPFConfig(particles=24, resample_threshold=1.0, gate_warmup=0.05, gate_vy_std=10.0, gate_steer=0.0)
+    # (short batches of the calibrated *_std, Sec. 29: its factor moves within the drive and reads the
+    # weighting's residuals, `_ay_residual`)
+    cfg = MPFConfig(particles=24, resample_threshold=1.0, gate_warmup=0.05, gate_vy_std=10.0, gate_steer=0.0,
+                    calibration_batch=0.03)
     whole = StiffnessMPF(vehicle, cfg)
     a = _mpf_drive(whole, 40)
+    assert whole._calib.batches >= 4 and whole._calib.factor.max() > 1.0
     part = StiffnessMPF(vehicle, cfg)
     b = _mpf_drive(part, 25)
     copy = pickle.loads(pickle.dumps(part))

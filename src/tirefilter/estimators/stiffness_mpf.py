@@ -1039,7 +1039,7 @@ class StiffnessMPF:
         once the gate is open: a closed gate does not feed the sandwich."""
         j = wk.ay_col if a is wk.avail_all else next((j for j in range(len(a)) if self.channels[a[j]] == 1), -1)
         if j >= 0:
-            self._e_ay = float(np.dot(np.exp(logw_pred, out=wk.q_pred), wk.e_cols[j]))  # (`@`'s own dot, bit for bit)
+            self._e_ay = float(np.dot(np.exp(logw_pred, out=wk.q_pred), wk.e[:, j]))  # (`@`'s own dot, bit for bit)
 
     def _work(self) -> "_MPFWork":
         """The fused step's arrays, the particles' own arrays among them: an array that the
@@ -1413,7 +1413,6 @@ class _MPFWork:
         self.predicted_ay = cfg.gate_ay == "predicted"
         self.keep_pred = self.predicted_ay or cfg.state_noise_from_data or mpf._calib is not None
         self.logw_pred, self.q_pred = np.zeros(N), np.zeros(N)
-        self.e_cols = [self.e[:, j] for j in range(m)]  # (views: e is never reallocated)
         self.ay_col = mpf.channels.index(1)  # the a^Y column of e when every channel is there
         self.ones2 = np.ones(2)  # `_draw_factors` without the surprise inflation
         self.drift_checked = None  # the drift statistic's array once checked C-contiguous float64
