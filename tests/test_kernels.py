@@ -389,7 +389,10 @@ OPTIONS = {"outlier-noise-euler": dict(outlier_prob=0.9, state_noise=(0.02, 0.01
            # derivations Sec. 28: the state noise from the data, the combined linear-region test, the statistics
            # drawn again after the gate's first open sample
            "redraw-combined-gate": dict(warmup_redraw="gate", gate_accel="combined"),
-           "noise-from-data": dict(state_noise_from_data=True, state_noise_time=0.1)}
+           "noise-from-data": dict(state_noise_from_data=True, state_noise_time=0.1),
+           # the calibrated *_std (Sec. 29) with batches short enough to close within the drive: the fused
+           # step's update on floats from the moments against the reference's `_calibrate`
+           "calibration-batches": dict(calibration_batch=0.03)}
 # the state noise from the data (derivations Sec. 28) subtracts two nearly equal spreads each step, which
 # amplifies the backends' rounding differences (6e-12 relative in the statistics after 60 steps)
 OPTION_RTOL = {"noise-from-data": 1e-9}
@@ -415,6 +418,9 @@ def test_stiffness_mpf_backends_equal_options(options, model, monkeypatch):
     (a, fast), (b, ref) = runs["numba"], runs["numpy"]
     assert fused[id(fast)] == 59 and fast.resamples == ref.resamples >= 20
     assert np.isfinite(b[:, :7]).all()
+    if options == "calibration-batches":
+        assert ref._calib.batches >= 10 and ref._calib.factor.max() > 1.0
+        assert_equal_to_rounding(fast._calib.factor, ref._calib.factor, "std factor")
     _assert_mpf_runs_equal(a, b, fast, ref)
 
 
