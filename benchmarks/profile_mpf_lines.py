@@ -52,7 +52,8 @@ class Ins(ast.NodeTransformer):
     def generic_visit_stmt(self, s, fname):
         for field in ("body", "orelse", "finalbody"):
             b = getattr(s, field, None)
-            if isinstance(b, list) and b and isinstance(b[0], ast.stmt) and not isinstance(s, (ast.FunctionDef, ast.ClassDef)):
+            nested_def = isinstance(s, (ast.FunctionDef, ast.ClassDef))
+            if isinstance(b, list) and b and isinstance(b[0], ast.stmt) and not nested_def:
                 setattr(s, field, self._stmts(b, fname))
     def visit_FunctionDef(self, node):
         if node.name in FUNCS:
@@ -76,7 +77,8 @@ def load(path, modname, extra=None):
 
 est_dir = src_dir / "tirefilter" / "estimators"
 sw = load(src_dir / "tirefilter" / "stats" / "sandwich.py", "prof_sandwich")
-mpf = load(est_dir / "stiffness_mpf.py", "prof_mpf", [("from tirefilter.stats.sandwich import", "from prof_sandwich import")])
+mpf = load(est_dir / "stiffness_mpf.py", "prof_mpf",
+           [("from tirefilter.stats.sandwich import", "from prof_sandwich import")])
 sim, samples = record("paper-sim", dur)
 new = build_estimator("mpf", sim, model="auto", particles=N, config={})
 fields = {f.name for f in dataclasses.fields(mpf.MPFConfig)}
@@ -108,7 +110,8 @@ for r in range(rounds):
 nsteps = rounds * (len(samples) - WARMUP)
 lines = (src_dir / "tirefilter" / "estimators" / "stiffness_mpf.py").read_text().splitlines()
 swl = (src_dir / "tirefilter" / "stats" / "sandwich.py").read_text().splitlines()
-print(f"N = {N}: {nsteps} steps, step median {np.median(totals):.1f} us mean {np.mean(totals):.1f}; mark {mark:.0f} ns (subtracted)")
+print(f"N = {N}: {nsteps} steps, step median {np.median(totals):.1f} us mean {np.mean(totals):.1f}; "
+      f"mark {mark:.0f} ns (subtracted)")
 rows = []
 keys = {k for d in steps for k in d}
 for key in keys:

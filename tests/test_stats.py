@@ -268,7 +268,8 @@ def test_pair_sandwich_equals_the_array_sandwich_bit_for_bit():
     rng = np.random.default_rng(17)
     n = 400
     k = np.arange(n)
-    d = np.stack([0.03 * (1.5 + np.sin(k / 20.0)), 0.02 * np.cos(k / 15.0)], axis=1) + 0.003 * rng.standard_normal((n, 2))
+    d = np.stack([0.03 * (1.5 + np.sin(k / 20.0)), 0.02 * np.cos(k / 15.0)], axis=1)
+    d += 0.003 * rng.standard_normal((n, 2))
     s = d * (rng.standard_normal((n, 1)) * 0.3 + np.sin(k / 9.0)[:, None])  # correlated scores
     forget = 1.0 - 0.02 * rng.random(n)
     dt = np.full(n, 0.01)
