@@ -414,7 +414,10 @@ OPTIONS = {"outlier-noise-euler": dict(outlier_prob=0.9, state_noise=(0.02, 0.01
            # derivations Sec. 28: the state noise from the data, the combined linear-region test, the statistics
            # drawn again after the gate's first open sample
            "redraw-combined-gate": dict(warmup_redraw="gate", gate_accel="combined"),
-           "noise-from-data": dict(state_noise_from_data=True, state_noise_time=0.1)}
+           "noise-from-data": dict(state_noise_from_data=True, state_noise_time=0.1),
+           # the calibrated *_std (Sec. 29) with batches short enough to close within the drive: the fused
+           # step's update on floats from the moments against the reference's `_calibrate`
+           "calibration-batches": dict(calibration_batch=0.03)}
 # the state noise from the data (derivations Sec. 28) subtracts two nearly equal spreads each step, which
 # amplifies the backends' rounding differences (6e-12 relative in the statistics after 60 steps)
 OPTION_RTOL = {"noise-from-data": 1e-9}
@@ -440,6 +443,9 @@ def test_stiffness_mpf_backends_equal_options(options, model, monkeypatch):
     (a, fast), (b, ref) = runs["numba"], runs["numpy"]
     assert fused[id(fast)] == 59 and fast.resamples == ref.resamples >= 20
     assert np.isfinite(b[:, :7]).all()
+    if options == "calibration-batches":
+        assert ref._calib.batches >= 10 and ref._calib.factor.max() > 1.0
+        assert_equal_to_rounding(fast._calib.factor, ref._calib.factor, "std factor")
     _assert_mpf_runs_equal(a, b, fast, ref)
 
 
@@ -457,10 +463,18 @@ def test_stiffness_mpf_fused_estimate_equals_the_reference_estimate(model):
     r = est._wk.mom.tolist()
     ref = dataclasses.astuple(est._estimate_from(0.7, r[0][:nx], r[1][:nx], r[2][:n_w], r[3][:n_w], r[4][:n_w],
                                                  r[5][:m]))
-    fused = dataclasses.astuple(est._estimate_fused(0.7, est._wk.mom))
+    obj = est._estimate_fused(0.7, est._wk.mom)
+    fused = dataclasses.astuple(obj)
     assert len(fused) == len(ref) and any(isinstance(v, float) and math.isnan(v) for v in ref) == (model == "lateral")
     for a, b in zip(fused, ref):
         assert type(a) is type(b) and (a == b or (a != a and b != b)), (fused, ref)
+    # its fields are filled without Estimate's __init__: every field, and nothing __init__ would add
+    from tirefilter.estimators.base import Estimate
+
+    assert not hasattr(Estimate, "__post_init__") and not hasattr(Estimate, "__slots__")
+    assert type(obj) is Estimate and obj.__dict__.keys() == {f.name for f in dataclasses.fields(Estimate)}
+    built = Estimate(**{f.name: getattr(obj, f.name) for f in dataclasses.fields(Estimate)})
+    assert repr(built) == repr(obj)  # (every field, in order; NaN where not estimated)
 
 
 def test_stiffness_mpf_bound_restart_in_the_fused_step_equal(monkeypatch):
@@ -588,9 +602,13 @@ def test_stiffness_mpf_fused_state_pickles():
     import pickle
 
     vehicle = load_scenario("paper-sim").vehicle
-    cfg = MPFConfig(particles=24, resample_threshold=1.0, gate_warmup=0.05, gate_vy_std=10.0, gate_steer=0.0)
+    # (short batches of the calibrated *_std, Sec. 29: its factor moves within the drive and reads the
+    # weighting's residuals, `_ay_residual`)
+    cfg = MPFConfig(particles=24, resample_threshold=1.0, gate_warmup=0.05, gate_vy_std=10.0, gate_steer=0.0,
+                    calibration_batch=0.03)
     whole = StiffnessMPF(vehicle, cfg)
     a = _mpf_drive(whole, 40)
+    assert whole._calib.batches >= 4 and whole._calib.factor.max() > 1.0
     part = StiffnessMPF(vehicle, cfg)
     b = _mpf_drive(part, 25)
     copy = pickle.loads(pickle.dumps(part))

@@ -32,12 +32,13 @@ from tirefilter.estimators.sensors import DISTURBANCE_RW, MEMS_BIAS0_STD, MEMS_B
 from tirefilter.estimators.wheel_filter import WheelSpeedFilter
 from tirefilter.stats import NiW, effective_sample_size, normalize_log_weights, systematic_resample
 from tirefilter.stats.linalg import chol, chol_solve, logdet_chol, solve_lower
-from tirefilter.stats.sandwich import BatchMeansSandwich
+from tirefilter.stats.sandwich import BatchMeansSandwich2
 from tirefilter.stats.student_t import t_conditional, t_logpdf_whitened, t_sample
 from tirefilter.vehicle.params import VehicleParams
 from tirefilter.vehicle.single_track import GRAVITY
 
 NAN = math.nan
+_new_object = object.__new__  # (`StiffnessMPF._estimate_fused`)
 
 
 @dataclass(frozen=True)
@@ -294,6 +295,10 @@ class StiffnessMPF:
             raise ConfigError("mpf configuration", "init_center",
                               f"needs {self.n_w} values ({', '.join(self.params)})")
         self.C_ref, self.C_center = ref, center
+        self._C_nom_list = self.C_nom.tolist()  # (`_estimate_fused`)
+        self._cx_p0 = self._cx_prior_var() if self.full else 0.0  # (`_excite_cx`)
+        self._lf, self._lr = float(v.lf), float(v.lr)  # (`_calibrate_moments`)
+        self._calib_power = 1.0 / self.cfg.calibration_memory  # (`_calibrate`)
         self._carried = None
         self._nb = None
         # the settling of the wheel slip (slip_hold = "interval"): spin inertia per axle over R_w^2, and the
@@ -374,8 +379,9 @@ class StiffnessMPF:
                                         self.cfg.wheel_slip_rw) if self.full and self.cfg.sigma_omega > 0 else None)
         self._ax_prev = NAN
         self._e_ay = NAN  # this sample's a^Y residual, predictive-weighted mean (`_predict_ay`)
-        self._calib = (BatchMeansSandwich(2, self.cfg.calibration_batch, math.inf)
+        self._calib = (BatchMeansSandwich2(self.cfg.calibration_batch, math.inf)
                        if self.cfg.std_calibration == "sandwich" else None)
+        self._calib_in_step = False  # this step's `_step_compiled` has fed the sandwich (`step` does not)
 
     def _draw_prior(self, x0_mean) -> None:
         """Particles from the initial distribution: stiffness statistics (or the carried
@@ -556,8 +562,9 @@ class StiffnessMPF:
     def step(self, t: float, u: Inputs, y: Measurement) -> Estimate:
         dt = t - self.t_prev if self.t_prev is not None else self.cfg.sample_period
         self._e_ay = NAN
+        self._calib_in_step = False
         est = self._step(t, u, y)
-        return est if self._calib is None else self._calibrate(est, dt)
+        return est if self._calib is None or self._calib_in_step else self._calibrate(est, dt)
 
     def _calibrate(self, est: Estimate, dt: float) -> Estimate:
         """`*_std` of the lateral stiffnesses times the batch-means sandwich factor (derivations
@@ -574,11 +581,26 @@ class StiffnessMPF:
             ar = (v.lr * est.yaw_rate - est.vy) * inv_vx
             d = np.array([af * math.cos(delta), ar])
             # forgotten with the statistics' factor (eq. (20)), over calibration_memory times their memory
-            cal.update(d * self._e_ay, d, dt, self._lam_step ** (1.0 / self.cfg.calibration_memory))
+            cal.update(d * self._e_ay, d, dt, self._lam_step ** self._calib_power)
         f = cal.factor
         if f[0] == 1.0 and f[1] == 1.0:
             return est
         return replace(est, Cf_y_std=est.Cf_y_std * float(f[0]), Cr_y_std=est.Cr_y_std * float(f[1]))
+
+    def _calibrate_moments(self, vx: float, vy: float, r: float, dt: float) -> tuple[float, float]:
+        """`_calibrate` for the fused step, on the posterior-mean state (floats) before the Estimate
+        is built: the same arithmetic on floats (`BatchMeansSandwich2.update2`, no arrays, no copy of
+        the Estimate); returns the factors of Cf_y_std and Cr_y_std."""
+        cal = self._calib
+        self._calib_in_step = True
+        if self.active and math.isfinite(self._e_ay):  # (dt > 0 in the fused step)
+            delta = float(self.u_prev[0])
+            inv_vx = 1.0 / max(vx, 1.0)
+            af = delta - (vy + self._lf * r) * inv_vx
+            ar = (self._lr * r - vy) * inv_vx
+            d0, e = af * math.cos(delta), self._e_ay
+            cal.update2(d0 * e, ar * e, d0, ar, dt, self._lam_step ** self._calib_power)
+        return cal.factor2
 
     def _step(self, t: float, u: Inputs, y: Measurement) -> Estimate:
         cfg = self.cfg
@@ -824,7 +846,7 @@ class StiffnessMPF:
         if self.active:
             b = (slip - self._slip_level) / self.vehicle.mass
             self.cx_info = self._lam_step * self.cx_info + b * b / self.R[0, 0]
-        self.cx_weight = cx_excitation_weight(self.cx_info, self._cx_prior_var())
+        self.cx_weight = cx_excitation_weight(self.cx_info, self._cx_p0)
         self.cx_weight_max = max(self.cx_weight_max, self.cx_weight)
         self._set_undriven_share()
 
@@ -899,11 +921,9 @@ class StiffnessMPF:
         ch = self.channels
         yl = [y.ax, y.ay, y.yaw_rate] if self.full else [y.ay, y.yaw_rate]
         yk = np.array(yl, float)
-        # the kernels compiled for this model's sizes when every channel is there (mpf_numba.predict_weigh_full ...)
-        predict_weigh, sample_update = (nb.predict_weigh_full, nb.sample_update_full) if self.full else (
-            nb.predict_weigh_lateral, nb.sample_update_lateral)
-        if math.isfinite(sum(yl)):
+        if math.isfinite(sum(yl)):  # the kernels compiled for this model's sizes (mpf_numba.predict_weigh_full ...)
             a, nc = wk.avail_all, wk.nc_all
+            predict_weigh, sample_update = getattr(nb, wk.kernels_all[0]), getattr(nb, wk.kernels_all[1])
         else:
             predict_weigh, sample_update = nb.predict_weigh, nb.sample_update
             a = np.flatnonzero(np.isfinite(yk))
@@ -912,9 +932,11 @@ class StiffnessMPF:
         u_prev = self.u_prev
         self.t_prev, self.u_prev = t, uk
         # the predictive weights (`_predict_ay`: the gate's a^Y prediction, the residual of `_calibrate`;
-        # `_match_state_noise`)
-        logw_pred = self.logw.copy() if (cfg.gate_ay == "predicted" or cfg.state_noise_from_data
-                                         or self._calib is not None) else None
+        # `_match_state_noise`), into a buffer
+        logw_pred = None
+        if wk.keep_pred:
+            logw_pred = wk.logw_pred
+            np.copyto(logw_pred, self.logw)
         innovation, ess, count, nu_common = predict_weigh(
             self.x, u_prev, self.w_prev, wk.a, wk.B, wk.af, wk.ar, wk.slip, dt, cfg.max_step, wk.heun, wk.interval,
             self._jw, self._c_floor, noise, noise_scale, self.b, self.P, q, self.bias_on, self.active, self.lam,
@@ -923,7 +945,7 @@ class StiffnessMPF:
             adaptive, cfg.plausible_beta, cfg.plausible_yaw_rate, cfg.gate_speed)
         if math.isfinite(innovation):  # adaptive forgetting (`_adapt_forgetting`)
             self._smooth_surprise(innovation, dt)
-        if logw_pred is not None and a.size and (cfg.gate_ay == "predicted" or self._calib is not None):
+        if wk.predicted_ay and a.size:  # (the calibration's residual alone waits for the gate: `_ay_residual`)
             self._predict_ay(yk, a, wk.e, logw_pred)
         self.w_prev = wk.w
         # af, ar in the order before any resampling: the next propagation reads only a, B and slip
@@ -948,6 +970,8 @@ class StiffnessMPF:
         vx_est = vx_est if self.full else uk[3]
         if self._gate_or_restart(t, uk, y, vx_est, alpha, vy_std, pinned):
             return self._restart(t, uk, y)
+        if self.active and self._calib is not None and not wk.predicted_ay and a.size:
+            self._ay_residual(a, logw_pred, wk)
         N = cfg.particles
         z = rng.standard_normal((N, self.n_w))
         if nu_common > 0:
@@ -960,36 +984,62 @@ class StiffnessMPF:
         use_mask = bool(nc and cfg.outlier_prob < 1)
         st = self.stats
         drift = bool(self.active and nc and adaptive)
-        if drift and not (self.drift.flags.c_contiguous and self.drift.dtype == np.float64):
-            self.drift = np.array(self.drift, float)
+        if drift and self.drift is not wk.drift_checked:  # (the kernel writes into it)
+            if not (self.drift.flags.c_contiguous and self.drift.dtype == np.float64):
+                self.drift = np.array(self.drift, float)
+            wk.drift_checked = self.drift
         zd = sample_update(
             wk.idx, self.x, self.logw, st.gamma, st.mu, st.Lam, st.nu, self.b, self.P, wk.h, wk.D, wk.L11, wk.nu_w,
             wk.L12, wk.Lc, wk.v, nc, z, chi, nu_draw, wk.w, use_mask, self._outlier_bound(nc) if use_mask else 0.0,
             bool(a.size and self.bias_on), self.R, a, yk, self.active, drift, self.drift,
-            -math.expm1(-dt / cfg.drift_time), wk.lo, wk.hi, wk.mom, wk.q, self._draw_factors())
+            -math.expm1(-dt / cfg.drift_time), wk.lo, wk.hi, wk.mom, wk.q, self._draw_factors(wk.ones2))
         if zd == zd:  # `_track_drift` (the statistic is NaN when not computed)
             self._cap_forgetting(zd)
         if self.full:
             self._excite_cx(float(wk.mom[0, 0]), uk, dt)
-        return self._estimate_fused(ess, wk.mom)
+        return self._estimate_fused(ess, wk.mom, dt)
 
-    def _estimate_fused(self, ess: float, mom: np.ndarray) -> Estimate:
+    def _estimate_fused(self, ess: float, mom: np.ndarray, dt: float | None = None) -> Estimate:
         """`_estimate_from` on the moments that `sample_update` left in the rows of mom, written out
         for the fused step: the same Estimate (tests/test_kernels.py compares every field) in a
-        third of the time."""
+        third of the time. With `dt` (the fused step) and `std_calibration = "sandwich"`, the
+        calibration's update and factors (`_calibrate_moments`) go into the one Estimate built.
+        The frozen dataclass's fields are filled directly (every field: its generated __init__
+        sets each through object.__setattr__, several us per step); Estimate has no
+        __post_init__ and no __slots__ (tests/test_kernels.py checks both and compares the
+        object with the constructor's)."""
         xm, xs, mb, vm, s2, bm = mom.tolist()
         if self.cfg.inflation_prior_bound:  # (`_draw_inflation`'s bound)
             self._sigma2_rel = max(v / c**2 for v, c in zip(s2, self.C_ref.tolist()))
-        root, C = _sqrt_or_nan, self.C_nom.tolist()
+        root, C = _sqrt_or_nan, self._C_nom_list
+        f0 = f1 = 1.0
+        est = _new_object(Estimate)
         if self.full:  # params Cx, Cf_y, Cr_y; bias ax, ay, yaw rate
-            return Estimate(active=bool(self.active), vx=xm[0], vy=xm[1], yaw_rate=xm[2], Cf_y=C[1] + mb[1],
-                            Cr_y=C[2] + mb[2], Cx=C[0] + mb[0], Cf_y_std=root(vm[1]), Cr_y_std=root(vm[2]),
-                            Cx_std=root(vm[0]), Cf_y_sigma=root(s2[1]), Cr_y_sigma=root(s2[2]), Cx_sigma=root(s2[0]),
-                            b_ax=bm[0], b_ay=bm[1], b_yaw_rate=bm[2], ess=float(ess), state_std=(xs[0], xs[1], xs[2]))
-        return Estimate(active=bool(self.active), vx=float(self.u_prev[3]), vy=xm[0], yaw_rate=xm[1],
-                        Cf_y=C[0] + mb[0], Cr_y=C[1] + mb[1], Cf_y_std=root(vm[0]), Cr_y_std=root(vm[1]),
-                        Cf_y_sigma=root(s2[0]), Cr_y_sigma=root(s2[1]), b_ay=bm[0], b_yaw_rate=bm[1], ess=float(ess),
-                        state_std=(0.0, xs[0], xs[1]))
+            if dt is not None and self._calib is not None:
+                f0, f1 = self._calibrate_moments(xm[0], xm[1], xm[2], dt)
+            est.__dict__.update(active=bool(self.active), vx=xm[0], vy=xm[1], yaw_rate=xm[2], Cf_y=C[1] + mb[1],
+                                Cr_y=C[2] + mb[2], Cx=C[0] + mb[0], Cf_y_std=root(vm[1]) * f0,
+                                Cr_y_std=root(vm[2]) * f1, Cx_std=root(vm[0]), Cf_y_sigma=root(s2[1]),
+                                Cr_y_sigma=root(s2[2]), Cx_sigma=root(s2[0]), b_ax=bm[0], b_ay=bm[1], b_yaw_rate=bm[2],
+                                ess=float(ess), state_std=(xs[0], xs[1], xs[2]))
+            return est
+        vx = float(self.u_prev[3])
+        if dt is not None and self._calib is not None:
+            f0, f1 = self._calibrate_moments(vx, xm[0], xm[1], dt)
+        est.__dict__.update(active=bool(self.active), vx=vx, vy=xm[0], yaw_rate=xm[1], Cf_y=C[0] + mb[0],
+                            Cr_y=C[1] + mb[1], Cx=NAN, Cf_y_std=root(vm[0]) * f0, Cr_y_std=root(vm[1]) * f1, Cx_std=NAN,
+                            Cf_y_sigma=root(s2[0]), Cr_y_sigma=root(s2[1]), Cx_sigma=NAN, b_ax=NAN, b_ay=bm[0],
+                            b_yaw_rate=bm[1], ess=float(ess), state_std=(0.0, xs[0], xs[1]))
+        return est
+
+    def _ay_residual(self, a: np.ndarray, logw_pred: np.ndarray, wk: "_MPFWork") -> None:
+        """`_predict_ay`'s `_e_ay` for the fused step, the residual of the calibration (Sec. 29):
+        the same expression on the column of a^Y (looked up once when every channel is there) and
+        a buffer for the predictive weights; NaN when the a^Y sample is missing. Computed only
+        once the gate is open: a closed gate does not feed the sandwich."""
+        j = wk.ay_col if a is wk.avail_all else next((j for j in range(len(a)) if self.channels[a[j]] == 1), -1)
+        if j >= 0:
+            self._e_ay = float(np.dot(np.exp(logw_pred, out=wk.q_pred), wk.e[:, j]))  # (`@`'s own dot, bit for bit)
 
     def _work(self) -> "_MPFWork":
         """The fused step's arrays, the particles' own arrays among them: an array that the
@@ -1075,10 +1125,14 @@ class StiffnessMPF:
             c = min(c, (s * s + cfg.init_sigma**2) / spread)
         return max(1.0, c)
 
-    def _draw_factors(self) -> np.ndarray:
+    def _draw_factors(self, ones: np.ndarray | None = None) -> np.ndarray:
         """The compiled draw's std factors (2,): sqrt(c) for the draw that drives the state, and for
-        the one the statistics learn from sqrt(c) or 1 (`inflation_in_statistics`)."""
-        root = math.sqrt(self._draw_inflation())
+        the one the statistics learn from sqrt(c) or 1 (`inflation_in_statistics`); `ones` (the
+        array [1, 1], returned as it is when c = 1) saves the allocation in the usual case."""
+        c = self._draw_inflation()
+        if c == 1.0 and ones is not None:
+            return ones
+        root = math.sqrt(c)
         return np.array([root, root if self.cfg.inflation_in_statistics else 1.0])
 
     def _smooth_surprise(self, s_k: float, dt: float) -> None:
@@ -1350,6 +1404,18 @@ class _MPFWork:
         self.heun = mpf.cfg.integrator == "heun"
         self.interval = mpf.full and mpf.cfg.slip_hold == "interval"
         cfg = mpf.cfg
+        # the kernels compiled for this model's sizes when every channel is there (looked up by name in the step:
+        # the kernel module is not state)
+        self.kernels_all = ("predict_weigh_full", "sample_update_full") if mpf.full else (
+            "predict_weigh_lateral", "sample_update_lateral")
+        # the predictive weights kept for `_predict_ay` and `_match_state_noise` (the calibration's residual,
+        # `_ay_residual`, Sec. 29; the gate's a^Y prediction, Sec. 26; the state noise from the data, Sec. 28)
+        self.predicted_ay = cfg.gate_ay == "predicted"
+        self.keep_pred = self.predicted_ay or cfg.state_noise_from_data or mpf._calib is not None
+        self.logw_pred, self.q_pred = np.zeros(N), np.zeros(N)
+        self.ay_col = mpf.channels.index(1)  # the a^Y column of e when every channel is there
+        self.ones2 = np.ones(2)  # `_draw_factors` without the surprise inflation
+        self.drift_checked = None  # the drift statistic's array once checked C-contiguous float64
         self.lo = cfg.bound_low * mpf.C_ref - mpf.C_nom
         self.hi = cfg.bound_high * mpf.C_ref - mpf.C_nom
 
