@@ -27,8 +27,8 @@ FUNCS = set(sys.argv[4].split(",")) if len(sys.argv) > 4 else {
     "step", "_step", "_step_compiled", "_calibrate", "_estimate_fused", "_gate_or_restart", "_work",
     "_predict_ay", "_excite_cx", "_smooth_surprise", "_draw_factors", "_draw_inflation", "_cap_forgetting",
     "_set_undriven_share", "_pinned_too_long", "_outlier_bound", "_state_noise_scale", "_swap_work", "update", "_close",
-    "_calibrate_moments", "_ay_residual", "update2"}
-SANDWICH = ("update", "update2", "_close")  # (the functions of stats/sandwich.py)
+    "_calibrate_moments", "_ay_residual", "update_pair"}
+SANDWICH = ("update", "update_pair", "_close")  # (the functions of stats/sandwich.py)
 acc, state = {}, {"last": None, "t": 0}
 pc = time.perf_counter_ns
 def _lp(key):

@@ -259,11 +259,11 @@ def test_batch_means_ratio_is_the_autocorrelation_time_of_an_ar1_score(phi):
 
 
 def test_pair_sandwich_equals_the_array_sandwich_bit_for_bit():
-    """`BatchMeansSandwich2` (n = 2, the open batch in Python floats: the MPF's fused step) gives
+    """`BatchMeansSandwichPair` (n = 2, the open batch in Python floats: the MPF's fused step) gives
     the parent's statistics exactly, bit for bit, through closed batches, per-sample forgetting,
     samples it must skip (non-finite, dt <= 0, forget outside (0, 1]), a reset, and fed either by
-    floats (`update2`) or by arrays (`update`)."""
-    from tirefilter.stats.sandwich import BatchMeansSandwich, BatchMeansSandwich2
+    floats (`update_pair`) or by arrays (`update`)."""
+    from tirefilter.stats.sandwich import BatchMeansSandwich, BatchMeansSandwichPair
 
     rng = np.random.default_rng(17)
     n = 400
@@ -274,18 +274,18 @@ def test_pair_sandwich_equals_the_array_sandwich_bit_for_bit():
     forget = 1.0 - 0.02 * rng.random(n)
     dt = np.full(n, 0.01)
     s[37, 1], d[91, 0], dt[120], forget[150], forget[151] = np.nan, np.inf, 0.0, 0.0, 1.5  # skipped samples
-    ref, pair, by_arrays = (BatchMeansSandwich(2, 0.25, 3.0), BatchMeansSandwich2(0.25, 3.0),
-                            BatchMeansSandwich2(0.25, 3.0))
+    ref, pair, by_arrays = (BatchMeansSandwich(2, 0.25, 3.0), BatchMeansSandwichPair(0.25, 3.0),
+                            BatchMeansSandwichPair(0.25, 3.0))
     for k in range(n):
         if k == 300:  # (the MPF resets it at a restart)
             for bm in (ref, pair, by_arrays):
                 bm.reset()
         ref.update(s[k], d[k], dt[k], forget[k])
-        pair.update2(float(s[k, 0]), float(s[k, 1]), float(d[k, 0]), float(d[k, 1]), float(dt[k]), float(forget[k]))
+        pair.update_pair(*s[k].tolist(), *d[k].tolist(), float(dt[k]), float(forget[k]))
         by_arrays.update(s[k], d[k], dt[k], forget[k])
         for bm in (pair, by_arrays):
             assert bm.batches == ref.batches and bm.factor.tolist() == ref.factor.tolist()
-            assert bm.factor2 == tuple(ref.factor.tolist())
+            assert bm.factor_pair == tuple(ref.factor.tolist())
     assert ref.batches == 4 and ref.factor.max() > 1.0  # batches closed after the reset, the factor moved
     for bm in (pair, by_arrays):
         for key in ("A", "B", "B0", "ratio"):

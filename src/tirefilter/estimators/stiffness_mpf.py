@@ -32,7 +32,7 @@ from tirefilter.estimators.sensors import DISTURBANCE_RW, MEMS_BIAS0_STD, MEMS_B
 from tirefilter.estimators.wheel_filter import WheelSpeedFilter
 from tirefilter.stats import NiW, effective_sample_size, normalize_log_weights, systematic_resample
 from tirefilter.stats.linalg import chol, chol_solve, logdet_chol, solve_lower
-from tirefilter.stats.sandwich import BatchMeansSandwich2
+from tirefilter.stats.sandwich import BatchMeansSandwichPair
 from tirefilter.stats.student_t import t_conditional, t_logpdf_whitened, t_sample
 from tirefilter.vehicle.params import VehicleParams
 from tirefilter.vehicle.single_track import GRAVITY
@@ -379,7 +379,7 @@ class StiffnessMPF:
                                         self.cfg.wheel_slip_rw) if self.full and self.cfg.sigma_omega > 0 else None)
         self._ax_prev = NAN
         self._e_ay = NAN  # this sample's a^Y residual, predictive-weighted mean (`_predict_ay`)
-        self._calib = (BatchMeansSandwich2(self.cfg.calibration_batch, math.inf)
+        self._calib = (BatchMeansSandwichPair(self.cfg.calibration_batch, math.inf)
                        if self.cfg.std_calibration == "sandwich" else None)
         self._calib_in_step = False  # this step's `_step_compiled` has fed the sandwich (`step` does not)
 
@@ -589,7 +589,7 @@ class StiffnessMPF:
 
     def _calibrate_moments(self, vx: float, vy: float, r: float, dt: float) -> tuple[float, float]:
         """`_calibrate` for the fused step, on the posterior-mean state (floats) before the Estimate
-        is built: the same arithmetic on floats (`BatchMeansSandwich2.update2`, no arrays, no copy of
+        is built: the same arithmetic on floats (`BatchMeansSandwichPair.update_pair`, no arrays, no copy of
         the Estimate); returns the factors of Cf_y_std and Cr_y_std."""
         cal = self._calib
         self._calib_in_step = True
@@ -599,8 +599,8 @@ class StiffnessMPF:
             af = delta - (vy + self._lf * r) * inv_vx
             ar = (self._lr * r - vy) * inv_vx
             d0, e = af * math.cos(delta), self._e_ay
-            cal.update2(d0 * e, ar * e, d0, ar, dt, self._lam_step ** self._calib_power)
-        return cal.factor2
+            cal.update_pair(d0 * e, ar * e, d0, ar, dt, self._lam_step ** self._calib_power)
+        return cal.factor_pair
 
     def _step(self, t: float, u: Inputs, y: Measurement) -> Estimate:
         cfg = self.cfg

@@ -96,12 +96,12 @@ def sandwich_ratio(A: np.ndarray, B: np.ndarray, B0: np.ndarray) -> np.ndarray |
     return v / v0
 
 
-class BatchMeansSandwich2(BatchMeansSandwich):
+class BatchMeansSandwichPair(BatchMeansSandwich):
     """`BatchMeansSandwich` for n = 2 with the open batch's sums held as Python floats: the same
     arithmetic, element by element, as the parent's array updates (so the same numbers, bit for
     bit: tests/test_stats.py), without the parent's per-sample numpy calls (about 10 us per
-    sample against 1-2 us; the MPF feeds one sample per step, issue 14). `update2` takes the
-    score and regressor components as floats; `update` (arrays) goes through it. `factor2` is
+    sample against 1-2 us; the MPF feeds one sample per step, issue 14). `update_pair` takes the
+    score and regressor components as floats; `update` (arrays) goes through it. `factor_pair` is
     `factor` as a tuple of floats. A closed batch hands the sums to the parent's `_close`."""
 
     def __init__(self, batch: float, memory: float):
@@ -111,14 +111,14 @@ class BatchMeansSandwich2(BatchMeansSandwich):
         super().reset()
         # the open batch: score sums s0, s1; sums of s s' (00, 01, 11) and of d d' (00, 01, 11)
         self._s0 = self._s1 = self._q00 = self._q01 = self._q11 = self._a00 = self._a01 = self._a11 = 0.0
-        self.factor2 = (1.0, 1.0)
+        self.factor_pair = (1.0, 1.0)
 
     def update(self, s: np.ndarray, d: np.ndarray, dt: float, forget: float = 1.0) -> None:
         s0, s1 = s.tolist()
         d0, d1 = d.tolist()
-        self.update2(s0, s1, d0, d1, dt, forget)
+        self.update_pair(s0, s1, d0, d1, dt, forget)
 
-    def update2(self, s0: float, s1: float, d0: float, d1: float, dt: float, forget: float = 1.0) -> None:
+    def update_pair(self, s0: float, s1: float, d0: float, d1: float, dt: float, forget: float = 1.0) -> None:
         if not (dt > 0 and 0 < forget <= 1 and math.isfinite(s0 * s0 + s1 * s1 + d0 * d0 + d1 * d1)):
             return
         self._log_keep += math.log(forget)
@@ -140,4 +140,4 @@ class BatchMeansSandwich2(BatchMeansSandwich):
         self._A[:] = ((self._a00, self._a01), (self._a01, self._a11))
         self._s0 = self._s1 = self._q00 = self._q01 = self._q11 = self._a00 = self._a01 = self._a11 = 0.0
         super()._close()
-        self.factor2 = tuple(self.factor.tolist())
+        self.factor_pair = tuple(self.factor.tolist())
