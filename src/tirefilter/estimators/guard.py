@@ -153,10 +153,13 @@ class MeasurementGuard:
             for ch in self.channels.values():
                 ch.clear()
         self.t_prev = t
-        out = {name: self.channels[name](getattr(y, name)) for name in CHANNELS}
-        if all(out[n] == getattr(y, n) or (out[n] != out[n] and getattr(y, n) != getattr(y, n)) for n in CHANNELS):
+        ch = self.channels  # the three of CHANNELS, spelled out: this runs at every sample of every run
+        ax, ay, r = y.ax, y.ay, y.yaw_rate
+        gx, gy, gr = ch["ax"](ax), ch["ay"](ay), ch["yaw_rate"](r)
+        if ((gx == ax or (gx != gx and ax != ax)) and (gy == ay or (gy != gy and ay != ay))
+                and (gr == r or (gr != gr and r != r))):
             return y
-        return replace(y, **out)
+        return replace(y, ax=gx, ay=gy, yaw_rate=gr)
 
     def counts(self) -> dict:
         """The configuration and the samples marked missing so far, per channel:
