@@ -179,7 +179,7 @@ class RunOutputs:
 
     def __init__(self, columns: tuple[str, ...], *, results_csv: str | Path | None = None, rrd: str | Path | None = None,
                  estimator: str | None = None, keep_rows: bool = False, total: int = 0, progress: bool = False,
-                 recording=None, context=None, schedule=None):
+                 recording=None, context=None, schedule=None, metrics: bool = True):
         from tirefilter.cosim.results import ResultWriter
         from tirefilter.viz.options import recording_options
 
@@ -195,7 +195,8 @@ class RunOutputs:
         self.kept: list[np.ndarray] = []  # with keep_rows, every row: blocks of KEEP_BLOCK rows (see kept_rows)
         self._kept_n = 0  # rows in the last block
         self.schedule = schedule  # the scenario (excitation windows, surface changes) of the settled metrics
-        self.scored = _ScoredStream([c for c in self.columns if _scored(c)], schedule)  # what the metrics read
+        # what the metrics read (none without `metrics`: summary.metrics is then None)
+        self.scored = _ScoredStream([c for c in self.columns if _scored(c)] if metrics else [], schedule)
         self.estimator: Estimator | None = None
         self.bar = Progress(total, progress)
         self.step_times = array("f")  # s, 4 bytes a step: an hour at 100 Hz is 1.4 MB

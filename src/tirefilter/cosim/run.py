@@ -54,6 +54,7 @@ def run_scenario(
     friction_csv: str | Path | None = None,
     recording=None,
     coupling: str = "gauss-seidel",
+    metrics: bool = True,
 ) -> tuple[RunSummary, np.ndarray | None]:
     """Co-simulate `scenario`; returns the summary and, with keep_rows, the result rows.
 
@@ -64,7 +65,9 @@ def run_scenario(
     A friction estimator with `friction_csv` also writes its curve snapshots there
     (`cosim.friction`); those written before a failure stay.
     `recording` (viz.options.RecordingOptions) streams the run to Rerun (file, viewer,
-    decimation); `rrd` alone is a file-only recording.
+    decimation); `rrd` alone is a file-only recording. `metrics=False` leaves the run's
+    metrics (`summary.metrics`) out, for a caller that scores the kept rows itself (a
+    study trial): their streaming costs some microseconds a sample.
     """
     own_fmu = fmu is None
     fmu = fmu or VehicleFMU(fmi_version)
@@ -90,7 +93,7 @@ def run_scenario(
     try:
         with run_outputs(summary, columns, results_csv=results_csv, rrd=rrd, estimator=est_name, keep_rows=keep_rows,
                          total=n, progress=progress, recording=recording, context=_recording_context(scenario),
-                         schedule=scenario) as out:
+                         schedule=scenario, metrics=metrics) as out:
             if estimator is not None:
                 estimator.reset(rng)
             samples = cosim_samples(scenario, fmu, params, on_step=on_step, coupling=coupling)
