@@ -128,3 +128,19 @@ def test_master_that_skips_reads_after_steps_sees_the_same_outputs(fmu_paths, fm
         np.testing.assert_array_equal(y, y_ref)
         assert inputs.delta == y_ref[names.index("delta_meas")] and meas.ay == y_ref[names.index("ay_meas")]
         assert meas.yaw_rate == y_ref[names.index("yaw_rate_meas")] and inputs.vx == y_ref[names.index("vx")]
+
+
+@pytest.mark.parametrize("executable", ["", "/nonexistent/python"])
+def test_result_writer_without_a_helper_process_formats_the_rows_itself(tmp_path, monkeypatch, executable):
+    import sys
+
+    monkeypatch.setattr(results, "BACKGROUND_AFTER_ROWS", 150)
+    monkeypatch.setattr(sys, "executable", executable)
+    cols = ("a", "b", "c")
+    rows = table(450, len(cols), seed=4)
+    path = tmp_path / "r.csv"
+    with ResultWriter(path, cols) as w:
+        for row in rows:
+            w.write(row)
+        assert w._child is None
+    assert path.read_text() == "a,b,c\n" + cell_by_cell(rows)

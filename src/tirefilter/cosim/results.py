@@ -104,10 +104,17 @@ class ResultWriter:
 
         from tirefilter.cosim import csv_format
 
+        if not sys.executable:  # an embedded interpreter: no Python to start
+            self._background = False
+            return
         self._file.close()  # the helper appends after what is there
-        self._child = subprocess.Popen([sys.executable, "-I", "-S", csv_format.__file__, str(self.path),
-                                        str(len(self.columns))], stdin=subprocess.PIPE, stderr=subprocess.PIPE,
-                                       start_new_session=True)
+        try:
+            self._child = subprocess.Popen([sys.executable, "-I", "-S", csv_format.__file__, str(self.path),
+                                            str(len(self.columns))], stdin=subprocess.PIPE, stderr=subprocess.PIPE,
+                                           start_new_session=True)
+        except OSError:  # no helper: the rows are formatted here, as in a short run
+            self._background = False
+            self._file = self.path.open("a", newline="")
 
     def _send(self, data: bytes) -> None:
         from tirefilter.cosim.csv_format import HEADER
