@@ -12,7 +12,12 @@ nothing. Cases:
 - `null, CSV`: the zero-cost estimator, the Result CSV written (`tirefilter run`).
 Per case, the median over repeats of the wall time per sample and of this process's CPU
 time per sample (`time.process_time`), and the CPU time of helper processes per sample
-(the CSV formatter, `cosim/csv_format.py`, where the code has one). The load average is
+(the CSV formatter, `cosim/csv_format.py`, where the code has one).
+
+With `--mpf N` it runs the real MPF (N particles) instead, rows kept (a study trial) and
+with the CSV (`tirefilter run`), and splits the main thread's CPU time
+(`time.thread_time`, which a loaded machine's preemption does not inflate as it does the
+wall time) into `Estimator.step` (mean and median per step) and the rest of the sample. The load average is
 printed before and after: the machine is shared, so compare figures of one run only, or
 runs made alternately in the same minutes. Runs with any tirefilter source tree first on
 PYTHONPATH (the base of a comparison) as long as it has `run_scenario`.
@@ -21,6 +26,7 @@ PYTHONPATH (the base of a comparison) as long as it has `run_scenario`.
 from __future__ import annotations
 
 import argparse
+import inspect
 import os
 import resource
 import statistics
@@ -49,6 +55,33 @@ def null_estimator(scenario):
     return est
 
 
+def mpf_split(scenario, fmu, particles: int, repeat: int, tmp: Path) -> None:
+    """The real MPF: the main thread's CPU per sample in and outside `Estimator.step`."""
+    clock = time.thread_time
+    print(f"MPF N = {particles}: main-thread CPU, us per sample (each run)")
+    print(f"{'case':>16s} {'step mean':>10s} {'step median':>12s} {'outside step':>13s} {'helper CPU':>11s} {'wall':>8s}")
+    for rep in range(repeat):
+        for name, kw in {"MPF, rows kept": dict(keep_rows=True), "MPF, CSV": dict(results_csv=tmp / "m.csv")}.items():
+            if "metrics" in inspect.signature(run_scenario).parameters and "keep_rows" in kw:
+                kw["metrics"] = False  # as a study trial runs (where the code has the option)
+            est = build_estimator("mpf", scenario, model="auto", particles=particles, config={})
+            raw, cpu = est.step, []
+
+            def step(t, u, y, raw=raw, cpu=cpu):
+                c = clock()
+                e = raw(t, u, y)
+                cpu.append(clock() - c)
+                return e
+
+            est.step = step
+            c0, h0 = clock(), children_cpu()
+            summary, _ = run_scenario(scenario, fmu=fmu, seed=0, estimator=est, **kw)
+            total, helper, n = clock() - c0, children_cpu() - h0, summary.steps
+            c = 1e6 * np.array(cpu)
+            print(f"{name:>16s} {c.mean():10.0f} {np.median(c[10:]):12.0f} {(1e6 * total - c.sum()) / n:13.0f} "
+                  f"{1e6 * helper / n:11.0f} {1e6 * summary.wall_time_s / n:8.0f}")
+
+
 def children_cpu() -> float:
     r = resource.getrusage(resource.RUSAGE_CHILDREN)
     return r.ru_utime + r.ru_stime
@@ -58,9 +91,15 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--scenario", default="paper-sim")
     parser.add_argument("--repeat", type=int, default=5)
+    parser.add_argument("--mpf", type=int, metavar="N", help="the real MPF with N particles (see above)")
     args = parser.parse_args()
     scenario = load_scenario(args.scenario)
     print(f"tirefilter from {Path(tirefilter.__file__).parent}; load average {os.getloadavg()}")
+    if args.mpf:
+        with tempfile.TemporaryDirectory() as tmp, VehicleFMU() as fmu:
+            mpf_split(scenario, fmu, args.mpf, args.repeat, Path(tmp))
+        print(f"load average {os.getloadavg()}")
+        return
     with tempfile.TemporaryDirectory() as tmp, VehicleFMU() as fmu:
         est = null_estimator(scenario)
         cases = {"none, no CSV": dict(estimator=None),
