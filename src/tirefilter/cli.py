@@ -206,7 +206,8 @@ def _check_sensors(estimator, results: Path) -> None:
 
     if getattr(estimator, "sensors", None) is None or not results.exists():
         return
-    r = read_results(results, max_rows=int(SENSOR_CHECK_S * 1000) + 1)  # the first seconds (up to 1 kHz), not all
+    r = read_results(results, max_rows=int(SENSOR_CHECK_S * 1000) + 1,  # the first seconds (up to 1 kHz), not all
+                     columns=["t", *(f"meas_{c}" for c in CHANNELS)])
     if "t" not in r or not len(r["t"]):
         return
     signals = first_seconds(r["t"], {c: r[f"meas_{c}"] for c in CHANNELS if f"meas_{c}" in r}, SENSOR_CHECK_S)
@@ -256,7 +257,8 @@ def _print_truth_summary(results: Path) -> None:
             ("slip angle front [rad]", "true_alpha_f"), ("wheel slip front [-]", "true_lambda_f"),
             ("Cf_y surface mean [N/rad]", "true_Cf_y_mean"), ("Cr_y surface mean [N/rad]", "true_Cr_y_mean")]
     lo, hi, total, n = {}, {}, {}, 0
-    for r in iter_results(results):  # chunk by chunk: a long run's table is not loaded whole
+    # chunk by chunk: a long run's table is not loaded whole; only the columns printed are parsed
+    for r in iter_results(results, columns=["t", *(col for _, col in rows)]):
         n += len(r["t"])
         for _, col in rows:
             x = r[col]

@@ -23,6 +23,7 @@ from tirefilter import __version__
 from tirefilter.estimators.base import Estimate, Estimator, Inputs, Measurement
 
 WARMUP_STEPS = 10  # steps left out of the median step time (first calls, caches)
+KEEP_BLOCK = 4096  # rows kept in memory are gathered in float64 blocks of this many (keep_rows)
 
 
 def spawn_seeds(seed: int) -> tuple[int, np.random.Generator]:
@@ -131,7 +132,7 @@ class _ScoredStream:
             return
         if self.index is None:
             self.index = np.array([columns.index(c) for c in self.names], int)
-        self.buf[:, self.n] = np.asarray(row, float)[self.index]
+        self.buf[:, self.n] = (row if isinstance(row, np.ndarray) else np.asarray(row, float)).take(self.index)
         self.n += 1
         if self.n == self.CHUNK:
             self.flush()
@@ -178,7 +179,7 @@ class RunOutputs:
 
     def __init__(self, columns: tuple[str, ...], *, results_csv: str | Path | None = None, rrd: str | Path | None = None,
                  estimator: str | None = None, keep_rows: bool = False, total: int = 0, progress: bool = False,
-                 recording=None, context=None, schedule=None):
+                 recording=None, context=None, schedule=None, metrics: bool = True):
         from tirefilter.cosim.results import ResultWriter
         from tirefilter.viz.options import recording_options
 
@@ -191,9 +192,11 @@ class RunOutputs:
             self.recorder = RerunRecorder(recording, self.columns, estimator, context=context)
         self.writer = ResultWriter(results_csv, self.columns) if results_csv else None
         self.keep_rows = keep_rows
-        self.kept: list[np.ndarray] = []  # every row, with keep_rows (handed back by kept_rows)
+        self.kept: list[np.ndarray] = []  # with keep_rows, every row: blocks of KEEP_BLOCK rows (see kept_rows)
+        self._kept_n = 0  # rows in the last block
         self.schedule = schedule  # the scenario (excitation windows, surface changes) of the settled metrics
-        self.scored = _ScoredStream([c for c in self.columns if _scored(c)], schedule)  # what the metrics read
+        # what the metrics read (none without `metrics`: summary.metrics is then None)
+        self.scored = _ScoredStream([c for c in self.columns if _scored(c)] if metrics else [], schedule)
         self.estimator: Estimator | None = None
         self.bar = Progress(total, progress)
         self.step_times = array("f")  # s, 4 bytes a step: an hour at 100 Hz is 1.4 MB
@@ -226,7 +229,11 @@ class RunOutputs:
         if self.recorder:
             self.recorder.log_row(row)
         if self.keep_rows:
-            self.kept.append(np.array(row, float))
+            if not self.kept or self._kept_n == KEEP_BLOCK:
+                self.kept.append(np.empty((KEEP_BLOCK, len(self.columns))))
+                self._kept_n = 0
+            self.kept[-1][self._kept_n] = row
+            self._kept_n += 1
         if self.estimator is not None:  # nothing to score without an estimator
             self.scored.append(row, self.columns)
         self.last = row
@@ -243,7 +250,10 @@ class RunOutputs:
         return float(np.median(times[min(WARMUP_STEPS, len(times) - 1):]) * 1e6)
 
     def kept_rows(self) -> np.ndarray | None:
-        return np.vstack(self.kept) if self.kept and self.keep_rows else None
+        """With keep_rows, the rows written, (rows, columns) float64; None without."""
+        if not self.kept or not self.keep_rows:
+            return None
+        return np.concatenate(self.kept[:-1] + [self.kept[-1][:self._kept_n]])
 
     def metrics(self) -> dict | None:
         """`metrics.run_metrics` of the rows so far (streamed: `metrics.RunMetrics`), with the

@@ -134,6 +134,7 @@ class VehicleFMU:
             self._do_step_raw = slave._functions["fmi3DoStep"]
             self._flags = [ctypes.c_bool() for _ in range(3)]
             self._last_time = ctypes.c_double()
+            self._step_refs = (*(ctypes.byref(f) for f in self._flags), ctypes.byref(self._last_time))
         return slave
 
     def reset(self, parameters: dict[str, float | int], start_time: float = 0.0) -> None:
@@ -194,19 +195,23 @@ class VehicleFMU:
 
     def do_step(self, t: float, h: float) -> np.ndarray:
         """One communication step from t to t + h; returns the outputs."""
+        self.advance(t, h)
+        return self.outputs()
+
+    def advance(self, t: float, h: float) -> None:
+        """One communication step from t to t + h, without reading the outputs (a master
+        that reads them only after setting the next inputs saves a getReal call; the
+        vehicle FMU computes its outputs when they are read, from the state and inputs)."""
         c = self._slave.component
         try:
             if self.fmi_version == "2":
                 status = self._do_step_raw(c, t, h, 1)
             else:
-                f = self._flags
-                status = self._do_step_raw(c, t, h, True, ctypes.byref(f[0]), ctypes.byref(f[1]),
-                                           ctypes.byref(f[2]), ctypes.byref(self._last_time))
+                status = self._do_step_raw(c, t, h, True, *self._step_refs)
             _check(status, "doStep")
         except Exception as exc:
             raise FMUError(f"vehicle FMU failed in the step from t = {t:.4f} s: {self._message(exc)}") from None
         self.time = t + h
-        return self.outputs()
 
     def step(self, t: float, h: float, inputs) -> np.ndarray:
         """set_inputs, then do_step."""

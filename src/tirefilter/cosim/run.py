@@ -24,7 +24,7 @@ import numpy as np
 
 from tirefilter.cosim.fmu import INPUT_NAMES, VehicleFMU
 from tirefilter.cosim.friction import FrictionWriter, friction_truth, is_friction_estimator
-from tirefilter.cosim.results import estimate_values, result_columns
+from tirefilter.cosim.results import ESTIMATE_COLUMNS, estimate_values, result_columns
 from tirefilter.estimators.base import Estimator, Inputs, Measurement
 from tirefilter.runs import StepSummary, run_outputs, spawn_seeds, write_summary_json
 from tirefilter.scenarios import Scenario
@@ -54,6 +54,7 @@ def run_scenario(
     friction_csv: str | Path | None = None,
     recording=None,
     coupling: str = "gauss-seidel",
+    metrics: bool = True,
 ) -> tuple[RunSummary, np.ndarray | None]:
     """Co-simulate `scenario`; returns the summary and, with keep_rows, the result rows.
 
@@ -64,7 +65,9 @@ def run_scenario(
     A friction estimator with `friction_csv` also writes its curve snapshots there
     (`cosim.friction`); those written before a failure stay.
     `recording` (viz.options.RecordingOptions) streams the run to Rerun (file, viewer,
-    decimation); `rrd` alone is a file-only recording.
+    decimation); `rrd` alone is a file-only recording. `metrics=False` leaves the run's
+    metrics (`summary.metrics`) out, for a caller that scores the kept rows itself (a
+    study trial): their streaming costs some microseconds a sample.
     """
     own_fmu = fmu is None
     fmu = fmu or VehicleFMU(fmi_version)
@@ -90,7 +93,7 @@ def run_scenario(
     try:
         with run_outputs(summary, columns, results_csv=results_csv, rrd=rrd, estimator=est_name, keep_rows=keep_rows,
                          total=n, progress=progress, recording=recording, context=_recording_context(scenario),
-                         schedule=scenario) as out:
+                         schedule=scenario, metrics=metrics) as out:
             if estimator is not None:
                 estimator.reset(rng)
             samples = cosim_samples(scenario, fmu, params, on_step=on_step, coupling=coupling)
@@ -98,13 +101,18 @@ def run_scenario(
                 from tirefilter.scenarios.faults import fault_rng, faulty_samples
 
                 samples = faulty_samples(samples, scenario.faults, fault_rng(seed))
+            ne, ny = len(ESTIMATE_COLUMNS), len(fmu.output_names)
             for s in samples:
                 est = None
                 if estimator is not None:
                     est = out.step(estimator, s.t, s.inputs, s.meas)
                     if friction is not None:
                         friction.sample(s.t, float(s.u[surface]))
-                out.write(np.concatenate([estimate_values(s.t, est), s.y, s.u]))
+                row = np.empty(len(columns))  # a new array per row: the sinks may keep it (the recording does)
+                row[:ne] = estimate_values(s.t, est)
+                row[ne:ne + ny] = s.y
+                row[ne + ny:] = s.u
+                out.write(row)
             if friction is not None:
                 friction.finish()
     finally:
@@ -154,10 +162,9 @@ def cosim_samples(scenario: Scenario, fmu: VehicleFMU, params: dict,
     hold = scenario.inputs.speed_hold
     gain = scenario.vehicle.mass * scenario.vehicle.wheel_radius
     idx = {name: j for j, name in enumerate(fmu.output_names)}
-    sensors = set(scenario.sensors)
-
-    def sensor(name: str, output: str, y) -> float:
-        return float(y[idx[output]]) if name in sensors else math.nan
+    read = _sensor_reader(idx, scenario.sensors)
+    vx_index = idx["vx"]
+    v_ref = None if hold is None else hold.reference(t_grid)  # np.interp of the grid: the values of t = k h
 
     fmu.reset(params)
     y = fmu.outputs()
@@ -167,34 +174,48 @@ def cosim_samples(scenario: Scenario, fmu: VehicleFMU, params: dict,
         t = k * h
         u[:] = U[k]
         if hold is not None:
-            err = float(hold.reference(t)) - float(y[idx["vx"]])
+            err = float(v_ref[k]) - float(y[vx_index])
             integral += err * h
             u[1] += gain * (hold.kp * err + hold.ki * integral)
         fmu.set_inputs(u)
         if k % sps == 0:
             y = fmu.outputs()
-            yield CosimSample(k, t,
-                              Inputs(delta=sensor("delta", "delta_meas", y),
-                                     omega_f=sensor("omega_f", "omega_f_meas", y),
-                                     omega_r=sensor("omega_r", "omega_r_meas", y), vx=sensor("vx", "vx", y)),
-                              Measurement(ax=sensor("ax", "ax_meas", y), ay=sensor("ay", "ay_meas", y),
-                                          yaw_rate=sensor("yaw_rate", "yaw_rate_meas", y)),
-                              y, u)
+            inputs, meas = read(y)
+            yield CosimSample(k, t, inputs, meas, y, u)
         if k == n:
             break
-        y = fmu.do_step(t, h)
+        if hold is None:
+            fmu.advance(t, h)  # the outputs are next read after the inputs of t_{k+1} are set
+        else:
+            y = fmu.do_step(t, h)  # the PI reads v^X before setting them
         if on_step is not None:
             on_step(k)
 
 
-def _sample(k, t, y, u, idx, sensors) -> CosimSample:
-    def sensor(name: str, output: str) -> float:
-        return float(y[idx[output]]) if name in sensors else math.nan
+# what the estimator is given: (sensor, FMU output), Inputs' fields then Measurement's, in their order
+SENSOR_OUTPUTS = (("delta", "delta_meas"), ("omega_f", "omega_f_meas"), ("omega_r", "omega_r_meas"), ("vx", "vx"),
+                  ("ax", "ax_meas"), ("ay", "ay_meas"), ("yaw_rate", "yaw_rate_meas"))
 
-    return CosimSample(k, t, Inputs(delta=sensor("delta", "delta_meas"), omega_f=sensor("omega_f", "omega_f_meas"),
-                                    omega_r=sensor("omega_r", "omega_r_meas"), vx=sensor("vx", "vx")),
-                       Measurement(ax=sensor("ax", "ax_meas"), ay=sensor("ay", "ay_meas"),
-                                   yaw_rate=sensor("yaw_rate", "yaw_rate_meas")), y, u)
+
+def _sensor_reader(idx: dict[str, int], sensors) -> Callable[[np.ndarray], tuple[Inputs, Measurement]]:
+    """y (the FMU outputs) -> (Inputs, Measurement) of a sample: the scenario's sensors read
+    from y, NaN for those it lacks. One `tolist` of y per sample."""
+    sensors = set(sensors)
+    nan_slot = len(idx)  # the NaN appended after y's values
+    cols = [idx[output] if name in sensors else nan_slot for name, output in SENSOR_OUTPUTS]
+
+    def read(y: np.ndarray) -> tuple[Inputs, Measurement]:
+        v = y.tolist()
+        v.append(math.nan)
+        d, wf, wr, vx, ax, ay, r = [v[j] for j in cols]
+        return Inputs(d, wf, wr, vx), Measurement(ax, ay, r)
+
+    return read
+
+
+def _sample(k, t, y, u, read) -> CosimSample:
+    inputs, meas = read(y)
+    return CosimSample(k, t, inputs, meas, y, u)
 
 
 def _jacobi_samples(scenario: Scenario, fmu: VehicleFMU, params: dict,
@@ -212,7 +233,7 @@ def _jacobi_samples(scenario: Scenario, fmu: VehicleFMU, params: dict,
     hold = scenario.inputs.speed_hold
     gain = scenario.vehicle.mass * scenario.vehicle.wheel_radius
     idx = {name: j for j, name in enumerate(fmu.output_names)}
-    sensors = set(scenario.sensors)
+    read = _sensor_reader(idx, scenario.sensors)
     connected = [j for j, name in enumerate(INPUT_NAMES) if name != "surface"]
 
     fmu.reset(params)
@@ -229,7 +250,7 @@ def _jacobi_samples(scenario: Scenario, fmu: VehicleFMU, params: dict,
             integral += err * h
             u[1] += gain * (hold.kp * err + hold.ki * integral)
         if k >= 1 and k % sps == 0:
-            yield _sample(k, t, y, u, idx, sensors)
+            yield _sample(k, t, y, u, read)
         if k == n:
             break
         vx_lag = float(y[idx["vx"]])

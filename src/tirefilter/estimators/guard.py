@@ -103,27 +103,32 @@ class _Channel:
     def __call__(self, y: float) -> float:
         if not math.isfinite(y):
             return y
-        if self.cfg.held and y == self.prev:
+        cfg, prev = self.cfg, self.prev  # locals: this runs three times a sample (issue 14)
+        if cfg.held and y == prev:
             self.held += 1
             return math.nan
-        if math.isfinite(self.prev):
-            self.diffs.append(abs(y - self.prev))
-            if len(self.diffs) > self.cfg.scale_window:
-                del self.diffs[0]
+        if math.isfinite(prev):
+            diffs = self.diffs
+            diffs.append(abs(y - prev))
+            if len(diffs) > cfg.scale_window:
+                del diffs[0]
             self._since_scale += 1
-            if self._since_scale >= 25 and len(self.diffs) >= 10:  # re-estimated every 25 samples
+            if self._since_scale >= 25 and len(diffs) >= 10:  # re-estimated every 25 samples
                 self._since_scale = 0
-                self.scale = max(self.min_scale, 1.4826 * _median(self.diffs) / math.sqrt(2.0))
+                self.scale = max(self.min_scale, 1.4826 * _median(diffs) / math.sqrt(2.0))
         self.prev = y
         verdict = y
-        if len(self.recent) >= 3:
-            m = _median(self.recent)
-            if abs(y - m) > self.cfg.threshold * self.scale + self.jump:
+        recent = self.recent
+        n = len(recent)
+        if n >= 3:
+            s = sorted(recent)  # _median, inlined
+            m = s[n // 2] if n % 2 else 0.5 * (s[n // 2 - 1] + s[n // 2])
+            if abs(y - m) > cfg.threshold * self.scale + self.jump:
                 self.outliers += 1
                 verdict = math.nan
-        self.recent.append(y)
-        if len(self.recent) > self.cfg.window:
-            del self.recent[0]
+        recent.append(y)
+        if n >= cfg.window:  # len(recent) > window after the append
+            del recent[0]
         return verdict
 
 
@@ -153,10 +158,13 @@ class MeasurementGuard:
             for ch in self.channels.values():
                 ch.clear()
         self.t_prev = t
-        out = {name: self.channels[name](getattr(y, name)) for name in CHANNELS}
-        if all(out[n] == getattr(y, n) or (out[n] != out[n] and getattr(y, n) != getattr(y, n)) for n in CHANNELS):
+        ch = self.channels  # the three of CHANNELS, spelled out: this runs at every sample of every run
+        ax, ay, r = y.ax, y.ay, y.yaw_rate
+        gx, gy, gr = ch["ax"](ax), ch["ay"](ay), ch["yaw_rate"](r)
+        if ((gx == ax or (gx != gx and ax != ax)) and (gy == ay or (gy != gy and ay != ay))
+                and (gr == r or (gr != gr and r != r))):
             return y
-        return replace(y, **out)
+        return replace(y, ax=gx, ay=gy, yaw_rate=gr)
 
     def counts(self) -> dict:
         """The configuration and the samples marked missing so far, per channel:

@@ -235,7 +235,8 @@ def run_trial(spec: TrialSpec, index: int, seed: int, *, fmu) -> TrialResult:
     metrics = {"trial": index, "seed": seed, "status": "ok", "error": None}
     t0 = time.perf_counter()
     try:
-        summary, rows = run_scenario(scenario, estimator=estimator, seed=seed, fmu=fmu, keep_rows=True)
+        summary, rows = run_scenario(scenario, estimator=estimator, seed=seed, fmu=fmu, keep_rows=True,
+                                     metrics=False)  # trial_metrics scores the rows below
     except Exception as exc:  # an estimator that fails is a result of the study
         summary, rows = exc.summary, None
         metrics.update(status="failed", error=f"{type(exc).__name__}: {exc}")
