@@ -130,7 +130,7 @@ def test_master_that_skips_reads_after_steps_sees_the_same_outputs(fmu_paths, fm
         assert meas.yaw_rate == y_ref[names.index("yaw_rate_meas")] and inputs.vx == y_ref[names.index("vx")]
 
 
-@pytest.mark.parametrize("executable", ["", "/nonexistent/python"])
+@pytest.mark.parametrize("executable", ["", "/nonexistent/python", "/opt/some-fmi-tool/bin/simulator"])
 def test_result_writer_without_a_helper_process_formats_the_rows_itself(tmp_path, monkeypatch, executable):
     import sys
 

@@ -104,7 +104,8 @@ class ResultWriter:
 
         from tirefilter.cosim import csv_format
 
-        if not sys.executable:  # an embedded interpreter: no Python to start
+        # an embedded interpreter (sys.executable empty, or the host application): no Python to start
+        if not Path(sys.executable or "").name.lower().startswith(("python", "pypy")):
             self._background = False
             return
         self._file.close()  # the helper appends after what is there
