@@ -36,7 +36,7 @@ NOISE_OFF = {
 # done by either worker is marked done. The two workers so compile disjoint halves, in parallel.
 # The order (the MPF first on one worker, the GP-SSM first on the other) keeps them from
 # compiling the same helper kernels at the same time.
-def _warm_mpf(model: str, missing: bool = False) -> None:
+def _warm_mpf(model: str, missing: bool = False, gap: bool = False) -> None:
     from tirefilter.estimators.base import Inputs, Measurement
     from tirefilter.estimators.stiffness_mpf import MPFConfig, StiffnessMPF
     from tirefilter.scenarios import load_scenario
@@ -47,9 +47,11 @@ def _warm_mpf(model: str, missing: bool = False) -> None:
     est.reset(np.random.default_rng(0))
     # missing: only the first compiled step (k = 1), with a^Y missing: the entry points with the
     # sizes as variables, not the full model's (another worker may be compiling those)
-    for k in range(2 if missing else 6):
+    # gap: a 1 s gap after the first sample, the propagation across it (`propagate`, `slip_over_step`:
+    # no other task reaches them, and both workers' tests did, each compiling them)
+    for k in range(2 if (missing or gap) else 6):
         ay = math.nan if (missing and k == 1) else 0.5
-        est.step(0.01 * k, Inputs(delta=0.01, omega_f=omega, omega_r=omega, vx=20.0),
+        est.step(0.01 * k + (1.0 if gap and k else 0.0), Inputs(delta=0.01, omega_f=omega, omega_r=omega, vx=20.0),
                  Measurement(ax=0.0, ay=ay, yaw_rate=0.03))
 
 
@@ -66,10 +68,11 @@ def _warm_gpssm(**config) -> None:
     est.posterior()
 
 
-WARM_UP = {  # name: task; the first three and the rest share no large kernel
+WARM_UP = {  # name: task; the first three and the GP-SSM tasks share no large kernel
     "mpf-full": lambda: _warm_mpf("full"),
     "mpf-lateral": lambda: _warm_mpf("lateral"),
     "mpf-missing": lambda: _warm_mpf("full", missing=True),
+    "mpf-gap": lambda: _warm_mpf("full", gap=True),  # after the GP-SSM on the reversed order's worker
     "gpssm-axle-exact": lambda: _warm_gpssm(basis="axle"),
     "gpssm-tensor-rank1": lambda: _warm_gpssm(stats="rank1"),
     "gpssm-tensor-exact": lambda: _warm_gpssm(),
