@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import math
 import os
+import subprocess
+import sys
 import warnings
 from pathlib import Path
 
@@ -100,10 +102,11 @@ def warm_up_kernels(lock_dir: Path, reverse: bool = False) -> list[str]:
                     continue
                 if done.exists():
                     continue
-                try:
-                    WARM_UP[name]()
-                except Exception as exc:  # the tests that use these kernels will say what is wrong
-                    warnings.warn(f"kernel warm-up {name!r} failed: {exc!r}", stacklevel=1)
+                # in a fresh interpreter: the same compile inside a pytest process cost 1.6 times
+                # the CPU (page faults, system time; benchmarks/README.md "Test suite time (stop 24)")
+                proc = subprocess.run([sys.executable, __file__, name], capture_output=True, text=True)
+                if proc.returncode != 0:  # the tests that use these kernels will say what is wrong
+                    warnings.warn(f"kernel warm-up {name!r} failed: {proc.stderr[-2000:]}", stacklevel=1)
                     continue
                 done.touch()
                 ran.append(name)
@@ -173,3 +176,7 @@ def pytest_unconfigure(config):
         for stream in (sys.stdout, sys.stderr, sys.__stdout__, sys.__stderr__):
             stream.flush()
         os._exit(_EXIT["status"])
+
+
+if __name__ == "__main__":  # `python tests/conftest.py TASK`: one warm-up task (`warm_up_kernels`)
+    WARM_UP[sys.argv[1]]()
