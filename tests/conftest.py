@@ -37,7 +37,10 @@ NOISE_OFF = {
 # come back to last, when its kernels are on disk and load in a fraction of a second; a task
 # done by either worker is marked done. The two workers so compile disjoint halves, in parallel.
 # The order (the MPF first on one worker, the GP-SSM first on the other) keeps them from
-# compiling the same helper kernels at the same time.
+# compiling the same helper kernels at the same time. Each task runs in a fresh interpreter
+# (`python tests/conftest.py TASK`) that writes the disk cache; the tests then load the kernels
+# from it: inside a pytest process the same compile took 1.6 times the CPU (page faults, system
+# time; benchmarks/README.md, "Test suite time (stop 24)").
 def _warm_mpf(model: str, missing: bool = False, gap: bool = False) -> None:
     from tirefilter.estimators.base import Inputs, Measurement
     from tirefilter.estimators.stiffness_mpf import MPFConfig, StiffnessMPF
@@ -102,8 +105,7 @@ def warm_up_kernels(lock_dir: Path, reverse: bool = False) -> list[str]:
                     continue
                 if done.exists():
                     continue
-                # in a fresh interpreter: the same compile inside a pytest process cost 1.6 times
-                # the CPU (page faults, system time; benchmarks/README.md "Test suite time (stop 24)")
+                # in a fresh interpreter (see above)
                 proc = subprocess.run([sys.executable, __file__, name], capture_output=True, text=True)
                 if proc.returncode != 0:  # the tests that use these kernels will say what is wrong
                     warnings.warn(f"kernel warm-up {name!r} failed: {proc.stderr[-2000:]}", stacklevel=1)
