@@ -246,7 +246,8 @@ def test_slip_over_step_kernel_equal(drive, undriven):
     w[:5, 0] = -2.5e5  # below the floor of the time constant's stiffness
     u0 = np.array([0.02, 20.3 / Rw, 19.9 / Rw, 20.0])
     u1 = np.array([0.021, 20.25 / Rw, 19.95 / Rw, 20.0])
-    first = ests["numpy"]._model(x, u0)
+    # C order, as the compiled step passes them (the reference's a is a transpose: Fortran order, a second signature)
+    first = tuple(np.ascontiguousarray(f) for f in ests["numpy"]._model(x, u0))
     ref = ests["numpy"]._slip_over_step(x, u0, u1, w, first, 0.01)
     fast = ests["numba"]._slip_over_step(x, u0, u1, w, first, 0.01)
     for a, b, name in zip(fast, ref, ("a", "B", "af", "ar", "slip")):

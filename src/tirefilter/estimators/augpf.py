@@ -295,7 +295,10 @@ class AugmentedPF:
             else:
                 w_cond = (w_cond[0][idx], w_cond[1][idx])
             a_k, B_k, af, ar, slip_k = model_k
-            model_k = (a_k[idx], B_k[idx], af[idx], ar[idx], None if slip_k is None else slip_k[:, idx])
+            # (slip (2, N) copied in C order, as the kernel's model gives it: indexing its columns gives
+            # Fortran order, for which mpf_numba.propagate would compile a second signature)
+            model_k = (a_k[idx], B_k[idx], af[idx], ar[idx],
+                       None if slip_k is None else np.ascontiguousarray(slip_k[:, idx]))
             self.logw = np.full(cfg.particles, -math.log(cfg.particles))
             self.resamples += 1
         if w_cond is not None:
