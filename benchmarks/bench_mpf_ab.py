@@ -7,8 +7,8 @@ On a shared machine two separate benchmark runs see different loads; here both f
 through the same 5 s of recorded paper-sim samples (seed 0) in the same process, one
 after the other, `--rounds` times, with the same configuration (this checkout's defaults,
 as `tirefilter run` builds them; options the other version lacks are dropped). The other
-version's `stiffness_mpf.py` and `mpf_numba.py` are copied into a temporary package with
-their kernel import renamed, so both compile and cache apart. Prints the median and 10th
+version's `stiffness_mpf.py`, `mpf_numba.py` and `baseline_common.py` are copied into a
+temporary package with their imports renamed, so both compile and cache apart. Prints the median and 10th
 percentile of the thread's CPU time per `step()` (after 10 warm-up steps) and their ratios.
 """
 
@@ -38,8 +38,10 @@ def load_base(src: Path, into: Path):
     """The other version's StiffnessMPF and MPFConfig, from `src` (a `src` directory)."""
     est_dir = src / "tirefilter" / "estimators"
     (into / "base_mpf_numba.py").write_text((est_dir / "mpf_numba.py").read_text())
+    (into / "base_baseline_common.py").write_text((est_dir / "baseline_common.py").read_text())
     text = (est_dir / "stiffness_mpf.py").read_text()
     text = text.replace("from tirefilter.estimators import mpf_numba\n", "import base_mpf_numba as mpf_numba\n")
+    text = text.replace("from tirefilter.estimators.baseline_common import", "from base_baseline_common import")
     (into / "base_stiffness_mpf.py").write_text(text)
     sys.path.insert(0, str(into))
     return importlib.import_module("base_stiffness_mpf")
