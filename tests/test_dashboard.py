@@ -444,8 +444,10 @@ def test_run_pause_step_restart_and_errors_keep_the_server(dashboard, monkeypatc
     monkeypatch.setattr(tirefilter.scenarios, "load_scenario", lambda name: replace(real_load(name), duration=0.5))
     d._source.value, d._speed.value = "scenario", "max"
     d.command("start")
-    wait_for(lambda: d.status()["state"] == "finished" and "51 samples" in d._status.content, what="the end")
-    assert d._status.content.startswith("**finished**") and d.status()["error"] is None
+    # (the state turns "finished" at once, the status line at the next publication: wait for both)
+    wait_for(lambda: d.status()["state"] == "finished" and d._status.content.startswith("**finished**")
+             and "51 samples" in d._status.content, what="the end")
+    assert d.status()["error"] is None
 
 
 def test_real_time_pace_starts_at_the_first_sample_of_a_log(dashboard, tmp_path):

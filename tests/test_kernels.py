@@ -92,10 +92,19 @@ def _drive(est: FrictionGPSSM, steps: int, snapshot_every: int = 0, missing: boo
     `snapshot_every`, `friction()` between steps (the compiled step's pending update and
     K's upper triangle are then brought up to date mid-run); `missing`: a^Y missing every
     7th sample, the yaw rate once."""
-    rng = np.random.default_rng(5)
     est.reset(np.random.default_rng(9))
+    return _drive_on(est, 0, steps, snapshot_every, missing)
+
+
+def _drive_on(est: FrictionGPSSM, start: int, steps: int, snapshot_every: int = 0, missing: bool = False):
+    """`_drive`'s samples `start` to `steps` on `est` as it is (an unpickled copy resumes
+    there): the noise of the samples before `start` is drawn and dropped."""
+    rng = np.random.default_rng(5)
     out = []
     for k in range(steps):
+        if k < start:
+            rng.standard_normal(2)
+            continue
         if snapshot_every and k % snapshot_every == snapshot_every - 1:
             f = est.friction()
             out.append((f.mu_f[40], f.mu_r[40], f.mu_f_std[40], f.mu_r_std[40], float(np.sum(f.mu_f))))
@@ -509,17 +518,7 @@ def test_friction_gpssm_compiled_state_pickles():
     b = _drive(resumed, 12)
     assert resumed._compiled.pending  # learning: the last update waits for the next step
     copy = pickle.loads(pickle.dumps(resumed))
-    rng = np.random.default_rng(5)
-    for _ in range(12):  # the measurement noise of the first 12 steps, as _drive drew it
-        rng.standard_normal(2)
-    rest = []
-    for k in range(12, 20):
-        t = 0.04 * k
-        delta = 0.03 * math.sin(2 * math.pi * 0.5 * t)
-        r = 15.0 * delta / 2.8
-        ay, yaw_rate = 15.0 * r + 0.05 * rng.standard_normal(), r + 0.003 * rng.standard_normal()
-        e = copy.step(t, Inputs(delta=delta, vx=15.0), Measurement(ay=ay, yaw_rate=yaw_rate))
-        rest.append((e.vy, e.yaw_rate, e.ess, e.Cf_y, e.Cr_y))
+    rest = _drive_on(copy, 12, 20)
     assert np.array_equal(np.vstack([b, rest]), a)
     assert np.array_equal(copy.posterior().stats["M"], whole.posterior().stats["M"])
 
@@ -539,17 +538,7 @@ def test_friction_gpssm_axle_lanes_state_pickles_and_equals_reference(particles)
     b = _drive(part, 12)
     assert part._compiled.pending and part._compiled.kl_loaded  # K lives in the lanes now
     copy = pickle.loads(pickle.dumps(part))
-    rng = np.random.default_rng(5)
-    for _ in range(12):  # the measurement noise of the first 12 steps, as _drive drew it
-        rng.standard_normal(2)
-    rest = []
-    for k in range(12, 20):
-        t = 0.04 * k
-        delta = 0.03 * math.sin(2 * math.pi * 0.5 * t)
-        r = 15.0 * delta / 2.8
-        ay, yaw_rate = 15.0 * r + 0.05 * rng.standard_normal(), r + 0.003 * rng.standard_normal()
-        e = copy.step(t, Inputs(delta=delta, vx=15.0), Measurement(ay=ay, yaw_rate=yaw_rate))
-        rest.append((e.vy, e.yaw_rate, e.ess, e.Cf_y, e.Cr_y))
+    rest = _drive_on(copy, 12, 20)
     assert np.array_equal(np.vstack([b, rest]), a)
     assert np.array_equal(copy.posterior().stats["M"], whole.posterior().stats["M"])
     ref = FrictionGPSSM(vehicle, GPSSMConfig(particles=particles, basis="axle", resample_threshold=1.0,
