@@ -144,3 +144,26 @@ def test_result_writer_without_a_helper_process_formats_the_rows_itself(tmp_path
             w.write(row)
         assert w._child is None
     assert path.read_text() == "a,b,c\n" + cell_by_cell(rows)
+
+
+def test_result_writer_keeps_every_row_when_its_helper_start_is_interrupted(tmp_path, monkeypatch):
+    """An interrupt while the formatting process starts goes up, and the rows handed over so
+    far, the block that was being flushed included, end up in the file."""
+    import subprocess
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(results, "BACKGROUND_AFTER_ROWS", 150)
+    monkeypatch.setattr(subprocess, "Popen", interrupted)
+    cols = ("a", "b")
+    rows = table(450, len(cols), seed=5)
+    path = tmp_path / "r.csv"
+    written = 0
+    with pytest.raises(KeyboardInterrupt):
+        with ResultWriter(path, cols) as w:
+            for row in rows:
+                w.write(row)
+                written += 1
+    assert written == 199  # the 200th write took its row, then the flush of rows 101-200 was interrupted
+    assert path.read_text() == "a,b\n" + cell_by_cell(rows[:200])

@@ -541,6 +541,13 @@ def test_friction_gpssm_axle_lanes_state_pickles_and_equals_reference(particles)
     rest = _drive_on(copy, 12, 20)
     assert np.array_equal(np.vstack([b, rest]), a)
     assert np.array_equal(copy.posterior().stats["M"], whole.posterior().stats["M"])
+    # a new particles' array (the same values) while K lives in the lanes: the lanes stay current
+    swapped = FrictionGPSSM(vehicle, cfg)
+    b = _drive(swapped, 12)
+    assert swapped._compiled.kl_loaded
+    swapped.x = swapped.x.copy()
+    assert np.array_equal(np.vstack([b, _drive_on(swapped, 12, 20)]), a)
+    assert np.array_equal(swapped.posterior().stats["M"], whole.posterior().stats["M"])
     ref = FrictionGPSSM(vehicle, GPSSMConfig(particles=particles, basis="axle", resample_threshold=1.0,
                                              backend="numpy"))
     fast = FrictionGPSSM(vehicle, cfg)

@@ -265,11 +265,14 @@ class RunOutputs:
                                     cx_excitation=getattr(self.estimator, "cx_weight_max", None))
 
     def close(self) -> None:
+        """Close every sink, each even if one before it failed (the first error goes on)."""
         self.bar.close()
-        if self.writer:
-            self.writer.close()
-        if self.recorder:
-            self.recorder.close()
+        try:
+            if self.writer:
+                self.writer.close()
+        finally:
+            if self.recorder:
+                self.recorder.close()
 
 
 @contextmanager

@@ -87,9 +87,9 @@ class ResultWriter:
     def flush(self) -> None:
         """Hand the rows gathered so far on: formatted here and written to disk, or sent to
         the helper process (which writes each block as it arrives)."""
-        block, self._n = self._block[:self._n], 0
         if self._child is None and self._background and self.rows >= BACKGROUND_AFTER_ROWS and not self._file.closed:
             self._start_child()
+        block, self._n = self._block[:self._n], 0
         if self._child is not None:
             if len(block):
                 self._send(block.tobytes())
@@ -113,9 +113,11 @@ class ResultWriter:
             self._child = subprocess.Popen([sys.executable, "-I", "-S", csv_format.__file__, str(self.path),
                                             str(len(self.columns))], stdin=subprocess.PIPE, stderr=subprocess.PIPE,
                                            start_new_session=True)
-        except OSError:  # no helper: the rows are formatted here, as in a short run
+        except BaseException as exc:  # no helper: the rows are formatted here, as in a short run
             self._background = False
             self._file = self.path.open("a", newline="")
+            if not isinstance(exc, OSError):  # (an interrupt still goes up; the rows stay to be written)
+                raise
 
     def _send(self, data: bytes) -> None:
         from tirefilter.cosim.csv_format import HEADER

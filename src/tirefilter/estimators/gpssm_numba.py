@@ -1027,8 +1027,9 @@ class CompiledStep:
             kcopy = st.K.reshape((N, self.per) + st.K.shape[-2:])
         else:
             kcopy = self.Kl  # lanes, or empty (rank-one statistics: nothing beyond the rows)
-        if c is not None:
-            self.kl_loaded = False  # other statistics' arrays: K from them
+        if c is not None and not (c[0] is st and c[5][0] is a0):
+            self.kl_loaded = False  # other statistics or another K: K from them (a new particles'
+            # array alone leaves the lanes holding the statistics' current K)
         self._cache = c = (st, est.x, views, rows, kcopy, arrays)
         return c
 
