@@ -179,16 +179,23 @@ def front(x, mu, work, propagate, n_sub, h, cd, vx_prev, Fz0, Fz1, mass, lf, lr,
 
 # ---- 2. forgetting and predictive ---------------------------------------------------------------
 @njit(**_JIT)
-def _forget_exact(K, Psi, Phi, nu, V, b, lam, nu_min):
-    """Eq. (29) for batch element b (`MNIW.forget`), K's lower triangle."""
+def _scale_psi_phi(Psi, Phi, b, f):
+    """Phi and Psi of batch element b times the forgetting factor f (eq. (29))."""
     d, m = Psi.shape[1], Psi.shape[2]
-    f = _factor(lam, nu_min, nu[b])
     for i in range(d):
         for k in range(d):
             Phi[b, i, k] = Phi[b, i, k] * f
         Pi = Psi[b, i]
         for j in range(m):
             Pi[j] = Pi[j] * f
+
+
+@njit(**_JIT)
+def _forget_exact(K, Psi, Phi, nu, V, b, lam, nu_min):
+    """Eq. (29) for batch element b (`MNIW.forget`), K's lower triangle."""
+    m = Psi.shape[2]
+    f = _factor(lam, nu_min, nu[b])
+    _scale_psi_phi(Psi, Phi, b, f)
     Kb = K[b]
     for i in range(m):
         Ki = Kb[i]
@@ -346,7 +353,7 @@ def _lane_heads(Psi, Phi, nu, b0, nw, per, pending, zeta, phi_p, forget, lam, nu
     forgetting of Phi, Psi and nu (`_forget_exact` but K); then nu *= f (as the reference, after
     nu += 1). fv[w] = f and gv[w] = 1 - f for the sweep over K; the padding lanes f = 1, 1 - f =
     0, zero features (their identity matrix stays the identity)."""
-    d, m = Psi.shape[1], Psi.shape[2]
+    m = Psi.shape[2]
     W = fv.shape[0]
     for w in range(W):
         if w >= nw:
@@ -361,12 +368,7 @@ def _lane_heads(Psi, Phi, nu, b0, nw, per, pending, zeta, phi_p, forget, lam, nu
                 phl[j, w] = ph[j]
         else:
             f = _factor(lam, nu_min, nu[b])
-            for i in range(d):
-                for k in range(d):
-                    Phi[b, i, k] = Phi[b, i, k] * f
-                Pi = Psi[b, i]
-                for j in range(m):
-                    Pi[j] = Pi[j] * f
+            _scale_psi_phi(Psi, Phi, b, f)
             g = 1.0 - f
         nu[b] = nu[b] * f
         fv[w], gv[w] = f, g
