@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tirefilter.cosim.results import _cell
+from tirefilter.cosim.csv_format import format_rows
 
 FRICTION_COLUMNS = ("t", "alpha", "mu_f", "mu_f_std", "mu_r", "mu_r_std")
 TRUTH_COLUMNS = ("true_mu_f", "true_mu_r")
@@ -86,7 +86,7 @@ class FrictionWriter:
         if self.truth is not None:
             cols += list(self.truth(fc.alpha, surface))
         rows = np.column_stack(cols)
-        self._file.write("\n".join(",".join(map(_cell, r)) for r in rows) + "\n")
+        self._file.write(format_rows(rows.tolist()))
         self._file.flush()
         self.last_t = t
         self.blocks += 1

@@ -7,7 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from tirefilter.cosim.csv_format import format_rows
+from tirefilter.cosim import csv_format
+from tirefilter.cosim.csv_format import HEADER, format_rows
 from tirefilter.estimators.base import Estimate
 
 ESTIMATE_COLUMNS = (
@@ -41,10 +42,6 @@ def estimate_values(t: float, est: Estimate | None) -> list[float]:
         est.Cf_y, est.Cr_y, est.Cx, est.Cf_y_std, est.Cr_y_std, est.Cx_std,
         est.Cf_y_sigma, est.Cr_y_sigma, est.Cx_sigma, est.b_ax, est.b_ay, est.b_yaw_rate, est.ess,
     ]
-
-
-def _cell(x: float) -> str:
-    return "" if x != x else repr(float(x))  # NaN -> empty cell; repr round-trips
 
 
 BACKGROUND_AFTER_ROWS = 2000  # rows formatted here before a longer run hands its rows to a helper process
@@ -102,8 +99,6 @@ class ResultWriter:
         import subprocess
         import sys
 
-        from tirefilter.cosim import csv_format
-
         # an embedded interpreter (sys.executable empty, or the host application): no Python to start
         if not Path(sys.executable or "").name.lower().startswith(("python", "pypy")):
             self._background = False
@@ -120,8 +115,6 @@ class ResultWriter:
                 raise
 
     def _send(self, data: bytes) -> None:
-        from tirefilter.cosim.csv_format import HEADER
-
         try:
             self._child.stdin.write(HEADER.pack(len(data)) + data)
         except (BrokenPipeError, OSError):
