@@ -133,13 +133,16 @@ def test_state_save_step_restore_step_again(fmus, snow):
 def test_state_bytes_refuse_foreign_pickles():
     import pickle
 
-    from tirefilter.fmu_export.state import MAGIC, StateError, state_from_bytes
+    from tirefilter.fmu_export.state import FORMAT, MAGIC, StateError, state_from_bytes
 
-    evil = MAGIC + bytes([1]) + pickle.dumps({"x": os.system})
+    evil = MAGIC + bytes([FORMAT]) + pickle.dumps({"x": os.system})
     with pytest.raises(StateError, match="posix.system|os.system|nt.system"):
         state_from_bytes(evil)
     with pytest.raises(StateError, match="header"):
         state_from_bytes(b"garbage")
+    # a state of an older format (other attributes) is refused by its header, before unpickling
+    with pytest.raises(StateError, match=f"FMU state format 1, this FMU reads format {FORMAT}"):
+        state_from_bytes(MAGIC + bytes([1]) + pickle.dumps({}))
 
 
 @pytest.mark.parametrize("name, value, expect", [

@@ -14,7 +14,11 @@ import io
 import pickle
 
 MAGIC = b"TIREFILTER-FMU-STATE\x00"
-FORMAT = 1
+# The pickle holds the estimator objects as they are: raise FORMAT whenever a pickled class
+# gains, loses or renames an attribute, so that an older state is refused by this check
+# instead of failing inside the object. 2: the MPF's float sandwich (BatchMeansSandwichPair)
+# and the GP-SSM's K in lanes (issue 14, stop 24).
+FORMAT = 2
 
 _NUMPY_ALLOWED = {
     ("numpy", "ndarray"), ("numpy", "dtype"),
