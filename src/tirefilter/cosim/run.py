@@ -180,8 +180,7 @@ def cosim_samples(scenario: Scenario, fmu: VehicleFMU, params: dict,
         fmu.set_inputs(u)
         if k % sps == 0:
             y = fmu.outputs()
-            inputs, meas = read(y)
-            yield CosimSample(k, t, inputs, meas, y, u)
+            yield _sample(k, t, y, u, read)
         if k == n:
             break
         if hold is None:
@@ -229,11 +228,14 @@ def _jacobi_samples(scenario: Scenario, fmu: VehicleFMU, params: dict,
     h = scenario.communication_step
     n = int(round(scenario.duration / h))
     sps = scenario.steps_per_sample
-    U = scenario.inputs.open_loop(np.arange(n + 1) * h)
+    t_grid = np.arange(n + 1) * h
+    U = scenario.inputs.open_loop(t_grid)
     hold = scenario.inputs.speed_hold
     gain = scenario.vehicle.mass * scenario.vehicle.wheel_radius
     idx = {name: j for j, name in enumerate(fmu.output_names)}
     read = _sensor_reader(idx, scenario.sensors)
+    vx_index = idx["vx"]
+    v_ref = None if hold is None else hold.reference(t_grid)  # as in cosim_samples
     connected = [j for j, name in enumerate(INPUT_NAMES) if name != "surface"]
 
     fmu.reset(params)
@@ -246,14 +248,14 @@ def _jacobi_samples(scenario: Scenario, fmu: VehicleFMU, params: dict,
         if k == 0:
             u[connected] = 0.0  # the connectors' start value
         elif hold is not None:
-            err = 0.0 if k == 1 else float(hold.reference(t)) - float(vx_lag)  # t_first = h: no v^X in step 0
+            err = 0.0 if k == 1 else float(v_ref[k]) - vx_lag  # t_first = h: no v^X in step 0
             integral += err * h
             u[1] += gain * (hold.kp * err + hold.ki * integral)
         if k >= 1 and k % sps == 0:
             yield _sample(k, t, y, u, read)
         if k == n:
             break
-        vx_lag = float(y[idx["vx"]])
+        vx_lag = float(y[vx_index])
         fmu.set_inputs(u)
         y = fmu.do_step(t, h)
         if on_step is not None:
