@@ -5,6 +5,7 @@ the straightforward code they replace."""
 from __future__ import annotations
 
 import math
+import signal
 from dataclasses import replace
 
 import numpy as np
@@ -167,3 +168,33 @@ def test_result_writer_keeps_every_row_when_its_helper_start_is_interrupted(tmp_
                 written += 1
     assert written == 199  # the 200th write took its row, then the flush of rows 101-200 was interrupted
     assert path.read_text() == "a,b\n" + cell_by_cell(rows[:200])
+
+
+@pytest.mark.parametrize("body_error", [None, "interrupt", "failure"])
+def test_run_outputs_fill_the_summary_when_the_csv_fails_to_close(tmp_path, monkeypatch, body_error):
+    """A Result CSV that fails to close (a full disk) still leaves a filled summary: it fails a
+    run that had not failed; after a failure or an interruption the first exception goes on
+    and the summary names both."""
+    def full_disk(self):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(ResultWriter, "close", full_disk)
+    summary = runs.StepSummary(seed=0, estimator="none")
+    columns = ("t", "x")
+    expected = {None: OSError, "interrupt": runs.Interrupted, "failure": ValueError}[body_error]
+    with pytest.raises(expected) as info:
+        with runs.run_outputs(summary, columns, results_csv=tmp_path / "r.csv") as out:
+            for k in range(3):
+                out.write(np.array([0.01 * k, 1.0]))
+            if body_error == "interrupt":
+                raise runs.Interrupted(signal.SIGTERM)
+            if body_error == "failure":
+                raise ValueError("the estimator failed")
+    assert info.value.summary is summary
+    assert summary.steps == 3 and summary.wall_time_s > 0.0
+    assert summary.status == {None: "failed", "interrupt": "interrupted", "failure": "failed"}[body_error]
+    assert "No space left on device" in summary.error
+    if body_error is not None:
+        assert "closing the outputs failed too" in summary.error
+    if body_error == "interrupt":
+        assert summary.t_reached == 0.02

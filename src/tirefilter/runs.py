@@ -282,31 +282,48 @@ def run_outputs(summary: StepSummary, columns: tuple[str, ...], **options):
     On leaving, whatever happened: the sinks are closed, and the summary gets the steps,
     the wall time and the median step time. An exception marks the summary failed, is
     given it as `exc.summary` (callers write the summary of a failed run too) and goes on;
-    Interrupted marks it "interrupted" with the time of the last row written.
+    Interrupted marks it "interrupted" with the time of the last row written. A sink that
+    fails to close (a full disk) fails a run that had not failed; after a failure or an
+    interruption, its error is added to the summary's and the first exception goes on.
     """
     out = RunOutputs(columns, **options)
     t0 = time.perf_counter()
+    pending = False  # an exception is leaving the body
     try:
         yield out
     except Interrupted as exc:
+        pending = True
         summary.status = "interrupted"
         summary.error = str(exc)
         summary.t_reached = None if out.last is None else float(out.last[0])
         exc.summary = summary
         raise
     except Exception as exc:
+        pending = True
         summary.status = "failed"
         summary.error = str(exc)
         exc.summary = summary
         raise
     finally:
-        out.close()
+        try:
+            out.close()
+            close_error = None
+        except Exception as exc:
+            close_error = exc
         summary.wall_time_s = time.perf_counter() - t0
         summary.steps = out.rows
         summary.median_step_us = out.median_step_us()
         summary.metrics = out.metrics()
         if out.guard is not None:
             summary.guard = out.guard.counts()
+        if close_error is not None:
+            if pending:
+                summary.error = f"{summary.error}; closing the outputs failed too: {close_error}"
+            else:
+                summary.status = "failed"
+                summary.error = str(close_error)
+                close_error.summary = summary
+                raise close_error
 
 
 def write_summary_json(path: str | Path, summary: StepSummary, *, command: list[str], model: str | None,
