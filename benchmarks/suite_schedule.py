@@ -92,7 +92,8 @@ def main() -> int:
     print(f"{len(base)} tests, {sum(times.values()):.1f} s of tests")
     for label, order in orders.items():
         ends = schedule(order, times, args.warm_up)
-        print(f"{label}: the workers end at {ends[0]:.1f} / {ends[1]:.1f} s (difference {abs(ends[0] - ends[1]):.1f} s)")
+        print(f"{label}: the workers end at {ends[0]:.1f} / {ends[1]:.1f} s "
+              f"(difference {abs(ends[0] - ends[1]):.1f} s)")
     for sigma in (0.2, 0.4):
         for label, order in orders.items():
             rng = random.Random(0)
