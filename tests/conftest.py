@@ -180,5 +180,57 @@ def pytest_unconfigure(config):
         os._exit(_EXIT["status"])
 
 
+# ---- the order in which make test's workers get the tests: the long ones first ---------------------
+# `--dist loadgroup` (pytest-xdist) makes each xdist group one unit of work and every other test a
+# unit of its own; it sends the units with the most tests first (the groups `peer_drive` and
+# `browser`, one to each worker), then the single tests in collection order, the next one to
+# whichever worker has at most two left. In file order the long single tests (the FMU against the
+# numpy integration in test_vehicle_model, test_viz's `--connect` / `--spawn`) came near the end,
+# and one worker still ran them when the other had nothing left. On the workers the collection is
+# sorted by module, the module with the longest test (`LONG_TESTS`) first, so the last units are
+# short and the two workers end within about a test of each other. A single process (no xdist)
+# keeps the file order. Seconds: setup + call with the numba cache filled
+# (benchmarks/README.md, "Test suite time: the tests (stop 25)"); parameters share their test's entry.
+LONG_TESTS = {
+    "test_vehicle_model.py::test_fmu_matches_numpy_integration": 16.0,
+    "test_faults.py::test_estimators_stay_finite_and_do_not_restart_on_spikes": 10.0,
+    "test_metrics.py::test_streamed_metrics_equal_run_metrics": 9.0,
+    "test_stiffness_mpf.py::test_paper_sim_tracks_the_surface_change": 8.0,
+    "test_viz.py::test_connect_streams_to_a_local_grpc_receiver": 8.0,  # waits for its receiver (cold: 20 s)
+    "test_viz.py::test_spawn_starts_a_viewer_process_and_streams_to_it": 8.0,  # waits for the viewer
+    "test_estimator_fmu3.py::test_cli_builds_fmi2_and_fmi3_of_every_fmu_all_validated": 7.0,
+    "test_baselines.py::test_converges_on_paper_sim": 5.5,
+    "test_study.py::test_bench_stiffness_command_writes_tables_and_plots": 5.5,
+    "test_linear_kf.py::test_nees_and_nis_are_chi_square_consistent": 5.0,
+    "test_faults.py::test_sideslip_recovers_within_5_s_of_the_fault_end": 3.5,
+    "test_study.py::test_worker_pool_equals_one_process": 3.5,
+    "test_metrics.py::test_a_replay_longer_than_a_chunk_states_the_metrics_of_its_results": 3.0,
+    "test_interrupt.py::test_bench_resumes_where_it_stopped": 3.0,
+}
+
+
+def long_test_seconds(nodeid: str) -> float:
+    """`LONG_TESTS`' seconds of a test id ("tests/test_x.py::test_y[params]@group"), 0 if not listed."""
+    return LONG_TESTS.get(nodeid.rsplit("/", 1)[-1].split("[", 1)[0].split("@", 1)[0], 0.0)
+
+
+def long_modules_first(nodeids: list[str]) -> list[int]:
+    """The order (indices into `nodeids`) in which the workers get the tests: by module, the
+    module with the longest test in `LONG_TESTS` first; a module's tests stay together and in
+    file order (a worker that runs two of them in a row sets the module's fixtures up once), and
+    modules without a listed test keep their order after the others."""
+    module = [n.split("::", 1)[0] for n in nodeids]
+    longest = {}
+    for n, m in zip(nodeids, module):
+        longest[m] = max(longest.get(m, 0.0), long_test_seconds(n))
+    return sorted(range(len(nodeids)), key=lambda i: -longest[module[i]])
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_collection_modifyitems(config, items):
+    if hasattr(config, "workerinput"):  # an xdist worker: the scheduler deals the units in this order
+        items[:] = [items[i] for i in long_modules_first([item.nodeid for item in items])]
+
+
 if __name__ == "__main__":  # `python tests/conftest.py TASK`: one warm-up task (`warm_up_kernels`)
     WARM_UP[sys.argv[1]]()
