@@ -468,59 +468,90 @@ def lanes_store(Kl, K):
 def _update_forget_rows(K, Psi, Phi, nu, V, b, src, per, pending, zeta, phi_p, forget, lam, nu_min, A):
     """Batch element b: the pending update (eq. (27a)-(27c), (28f)) then the forgetting
     (eq. (29)), in one sweep over K with the reference's operations in the reference's order
-    ((K + phi phi^T) * f, then + (1 - f) V on the diagonal), each entry of K's lower triangle
-    written to K and to A (>= m, m), A[i, j] = K[b, i, j], as it is computed. The sweep reads
-    element src's K (src = b but after a resampling, whose copy of K the pass makes: K[b] =
-    K[src] first, `exact_forget_predictive_rows`), the same numbers as copying it first. K's
+    ((K + phi phi^T) * f, then + (1 - f) V on the diagonal; without a pending update K * f, then
+    + (1 - f) V), each entry of K's lower triangle written to K and to A (>= m, m), A[i, j] =
+    K[b, i, j], as it is computed. With src != b the sweep reads element src's K (after a
+    resampling, whose copy of K the pass makes: `exact_forget_predictive_rows`), the same
+    numbers as copying it first; src == b runs its own loops, in place (with a second view of
+    the same K, LLVM's run-time overlap test would send every row to the scalar loop). K's
     lower triangle only: the upper one is restored by `mirror` before anything else reads K (the
     reference's K is exactly symmetric: p_i p_j = p_j p_i and the forgetting is elementwise)."""
     m = Psi.shape[2]
     Kb = K[b]
     Ks = K[src]
-    if not pending:
-        f = 1.0
-        if forget:
-            f = _factor(lam, nu_min, nu[b])
-            _scale_psi_phi(Psi, Phi, b, f)
-            g = 1.0 - f
-            for i in range(m):  # eq. (29) on K[src]: K * f, then + (1 - f) V
-                Ki = Kb[i]
-                Si = Ks[i]
-                Ai = A[i]
-                for j in range(i):
-                    v = Si[j] * f
-                    Ki[j] = v
-                    Ai[j] = v
-                v = Si[i] * f
-                v += g * V[i]
-                Ki[i] = v
-                Ai[i] = v
-            nu[b] = nu[b] * f
-        else:
-            for i in range(m):
-                Ki = Kb[i]
-                Si = Ks[i]
-                Ai = A[i]
+    inplace = src == b
+    if pending:
+        f, g, ph = _pending_head(Psi, Phi, nu, b, per, zeta, phi_p, forget, lam, nu_min)
+    elif forget:
+        f = _factor(lam, nu_min, nu[b])
+        _scale_psi_phi(Psi, Phi, b, f)
+        g, ph = 1.0 - f, V
+    else:
+        f, g, ph = 1.0, 0.0, V
+    if pending and inplace:
+        for i in range(m):
+            p = ph[i]
+            Ki = Kb[i]
+            Ai = A[i]
+            for j in range(i):
+                v = (Ki[j] + p * ph[j]) * f
+                Ki[j] = v
+                Ai[j] = v
+            v = (Ki[i] + p * ph[i]) * f
+            v += g * V[i]
+            Ki[i] = v
+            Ai[i] = v
+    elif pending:
+        for i in range(m):
+            p = ph[i]
+            Ki = Kb[i]
+            Si = Ks[i]
+            Ai = A[i]
+            for j in range(i):
+                v = (Si[j] + p * ph[j]) * f
+                Ki[j] = v
+                Ai[j] = v
+            v = (Si[i] + p * ph[i]) * f
+            v += g * V[i]
+            Ki[i] = v
+            Ai[i] = v
+    elif forget and inplace:
+        for i in range(m):
+            Ki = Kb[i]
+            Ai = A[i]
+            for j in range(i + 1):
+                Ki[j] *= f
+            Ki[i] += g * V[i]
+            for j in range(i + 1):
+                Ai[j] = Ki[j]
+    elif forget:
+        for i in range(m):
+            Ki = Kb[i]
+            Si = Ks[i]
+            Ai = A[i]
+            for j in range(i):
+                v = Si[j] * f
+                Ki[j] = v
+                Ai[j] = v
+            v = Si[i] * f
+            v += g * V[i]
+            Ki[i] = v
+            Ai[i] = v
+    else:
+        for i in range(m):
+            Ki = Kb[i]
+            Si = Ks[i]
+            Ai = A[i]
+            if inplace:
+                for j in range(i + 1):
+                    Ai[j] = Ki[j]
+            else:
                 for j in range(i + 1):
                     v = Si[j]
                     Ki[j] = v
                     Ai[j] = v
-        return
-    f, g, ph = _pending_head(Psi, Phi, nu, b, per, zeta, phi_p, forget, lam, nu_min)
-    for i in range(m):
-        p = ph[i]
-        Ki = Kb[i]
-        Si = Ks[i]
-        Ai = A[i]
-        for j in range(i):
-            v = (Si[j] + p * ph[j]) * f
-            Ki[j] = v
-            Ai[j] = v
-        v = (Si[i] + p * ph[i]) * f
-        v += g * V[i]
-        Ki[i] = v
-        Ai[i] = v
-    nu[b] = nu[b] * f
+    if pending or forget:
+        nu[b] = nu[b] * f
 
 
 @njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
