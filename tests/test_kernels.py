@@ -213,14 +213,14 @@ def test_lanes_copies_equal_indexing(order, n):
         assert np.array_equal(pad[:, low], np.broadcast_to(np.eye(4)[low], (len(pad), low.sum())))
 
 
-@pytest.mark.parametrize("order", ["sorted", "shuffled"])
 @pytest.mark.parametrize("per", [1, 2])
-def test_rows_pass_makes_the_resampling_copy_of_K(per, order):
+def test_rows_pass_makes_the_resampling_copy_of_K(per):
     """The rows pass (`exact_forget_predictive_rows`, from `LANES_BELOW` functions) with a
-    deferred resampling copy (`gather`: each element's sweep reads its ancestor's K) equals
-    `gather_lower` followed by the pass without it, bit for bit: K's lower triangles, Psi, Phi,
-    nu and the predictive, with and without a pending update and the forgetting; sorted
-    ancestors in `copy_order` (no K read after it was written), others through `gather_lower`."""
+    deferred resampling copy (`gather`: each element's sweep starts from its ancestor's K)
+    equals `gather_lower` followed by the pass without it, bit for bit: K's lower triangles,
+    Psi, Phi, nu and the predictive, with and without a pending update and the forgetting;
+    sorted ancestors (systematic resampling's) in `copy_order`, no K read after it was written.
+    `resample` defers the copy for sorted ancestors only and otherwise makes it itself."""
     from tirefilter.estimators.gpssm_numba import PHI, copy_order, exact_forget_predictive_rows, gather_lower
 
     rng = np.random.default_rng(8)
@@ -229,11 +229,7 @@ def test_rows_pass_makes_the_resampling_copy_of_K(per, order):
     low = np.tril(np.ones((m, m), bool))
     for trial in range(12):
         idx = np.sort(rng.integers(0, N, N))
-        if order == "shuffled":
-            idx = rng.permutation(idx)
-        else:
-            o = copy_order(idx)
-            assert np.array_equal(np.sort(o), np.arange(N))
+        assert np.array_equal(np.sort(copy_order(idx)), np.arange(N))
         X = rng.standard_normal((nb, m, 3 * m))
         K = X @ X.transpose(0, 2, 1) / m + np.eye(m)
         Psi, Phi = rng.standard_normal((nb, d, m)), np.eye(d) + 0.1 * rng.standard_normal((nb, d, d))
@@ -252,6 +248,20 @@ def test_rows_pass_makes_the_resampling_copy_of_K(per, order):
         assert np.array_equal(a[0][:, low], b[0][:, low]), trial
         for x, y in zip(a[1:], b[1:]):
             assert np.array_equal(x, y), trial
+    # resample: sorted ancestors leave K alone (deferred); with defer off it copies K itself
+    from tirefilter.estimators.gpssm_numba import resample
+
+    logw = np.log(np.full(N, 1.0 / N))
+    logw[:3] += 3.0
+    logw -= np.log(np.exp(logw).sum())
+    for defer in (True, False):
+        K = rng.standard_normal((N, per, m, m))
+        K0, anc, rows = K.copy(), np.zeros(N, np.int64), (rng.standard_normal((N, 3)),)
+        resample(logw.copy(), 0.3, rows, K, per, False, 0.0, np.zeros((N, PHI + 1)), anc, defer)
+        if defer:
+            assert np.array_equal(K, K0) and np.any(anc != np.arange(N)) and np.all(np.diff(anc) >= 0)
+        else:
+            assert np.array_equal(anc, np.arange(N)) and not np.array_equal(K[..., low], K0[..., low])
 
 
 def test_friction_gpssm_tensor_resampling_copy_waits_for_the_next_pass():

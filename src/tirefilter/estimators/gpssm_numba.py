@@ -470,28 +470,24 @@ def _update_forget_rows(K, Psi, Phi, nu, V, b, src, per, pending, zeta, phi_p, f
     (eq. (29)), in one sweep over K with the reference's operations in the reference's order
     ((K + phi phi^T) * f, then + (1 - f) V on the diagonal; without a pending update K * f, then
     + (1 - f) V), each entry of K's lower triangle written to K and to A (>= m, m), A[i, j] =
-    K[b, i, j], as it is computed. With src != b the sweep reads element src's K (after a
-    resampling, whose copy of K the pass makes: `exact_forget_predictive_rows`), the same
-    numbers as copying it first; src == b runs its own loops, in place (with a second view of
-    the same K, LLVM's run-time overlap test would send every row to the scalar loop). K's
-    lower triangle only: the upper one is restored by `mirror` before anything else reads K (the
-    reference's K is exactly symmetric: p_i p_j = p_j p_i and the forgetting is elementwise)."""
+    K[b, i, j], as it is computed. With src != b (after a resampling, whose copy of K the pass
+    makes: `exact_forget_predictive_rows`) each row of element src's K is first copied into
+    element b's, then updated there while in cache (the same numbers as copying K first; the
+    update reading one view and writing another of the same K would fail LLVM's run-time
+    overlap test at src == b and run scalar). K's lower triangle only: the upper one is
+    restored by `mirror` before anything else reads K (the reference's K is exactly symmetric:
+    p_i p_j = p_j p_i and the forgetting is elementwise)."""
     m = Psi.shape[2]
     Kb = K[b]
     Ks = K[src]
-    inplace = src == b
+    copy = src != b
     if pending:
         f, g, ph = _pending_head(Psi, Phi, nu, b, per, zeta, phi_p, forget, lam, nu_min)
-    elif forget:
-        f = _factor(lam, nu_min, nu[b])
-        _scale_psi_phi(Psi, Phi, b, f)
-        g, ph = 1.0 - f, V
-    else:
-        f, g, ph = 1.0, 0.0, V
-    if pending and inplace:
         for i in range(m):
-            p = ph[i]
             Ki = Kb[i]
+            if copy:
+                _copy_row(Ki, Ks[i], i + 1)
+            p = ph[i]
             Ai = A[i]
             for j in range(i):
                 v = (Ki[j] + p * ph[j]) * f
@@ -501,57 +497,33 @@ def _update_forget_rows(K, Psi, Phi, nu, V, b, src, per, pending, zeta, phi_p, f
             v += g * V[i]
             Ki[i] = v
             Ai[i] = v
-    elif pending:
-        for i in range(m):
-            p = ph[i]
-            Ki = Kb[i]
-            Si = Ks[i]
-            Ai = A[i]
-            for j in range(i):
-                v = (Si[j] + p * ph[j]) * f
-                Ki[j] = v
-                Ai[j] = v
-            v = (Si[i] + p * ph[i]) * f
-            v += g * V[i]
-            Ki[i] = v
-            Ai[i] = v
-    elif forget and inplace:
+        nu[b] = nu[b] * f
+        return
+    if forget:
+        f = _factor(lam, nu_min, nu[b])
+        _scale_psi_phi(Psi, Phi, b, f)
         for i in range(m):
             Ki = Kb[i]
-            Ai = A[i]
+            if copy:
+                _copy_row(Ki, Ks[i], i + 1)
             for j in range(i + 1):
                 Ki[j] *= f
-            Ki[i] += g * V[i]
-            for j in range(i + 1):
-                Ai[j] = Ki[j]
-    elif forget:
-        for i in range(m):
-            Ki = Kb[i]
-            Si = Ks[i]
-            Ai = A[i]
-            for j in range(i):
-                v = Si[j] * f
-                Ki[j] = v
-                Ai[j] = v
-            v = Si[i] * f
-            v += g * V[i]
-            Ki[i] = v
-            Ai[i] = v
-    else:
-        for i in range(m):
-            Ki = Kb[i]
-            Si = Ks[i]
-            Ai = A[i]
-            if inplace:
-                for j in range(i + 1):
-                    Ai[j] = Ki[j]
-            else:
-                for j in range(i + 1):
-                    v = Si[j]
-                    Ki[j] = v
-                    Ai[j] = v
-    if pending or forget:
+            Ki[i] += (1.0 - f) * V[i]
         nu[b] = nu[b] * f
+    elif copy:
+        for i in range(m):
+            _copy_row(Kb[i], Ks[i], i + 1)
+    for i in range(m):
+        Ki = Kb[i]
+        Ai = A[i]
+        for j in range(i + 1):
+            Ai[j] = Ki[j]
+
+
+@njit(**_JIT)
+def _copy_row(a, b, n):
+    for j in range(n):
+        a[j] = b[j]
 
 
 @njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
@@ -680,19 +652,16 @@ def exact_forget_predictive_rows(K, Psi, Phi, nu, V, Lam0, work, per, forget, la
     """`exact_forget_predictive` one matrix at a time (large bases): the pending update and
     the forgetting written into K and A in one sweep, the factorisation with the forward
     substitution by `_chol_rows`, then the predictive. With `gather`, the last resampling's
-    copy of K's lower triangles (K[b] = K[anc-element of b], left to this pass by `resample`)
-    is made by the sweep itself, which reads the ancestor's K and writes the element's: the
-    elements in `copy_order` (sorted ancestors: no K is read after it was written; otherwise
-    `gather_lower` first)."""
+    copy of K's lower triangles (K[b] = K[anc-element of b], left to this pass by `resample`,
+    which makes it itself unless the ancestors are sorted) is made by the sweep itself, which
+    reads the ancestor's K and writes the element's: the elements in `copy_order` (sorted
+    ancestors: no K is read after it was written)."""
     nb, d, m = Psi.shape
     A = np.zeros((m + d + 1, m))
     inv = np.empty(m)
     spare = np.zeros(m)
     lam2 = np.empty((2, 2))
     N = nb // per
-    if gather and not _sorted(anc):
-        gather_lower(K.reshape((N, per, m, m)), anc)
-        gather = False
     order = copy_order(anc) if gather else np.arange(N)
     for q in range(N):
         n = order[q]
@@ -908,12 +877,14 @@ def gather_lanes(Kl, idx, per):
 
 
 @njit(**_JIT)
-def resample(logw, u0, arrays, K, per, lanes, add, work, anc):
+def resample(logw, u0, arrays, K, per, lanes, add, work, anc, defer):
     """Systematic resampling after its uniform u0 (`systematic_ancestors`), its copies in place
     (`gather_rows` for every (N, k) array; K's lower triangles by `gather_lanes` when `lanes`,
     else `gather_lower` (K (N, per, m, m)); none when K is empty: the rank-one statistics), the
     log-weights set to -log N; returns `common_dof(work, add)` after the copies. The ancestors
-    into anc (for the rows pass's deferred copy of K: `exact_forget_predictive_rows`)."""
+    into anc; with `defer` (the rows pass) K's copy is left to the next pass
+    (`exact_forget_predictive_rows` with anc) when the ancestors are sorted (systematic
+    resampling's always are), else made here and anc set to the identity."""
     n = logw.shape[0]
     idx = systematic_ancestors(logw, u0)
     anc[:] = idx
@@ -921,8 +892,10 @@ def resample(logw, u0, arrays, K, per, lanes, add, work, anc):
     if K.shape[0] > 0:
         if lanes:
             gather_lanes(K, idx, per)
-        else:
+        elif not (defer and _sorted(idx)):
             gather_lower(K, idx)
+            for i in range(n):
+                anc[i] = i
     v = -math.log(n)
     for i in range(n):
         logw[i] = v
@@ -1110,8 +1083,10 @@ class CompiledStep:
         views = (_flat(arrays[0], 2), _flat(arrays[1], 2), _flat(arrays[2], 2), arrays[3].reshape(-1))
         rows = (st.Psi, st.Phi) if self.exact else (st.M, st.P, st.Lam)
         rows = tuple(a.reshape(N, -1) for a in rows) + (st.nu.reshape(N, -1), est.x, self.work)
-        kcopy = self.Kl  # lanes, or empty: the rows pass copies K itself (`gather`), the rank-one
-        # statistics have nothing beyond the rows
+        if self.exact and not self.lanes:  # (the rows pass makes the copy: `resample`'s `defer`)
+            kcopy = st.K.reshape((N, self.per) + st.K.shape[-2:])
+        else:
+            kcopy = self.Kl  # lanes, or empty (rank-one statistics: nothing beyond the rows)
         if c is not None and not (c[0] is st and c[5][0] is a0):
             self.kl_loaded = False  # other statistics or another K: K from them (a new particles'
             # array alone leaves the lanes holding the statistics' current K)
@@ -1233,10 +1208,11 @@ class CompiledStep:
                                 self.R1, have_ay, math.isfinite(yr), learned, add)
         est.prediction = (pa, pr_)
         if ess < self.threshold:  # as stats.systematic_resample, its uniform first
+            defer = self.exact and not self.lanes
             c = resample(est.logw, float(rng.random((1,))[0]), rows, kcopy, self.per, self.lanes, add, work,
-                         self.anc)
+                         self.anc, defer)
             est.resamples += 1
-            self.gather = self.exact and not self.lanes  # K's copy: in the next pass (or `flush`)
+            self.gather = defer  # K's copy: in the next pass (or `flush`)
         # 5. zeta (t conditional given the a^Y residual), mu, learning
         if math.isnan(c):  # dof differing between particles (or NaN): as the reference
             z, u = t_draws(work[:, DOF] + 1.0 if conditional else work[:, DOF], (N, 2), rng)
