@@ -25,8 +25,9 @@ one path:
      uniform drawn as `stats.systematic_resample` draws it) and its copies, in place
      (`gather_rows`, `gather_lanes`; sorted ancestors: only the rows that change are copied),
      the log-weights reset, `common_dof` again; from `LANES_BELOW` functions (the tensor bases)
-     K's copy is left to the next pass, whose sweep reads each element's ancestor's K and
-     writes its own (`exact_forget_predictive_rows`, `copy_order`; `flush` makes it with
+     K's copy is left to the next pass, whose sweep copies each row of an element's ancestor's
+     K into the element's and updates it there (`exact_forget_predictive_rows`, `copy_order`;
+     sorted ancestors only, else `resample` copies K itself; `flush` makes the copy with
      `gather_lower` when the statistics are read in between): one pass over K instead of two;
   5. `sample`: the conditional Student-t draw of zeta (the locally optimal proposal), mu = mu~
      + zeta, the weighted moments for the estimate and, while the exact statistics learn, the
