@@ -213,6 +213,78 @@ def test_lanes_copies_equal_indexing(order, n):
         assert np.array_equal(pad[:, low], np.broadcast_to(np.eye(4)[low], (len(pad), low.sum())))
 
 
+@pytest.mark.parametrize("per", [1, 2])
+def test_rows_pass_makes_the_resampling_copy_of_K(per):
+    """The rows pass (`exact_forget_predictive_rows`, from `LANES_BELOW` functions) with a
+    deferred resampling copy (`gather`: each element's sweep starts from its ancestor's K)
+    equals `gather_lower` followed by the pass without it, bit for bit: K's lower triangles,
+    Psi, Phi, nu and the predictive, with and without a pending update and the forgetting;
+    sorted ancestors (systematic resampling's) in `copy_order`, no K read after it was written.
+    `resample` defers the copy for sorted ancestors only and otherwise makes it itself."""
+    from tirefilter.estimators.gpssm_numba import PHI, copy_order, exact_forget_predictive_rows, gather_lower
+
+    rng = np.random.default_rng(8)
+    N, d, m = 23, 2 if per == 1 else 1, 6
+    nb = N * per
+    low = np.tril(np.ones((m, m), bool))
+    for trial in range(12):
+        idx = np.sort(rng.integers(0, N, N))
+        assert np.array_equal(np.sort(copy_order(idx)), np.arange(N))
+        X = rng.standard_normal((nb, m, 3 * m))
+        K = X @ X.transpose(0, 2, 1) / m + np.eye(m)
+        Psi, Phi = rng.standard_normal((nb, d, m)), np.eye(d) + 0.1 * rng.standard_normal((nb, d, d))
+        nu = 5.0 + rng.random(nb)
+        V, Lam0 = 1.0 + rng.random(m), np.eye(d)
+        work = rng.standard_normal((N, PHI + m * per))
+        zeta, phi_p = rng.standard_normal((N, 2)), rng.standard_normal((N, m * per))
+        pending, forget = trial % 3 != 0, trial % 2 == 0
+        a = [K.copy(), Psi.copy(), Phi.copy(), nu.copy(), work.copy()]
+        b = [K.copy(), Psi.copy(), Phi.copy(), nu.copy(), work.copy()]
+        exact_forget_predictive_rows(a[0], a[1], a[2], a[3], V, Lam0, a[4], per, forget, 0.99, 10.0, pending, zeta,
+                                     phi_p, idx, True)
+        gather_lower(b[0].reshape(N, per, m, m), idx)
+        exact_forget_predictive_rows(b[0], b[1], b[2], b[3], V, Lam0, b[4], per, forget, 0.99, 10.0, pending, zeta,
+                                     phi_p, np.arange(N), False)
+        assert np.array_equal(a[0][:, low], b[0][:, low]), trial
+        for x, y in zip(a[1:], b[1:]):
+            assert np.array_equal(x, y), trial
+    # resample: sorted ancestors leave K alone (deferred); with defer off it copies K itself
+    from tirefilter.estimators.gpssm_numba import resample
+
+    logw = np.log(np.full(N, 1.0 / N))
+    logw[:3] += 3.0
+    logw -= np.log(np.exp(logw).sum())
+    for defer in (True, False):
+        K = rng.standard_normal((N, per, m, m))
+        K0, anc, rows = K.copy(), np.zeros(N, np.int64), (rng.standard_normal((N, 3)),)
+        resample(logw.copy(), 0.3, rows, K, per, False, 0.0, np.zeros((N, PHI + 1)), anc, defer)
+        if defer:
+            assert np.array_equal(K, K0) and np.any(anc != np.arange(N)) and np.all(np.diff(anc) >= 0)
+        else:
+            assert np.array_equal(anc, np.arange(N)) and not np.array_equal(K[..., low], K0[..., low])
+
+
+def test_friction_gpssm_tensor_resampling_copy_waits_for_the_next_pass():
+    """The tensor basis's resampling leaves its copy of K to the next pass (`gather`); a
+    reader of the statistics in between (`flush`) and a pickle taken then both see the copied
+    K: the friction curve read at that point and the resumed run equal the numpy reference's."""
+    import pickle
+
+    vehicle = load_scenario("friction-snow").vehicle
+    kw = dict(particles=19, basis="tensor", symmetry="odd", resample_threshold=1.0)
+    fast, ref = FrictionGPSSM(vehicle, GPSSMConfig(**kw)), FrictionGPSSM(vehicle, GPSSMConfig(backend="numpy", **kw))
+    a, b = _drive(fast, 12), _drive(ref, 12)
+    assert fast._compiled.gather and fast.resamples == ref.resamples >= 5
+    copy, ref_copy = pickle.loads(pickle.dumps(fast)), pickle.loads(pickle.dumps(ref))
+    assert copy._compiled.gather
+    assert_equal_to_rounding(fast.friction().mu_f, ref.friction().mu_f, "mu_f")  # flushed: the copy made
+    assert not fast._compiled.gather
+    assert_equal_to_rounding(fast.stats.K, ref.stats.K, "K")
+    c, d = _drive_on(copy, 12, 20), _drive_on(ref_copy, 12, 20)
+    assert_equal_to_rounding(np.vstack([a, c]), np.vstack([b, d]), "estimates")
+    assert_equal_to_rounding(copy.stats.K, ref_copy.stats.K, "K after the resumed run")
+
+
 def test_systematic_ancestors_equal_reference():
     """The compiled systematic resampling equals `stats.systematic_resample` from the same
     generator state, for peaked, flat and degenerate weights."""

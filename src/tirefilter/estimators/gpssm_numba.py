@@ -23,8 +23,12 @@ one path:
      itself, `t_draws` otherwise);
   4. `resample` (when the ESS is low): systematic resampling (`systematic_ancestors`, the
      uniform drawn as `stats.systematic_resample` draws it) and its copies, in place
-     (`gather_rows`, `gather_lanes` / `gather_lower`; sorted ancestors: only the rows that
-     change are copied), the log-weights reset, `common_dof` again;
+     (`gather_rows`, `gather_lanes`; sorted ancestors: only the rows that change are copied),
+     the log-weights reset, `common_dof` again; from `LANES_BELOW` functions (the tensor bases)
+     K's copy is left to the next pass, whose sweep copies each row of an element's ancestor's
+     K into the element's and updates it there (`exact_forget_predictive_rows`, `copy_order`;
+     sorted ancestors only, else `resample` copies K itself; `flush` makes the copy with
+     `gather_lower` when the statistics are read in between): one pass over K instead of two;
   5. `sample`: the conditional Student-t draw of zeta (the locally optimal proposal), mu = mu~
      + zeta, the weighted moments for the estimate and, while the exact statistics learn, the
      features of the pending update;
@@ -190,21 +194,6 @@ def _scale_psi_phi(Psi, Phi, b, f):
             Pi[j] = Pi[j] * f
 
 
-@njit(**_JIT)
-def _forget_exact(K, Psi, Phi, nu, V, b, lam, nu_min):
-    """Eq. (29) for batch element b (`MNIW.forget`), K's lower triangle."""
-    m = Psi.shape[2]
-    f = _factor(lam, nu_min, nu[b])
-    _scale_psi_phi(Psi, Phi, b, f)
-    Kb = K[b]
-    for i in range(m):
-        Ki = Kb[i]
-        for j in range(i + 1):
-            Ki[j] *= f
-        Ki[i] += (1.0 - f) * V[i]
-    nu[b] = nu[b] * f
-
-
 @njit(inline="always", **_JIT)
 def _pending_head(Psi, Phi, nu, b, per, zeta, phi_p, forget, lam, nu_min):
     """The start of batch element b's pending update (eq. (27a)-(27b), (28f)) with the
@@ -350,7 +339,7 @@ def _lane_heads(Psi, Phi, nu, b0, nw, per, pending, zeta, phi_p, forget, lam, nu
     """The per-element start of a block's pass, lanes w < nw (batch elements b0 + w): with
     `pending` the previous step's update of Phi, Psi and nu (eq. (27a)-(27b), (28f)) scaled by
     the forgetting factor f (`_pending_head`) and its features phl[:, w]; without, the
-    forgetting of Phi, Psi and nu (`_forget_exact` but K); then nu *= f (as the reference, after
+    forgetting of Phi and Psi (`_scale_psi_phi`); then nu *= f (as the reference, after
     nu += 1). fv[w] = f and gv[w] = 1 - f for the sweep over K; the padding lanes f = 1, 1 - f =
     0, zero features (their identity matrix stays the identity)."""
     m = Psi.shape[2]
@@ -477,38 +466,65 @@ def lanes_store(Kl, K):
 
 
 @njit(**_JIT)
-def _update_forget_rows(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget, lam, nu_min, A):
+def _update_forget_rows(K, Psi, Phi, nu, V, b, src, per, pending, zeta, phi_p, forget, lam, nu_min, A):
     """Batch element b: the pending update (eq. (27a)-(27c), (28f)) then the forgetting
     (eq. (29)), in one sweep over K with the reference's operations in the reference's order
-    ((K + phi phi^T) * f, then + (1 - f) V on the diagonal), each entry of K's lower triangle
-    written to K and to A (>= m, m), A[i, j] = K[b, i, j], as it is computed. K's lower triangle
-    only: the upper one is restored by `mirror` before anything else reads K (the reference's K
-    is exactly symmetric: p_i p_j = p_j p_i and the forgetting is elementwise)."""
+    ((K + phi phi^T) * f, then + (1 - f) V on the diagonal; without a pending update K * f, then
+    + (1 - f) V), each entry of K's lower triangle written to K and to A (>= m, m), A[i, j] =
+    K[b, i, j], as it is computed. With src != b (after a resampling, whose copy of K the pass
+    makes: `exact_forget_predictive_rows`) each row of element src's K is first copied into
+    element b's, then updated there while in cache (the same numbers as copying K first; the
+    update reading one view and writing another of the same K would fail LLVM's run-time
+    overlap test at src == b and run scalar). K's lower triangle only: the upper one is
+    restored by `mirror` before anything else reads K (the reference's K is exactly symmetric:
+    p_i p_j = p_j p_i and the forgetting is elementwise)."""
     m = Psi.shape[2]
     Kb = K[b]
-    if not pending:
-        if forget:
-            _forget_exact(K, Psi, Phi, nu, V, b, lam, nu_min)
+    Ks = K[src]
+    copy = src != b
+    if pending:
+        f, g, ph = _pending_head(Psi, Phi, nu, b, per, zeta, phi_p, forget, lam, nu_min)
         for i in range(m):
             Ki = Kb[i]
+            if copy:
+                _copy_row(Ki, Ks[i], i + 1)
+            p = ph[i]
             Ai = A[i]
-            for j in range(i + 1):
-                Ai[j] = Ki[j]
+            for j in range(i):
+                v = (Ki[j] + p * ph[j]) * f
+                Ki[j] = v
+                Ai[j] = v
+            v = (Ki[i] + p * ph[i]) * f
+            v += g * V[i]
+            Ki[i] = v
+            Ai[i] = v
+        nu[b] = nu[b] * f
         return
-    f, g, ph = _pending_head(Psi, Phi, nu, b, per, zeta, phi_p, forget, lam, nu_min)
+    if forget:
+        f = _factor(lam, nu_min, nu[b])
+        _scale_psi_phi(Psi, Phi, b, f)
+        for i in range(m):
+            Ki = Kb[i]
+            if copy:
+                _copy_row(Ki, Ks[i], i + 1)
+            for j in range(i + 1):
+                Ki[j] *= f
+            Ki[i] += (1.0 - f) * V[i]
+        nu[b] = nu[b] * f
+    elif copy:
+        for i in range(m):
+            _copy_row(Kb[i], Ks[i], i + 1)
     for i in range(m):
-        p = ph[i]
         Ki = Kb[i]
         Ai = A[i]
-        for j in range(i):
-            v = (Ki[j] + p * ph[j]) * f
-            Ki[j] = v
-            Ai[j] = v
-        v = (Ki[i] + p * ph[i]) * f
-        v += g * V[i]
-        Ki[i] = v
-        Ai[i] = v
-    nu[b] = nu[b] * f
+        for j in range(i + 1):
+            Ai[j] = Ki[j]
+
+
+@njit(**_JIT)
+def _copy_row(a, b, n):
+    for j in range(n):
+        a[j] = b[j]
 
 
 @njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
@@ -609,29 +625,62 @@ def _write_predictive_rows(work, b, per, d, m, Z, Lam0, Phi, nu, lam):
 
 
 @njit(**_JIT)
-def exact_forget_predictive_rows(K, Psi, Phi, nu, V, Lam0, work, per, forget, lam, nu_min, pending, zeta, phi_p):
+def copy_order(idx):
+    """The particles in the order in which an in-place copy a[:] = a[idx] reads every row before
+    it is written, for sorted ancestors (`gather_lower`'s order): ascending where idx[i] > i,
+    then descending where idx[i] < i, then the rows that keep their own (idx[i] == i)."""
+    n = idx.shape[0]
+    order = np.empty(n, np.int64)
+    c = 0
+    for i in range(n):
+        if idx[i] > i:
+            order[c] = i
+            c += 1
+    for i in range(n - 1, -1, -1):
+        if idx[i] < i:
+            order[c] = i
+            c += 1
+    for i in range(n):
+        if idx[i] == i:
+            order[c] = i
+            c += 1
+    return order
+
+
+@njit(**_JIT)
+def exact_forget_predictive_rows(K, Psi, Phi, nu, V, Lam0, work, per, forget, lam, nu_min, pending, zeta, phi_p,
+                                 anc, gather):
     """`exact_forget_predictive` one matrix at a time (large bases): the pending update and
     the forgetting written into K and A in one sweep, the factorisation with the forward
-    substitution by `_chol_rows`, then the predictive."""
+    substitution by `_chol_rows`, then the predictive. With `gather`, the last resampling's
+    copy of K's lower triangles (K[b] = K[anc-element of b], left to this pass by `resample`,
+    which makes it itself unless the ancestors are sorted) is made by the sweep itself, which
+    reads the ancestor's K and writes the element's: the elements in `copy_order` (sorted
+    ancestors: no K is read after it was written)."""
     nb, d, m = Psi.shape
     A = np.zeros((m + d + 1, m))
     inv = np.empty(m)
     spare = np.zeros(m)
     lam2 = np.empty((2, 2))
-    for b in range(nb):
-        _update_forget_rows(K, Psi, Phi, nu, V, b, per, pending, zeta, phi_p, forget, lam, nu_min, A)
-        n, a = b // per, b % per
-        for i in range(d):
-            Pi = Psi[b, i]
-            Ai = A[m + i]
+    N = nb // per
+    order = copy_order(anc) if gather else np.arange(N)
+    for q in range(N):
+        n = order[q]
+        for a in range(per):
+            b = n * per + a
+            src = anc[n] * per + a if gather else b
+            _update_forget_rows(K, Psi, Phi, nu, V, b, src, per, pending, zeta, phi_p, forget, lam, nu_min, A)
+            for i in range(d):
+                Pi = Psi[b, i]
+                Ai = A[m + i]
+                for j in range(m):
+                    Ai[j] = Pi[j]
+            ph = work[n, PHI + a * m:PHI + (a + 1) * m]
+            Ai = A[m + d]
             for j in range(m):
-                Ai[j] = Pi[j]
-        ph = work[n, PHI + a * m:PHI + (a + 1) * m]
-        Ai = A[m + d]
-        for j in range(m):
-            Ai[j] = ph[j]
-        _chol_rows(A, m, inv, spare)
-        _write_predictive_rows(work, b, per, d, m, A, Lam0, Phi, nu, lam2)
+                Ai[j] = ph[j]
+            _chol_rows(A, m, inv, spare)
+            _write_predictive_rows(work, b, per, d, m, A, Lam0, Phi, nu, lam2)
 
 
 @njit(**_JIT)
@@ -829,19 +878,25 @@ def gather_lanes(Kl, idx, per):
 
 
 @njit(**_JIT)
-def resample(logw, u0, arrays, K, per, lanes, add, work):
+def resample(logw, u0, arrays, K, per, lanes, add, work, anc, defer):
     """Systematic resampling after its uniform u0 (`systematic_ancestors`), its copies in place
     (`gather_rows` for every (N, k) array; K's lower triangles by `gather_lanes` when `lanes`,
     else `gather_lower` (K (N, per, m, m)); none when K is empty: the rank-one statistics), the
-    log-weights set to -log N; returns `common_dof(work, add)` after the copies."""
+    log-weights set to -log N; returns `common_dof(work, add)` after the copies. The ancestors
+    into anc; with `defer` (the rows pass) K's copy is left to the next pass
+    (`exact_forget_predictive_rows` with anc) when the ancestors are sorted (systematic
+    resampling's always are), else made here and anc set to the identity."""
     n = logw.shape[0]
     idx = systematic_ancestors(logw, u0)
+    anc[:] = idx
     gather_rows(arrays, idx)
     if K.shape[0] > 0:
         if lanes:
             gather_lanes(K, idx, per)
-        else:
+        elif not (defer and _sorted(idx)):
             gather_lower(K, idx)
+            for i in range(n):
+                anc[i] = i
     v = -math.log(n)
     for i in range(n):
         logw[i] = v
@@ -969,6 +1024,10 @@ class CompiledStep:
         self.phi_p = np.zeros((N, size * self.per))  # features of the pending update
         self.pending = False  # exact statistics: this step's update waits for the next pass
         self.stale_upper = False  # the kernels keep K's lower triangle; `flush` mirrors it
+        # the rows pass (from LANES_BELOW functions): the last resampling's ancestors, whose copy
+        # of K's lower triangles the next pass makes (`gather`: still to be made)
+        self.anc = np.arange(N, dtype=np.int64)
+        self.gather = False
         keep = np.ascontiguousarray(est.basis.keep, np.int64)
         m1 = int(est.b1.m)
         self.keep, self.keep_r = (keep // m1, keep % m1) if est.d == 2 else (keep, keep)
@@ -1025,13 +1084,14 @@ class CompiledStep:
         views = (_flat(arrays[0], 2), _flat(arrays[1], 2), _flat(arrays[2], 2), arrays[3].reshape(-1))
         rows = (st.Psi, st.Phi) if self.exact else (st.M, st.P, st.Lam)
         rows = tuple(a.reshape(N, -1) for a in rows) + (st.nu.reshape(N, -1), est.x, self.work)
-        if self.exact and not self.lanes:
+        if self.exact and not self.lanes:  # (the rows pass makes the copy: `resample`'s `defer`)
             kcopy = st.K.reshape((N, self.per) + st.K.shape[-2:])
         else:
             kcopy = self.Kl  # lanes, or empty (rank-one statistics: nothing beyond the rows)
         if c is not None and not (c[0] is st and c[5][0] is a0):
             self.kl_loaded = False  # other statistics or another K: K from them (a new particles'
             # array alone leaves the lanes holding the statistics' current K)
+            self.gather = False  # (and no resampling copy made into them)
         self._cache = c = (st, est.x, views, rows, kcopy, arrays)
         return c
 
@@ -1043,6 +1103,11 @@ class CompiledStep:
             lanes_store(self.Kl, self._views()[0])
             self.stale_upper = True
             self.kl_loaded = False  # the step loads it again (a reader may change the statistics)
+        if self.gather:  # the last resampling's copy of K, left to the next pass
+            K = self._views()[0]
+            gather_lower(K.reshape((self.N, self.per) + K.shape[1:]), self.anc)
+            self.stale_upper = True
+            self.gather = False
         if self.pending:
             K, Psi, Phi, nu = self._views()
             d, m = Psi.shape[1:]  # per particle and step: `per` batch rows of d outputs and m features
@@ -1127,8 +1192,9 @@ class CompiledStep:
                                         self.pending, self.zeta, self.phi_p)
             else:
                 exact_forget_predictive_rows(a1, a2, a3, nu, V, Lam0, work, self.per, forget, self.lam, self.nu0,
-                                             self.pending, self.zeta, self.phi_p)
+                                             self.pending, self.zeta, self.phi_p, self.anc, self.gather)
                 self.stale_upper = True
+                self.gather = False
             self.pending = False
         else:
             rank1_forget_predictive(a1, a2, a3, nu, work, self.per, forget, self.lam, self.nu0,
@@ -1143,8 +1209,11 @@ class CompiledStep:
                                 self.R1, have_ay, math.isfinite(yr), learned, add)
         est.prediction = (pa, pr_)
         if ess < self.threshold:  # as stats.systematic_resample, its uniform first
-            c = resample(est.logw, float(rng.random((1,))[0]), rows, kcopy, self.per, self.lanes, add, work)
+            defer = self.exact and not self.lanes
+            c = resample(est.logw, float(rng.random((1,))[0]), rows, kcopy, self.per, self.lanes, add, work,
+                         self.anc, defer)
             est.resamples += 1
+            self.gather = defer  # K's copy: in the next pass (or `flush`)
         # 5. zeta (t conditional given the a^Y residual), mu, learning
         if math.isnan(c):  # dof differing between particles (or NaN): as the reference
             z, u = t_draws(work[:, DOF] + 1.0 if conditional else work[:, DOF], (N, 2), rng)
