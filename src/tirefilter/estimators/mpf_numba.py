@@ -35,7 +35,11 @@ with the sizes (n_w, the available channels, the accelerometer channels) as cons
 usual cases, the full model with every channel and the lateral model, so that the compiler
 unrolls their small loops; other sizes (a missing sample) take the same code with the sizes
 as variables. Each case has its own entry point (`predict_weigh_full`, `predict_weigh_lateral`,
-`predict_weigh`; the same for `sample_update`), so that a run compiles only the ones it calls.
+`predict_weigh`; the same for `sample_update`), so that a run compiles only the ones it calls;
+each calls the pass's body (`_predict_weigh`, `_sample_update`) with its sizes as literals, an
+ordinary call that compiles once per case with the sizes as constants (inlining the body into
+the entry point instead took a third more compile, benchmarks/README.md, "Test suite time: the
+compile (stop 25)").
 
 The numpy methods of `StiffnessMPF` are the readable reference; the kernels compute the
 same expressions in the same order, one particle at a time, and consume random numbers
@@ -495,18 +499,21 @@ def predict_weigh_lateral(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, h
     return _predict_weigh(t1, t2, 2, 2)
 
 
-@njit(inline="always", **_JIT)
+@njit(**_JIT)
 def _predict_weigh(t1, t2, n_w, na):
-    """`predict_weigh` with its arguments in t1, t2 (a call of more than 30 arguments compiles to f(*args),
-    which numba does not inline) and the sizes given."""
+    """`predict_weigh` with its arguments in t1, t2 and the sizes given (n_w = mu.shape[1]). An ordinary
+    call, not numba-IR inlining: the entry points call it with the sizes as literals, so it compiles
+    once per pair of sizes with them as constants, and inlining it (the whole pass, copied into
+    each entry point's IR) cost 8-15 s of compile per entry point (benchmarks/README.md, "Test suite
+    time: the compile (stop 25)")."""
     (x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise, noise_scale, b, P, q,
      bias_on, forget, lam, nu_min, gamma, mu, Lam) = t1
     (nu, uk, y, avail, R, roll_gain, vp, full, rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc, want_nis,
      beta, yaw_max, gate_speed) = t2
     n, nx = x.shape
-    # the propagation with the size as a variable (as a constant it ran no faster and took 4 s longer to
-    # compile); the weights with the sizes given
-    n_wp = mu.shape[1]
+    # the sizes as constants in the propagation too (the entry points' checks gave the compiler
+    # n_w = mu.shape[1] when this body was inlined into them; taken from mu here it ran slower)
+    n_wp = n_w
     mch = q.shape[0]
     kp = _steer_consts(u_prev[0], vp)  # (once per sample, not per particle)
     kk = _steer_consts(uk[0], vp)
@@ -834,10 +841,10 @@ def sample_update_lateral(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_
     return _sample_update(t1, t2, 2, 1)
 
 
-@njit(inline="always", **_JIT)
+@njit(**_JIT)
 def _sample_update(t1, t2, n_w, nc_):
-    """`sample_update` with its arguments in t1, t2 (a call of more than 30 arguments compiles to f(*args),
-    which numba does not inline) and the sizes given."""
+    """`sample_update` with its arguments in t1, t2 and the sizes given; an ordinary call, as
+    `_predict_weigh`."""
     (idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z) = t1
     (chi, nu_draw, w, use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw,
      infl) = t2
