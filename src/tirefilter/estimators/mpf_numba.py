@@ -37,6 +37,15 @@ unrolls their small loops; other sizes (a missing sample) take the same code wit
 as variables. Each case has its own entry point (`predict_weigh_full`, `predict_weigh_lateral`,
 `predict_weigh`; the same for `sample_update`), so that a run compiles only the ones it calls.
 
+In `predict_weigh` the propagation evaluates the model on scalars (`_model_t`, `_xdot_t`: the
+model's a, B and dx/dt returned, not stored in scratch arrays and read back, so that LLVM keeps
+them in registers; 1.6-2x faster on that stage, bit for bit the same numbers); the other
+kernels keep `_model1`, which computes the same expressions into arrays. The loops stay scalar
+(one particle at a time): LLVM vectorises a loop across particles only over one array per
+component and with numba's internal `noalias` flag, and the transposes into such arrays cost
+more than the vector lanes save (benchmarks/README.md, "The MPF passes across particles
+(stop 25)", benchmarks/bench_mpf_lanes.py).
+
 The numpy methods of `StiffnessMPF` are the readable reference; the kernels compute the
 same expressions in the same order, one particle at a time, and consume random numbers
 drawn by the caller with the reference's generator calls, so both backends follow the same
