@@ -137,8 +137,8 @@ def _model_t(x0, x1, x2, u0, u1, u2, u3, k, held, sf, sr, vp, full, rear_drive):
     """`_model1` on scalars, for the propagation of `predict_weigh`: the same expressions in the
     same order, returned instead of stored (stored in scratch arrays and read back, the values
     cannot stay in registers: benchmarks/README.md, "The MPF passes across particles (stop 25)").
-    Returns (a0, a1, a2, b00, b01, b02, b10, b11, b12, b20, b21, b22, af, ar, lam_f, lam_r), b the
-    rows of B (3, 3) in the full model; in the lateral one B (3, 2) in b_r0, b_r1 and b_r2 = 0."""
+    Returns (a0, a1, a2, b00, b01, b02, b10, b11, b12, b20, b21, b22, af, ar, lam_f, lam_r), b_rc the
+    entries of B (3, 3) in the full model; in the lateral model B is (3, 2): b_r0, b_r1, and b_r2 = 0."""
     lf, lr, Cfy, Cry, Cfx, Crx, Rw = vp[2], vp[3], vp[4], vp[5], vp[6], vp[7], vp[8]
     s = vp[9]
     cd, sd, inv_m, inv_I, cd_m, sd_m, lf_sd_I, msd_m, lf_cd_I, mlr_I = k
