@@ -28,6 +28,8 @@ middle sample are kept, and each variant below runs on fresh copies of them. Pri
      array instead of 1D arrays does not help (the rows' distance is the run-time N);
    plus the transposes that "lanes" would need in a pass that keeps today's (N, ...) arrays:
    x, w, Lam into columns, and x, a, B, Lam back.
+4. The weights' stage (h, D, L11, L12, S, e) on scalars, a prototype that the pass does not run
+   (full model, every channel, bias off), against stop 24's loop, bit for bit and timed.
 """
 
 from __future__ import annotations
@@ -379,6 +381,58 @@ def transposes(t: dict, buf: dict) -> None:
         from_columns(buf[k], t[k])
 
 
+# ---- the weights' stage on scalars (a prototype) ----------------------------------------------------------
+@njit(**_J)
+def build_regs(x, a, B, roll_gain, h, D, nu, nu_w, gamma, Lam, L11, avail, L12, R, Lc, mu, y, b, e):
+    """A prototype, not in the pass: `st_build` on scalars for the full model with every channel
+    (avail = 0, 1, 2) and the bias off (no P in S); the same products and sums in the same order
+    (the zero row of D included)."""
+    n, nx = x.shape
+    R00, R10, R11, R20, R21, R22 = R[0, 0], R[1, 0], R[1, 1], R[2, 0], R[2, 1], R[2, 2]
+    y0, y1, y2 = y[0], y[1], y[2]
+    for i in range(n):
+        h0, h1, h2 = a[i, 0], roll_gain * a[i, 1], x[i, nx - 1]
+        h[i, 0], h[i, 1], h[i, 2] = h0, h1, h2
+        d00, d01, d02 = B[i, 0, 0], B[i, 0, 1], B[i, 0, 2]
+        d10, d11, d12 = B[i, 1, 0] * roll_gain, B[i, 1, 1] * roll_gain, B[i, 1, 2] * roll_gain
+        D[i, 0, 0], D[i, 0, 1], D[i, 0, 2] = d00, d01, d02
+        D[i, 1, 0], D[i, 1, 1], D[i, 1, 2] = d10, d11, d12
+        D[i, 2, 0], D[i, 2, 1], D[i, 2, 2] = 0.0, 0.0, 0.0
+        dof = nu[i] - 3 + 1.0
+        nu_w[i] = dof
+        f = (1.0 + gamma[i]) / dof
+        l00, l01, l02 = f * Lam[i, 0, 0], f * Lam[i, 0, 1], f * Lam[i, 0, 2]
+        l10, l11, l12 = f * Lam[i, 1, 0], f * Lam[i, 1, 1], f * Lam[i, 1, 2]
+        l20, l21, l22 = f * Lam[i, 2, 0], f * Lam[i, 2, 1], f * Lam[i, 2, 2]
+        L11[i, 0, 0], L11[i, 0, 1], L11[i, 0, 2] = l00, l01, l02
+        L11[i, 1, 0], L11[i, 1, 1], L11[i, 1, 2] = l10, l11, l12
+        L11[i, 2, 0], L11[i, 2, 1], L11[i, 2, 2] = l20, l21, l22
+        # DL[q, k] = sum_j D[q, j] L11[j, k] (s = 0.0 then += in j order)
+        a00 = ((0.0 + d00 * l00) + d01 * l10) + d02 * l20
+        a01 = ((0.0 + d00 * l01) + d01 * l11) + d02 * l21
+        a02 = ((0.0 + d00 * l02) + d01 * l12) + d02 * l22
+        a10 = ((0.0 + d10 * l00) + d11 * l10) + d12 * l20
+        a11 = ((0.0 + d10 * l01) + d11 * l11) + d12 * l21
+        a12 = ((0.0 + d10 * l02) + d11 * l12) + d12 * l22
+        a20 = ((0.0 + 0.0 * l00) + 0.0 * l10) + 0.0 * l20
+        a21 = ((0.0 + 0.0 * l01) + 0.0 * l11) + 0.0 * l21
+        a22 = ((0.0 + 0.0 * l02) + 0.0 * l12) + 0.0 * l22
+        L12[i, 0, 0], L12[i, 1, 0], L12[i, 2, 0] = a00, a01, a02
+        L12[i, 0, 1], L12[i, 1, 1], L12[i, 2, 1] = a10, a11, a12
+        L12[i, 0, 2], L12[i, 1, 2], L12[i, 2, 2] = a20, a21, a22
+        cf = (dof - 2.0) / dof
+        Lc[i, 0, 0] = (((0.0 + a00 * d00) + a01 * d01) + a02 * d02) + cf * R00
+        Lc[i, 1, 0] = (((0.0 + a10 * d00) + a11 * d01) + a12 * d02) + cf * R10
+        Lc[i, 1, 1] = (((0.0 + a10 * d10) + a11 * d11) + a12 * d12) + cf * R11
+        Lc[i, 2, 0] = (((0.0 + a20 * d00) + a21 * d01) + a22 * d02) + cf * R20
+        Lc[i, 2, 1] = (((0.0 + a20 * d10) + a21 * d11) + a22 * d12) + cf * R21
+        Lc[i, 2, 2] = (((0.0 + a20 * 0.0) + a21 * 0.0) + a22 * 0.0) + cf * R22
+        m0, m1, m2 = mu[i, 0], mu[i, 1], mu[i, 2]
+        e[i, 0] = y0 - (h0 + b[i, 0]) - (((0.0 + d00 * m0) + d01 * m1) + d02 * m2)
+        e[i, 1] = y1 - (h1 + b[i, 1]) - (((0.0 + d10 * m0) + d11 * m1) + d12 * m2)
+        e[i, 2] = y2 - (h2 + b[i, 2]) - (((0.0 + 0.0 * m0) + 0.0 * m1) + 0.0 * m2)
+
+
 # ---- driver -----------------------------------------------------------------------------------------------------
 def _packed(f) -> dict:
     asm = "\n".join(f.inspect_asm(sig) for sig in f.signatures)
@@ -464,6 +518,25 @@ def main() -> int:
     for k, v in times.items():
         v = np.array(v) / 1e3
         print(f"  {k:11s} {v.min():7.1f} ({np.median(v):7.1f})  arrays / this {base / 1e3 / v.min():5.2f}")
+    # 4. the weights' stage on scalars (prototype; full model, every channel, bias off)
+    if list(cap["avail"]) == [0, 1, 2] and not cap["bias_on"]:
+        pre = fresh()
+        for _, f, a in stage_calls(pre)[:2]:
+            f(*a)
+        keys = "x a B roll_gain h D nu nu_w gamma Lam L11 avail L12 R Lc mu y b e".split()
+        r1, r2 = copy.deepcopy(pre), copy.deepcopy(pre)
+        st_build(*[r1[k] for k in keys])
+        build_regs(*[r2[k] for k in keys])
+        eq = all(np.array_equal(r1[k], r2[k]) for k in "h D nu_w L11 L12 Lc e".split())
+        tb: dict[str, list[int]] = {"arrays": [], "registers": []}
+        for _ in range(args.repeat):
+            r1, r2 = copy.deepcopy(pre), copy.deepcopy(pre)
+            tb["arrays"].append(_t(st_build, [r1[k] for k in keys]))
+            tb["registers"].append(_t(build_regs, [r2[k] for k in keys]))
+        print(f"weights' stage (h, D, L11, L12, S, e), bit for bit: {eq}; us, min (median), alternating:")
+        for k, v in tb.items():
+            v = np.array(v) / 1e3
+            print(f"  {k:11s} {v.min():7.1f} ({np.median(v):7.1f})  arrays / this {min(tb['arrays']) / 1e3 / v.min():5.2f}")
     print(f"load average after: {os.getloadavg()[0]:.2f}")
     return 0
 
