@@ -417,59 +417,6 @@ def _normalise_into(logw, add):
 
 
 @njit(inline="always", **_JIT)
-def _weigh_full1(i, x, a, B, roll_gain, h, D, nu, nu_w, gamma, Lam, L11, L12, R, bias_on, P, Lc, mu, y, b, e):
-    """The first loop of `_weigh` for particle i, full model, every channel (n_w = na = 3, avail =
-    0, 1, 2), on scalars: the same products and sums in the same order (D's zero row included), the
-    intermediate D L11 in registers instead of a scratch array (1.7x on that stage:
-    benchmarks/README.md, "The MPF passes across particles (stop 25)")."""
-    nx = x.shape[1]
-    h0, h1, h2 = a[i, 0], roll_gain * a[i, 1], x[i, nx - 1]
-    h[i, 0], h[i, 1], h[i, 2] = h0, h1, h2
-    d00, d01, d02 = B[i, 0, 0], B[i, 0, 1], B[i, 0, 2]
-    d10, d11, d12 = B[i, 1, 0] * roll_gain, B[i, 1, 1] * roll_gain, B[i, 1, 2] * roll_gain
-    D[i, 0, 0], D[i, 0, 1], D[i, 0, 2] = d00, d01, d02
-    D[i, 1, 0], D[i, 1, 1], D[i, 1, 2] = d10, d11, d12
-    D[i, 2, 0], D[i, 2, 1], D[i, 2, 2] = 0.0, 0.0, 0.0
-    dof = nu[i] - 3 + 1.0
-    nu_w[i] = dof
-    f = (1.0 + gamma[i]) / dof
-    l00, l01, l02 = f * Lam[i, 0, 0], f * Lam[i, 0, 1], f * Lam[i, 0, 2]
-    l10, l11, l12 = f * Lam[i, 1, 0], f * Lam[i, 1, 1], f * Lam[i, 1, 2]
-    l20, l21, l22 = f * Lam[i, 2, 0], f * Lam[i, 2, 1], f * Lam[i, 2, 2]
-    L11[i, 0, 0], L11[i, 0, 1], L11[i, 0, 2] = l00, l01, l02
-    L11[i, 1, 0], L11[i, 1, 1], L11[i, 1, 2] = l10, l11, l12
-    L11[i, 2, 0], L11[i, 2, 1], L11[i, 2, 2] = l20, l21, l22
-    # DL[q, k] = sum_j D[q, j] L11[j, k], summed from 0.0 in the order of j
-    a00 = ((0.0 + d00 * l00) + d01 * l10) + d02 * l20
-    a01 = ((0.0 + d00 * l01) + d01 * l11) + d02 * l21
-    a02 = ((0.0 + d00 * l02) + d01 * l12) + d02 * l22
-    a10 = ((0.0 + d10 * l00) + d11 * l10) + d12 * l20
-    a11 = ((0.0 + d10 * l01) + d11 * l11) + d12 * l21
-    a12 = ((0.0 + d10 * l02) + d11 * l12) + d12 * l22
-    a20 = ((0.0 + 0.0 * l00) + 0.0 * l10) + 0.0 * l20
-    a21 = ((0.0 + 0.0 * l01) + 0.0 * l11) + 0.0 * l21
-    a22 = ((0.0 + 0.0 * l02) + 0.0 * l12) + 0.0 * l22
-    L12[i, 0, 0], L12[i, 1, 0], L12[i, 2, 0] = a00, a01, a02
-    L12[i, 0, 1], L12[i, 1, 1], L12[i, 2, 1] = a10, a11, a12
-    L12[i, 0, 2], L12[i, 1, 2], L12[i, 2, 2] = a20, a21, a22
-    c = (dof - 2.0) / dof
-    n00, n10, n11, n20, n21, n22 = R[0, 0], R[1, 0], R[1, 1], R[2, 0], R[2, 1], R[2, 2]
-    if bias_on:
-        n00, n10, n11 = n00 + P[i, 0, 0], n10 + P[i, 1, 0], n11 + P[i, 1, 1]
-        n20, n21, n22 = n20 + P[i, 2, 0], n21 + P[i, 2, 1], n22 + P[i, 2, 2]
-    Lc[i, 0, 0] = (((0.0 + a00 * d00) + a01 * d01) + a02 * d02) + c * n00
-    Lc[i, 1, 0] = (((0.0 + a10 * d00) + a11 * d01) + a12 * d02) + c * n10
-    Lc[i, 1, 1] = (((0.0 + a10 * d10) + a11 * d11) + a12 * d12) + c * n11
-    Lc[i, 2, 0] = (((0.0 + a20 * d00) + a21 * d01) + a22 * d02) + c * n20
-    Lc[i, 2, 1] = (((0.0 + a20 * d10) + a21 * d11) + a22 * d12) + c * n21
-    Lc[i, 2, 2] = (((0.0 + a20 * 0.0) + a21 * 0.0) + a22 * 0.0) + c * n22
-    m0, m1, m2 = mu[i, 0], mu[i, 1], mu[i, 2]
-    e[i, 0] = y[0] - (h0 + b[i, 0]) - (((0.0 + d00 * m0) + d01 * m1) + d02 * m2)
-    e[i, 1] = y[1] - (h1 + b[i, 1]) - (((0.0 + d10 * m0) + d11 * m1) + d12 * m2)
-    e[i, 2] = y[2] - (h2 + b[i, 2]) - (((0.0 + 0.0 * m0) + 0.0 * m1) + 0.0 * m2)
-
-
-@njit(inline="always", **_JIT)
 def _weigh(x, a, B, full, roll_gain, h, D, nu, nu_w, gamma, Lam, L11, avail, L12, R, bias_on, P, Lc, mu, y, b, e, v, ll,
            n_w, na):
     """Step 2 of `predict_weigh` (its arguments, n_w and na the sizes): per particle h, D, nu~ (nu_w),
@@ -478,11 +425,7 @@ def _weigh(x, a, B, full, roll_gain, h, D, nu, nu_w, gamma, Lam, L11, avail, L12
     DL = np.empty((max(na, 1), n_w))
     p = float(na)
     last, cn = -1.0, 0.0
-    # the full model with every channel on scalars (`_weigh_full1`), any other case below
-    scalar = full and n_w == 3 and na == 3 and avail[0] == 0 and avail[1] == 1 and avail[2] == 2
-    for i in range(n if scalar else 0):
-        _weigh_full1(i, x, a, B, roll_gain, h, D, nu, nu_w, gamma, Lam, L11, L12, R, bias_on, P, Lc, mu, y, b, e)
-    for i in range(0 if scalar else n):
+    for i in range(n):
         # 2. h, D (`_measurement`), the predictive (eq. (21)) and the weight (eq. (36))
         r = x[i, nx - 1]
         if full:
