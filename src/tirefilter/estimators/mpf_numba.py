@@ -40,8 +40,7 @@ as variables. Each case has its own entry point (`predict_weigh_full`, `predict_
 In `predict_weigh` the propagation evaluates the model on scalars (`_model_t`, `_xdot_t`: the
 model's a, B and dx/dt returned, not stored in scratch arrays and read back, so that LLVM keeps
 them in registers; 1.6-2x faster on that stage, bit for bit the same numbers); the other
-kernels keep `_model1`, which computes the same expressions into arrays. For the same reason the
-weights' first loop runs on scalars (`_weigh_full1`) for the full model with every channel. The loops stay scalar
+kernels keep `_model1`, which computes the same expressions into arrays. The loops stay scalar
 (one particle at a time): LLVM vectorises a loop across particles only over one array per
 component and with numba's internal `noalias` flag, and the transposes into such arrays cost
 more than the vector lanes save (benchmarks/README.md, "The MPF passes across particles
