@@ -41,6 +41,15 @@ ordinary call that compiles once per case with the sizes as constants (inlining 
 the entry point instead took a third more compile, benchmarks/README.md, "Test suite time: the
 compile (stop 25)").
 
+In `predict_weigh` the propagation evaluates the model on scalars (`_model_t`, `_xdot_t`: the
+model's a, B and dx/dt returned, not stored in scratch arrays and read back, so that LLVM keeps
+them in registers; 1.6-2x faster on that stage, bit for bit the same numbers); the other
+kernels keep `_model1`, which computes the same expressions into arrays. The loops stay scalar
+(one particle at a time): LLVM vectorises a loop across particles only over one array per
+component and with numba's internal `noalias` flag, and the transposes into such arrays cost
+more than the vector lanes save (benchmarks/README.md, "The MPF passes across particles
+(stop 25)", benchmarks/bench_mpf_lanes.py).
+
 The numpy methods of `StiffnessMPF` are the readable reference; the kernels compute the
 same expressions in the same order, one particle at a time, and consume random numbers
 drawn by the caller with the reference's generator calls, so both backends follow the same
@@ -125,6 +134,76 @@ def _model1(x0, x1, x2, u0, u1, u2, u3, k, held, sf, sr, a, B, vp, full, rear_dr
     a[1] = (Fy_f + Fry) * inv_m
     a[2] = (lf * Fy_f - lr * Fry) * inv_I
     return af, ar, lam_f, lam_r
+
+
+@njit(inline="always", **_JIT)
+def _model_t(x0, x1, x2, u0, u1, u2, u3, k, held, sf, sr, vp, full, rear_drive):
+    """`_model1` on scalars, for the propagation of `predict_weigh`: the same expressions in the
+    same order, returned instead of stored (stored in scratch arrays and read back, the values
+    cannot stay in registers: benchmarks/README.md, "The MPF passes across particles (stop 25)").
+    Returns (a0, a1, a2, b00, b01, b02, b10, b11, b12, b20, b21, b22, af, ar, lam_f, lam_r), b_rc the
+    entries of B (3, 3) in the full model; in the lateral model B is (3, 2): b_r0, b_r1, and b_r2 = 0."""
+    lf, lr, Cfy, Cry, Cfx, Crx, Rw = vp[2], vp[3], vp[4], vp[5], vp[6], vp[7], vp[8]
+    s = vp[9]
+    cd, sd, inv_m, inv_I, cd_m, sd_m, lf_sd_I, msd_m, lf_cd_I, mlr_I = k
+    if full:
+        vx, vy, r = x0, x1, x2
+    else:
+        vx, vy, r = u3, x0, x1
+    inv_vx = 1.0 / max(vx, 1.0)
+    af = u0 - (vy + lf * r) * inv_vx
+    ar = (lr * r - vy) * inv_vx
+    Ffy, Fry = Cfy * af, Cry * ar
+    lam_f = lam_r = 0.0
+    g0 = g1 = g2 = 0.0
+    if full:
+        if held:
+            lam_f, lam_r = sf, sr
+        else:
+            wf, wr = Rw * u1, Rw * u2
+            lam_f = (wf - vx) / max(max(abs(vx), abs(wf)), 1.0)
+            lam_r = (wr - vx) / max(max(abs(vx), abs(wr)), 1.0)
+        Ffx, Frx = Cfx * lam_f, Crx * lam_r
+        if rear_drive:
+            g0 = lam_r * inv_m + (s * lam_f) * cd_m
+            g1 = (s * lam_f) * sd_m
+            g2 = (s * lam_f) * lf_sd_I
+        else:
+            g0 = lam_f * cd_m + (s * lam_r) * inv_m
+            g1 = lam_f * sd_m
+            g2 = lam_f * lf_sd_I
+        Fy_f = Ffy * cd + Ffx * sd
+        aX = (Ffx * cd - Ffy * sd + Frx) * inv_m
+    else:
+        Fy_f = Ffy * cd
+        aX = 0.0
+    f0, f1, f2 = af * msd_m, af * cd_m, af * lf_cd_I
+    r1, r2 = ar * inv_m, ar * mlr_I
+    a1 = (Fy_f + Fry) * inv_m
+    a2 = (lf * Fy_f - lr * Fry) * inv_I
+    if full:
+        return aX, a1, a2, g0, f0, 0.0, g1, f1, r1, g2, f2, r2, af, ar, lam_f, lam_r
+    return aX, a1, a2, f0, 0.0, 0.0, f1, r1, 0.0, f2, r2, 0.0, af, ar, lam_f, lam_r
+
+
+@njit(inline="always", **_JIT)
+def _xdot_t(x0, x1, x2, u3, m, w0, w1, w2, full):
+    """`_xdot1` on scalars: m = (a0, a1, a2, the rows of B, ...) as `_model_t` returns it, w = (w0, w1,
+    w2) (w2 unused in the lateral model, n_w = 2). Returns dx/dt (dx2 = 0 in the lateral model)."""
+    s0 = 0.0 + m[3] * w0
+    s1 = 0.0 + m[6] * w0
+    s2 = 0.0 + m[9] * w0
+    s0 = s0 + m[4] * w1
+    s1 = s1 + m[7] * w1
+    s2 = s2 + m[10] * w1
+    if full:
+        s0 = s0 + m[5] * w2
+        s1 = s1 + m[8] * w2
+        s2 = s2 + m[11] * w2
+    acc0, acc1, acc2 = m[0] + s0, m[1] + s1, m[2] + s2
+    if full:
+        return x1 * x2 + acc0, acc1 - x0 * x2, acc2
+    return acc1 - u3 * x1, acc2, 0.0
 
 
 @njit(inline="always", **_JIT)
@@ -519,12 +598,6 @@ def _predict_weigh(t1, t2, n_w, na):
     kk = _steer_consts(uk[0], vp)
     n_sub = max(1, math.ceil(dt / max_step - 1e-9))
     hs = dt / n_sub
-    xi = np.empty(nx)
-    x1 = np.empty(nx)
-    k1 = np.empty(nx)
-    k2 = np.empty(nx)
-    ai = np.empty(3)
-    Bi = np.empty((3, n_wp))
     with_noise = noise.shape[0] > 0
     count = 0
     if interval:  # the slip over the step (`_slip_over_step`) into slip, in a short loop of its own
@@ -536,38 +609,55 @@ def _predict_weigh(t1, t2, n_w, na):
             slip[0, i], slip[1, i] = _interval_slip1(x[i, 0], x[i, 1], x[i, 2], acc0, w_prev[i, 0], slip[0, i],
                                                      slip[1, i], u_prev, uk, dt, vp, jw, c_floor, rear_drive)
     for i in range(n):
-        # 1. propagation (`_propagate`), the first stage from the last sample
-        for c in range(nx):
-            xi[c] = x[i, c]
+        # 1. propagation (`_propagate`), the first stage from the last sample; the state, w and the
+        # model's values as scalars (`_model_t`, `_xdot_t`: in registers, not through scratch arrays)
+        x0 = x[i, 0]
+        x1 = x[i, 1]
+        x2 = x[i, 2] if full else 0.0
+        w0 = w_prev[i, 0]
+        w1 = w_prev[i, 1]
+        w2 = w_prev[i, 2] if full else 0.0
         sf, sr = slip[0, i], slip[1, i]
         if interval:
-            _model1(xi[0], xi[1], xi[2], u_prev[0], u_prev[1], u_prev[2], u_prev[3], kp, True, sf, sr, ai, Bi, vp, True,
-                    rear_drive, n_wp)
+            m = _model_t(x0, x1, x2, u_prev[0], u_prev[1], u_prev[2], u_prev[3], kp, True, sf, sr, vp, True,
+                         rear_drive)
+        elif full:
+            m = (a[i, 0], a[i, 1], a[i, 2], B[i, 0, 0], B[i, 0, 1], B[i, 0, 2], B[i, 1, 0], B[i, 1, 1], B[i, 1, 2],
+                 B[i, 2, 0], B[i, 2, 1], B[i, 2, 2], 0.0, 0.0, 0.0, 0.0)
         else:
-            for c in range(3):
-                ai[c] = a[i, c]
-                for j in range(n_wp):
-                    Bi[c, j] = B[i, c, j]
+            m = (a[i, 0], a[i, 1], a[i, 2], B[i, 0, 0], B[i, 0, 1], 0.0, B[i, 1, 0], B[i, 1, 1], 0.0, B[i, 2, 0],
+                 B[i, 2, 1], 0.0, 0.0, 0.0, 0.0, 0.0)
         for s in range(n_sub):
             if s > 0:
-                xs2 = xi[2] if full else 0.0
-                _, _, sf, sr = _model1(xi[0], xi[1], xs2, u_prev[0], u_prev[1], u_prev[2], u_prev[3], kp, False, 0.0,
-                                       0.0, ai, Bi, vp, full, rear_drive, n_wp)
-            _xdot1(xi, u_prev[3], ai, Bi, w_prev[i], k1, full, n_wp)
+                m = _model_t(x0, x1, x2, u_prev[0], u_prev[1], u_prev[2], u_prev[3], kp, False, 0.0, 0.0, vp, full,
+                             rear_drive)
+                sf, sr = m[14], m[15]
+            k10, k11, k12 = _xdot_t(x0, x1, x2, u_prev[3], m, w0, w1, w2, full)
             if not heun:
-                for c in range(nx):
-                    xi[c] = xi[c] + hs * k1[c]
+                x0 = x0 + hs * k10
+                x1 = x1 + hs * k11
+                if full:
+                    x2 = x2 + hs * k12
                 continue
-            for c in range(nx):
-                x1[c] = xi[c] + hs * k1[c]
-            xs2 = x1[2] if full else 0.0
-            _model1(x1[0], x1[1], xs2, u_prev[0], u_prev[1], u_prev[2], u_prev[3], kp, full, sf, sr, ai, Bi, vp, full,
-                    rear_drive, n_wp)
-            _xdot1(x1, u_prev[3], ai, Bi, w_prev[i], k2, full, n_wp)
-            for c in range(nx):
-                xi[c] = xi[c] + (0.5 * hs) * (k1[c] + k2[c])
-        for c in range(nx):
-            x[i, c] = xi[c] + noise_scale[c] * noise[i, c] if with_noise else xi[c]
+            y0 = x0 + hs * k10
+            y1 = x1 + hs * k11
+            y2 = x2 + hs * k12 if full else 0.0
+            m = _model_t(y0, y1, y2, u_prev[0], u_prev[1], u_prev[2], u_prev[3], kp, full, sf, sr, vp, full,
+                         rear_drive)
+            k20, k21, k22 = _xdot_t(y0, y1, y2, u_prev[3], m, w0, w1, w2, full)
+            x0 = x0 + (0.5 * hs) * (k10 + k20)
+            x1 = x1 + (0.5 * hs) * (k11 + k21)
+            if full:
+                x2 = x2 + (0.5 * hs) * (k12 + k22)
+        if with_noise:
+            x0 = x0 + noise_scale[0] * noise[i, 0]
+            x1 = x1 + noise_scale[1] * noise[i, 1]
+            if full:
+                x2 = x2 + noise_scale[2] * noise[i, 2]
+        x[i, 0] = x0
+        x[i, 1] = x1
+        if full:
+            x[i, 2] = x2
         if bias_on:  # eq. (29)
             for c in range(mch):
                 P[i, c, c] = P[i, c, c] + q[c] * dt
@@ -579,9 +669,14 @@ def _predict_weigh(t1, t2, n_w, na):
                 for k in range(n_wp):
                     Lam[i, j, k] = Lam[i, j, k] * f
         # the model at x_k, u_k (`_model`) and the plausible region (`_plausible`)
-        xs2 = x[i, 2] if full else 0.0
-        af[i], ar[i], slip[0, i], slip[1, i] = _model1(x[i, 0], x[i, 1], xs2, uk[0], uk[1], uk[2], uk[3], kk, False,
-                                                       0.0, 0.0, a[i], B[i], vp, full, rear_drive, n_wp)
+        m = _model_t(x0, x1, x2, uk[0], uk[1], uk[2], uk[3], kk, False, 0.0, 0.0, vp, full, rear_drive)
+        a[i, 0], a[i, 1], a[i, 2] = m[0], m[1], m[2]
+        B[i, 0, 0], B[i, 0, 1] = m[3], m[4]
+        B[i, 1, 0], B[i, 1, 1] = m[6], m[7]
+        B[i, 2, 0], B[i, 2, 1] = m[9], m[10]
+        if full:
+            B[i, 0, 2], B[i, 1, 2], B[i, 2, 2] = m[5], m[8], m[11]
+        af[i], ar[i], slip[0, i], slip[1, i] = m[12], m[13], m[14], m[15]
         vxp = x[i, 0] if full else uk[3]
         ok[i] = abs(x[i, nx - 2]) <= beta * max(abs(vxp), gate_speed) and abs(x[i, nx - 1]) <= yaw_max
         count += ok[i]
