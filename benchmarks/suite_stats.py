@@ -11,15 +11,21 @@ to SUITE_STATS_OUT_<worker>.json and SUITE_STATS_OUT_<worker>.timeline.json
 
 from __future__ import annotations
 
-import json
 import os
-import resource
-import sys
-import time
-from pathlib import Path
 
-import pytest
-from numba.core import event as ev
+# Before numpy is imported (numba imports it): a plugin loads before tests/conftest.py, whose
+# one-BLAS-thread setting would otherwise come too late, and the numpy references' LAPACK calls
+# would round differently (test_kernels' 100-function tensor then misses its 1e-12 by 1e-11).
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # noqa: E402
+
+import json  # noqa: E402
+import resource  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import pytest  # noqa: E402
+from numba.core import event as ev  # noqa: E402
 
 _T = {"depth": 0, "t0": 0.0, "total": 0.0, "n": 0, "per": {}}
 _TIMELINE = []
