@@ -84,63 +84,24 @@ def _steer_consts(u0, vp):
 
 @njit(inline="always", **_JIT)
 def _model1(x0, x1, x2, u0, u1, u2, u3, k, held, sf, sr, a, B, vp, full, rear_drive, n_w):
-    """One particle of `_model`: fills a (3,), B (3, n_w); returns (af, ar, lam_f, lam_r).
-    k = `_steer_consts(u0, vp)`; vp = (m, I, lf, lr, Cf_y, Cr_y, C_nom_fx, C_nom_rx, R_w,
-    undriven_share)."""
-    lf, lr, Cfy, Cry, Cfx, Crx, Rw = vp[2], vp[3], vp[4], vp[5], vp[6], vp[7], vp[8]
-    s = vp[9]
-    cd, sd, inv_m, inv_I, cd_m, sd_m, lf_sd_I, msd_m, lf_cd_I, mlr_I = k
-    if full:
-        vx, vy, r = x0, x1, x2
-    else:
-        vx, vy, r = u3, x0, x1
-    inv_vx = 1.0 / max(vx, 1.0)
-    af = u0 - (vy + lf * r) * inv_vx
-    ar = (lr * r - vy) * inv_vx
-    Ffy, Fry = Cfy * af, Cry * ar
+    """One particle of `_model`: `_model_t` stored, a (3,) and B (3, n_w) filled; returns (af, ar,
+    lam_f, lam_r). k = `_steer_consts(u0, vp)`; vp = (m, I, lf, lr, Cf_y, Cr_y, C_nom_fx, C_nom_rx,
+    R_w, undriven_share)."""
+    m = _model_t(x0, x1, x2, u0, u1, u2, u3, k, held, sf, sr, vp, full, rear_drive)
+    a[0], a[1], a[2] = m[0], m[1], m[2]
     for i in range(3):
         for j in range(n_w):
-            B[i, j] = 0.0
-    j = 0
-    lam_f = lam_r = 0.0
-    if full:
-        if held:
-            lam_f, lam_r = sf, sr
-        else:
-            wf, wr = Rw * u1, Rw * u2
-            lam_f = (wf - vx) / max(max(abs(vx), abs(wf)), 1.0)
-            lam_r = (wr - vx) / max(max(abs(vx), abs(wr)), 1.0)
-        Ffx, Frx = Cfx * lam_f, Crx * lam_r
-        if rear_drive:
-            B[0, 0] = lam_r * inv_m + (s * lam_f) * cd_m
-            B[1, 0] = (s * lam_f) * sd_m
-            B[2, 0] = (s * lam_f) * lf_sd_I
-        else:
-            B[0, 0] = lam_f * cd_m + (s * lam_r) * inv_m
-            B[1, 0] = lam_f * sd_m
-            B[2, 0] = lam_f * lf_sd_I
-        j = 1
-        Fy_f = Ffy * cd + Ffx * sd
-        aX = (Ffx * cd - Ffy * sd + Frx) * inv_m
-    else:
-        Fy_f = Ffy * cd
-        aX = 0.0
-    B[0, j] = af * msd_m
-    B[1, j] = af * cd_m
-    B[2, j] = af * lf_cd_I
-    B[1, j + 1] = ar * inv_m
-    B[2, j + 1] = ar * mlr_I
-    a[0] = aX
-    a[1] = (Fy_f + Fry) * inv_m
-    a[2] = (lf * Fy_f - lr * Fry) * inv_I
-    return af, ar, lam_f, lam_r
+            B[i, j] = m[3 + 3 * i + j]
+    return m[12], m[13], m[14], m[15]
 
 
 @njit(inline="always", **_JIT)
 def _model_t(x0, x1, x2, u0, u1, u2, u3, k, held, sf, sr, vp, full, rear_drive):
-    """`_model1` on scalars, for the propagation of `predict_weigh`: the same expressions in the
-    same order, returned instead of stored (stored in scratch arrays and read back, the values
-    cannot stay in registers: benchmarks/README.md, "The MPF passes across particles (stop 25)").
+    """One particle's model (`StiffnessMPF._model`) on scalars, returned, not stored: the
+    propagation of `predict_weigh` keeps the values in registers this way (stored in scratch
+    arrays and read back, they cannot stay there: benchmarks/README.md, "The MPF passes across
+    particles (stop 25)"); `_model1` stores them for the other kernels. k = `_steer_consts(u0, vp)`;
+    vp = (m, I, lf, lr, Cf_y, Cr_y, C_nom_fx, C_nom_rx, R_w, undriven_share).
     Returns (a0, a1, a2, b00, b01, b02, b10, b11, b12, b20, b21, b22, af, ar, lam_f, lam_r), b_rc the
     entries of B (3, 3) in the full model; in the lateral model B is (3, 2): b_r0, b_r1, and b_r2 = 0."""
     lf, lr, Cfy, Cry, Cfx, Crx, Rw = vp[2], vp[3], vp[4], vp[5], vp[6], vp[7], vp[8]
