@@ -16,8 +16,8 @@ import pickle
 MAGIC = b"TIREFILTER-FMU-STATE\x00"
 # The pickle holds the estimator objects as they are: raise FORMAT whenever a pickled class
 # gains, loses or renames an attribute, so that an older state is refused by this check
-# instead of failing inside the object. 2: the MPF's float sandwich (BatchMeansSandwichPair)
-# and the GP-SSM's K in lanes (issue 14, stop 24).
+# instead of failing inside the object. 2: the MPF's float sandwich (BatchMeansSandwichPair),
+# the GP-SSM's K in lanes and its deferred resampling copy of K (issue 14, stops 24-25).
 FORMAT = 2
 
 _NUMPY_ALLOWED = {
