@@ -170,7 +170,7 @@ def test_result_writer_keeps_every_row_when_its_helper_start_is_interrupted(tmp_
     assert path.read_text() == "a,b\n" + cell_by_cell(rows[:200])
 
 
-@pytest.mark.parametrize("body_error", [None, "interrupt", "failure"])
+@pytest.mark.parametrize("body_error", [None, "interrupt", "failure", "keyboard"])
 def test_run_outputs_fill_the_summary_when_the_csv_fails_to_close(tmp_path, monkeypatch, body_error):
     """A Result CSV that fails to close (a full disk) still leaves a filled summary: it fails a
     run that had not failed; after a failure or an interruption the first exception goes on
@@ -181,7 +181,8 @@ def test_run_outputs_fill_the_summary_when_the_csv_fails_to_close(tmp_path, monk
     monkeypatch.setattr(ResultWriter, "close", full_disk)
     summary = runs.StepSummary(seed=0, estimator="none")
     columns = ("t", "x")
-    expected = {None: OSError, "interrupt": runs.Interrupted, "failure": ValueError}[body_error]
+    expected = {None: OSError, "interrupt": runs.Interrupted, "failure": ValueError,
+                "keyboard": KeyboardInterrupt}[body_error]
     with pytest.raises(expected) as info:
         with runs.run_outputs(summary, columns, results_csv=tmp_path / "r.csv") as out:
             for k in range(3):
@@ -190,8 +191,14 @@ def test_run_outputs_fill_the_summary_when_the_csv_fails_to_close(tmp_path, monk
                 raise runs.Interrupted(signal.SIGTERM)
             if body_error == "failure":
                 raise ValueError("the estimator failed")
-    assert info.value.summary is summary
+            if body_error == "keyboard":  # outside `interruptible`: no signal handler turned it into Interrupted
+                raise KeyboardInterrupt
     assert summary.steps == 3 and summary.wall_time_s > 0.0
+    if body_error == "keyboard":  # goes on as it is; the summary keeps its status
+        assert summary.status == "ok"
+        assert summary.error == "closing the outputs failed: [Errno 28] No space left on device"
+        return
+    assert info.value.summary is summary
     assert summary.status == {None: "failed", "interrupt": "interrupted", "failure": "failed"}[body_error]
     assert "No space left on device" in summary.error
     if body_error is not None:

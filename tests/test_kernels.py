@@ -285,6 +285,27 @@ def test_friction_gpssm_tensor_resampling_copy_waits_for_the_next_pass():
     assert_equal_to_rounding(copy.stats.K, ref_copy.stats.K, "K after the resumed run")
 
 
+def test_friction_gpssm_statistics_replaced_while_the_copy_waits():
+    """Statistics set from outside (`est.stats = other`) between steps, while the compiled step
+    still holds work for the old ones (the resampling's copy of K, the pending update): that
+    work lands in the statistics replaced, never in the new ones, and the old ones equal the
+    numpy reference's."""
+    import copy
+
+    vehicle = load_scenario("friction-snow").vehicle
+    kw = dict(particles=11, basis="tensor", symmetry="odd", resample_threshold=1.0)
+    fast, ref, other = (FrictionGPSSM(vehicle, GPSSMConfig(**kw)), FrictionGPSSM(vehicle, GPSSMConfig(backend="numpy", **kw)),
+                        FrictionGPSSM(vehicle, GPSSMConfig(**kw)))
+    _drive(fast, 9), _drive(ref, 9), _drive(other, 7)
+    assert fast._compiled.gather and fast._compiled.pending
+    old, new = fast._stats, copy.deepcopy(other.stats)
+    K_new = new.K.copy()
+    fast.stats = new
+    assert fast.stats is new
+    np.testing.assert_array_equal(new.K, K_new)
+    assert_equal_to_rounding(old.K, ref.stats.K, "K of the statistics replaced")
+
+
 def test_systematic_ancestors_equal_reference():
     """The compiled systematic resampling equals `stats.systematic_resample` from the same
     generator state, for peaked, flat and degenerate weights."""

@@ -304,6 +304,9 @@ def run_outputs(summary: StepSummary, columns: tuple[str, ...], **options):
         summary.error = str(exc)
         exc.summary = summary
         raise
+    except BaseException:  # KeyboardInterrupt, SystemExit outside `interruptible`: goes on as it is
+        pending = True
+        raise
     finally:
         try:
             out.close()
@@ -318,7 +321,8 @@ def run_outputs(summary: StepSummary, columns: tuple[str, ...], **options):
             summary.guard = out.guard.counts()
         if close_error is not None:
             if pending:
-                summary.error = f"{summary.error}; closing the outputs failed too: {close_error}"
+                summary.error = (f"{summary.error}; closing the outputs failed too: {close_error}" if summary.error
+                                 else f"closing the outputs failed: {close_error}")
             else:
                 summary.status = "failed"
                 summary.error = str(close_error)

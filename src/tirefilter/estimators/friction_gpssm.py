@@ -215,6 +215,9 @@ class FrictionGPSSM:
 
     @stats.setter
     def stats(self, value) -> None:
+        compiled = getattr(self, "_compiled", None)
+        if compiled is not None and value is not getattr(self, "_stats", None):
+            compiled.flush()  # the compiled step's pending work belongs to the statistics replaced
         self._stats = value
 
     # ---- initialisation ---------------------------------------------------------------
