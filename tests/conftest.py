@@ -37,10 +37,17 @@ NOISE_OFF = {
 # come back to last, when its kernels are on disk and load in a fraction of a second; a task
 # done by either worker is marked done. The two workers so compile disjoint halves, in parallel.
 # The order (the MPF first on one worker, the GP-SSM first on the other) keeps them from
-# compiling the same helper kernels at the same time. Each task runs in a fresh interpreter
-# (`python tests/conftest.py TASK`) that writes the disk cache; the tests then load the kernels
-# from it: inside a pytest process the same compile took 1.6 times the CPU (page faults, system
-# time; benchmarks/README.md, "Test suite time (stop 24)").
+# compiling the same helper kernels at the same time. Each worker runs its tasks in one fresh
+# interpreter (`python tests/conftest.py --warm-up LOCK_DIR [--reverse]`) that writes the disk
+# cache; the tests then load the kernels from it: inside a pytest process the same compile took
+# 1.6 times the CPU (page faults, system time; benchmarks/README.md, "Test suite time (stop 24)").
+# One interpreter for all of a worker's tasks, not one per task: each start imports numpy, scipy,
+# numba and the package again (about 1.5 CPU s). Python's cyclic garbage collector is held off
+# while a task compiles: numba's compile allocates millions of objects, and the collections they
+# set off (mostly full ones) took a tenth of the compile's CPU ("Test suite time: the warm-up
+# (stop 26)").
+
+
 def _warm_mpf(model: str, missing: bool = False, gap: bool = False) -> None:
     from tirefilter.estimators.base import Inputs, Measurement
     from tirefilter.estimators.stiffness_mpf import MPFConfig, StiffnessMPF
@@ -89,14 +96,18 @@ WARM_UP = {  # name: task; the MPF's tasks and the GP-SSM's share no large kerne
 }
 
 
-def warm_up_kernels(lock_dir: Path, reverse: bool = False) -> list[str]:
-    """Run the `WARM_UP` tasks not yet marked done in `lock_dir` (in reverse order when
-    `reverse`); returns the names of those this process ran first-hand (compiled, unless
-    the disk cache had them)."""
+def warm_up_kernels(lock_dir: Path, reverse: bool = False, tasks=None) -> tuple[list[str], list[str]]:
+    """Run the tasks (`WARM_UP` by default) not yet marked done in `lock_dir`, in this process
+    and in reverse order when `reverse`; returns the names this process ran first-hand (compiled,
+    unless the disk cache had them) and those that raised (not marked done; the traceback is
+    printed to stderr, and the tests that use their kernels will say what is wrong)."""
     import fcntl
+    import gc
+    import traceback
 
-    names = list(WARM_UP)[::-1] if reverse else list(WARM_UP)
-    ran, later = [], []
+    tasks = WARM_UP if tasks is None else tasks
+    names = list(tasks)[::-1] if reverse else list(tasks)
+    ran, failed, later = [], [], []
     for blocking in (False, True):
         for name in (names if not blocking else later):
             done = lock_dir / f"{name}.done"
@@ -110,14 +121,19 @@ def warm_up_kernels(lock_dir: Path, reverse: bool = False) -> list[str]:
                     continue
                 if done.exists():
                     continue
-                # in a fresh interpreter (see above)
-                proc = subprocess.run([sys.executable, __file__, name], capture_output=True, text=True)
-                if proc.returncode != 0:  # the tests that use these kernels will say what is wrong
-                    warnings.warn(f"kernel warm-up {name!r} failed: {proc.stderr[-2000:]}", stacklevel=1)
+                gc.disable()  # see above; the task's garbage is collected once, after it
+                try:
+                    tasks[name]()
+                except Exception:
+                    traceback.print_exc()
+                    failed.append(name)
                     continue
+                finally:
+                    gc.enable()
+                    gc.collect()
                 done.touch()
                 ran.append(name)
-    return ran
+    return ran, failed
 
 
 @pytest.fixture(scope="session", autouse=True)
@@ -128,7 +144,12 @@ def _kernels_compiled_once(tmp_path_factory, worker_id):
         return
     lock_dir = tmp_path_factory.getbasetemp().parent / "numba-warm-up"  # shared by the workers
     lock_dir.mkdir(exist_ok=True)
-    warm_up_kernels(lock_dir, reverse=int(worker_id.removeprefix("gw")) % 2 == 1)
+    command = [sys.executable, __file__, "--warm-up", str(lock_dir)]
+    if int(worker_id.removeprefix("gw")) % 2 == 1:
+        command.append("--reverse")
+    proc = subprocess.run(command, capture_output=True, text=True)  # in a fresh interpreter (see above)
+    if proc.returncode != 0:  # the tests that use these kernels will say what is wrong
+        warnings.warn(f"kernel warm-up failed: {proc.stderr[-3000:]}", stacklevel=1)
 
 
 @pytest.fixture(scope="session")
@@ -237,5 +258,10 @@ def pytest_collection_modifyitems(config, items):
         items[:] = [items[i] for i in long_modules_first([item.nodeid for item in items])]
 
 
-if __name__ == "__main__":  # `python tests/conftest.py TASK`: one warm-up task (`warm_up_kernels`)
+if __name__ == "__main__":
+    # `python tests/conftest.py --warm-up LOCK_DIR [--reverse]`: a worker's share (`warm_up_kernels`);
+    # `python tests/conftest.py TASK`: one task alone
+    if sys.argv[1] == "--warm-up":
+        _, failed = warm_up_kernels(Path(sys.argv[2]), reverse="--reverse" in sys.argv[3:])
+        sys.exit(1 if failed else 0)
     WARM_UP[sys.argv[1]]()
