@@ -110,13 +110,10 @@ def integrate(model: PeerModel, profile: Profile, rate: float = RATE, substeps: 
     """States and inputs at the samples t = k / rate inside the profile: (t (n,), X (n, nx),
     U (n, 2)). The profile's grid must be h / 2 with h = 1 / (rate substeps).
 
-    The peer's right-hand side is pure Python on Python floats: the state, the inputs and the
-    RK4 stages stay Python lists of floats here (numpy scalars in the inputs made every
-    operation inside the peer's model a numpy scalar operation, and the stages' small numpy
-    arrays cost more than the list arithmetic). The arithmetic is the same, operation for
-    operation (x + (h/2) k1, ..., x + (h/6) (((k1 + 2 k2) + 2 k3) + k4)), so the states are
-    bit-identical to the numpy form's (benchmarks/README.md, "Test suite time: the peer drives
-    (stop 26)")."""
+    The state, the inputs and the stages stay Python floats (`rk4_step`): the peer's right-hand
+    side is pure Python, and numpy scalars in its inputs made each of its operations a numpy-scalar
+    operation (an STD call 24 instead of 16 us); the drives are bit-identical to the numpy form's
+    (benchmarks/README.md, "Test suite time: the peer drives (stop 26)")."""
     h = 1.0 / (rate * substeps)
     if abs(profile.dt - h / 2) > 1e-12:
         raise ValueError(f"profile grid {profile.dt} s, expected {h / 2} s")
