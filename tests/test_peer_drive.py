@@ -18,8 +18,8 @@ import pytest
 
 from tirefilter.cli import build_parser, main
 from tirefilter.errors import TirefilterError
-from tirefilter.peer.drive import (RATE, SUBSTEPS, DriveSpec, integrate, simulate, steer_gain, vehicle_toml,
-                                   vehicle_values, write_drive)
+from tirefilter.peer.drive import (K_SPEED, K_STEER, RATE, SUBSTEPS, DriveSpec, integrate, rk4_step, simulate,
+                                   steer_gain, vehicle_toml, vehicle_values, write_drive)
 from tirefilter.peer.maneuvers import Profile
 from tirefilter.peer.model import load_model
 from tirefilter.peer.score import read_columns, score_replay
@@ -114,6 +114,45 @@ def test_tire_slope_is_the_derived_stiffness():
     # the peer shifts the longitudinal curve by p_hx1 = 0.0012: its slope at s = 0 is within 0.1 % of K_x
     slope_x = (tm.formula_longitudinal(-h, 0.0, Fz, tire) - tm.formula_longitudinal(h, 0.0, Fz, tire)) / (2 * h)
     assert slope_x == pytest.approx(model.longitudinal_coefficient() * Fz, rel=1e-3)
+
+
+@pytest.mark.parametrize("kind", ["std", "mb"])
+def test_rk4_step_on_floats_is_the_numpy_form_bit_for_bit(kind):
+    """`rk4_step` (the state, inputs and stages as Python floats) gives the same bits as the
+    numpy form the drives were generated with up to stop 25 (state an array, inputs numpy
+    scalars, stages x + 0.5 h k1, ..., x + h / 6 (k1 + 2 k2 + 2 k3 + k4)), 200 steps of a turn-in
+    from a perturbed straight run; and a negative wheel rate (which the peer clips in its
+    argument, in place) is clipped in the right-hand side's copy only, as before."""
+    model = load_model(kind, 2)
+    h = 1.0 / (RATE * SUBSTEPS)
+    rng = np.random.default_rng(3)
+    x0 = model.initial_state(20.0)
+    x0 = x0 + 1e-3 * rng.standard_normal(x0.size) * np.maximum(np.abs(x0), 1.0)
+    x0[2], x0[5] = 0.01, 0.05  # steer, yaw rate
+    wheel = 7 if kind == "std" else 23
+
+    def law(x, d_ref=0.02, v_ref=20.5):  # as the drives' steering and speed control
+        return [0.05 + K_STEER * (d_ref - x[2]), 0.1 + K_SPEED * (v_ref - x[3])]
+
+    def law_numpy(x):  # numpy scalars, as the profile's arrays and the state array gave them
+        return law(x, np.float64(0.02), np.float64(20.5))
+
+    def numpy_form(x):
+        f = lambda y: np.asarray(model.rhs(y.tolist(), law_numpy(y)), float)  # noqa: E731
+        k1 = f(x)
+        k2 = f(x + 0.5 * h * k1)
+        k3 = f(x + 0.5 * h * k2)
+        k4 = f(x + h * k3)
+        return x + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+
+    for start in (x0, np.where(np.arange(x0.size) == wheel, -0.5, x0)):
+        x_np, x_list = start.copy(), start.tolist()
+        for _ in range(200):
+            x_np = numpy_form(x_np)
+            x_list = rk4_step(model.rhs_function(), model.p, x_list, h, law, law, law)
+            assert all(type(v) is float for v in x_list)
+        assert np.array_equal(np.array(x_list), x_np)
+    assert x_np[wheel] != 0.0  # the negative wheel rate was not clipped in the state itself
 
 
 @pytest.mark.parametrize("kind,vehicle,r_tol,beta_tol", [("std", 1, 0.01, 0.06), ("std", 2, 0.01, 0.06),

@@ -58,7 +58,7 @@ class PeerModel:
 
     def rhs(self, x: list, u: list) -> list:
         """The peer's right-hand side dx/dt (it may clip x in place: pass a copy)."""
-        return self._f(x, u, self.p)
+        return self.rhs_function()(x, u, self.p)
 
     def speed(self, x) -> float:
         """The speed the cruise control holds: v (STD), v^X (MB)."""
@@ -102,11 +102,13 @@ class PeerModel:
         accelerometer's and gyro's true readings (specific force and rate in the axes of
         the body that carries the IMU, at the centre of gravity), the axle-mean wheel rates,
         the axle loads and the true linear-region stiffness at those loads."""
+        x, u = np.asarray(x, float).tolist(), np.asarray(u, float).tolist()  # Python floats (as `integrate`)
         f = self.rhs(list(x), list(u))
         return _sample_std(self, x, u, f) if self.kind == "std" else _sample_mb(self, x, f)
 
-    @property
-    def _f(self):
+    def rhs_function(self):
+        """The peer's right-hand side function f(x, u, p) (`vehicle_dynamics_std` or
+        `vehicle_dynamics_mb`): x and u lists of Python floats, p this model's `p`."""
         require_vehiclemodels()
         if self.kind == "std":
             from vehiclemodels.vehicle_dynamics_std import vehicle_dynamics_std
