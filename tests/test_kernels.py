@@ -173,17 +173,21 @@ def test_resampling_copies_equal_indexing(order):
     ancestors (systematic resampling: no copy of the arrays) and any other order."""
     from tirefilter.estimators.gpssm_numba import gather_lower, gather_rows
 
-    rng = np.random.default_rng(3)
+    rng, more = np.random.default_rng(3), np.random.default_rng(13)
     for _ in range(20):
         idx = np.sort(rng.integers(0, 23, 23))
         if order == "shuffled":
             idx = rng.permutation(idx)
         a, b = rng.standard_normal((23, 5)), rng.standard_normal((23, 2))
         K = rng.standard_normal((23, 2, 4, 4))
-        want_a, want_b, want_K = a[idx], b[idx], K[idx]
-        gather_rows((a, b), idx)
+        # five (N, k) arrays, as the exact statistics' step passes them (Psi, Phi, nu, x, work): the
+        # signature the step compiled and cached; another count of arrays is another signature
+        rows = (a, b) + tuple(more.standard_normal((23, k)) for k in (1, 2, 7))
+        want = [r[idx] for r in rows]
+        want_K = K[idx]
+        gather_rows(rows, idx)
         gather_lower(K, idx)
-        assert np.array_equal(a, want_a) and np.array_equal(b, want_b)
+        assert all(np.array_equal(r, w) for r, w in zip(rows, want))
         low = np.tril(np.ones((4, 4), bool))
         assert np.array_equal(K[..., low], want_K[..., low])
 
@@ -257,6 +261,7 @@ def test_rows_pass_makes_the_resampling_copy_of_K(per):
     for defer in (True, False):
         K = rng.standard_normal((N, per, m, m))
         K0, anc, rows = K.copy(), np.zeros(N, np.int64), (rng.standard_normal((N, 3)),)
+        rows += tuple(np.zeros((N, k)) for k in (1, 2, 3, 4))  # five, as the exact statistics' step
         resample(logw.copy(), 0.3, rows, K, per, False, 0.0, np.zeros((N, PHI + 1)), anc, defer)
         if defer:
             assert np.array_equal(K, K0) and np.any(anc != np.arange(N)) and np.all(np.diff(anc) >= 0)

@@ -314,8 +314,12 @@ def rank1_forget(P, Lam, nu, lam, nu_min, bounded, trace0):
 
 # ---- the statistics classes ----------------------------------------------------------------
 def _flat(a, tail: int):
-    """A C-contiguous view (or copy) of `a` with the batch axes merged: (B,) + last `tail` axes."""
+    """A C-contiguous, writable view (or copy) of `a` with the batch axes merged: (B,) + last `tail`
+    axes. Writable: numba compiles a read-only array (`np.broadcast_to` of an array of the batch's
+    shape is one) as another type, so each kernel would have a second signature to compile."""
     a = np.ascontiguousarray(a)
+    if not a.flags.writeable:
+        a = a.copy()
     return a.reshape((-1,) + a.shape[a.ndim - tail:])
 
 
