@@ -217,8 +217,9 @@ def pytest_unconfigure(config):
 # short and the two workers end within about a test of each other. A single process (no xdist)
 # keeps the file order. Seconds: setup + call with the numba cache filled
 # (benchmarks/README.md, "Test suite time: the tests (stop 25)"); parameters share their test's entry.
+# test_vehicle_model's FMU-against-numpy integrations (16 s) left the list at stop 26: 2-3 s since
+# their reference runs on floats ("Test suite time: test-side CPU (stop 26)").
 LONG_TESTS = {
-    "test_vehicle_model.py::test_fmu_matches_numpy_integration": 16.0,
     "test_faults.py::test_estimators_stay_finite_and_do_not_restart_on_spikes": 10.0,
     "test_metrics.py::test_streamed_metrics_equal_run_metrics": 9.0,
     "test_stiffness_mpf.py::test_paper_sim_tracks_the_surface_change": 8.0,
