@@ -34,12 +34,14 @@ conditional draw with the learning (`_sample`) are inlined functions that the pa
 with the sizes (n_w, the available channels, the accelerometer channels) as constants in the
 usual cases, the full model with every channel and the lateral model, so that the compiler
 unrolls their small loops; other sizes (a missing sample) take the same code with the sizes
-as variables. Each case has its own entry point (`predict_weigh_full`, `predict_weigh_lateral`,
-`predict_weigh`; the same for `sample_update`), so that a run compiles only the ones it calls;
-each calls the pass's body (`_predict_weigh`, `_sample_update`) with its sizes as literals, an
-ordinary call that compiles once per case with the sizes as constants (inlining the body into
-the entry point instead took a third more compile, benchmarks/README.md, "Test suite time: the
-compile (stop 25)").
+as variables. Each case is a signature of its own of the one entry point (`predict_weigh`, the
+same for `sample_update`), picked by the number of dimensions of the empty array `sizes` that
+the caller passes last (`SIZES_FULL`, `SIZES_LATERAL`, `SIZES_ANY`: the sizes are then constants
+of the argument's type), so that a run compiles only the ones it calls, each once (before stop
+26, one entry point per case called the pass's body with the sizes as literals: each case
+compiled twice, its body and the entry point that linked it in; and inlining the body into the
+entry point instead took a third more compile: benchmarks/README.md, "Test suite time: the
+compile (stop 25)" and "(stop 26)").
 
 In `predict_weigh` the propagation evaluates the model on scalars (`_model_t`, `_xdot_t`: the
 model's a, B and dx/dt returned, not stored in scratch arrays and read back, so that LLVM keeps
@@ -68,6 +70,10 @@ from numba import njit
 from tirefilter.stats.particles_numba import systematic_into
 
 _JIT = dict(cache=True, nogil=True)
+# the last argument of `predict_weigh` and `sample_update`: its number of dimensions picks the sizes
+SIZES_FULL = np.empty((0, 0, 0))  # the full model with every channel: n_w = 3, na = 3, nc = 2
+SIZES_LATERAL = np.empty((0, 0))  # the lateral model with every channel: n_w = 2, na = 2, nc = 1
+SIZES_ANY = np.empty(0)  # the sizes from the arrays (a missing sample)
 
 
 # ---- model ---------------------------------------------------------------------------------
@@ -478,7 +484,8 @@ def _weigh(x, a, B, full, roll_gain, h, D, nu, nu_w, gamma, Lam, L11, avail, L12
 @njit(**_JIT)
 def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise, noise_scale,
                   b, P, q, bias_on, forget, lam, nu_min, gamma, mu, Lam, nu, uk, y, avail, R, roll_gain, vp, full,
-                  rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc, want_nis, beta, yaw_max, gate_speed):
+                  rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc, want_nis, beta, yaw_max, gate_speed,
+                  sizes):
     """Steps 1 and 2 of `StiffnessMPF.step`, in place. Per particle: the first stage of the
     propagation, a (N, 3), B (N, 3, n_w), slip (2, N) kept from the last sample, or with
     `interval` (full model, slip_hold = "interval") the model at x with the wheel slip averaged
@@ -499,60 +506,25 @@ def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, int
     Returns (innovation, ESS (-1: no channel, logw unchanged), number of plausible
     particles, nu~ common to all particles or 0). The caller zeroes the weights of the
     implausible particles when some (not all) are, as `_plausible` does.
-    `predict_weigh_full` and `predict_weigh_lateral` are the same for the full model with every
-    channel (n_w = na = 3) and the lateral one (n_w = na = 2) with the sizes as constants, so that
-    the compiler unrolls the small loops: each compiles on its first call only."""
-    t1 = (x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise, noise_scale, b, P,
-          q, bias_on, forget, lam, nu_min, gamma, mu, Lam)
-    t2 = (nu, uk, y, avail, R, roll_gain, vp, full, rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc,
-          want_nis, beta, yaw_max, gate_speed)
-    return _predict_weigh(t1, t2, mu.shape[1], avail.shape[0])
-
-
-@njit(**_JIT)
-def predict_weigh_full(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise,
-                       noise_scale, b, P, q, bias_on, forget, lam, nu_min, gamma, mu, Lam, nu, uk, y, avail, R,
-                       roll_gain, vp, full, rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc, want_nis,
-                       beta, yaw_max, gate_speed):
-    """`predict_weigh` for the full model with every channel (n_w = na = 3)."""
-    if mu.shape[1] != 3 or avail.shape[0] != 3:
-        raise ValueError("predict_weigh_full: n_w = na = 3 only")
-    t1 = (x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise, noise_scale, b, P,
-          q, bias_on, forget, lam, nu_min, gamma, mu, Lam)
-    t2 = (nu, uk, y, avail, R, roll_gain, vp, full, rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc,
-          want_nis, beta, yaw_max, gate_speed)
-    return _predict_weigh(t1, t2, 3, 3)
-
-
-@njit(**_JIT)
-def predict_weigh_lateral(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise,
-                          noise_scale, b, P, q, bias_on, forget, lam, nu_min, gamma, mu, Lam, nu, uk, y, avail, R,
-                          roll_gain, vp, full, rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc, want_nis,
-                          beta, yaw_max, gate_speed):
-    """`predict_weigh` for the lateral model with every channel (n_w = na = 2)."""
-    if mu.shape[1] != 2 or avail.shape[0] != 2:
-        raise ValueError("predict_weigh_lateral: n_w = na = 2 only")
-    t1 = (x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise, noise_scale, b, P,
-          q, bias_on, forget, lam, nu_min, gamma, mu, Lam)
-    t2 = (nu, uk, y, avail, R, roll_gain, vp, full, rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc,
-          want_nis, beta, yaw_max, gate_speed)
-    return _predict_weigh(t1, t2, 2, 2)
-
-
-@njit(**_JIT)
-def _predict_weigh(t1, t2, n_w, na):
-    """`predict_weigh` with its arguments in t1, t2 and the sizes given (n_w = mu.shape[1]). An ordinary
-    call, not numba-IR inlining: the entry points call it with the sizes as literals, so it compiles
-    once per pair of sizes with them as constants, and inlining it (the whole pass, copied into
-    each entry point's IR) cost 8-15 s of compile per entry point (benchmarks/README.md, "Test suite
-    time: the compile (stop 25)")."""
-    (x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise, noise_scale, b, P, q,
-     bias_on, forget, lam, nu_min, gamma, mu, Lam) = t1
-    (nu, uk, y, avail, R, roll_gain, vp, full, rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc, want_nis,
-     beta, yaw_max, gate_speed) = t2
+    `sizes` (an empty array) picks the sizes by its number of dimensions, a constant of its type:
+    3 the full model with every channel (n_w = na = 3), 2 the lateral one with every channel
+    (n_w = na = 2), 1 any (n_w = mu.shape[1], na = avail.shape[0]; a missing sample). Each is a
+    signature of its own, compiled on its first call only, the first two with the sizes as
+    constants, so that the compiler unrolls the small loops (`SIZES_FULL`, `SIZES_LATERAL`,
+    `SIZES_ANY`)."""
+    if sizes.ndim == 3:
+        if mu.shape[1] != 3 or avail.shape[0] != 3:
+            raise ValueError("predict_weigh with SIZES_FULL: n_w = na = 3 only")
+        n_w, na = 3, 3
+    elif sizes.ndim == 2:
+        if mu.shape[1] != 2 or avail.shape[0] != 2:
+            raise ValueError("predict_weigh with SIZES_LATERAL: n_w = na = 2 only")
+        n_w, na = 2, 2
+    else:
+        n_w, na = mu.shape[1], avail.shape[0]
     n, nx = x.shape
-    # the sizes as constants in the propagation too (the entry points' checks gave the compiler
-    # n_w = mu.shape[1] when this body was inlined into them; taken from mu here it ran slower)
+    # the sizes as constants in the propagation too (taken from mu.shape[1] there, the step ran
+    # slower: benchmarks/README.md, "Test suite time: the compile (stop 25)")
     n_wp = n_w
     mch = q.shape[0]
     kp = _steer_consts(u_prev[0], vp)  # (once per sample, not per particle)
@@ -840,9 +812,9 @@ def _sample(idx, gamma, mu, Lam, nu, L11, nu_w, L12, Lc, v, z, chi, nu_draw, w, 
 
 
 @njit(**_JIT)
-def sample_update(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z, chi, nu_draw, w,
+def sample_update(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc_, z, chi, nu_draw, w,
                   use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw,
-                  infl):
+                  infl, sizes):
     """Steps 3-5 of `StiffnessMPF.step`, in place. Per particle i (its weighting arrays h, D,
     L11, nu_w, L12, Lc, v at row idx[i], the ancestor when resampled):
     - w_i (into w) from the conditional of w given the first nc (accelerometer) residuals,
@@ -862,50 +834,19 @@ def sample_update(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, 
     sigma^2 of eq. (27b), bias mean. Returns the drift statistic z' of `_track_drift`, NaN
     when not computed (or when the lean is not finite: the reference then keeps its state).
     The weights exp(logw) are read from qw (N,), as `resample_gate` left them.
-    `sample_update_full` and `sample_update_lateral` are the same for the full model with both
-    accelerometers (n_w = 3, nc = 2) and the lateral one (n_w = 2, nc = 1) with the sizes as
-    constants."""
-    t1 = (idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z)
-    t2 = (chi, nu_draw, w, use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw,
-          infl)
-    return _sample_update(t1, t2, mu.shape[1], nc)
-
-
-@njit(**_JIT)
-def sample_update_full(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z, chi, nu_draw, w,
-                       use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw,
-                       infl):
-    """`sample_update` for the full model with both accelerometers (n_w = 3, nc = 2)."""
-    if mu.shape[1] != 3 or nc != 2:
-        raise ValueError("sample_update_full: n_w = 3, nc = 2 only")
-    t1 = (idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z)
-    t2 = (chi, nu_draw, w, use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw,
-          infl)
-    return _sample_update(t1, t2, 3, 2)
-
-
-@njit(**_JIT)
-def sample_update_lateral(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z, chi, nu_draw, w,
-                          use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw,
-                          infl):
-    """`sample_update` for the lateral model with its accelerometer (n_w = 2, nc = 1)."""
-    if mu.shape[1] != 2 or nc != 1:
-        raise ValueError("sample_update_lateral: n_w = 2, nc = 1 only")
-    t1 = (idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z)
-    t2 = (chi, nu_draw, w, use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw,
-          infl)
-    return _sample_update(t1, t2, 2, 1)
-
-
-@njit(**_JIT)
-def _sample_update(t1, t2, n_w, nc_):
-    """`sample_update` with its arguments in t1, t2 and the sizes given; an ordinary call, as
-    `_predict_weigh`."""
-    (idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z) = t1
-    (chi, nu_draw, w, use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw,
-     infl) = t2
+    `sizes` as in `predict_weigh`: 3 dimensions the full model with both accelerometers (n_w = 3,
+    nc = 2), 2 the lateral one (n_w = 2, nc = 1), 1 any (n_w = mu.shape[1], the given nc)."""
+    if sizes.ndim == 3:
+        if mu.shape[1] != 3 or nc_ != 2:
+            raise ValueError("sample_update with SIZES_FULL: n_w = 3, nc = 2 only")
+        n_w, nc = 3, 2
+    elif sizes.ndim == 2:
+        if mu.shape[1] != 2 or nc_ != 1:
+            raise ValueError("sample_update with SIZES_LATERAL: n_w = 2, nc = 1 only")
+        n_w, nc = 2, 1
+    else:
+        n_w, nc = mu.shape[1], nc_
     n = mu.shape[0]
-    nc = nc_
     na = avail.shape[0]
     mch = b.shape[1]
     nb = max(na, 1)
