@@ -101,7 +101,7 @@ def _model1(x0, x1, x2, u0, u1, u2, u3, k, held, sf, sr, a, B, vp, full, rear_dr
     return m[12], m[13], m[14], m[15]
 
 
-@njit(inline="always", **_JIT)
+@njit(**_JIT)
 def _model_t(x0, x1, x2, u0, u1, u2, u3, k, held, sf, sr, vp, full, rear_drive):
     """One particle's model (`StiffnessMPF._model`) on scalars, returned, not stored: the
     propagation of `predict_weigh` keeps the values in registers this way (stored in scratch
@@ -153,7 +153,7 @@ def _model_t(x0, x1, x2, u0, u1, u2, u3, k, held, sf, sr, vp, full, rear_drive):
     return aX, a1, a2, f0, 0.0, 0.0, f1, r1, 0.0, f2, r2, 0.0, af, ar, lam_f, lam_r
 
 
-@njit(inline="always", **_JIT)
+@njit(**_JIT)
 def _xdot_t(x0, x1, x2, u3, m, w0, w1, w2, full):
     """`_xdot1` on scalars: m = (a0, a1, a2, the rows of B, ...) as `_model_t` returns it, w = (w0, w1,
     w2) (w2 unused in the lateral model, n_w = 2). Returns dx/dt (dx2 = 0 in the lateral model)."""
@@ -630,15 +630,13 @@ def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, int
 
 @njit(**_JIT)
 def _take_rows(src, dst, idx):
-    """dst[i] = src[idx[i]] for C-contiguous arrays of N rows, copied as flat (N, k) rows."""
-    n = idx.shape[0]
-    k = src.size // n
-    s2 = src.reshape((n, k))
-    d2 = dst.reshape((n, k))
+    """dst[i] = src[idx[i]] for C-contiguous (N, k) arrays (`resample_gate` passes the others as
+    such views)."""
+    n, k = src.shape
     for i in range(n):
         r = idx[i]
         for c in range(k):
-            d2[i, c] = s2[r, c]
+            dst[i, c] = src[r, c]
 
 
 @njit(**_JIT)
@@ -656,15 +654,16 @@ def resample_gate(logw, u0, resample, idx, x, b, P, gamma, mu, Lam, nu, a, B, sl
     n = logw.shape[0]
     if resample:
         systematic_into(logw, u0, idx)
+        # (each array as (N, k) rows: `_take_rows` compiles once, not once per number of dimensions)
         _take_rows(x, x2, idx)
         _take_rows(b, b2, idx)
-        _take_rows(P, P2, idx)
-        _take_rows(gamma, gamma2, idx)
+        _take_rows(P.reshape((n, P.size // n)), P2.reshape((n, P2.size // n)), idx)
+        _take_rows(gamma.reshape((n, 1)), gamma2.reshape((n, 1)), idx)
         _take_rows(mu, mu2, idx)
-        _take_rows(Lam, Lam2, idx)
-        _take_rows(nu, nu2, idx)
+        _take_rows(Lam.reshape((n, Lam.size // n)), Lam2.reshape((n, Lam2.size // n)), idx)
+        _take_rows(nu.reshape((n, 1)), nu2.reshape((n, 1)), idx)
         _take_rows(a, a2, idx)
-        _take_rows(B, B2, idx)
+        _take_rows(B.reshape((n, B.size // n)), B2.reshape((n, B2.size // n)), idx)
         for k in range(n):
             slip2[0, k] = slip[0, idx[k]]
             slip2[1, k] = slip[1, idx[k]]
