@@ -69,7 +69,8 @@ from numba import njit
 
 from tirefilter.stats.particles_numba import systematic_into
 
-_JIT = dict(cache=True, nogil=True)
+_JIT = dict(cache=True, nogil=True, no_cfunc_wrapper=True)
+_JIT_IN = dict(_JIT, no_cpython_wrapper=True)
 # the last argument of `predict_weigh` and `sample_update`: its number of dimensions picks the sizes
 SIZES_FULL = np.empty((0, 0, 0))  # the full model with every channel: n_w = 3, na = 3, nc = 2
 SIZES_LATERAL = np.empty((0, 0))  # the lateral model with every channel: n_w = 2, na = 2, nc = 1
@@ -101,7 +102,7 @@ def _model1(x0, x1, x2, u0, u1, u2, u3, k, held, sf, sr, a, B, vp, full, rear_dr
     return m[12], m[13], m[14], m[15]
 
 
-@njit(**_JIT)
+@njit(**_JIT_IN)
 def _model_t(x0, x1, x2, u0, u1, u2, u3, k, held, sf, sr, vp, full, rear_drive):
     """One particle's model (`StiffnessMPF._model`) on scalars, returned, not stored: the
     propagation of `predict_weigh` keeps the values in registers this way (stored in scratch
@@ -153,7 +154,7 @@ def _model_t(x0, x1, x2, u0, u1, u2, u3, k, held, sf, sr, vp, full, rear_drive):
     return aX, a1, a2, f0, 0.0, 0.0, f1, r1, 0.0, f2, r2, 0.0, af, ar, lam_f, lam_r
 
 
-@njit(**_JIT)
+@njit(**_JIT_IN)
 def _xdot_t(x0, x1, x2, u3, m, w0, w1, w2, full):
     """`_xdot1` on scalars: m = (a0, a1, a2, the rows of B, ...) as `_model_t` returns it, w = (w0, w1,
     w2) (w2 unused in the lateral model, n_w = 2). Returns dx/dt (dx2 = 0 in the lateral model)."""
@@ -343,7 +344,7 @@ def _t_const(nn, p):
 
 
 
-@njit(**_JIT)
+@njit(**_JIT_IN)
 def _common_dof(nu_w):
     """nu~ when every particle has it, else 0 (the reference's `_common`)."""
     n = nu_w.shape[0]
@@ -356,7 +357,7 @@ def _common_dof(nu_w):
 
 
 
-@njit(**_JIT)
+@njit(**_JIT_IN)
 def _normalise_into(logw, add):
     """logw := normalised (logw + add), NaN as -inf, uniform when all are -inf
     (`normalize_log_weights`); returns the ESS (`effective_sample_size`)."""
@@ -628,7 +629,7 @@ def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, int
     return innovation, ess, count, _common_dof(nu_w)
 
 
-@njit(**_JIT)
+@njit(**_JIT_IN)
 def _take_rows(src, dst, idx):
     """dst[i] = src[idx[i]] for C-contiguous (N, k) arrays (`resample_gate` passes the others as
     such views)."""
@@ -934,7 +935,7 @@ def estimate_moments(logw, x, gamma, mu, Lam, nu, b, mom):
     _moments(q, x, gamma, mu, Lam, nu, b, mom)
 
 
-@njit(**_JIT)
+@njit(**_JIT_IN)
 def _moments(q, x, gamma, mu, Lam, nu, b, mom):
     """`estimate_moments` with the weights q = exp(logw) (N,) given."""
     n, nx = x.shape
