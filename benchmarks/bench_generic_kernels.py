@@ -1,8 +1,9 @@
-"""What the MPF's specialised entry points buy (issue 14, benchmarks/README.md "Test suite time
-(stop 24)"): the step with the shipped kernels against the same step with the generic entry
-points (`mpf_numba.predict_weigh` / `sample_update`, the sizes as variables, which the step
-already uses when a channel is missing) in place of `predict_weigh_full` / `_lateral` and
-`sample_update_full` / `_lateral`, in one process, alternated round by round:
+"""What the MPF's specialised kernels buy (issue 14, benchmarks/README.md "Test suite time
+(stop 24)"): the step with the shipped kernels against the same step with the generic ones
+(`mpf_numba.predict_weigh` / `sample_update` with `SIZES_ANY`, the sizes as variables, which the
+step already uses when a channel is missing) in place of `SIZES_FULL` / `SIZES_LATERAL` (before
+stop 26: the entry points `predict_weigh_full` / `_lateral`, `sample_update_full` / `_lateral`),
+in one process, alternated round by round:
 
     .venv/bin/python benchmarks/bench_generic_kernels.py [--particles 500] [--rounds 5]
 
@@ -36,11 +37,12 @@ from tirefilter.estimators import build_estimator  # noqa: E402
 
 
 def generic(est):
-    """`est` with its kernel module replaced by one whose specialised entry points are the generic ones."""
+    """`est` with its kernel module replaced by one whose two passes get `SIZES_ANY` (the generic
+    signatures; the wrapper's Python call is part of the generic figure)."""
     nb = est._nb
     proxy = types.SimpleNamespace(**{k: getattr(nb, k) for k in dir(nb) if not k.startswith("__")})
-    proxy.predict_weigh_full = proxy.predict_weigh_lateral = nb.predict_weigh
-    proxy.sample_update_full = proxy.sample_update_lateral = nb.sample_update
+    proxy.predict_weigh = lambda *a: nb.predict_weigh(*a[:-1], nb.SIZES_ANY)
+    proxy.sample_update = lambda *a: nb.sample_update(*a[:-1], nb.SIZES_ANY)
     est._nb = proxy
     return est
 

@@ -70,7 +70,7 @@ from tirefilter.estimators.mpf_numba import (  # noqa: E402
 _J = dict(nogil=True)
 NAMES = ("x u_prev w_prev a B af ar slip dt max_step heun interval jw c_floor noise noise_scale b P q bias_on forget "
          "lam nu_min gamma mu Lam nu uk y avail R roll_gain vp full rear_drive h D L11 nu_w L12 Lc e v ll ok logw nc "
-         "want_nis beta yaw_max gate_speed").split()
+         "want_nis beta yaw_max gate_speed sizes").split()  # (sizes: since stop 26, mpf_numba.SIZES_FULL)
 
 
 # ---- stop 24's predict_weigh_full (f46c9b0), stage by stage ----------------------------------------------------

@@ -69,7 +69,7 @@ class _Timed:
 
 class _Capture:
     """A stand-in for the kernel module that keeps each kernel and a copy of its first arguments,
-    by the pass's name (`predict_weigh_full` and `predict_weigh_lateral` as `predict_weigh`)."""
+    by the pass's name (before stop 26, `predict_weigh_full` and `predict_weigh_lateral` as `predict_weigh`)."""
 
     def __init__(self, module):
         self._module, self.args = module, {}

@@ -81,15 +81,16 @@ def _warm_gpssm(**config) -> None:
 
 
 # The order: one worker takes them first to last, the other last to first, each skipping what the
-# other holds; with stop 25's compile CPU (benchmarks/README.md, "Test suite time: the compile
-# (stop 25)": mpf-full 33, mpf-missing 31, mpf-lateral 25, mpf-gap 6, the GP-SSM 41 s) the first
-# worker runs mpf-full and mpf-missing, the second the GP-SSM and mpf-lateral, and mpf-gap goes to
-# whichever is free first, so the two end within a few seconds of each other.
+# other holds; with stop 26's compile CPU (benchmarks/README.md, "Test suite time: the compile
+# (stop 26)": mpf-full 21, mpf-missing 18, mpf-lateral 14, mpf-gap 5, the GP-SSM 48 s) the first
+# worker runs mpf-full, mpf-missing and mpf-lateral (54 s), the second the GP-SSM and mpf-gap
+# (53 s), so the two end within a few seconds of each other; the MPF's tasks after mpf-full load
+# the kernels it compiled that they share (`resample_gate`, `_model_t`, ...) from the cache.
 WARM_UP = {  # name: task; the MPF's tasks and the GP-SSM's share no large kernel
     "mpf-full": lambda: _warm_mpf("full"),
     "mpf-missing": lambda: _warm_mpf("full", missing=True),
-    "mpf-gap": lambda: _warm_mpf("full", gap=True),
     "mpf-lateral": lambda: _warm_mpf("lateral"),
+    "mpf-gap": lambda: _warm_mpf("full", gap=True),
     "gpssm-axle-exact": lambda: _warm_gpssm(basis="axle"),
     "gpssm-tensor-rank1": lambda: _warm_gpssm(stats="rank1"),
     "gpssm-tensor-exact": lambda: _warm_gpssm(),

@@ -81,7 +81,8 @@ from tirefilter.stats.mniw_numba import _factor, _phi1, _rank1_forget1, _rank1_u
 from tirefilter.stats.particles_numba import systematic_into
 from tirefilter.stats.student_t import t_draws
 
-_JIT = dict(cache=True, nogil=True)
+_JIT = dict(cache=True, nogil=True, no_cfunc_wrapper=True)  # (no C callback is taken of a kernel)
+_JIT_IN = dict(_JIT, no_cpython_wrapper=True)  # a helper only kernels call: no wrapper for Python calls
 NAN = math.nan
 _new = object.__new__
 LANES = 32  # batch elements factorised together (eight AVX2 vectors of float64; measured best of 8-32)
@@ -92,7 +93,7 @@ AF, AR, PF, PR, LOC, S, DOF, SC, SY, E, PHI = 0, 1, 2, 3, 4, 6, 10, 11, 13, 14, 
 
 
 # ---- 1. propagation, slip, basis, prior -------------------------------------------------------
-@njit(**_JIT)
+@njit(**_JIT_IN)
 def _magic(B, C, D, E, s):
     Bs = B * s
     return D * math.sin(C * math.atan(Bs - E * (Bs - math.atan(Bs))))
@@ -182,7 +183,7 @@ def front(x, mu, work, propagate, n_sub, h, cd, vx_prev, Fz0, Fz1, mass, lf, lr,
 
 
 # ---- 2. forgetting and predictive ---------------------------------------------------------------
-@njit(**_JIT)
+@njit(**_JIT_IN)
 def _scale_psi_phi(Psi, Phi, b, f):
     """Phi and Psi of batch element b times the forgetting factor f (eq. (29))."""
     d, m = Psi.shape[1], Psi.shape[2]
@@ -272,7 +273,7 @@ def _write_predictive_lanes(work, b0, nw, per, d, m, Z, Lam0, Phi, nu, acc, lam)
         _write_scale(work, n, a, d, f, lam, df)
 
 
-@njit(**_JIT)
+@njit(**_JIT_IN)
 def _chol_row(A, r, j0, m, W, inv):
     """Row r of `_chol_lanes` from column j0 on (the columns before j0 are done)."""
     row = A[r]
@@ -465,7 +466,7 @@ def lanes_store(Kl, K):
                 K[b, i, j] = Kl[blk, i, j, w]
 
 
-@njit(**_JIT)
+@njit(**_JIT_IN)
 def _update_forget_rows(K, Psi, Phi, nu, V, b, src, per, pending, zeta, phi_p, forget, lam, nu_min, A):
     """Batch element b: the pending update (eq. (27a)-(27c), (28f)) then the forgetting
     (eq. (29)), in one sweep over K with the reference's operations in the reference's order
@@ -521,7 +522,7 @@ def _update_forget_rows(K, Psi, Phi, nu, V, b, src, per, pending, zeta, phi_p, f
             Ai[j] = Ki[j]
 
 
-@njit(**_JIT)
+@njit(**_JIT_IN)
 def _copy_row(a, b, n):
     for j in range(n):
         a[j] = b[j]
@@ -598,7 +599,7 @@ def _chol_rows(A, m, inv, spare):
         i += 4
 
 
-@njit(**_JIT)
+@njit(**_JIT_IN)
 def _write_predictive_rows(work, b, per, d, m, Z, Lam0, Phi, nu, lam):
     """loc, scale, dof of batch element b into work from Z[m + q, j] = (C^-1 [Psi^T, phi])[j, q]
     (lam: (2, 2) scratch)."""
@@ -777,7 +778,7 @@ def weigh(x, work, logw, c0, c1, ay, yr, R0, R1, have_ay, have_r, learned, add):
 
 
 # ---- 4. resampling copies -----------------------------------------------------------------------
-@njit(**_JIT)
+@njit(**_JIT_IN)
 def _sorted(idx):
     for i in range(1, idx.shape[0]):
         if idx[i] < idx[i - 1]:
@@ -809,7 +810,7 @@ def gather_rows(arrays, idx):
                 a[i, :] = b[idx[i], :]
 
 
-@njit(**_JIT)
+@njit(**_JIT_IN)
 def _copy_lower(K, i, j):
     for a in range(K.shape[1]):
         for r in range(K.shape[2]):
@@ -843,7 +844,7 @@ def gather_lower(K, idx):
             K[i] = B[idx[i]]
 
 
-@njit(**_JIT)
+@njit(**_JIT_IN)
 def _copy_lanes(Kl, per, i, j):
     """Particle j's batch elements' K (lower triangles) into particle i's, in the lanes layout."""
     W, m = Kl.shape[3], Kl.shape[1]
@@ -914,7 +915,7 @@ def mirror(K):
 
 
 # ---- 5. conditional draw, friction, moments --------------------------------------------------------
-@njit(**_JIT)
+@njit(**_JIT_IN)
 def _chol2_apply(s00, s10, s11, z0, z1):
     """L z for the lower Cholesky factor L of [[s00, s10], [s10, s11]], floored as
     `stats.linalg.chol`."""

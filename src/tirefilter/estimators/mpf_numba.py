@@ -34,12 +34,14 @@ conditional draw with the learning (`_sample`) are inlined functions that the pa
 with the sizes (n_w, the available channels, the accelerometer channels) as constants in the
 usual cases, the full model with every channel and the lateral model, so that the compiler
 unrolls their small loops; other sizes (a missing sample) take the same code with the sizes
-as variables. Each case has its own entry point (`predict_weigh_full`, `predict_weigh_lateral`,
-`predict_weigh`; the same for `sample_update`), so that a run compiles only the ones it calls;
-each calls the pass's body (`_predict_weigh`, `_sample_update`) with its sizes as literals, an
-ordinary call that compiles once per case with the sizes as constants (inlining the body into
-the entry point instead took a third more compile, benchmarks/README.md, "Test suite time: the
-compile (stop 25)").
+as variables. Each case is a signature of its own of the one entry point (`predict_weigh`, the
+same for `sample_update`), picked by the number of dimensions of the empty array `sizes` that
+the caller passes last (`SIZES_FULL`, `SIZES_LATERAL`, `SIZES_ANY`: the sizes are then constants
+of the argument's type), so that a run compiles only the ones it calls, each once (before stop
+26, one entry point per case called the pass's body with the sizes as literals: each case
+compiled twice, its body and the entry point that linked it in; and inlining the body into the
+entry point instead took a third more compile: benchmarks/README.md, "Test suite time: the
+compile (stop 25)" and "(stop 26)").
 
 In `predict_weigh` the propagation evaluates the model on scalars (`_model_t`, `_xdot_t`: the
 model's a, B and dx/dt returned, not stored in scratch arrays and read back, so that LLVM keeps
@@ -67,7 +69,14 @@ from numba import njit
 
 from tirefilter.stats.particles_numba import systematic_into
 
-_JIT = dict(cache=True, nogil=True)
+_JIT = dict(cache=True, nogil=True, no_cfunc_wrapper=True)  # (no C callback is taken of a kernel)
+# a helper only kernels call: no wrapper for Python calls either (each wrapper, which unboxes every
+# argument, was compiled and never called: benchmarks/README.md, "Test suite time: the compile (stop 26)")
+_JIT_IN = dict(_JIT, no_cpython_wrapper=True)
+# the last argument of `predict_weigh` and `sample_update`: its number of dimensions picks the sizes
+SIZES_FULL = np.empty((0, 0, 0))  # the full model with every channel: n_w = 3, na = 3, nc = 2
+SIZES_LATERAL = np.empty((0, 0))  # the lateral model with every channel: n_w = 2, na = 2, nc = 1
+SIZES_ANY = np.empty(0)  # the sizes from the arrays (a missing sample)
 
 
 # ---- model ---------------------------------------------------------------------------------
@@ -95,7 +104,7 @@ def _model1(x0, x1, x2, u0, u1, u2, u3, k, held, sf, sr, a, B, vp, full, rear_dr
     return m[12], m[13], m[14], m[15]
 
 
-@njit(inline="always", **_JIT)
+@njit(**_JIT_IN)
 def _model_t(x0, x1, x2, u0, u1, u2, u3, k, held, sf, sr, vp, full, rear_drive):
     """One particle's model (`StiffnessMPF._model`) on scalars, returned, not stored: the
     propagation of `predict_weigh` keeps the values in registers this way (stored in scratch
@@ -147,7 +156,7 @@ def _model_t(x0, x1, x2, u0, u1, u2, u3, k, held, sf, sr, vp, full, rear_drive):
     return aX, a1, a2, f0, 0.0, 0.0, f1, r1, 0.0, f2, r2, 0.0, af, ar, lam_f, lam_r
 
 
-@njit(inline="always", **_JIT)
+@njit(**_JIT_IN)
 def _xdot_t(x0, x1, x2, u3, m, w0, w1, w2, full):
     """`_xdot1` on scalars: m = (a0, a1, a2, the rows of B, ...) as `_model_t` returns it, w = (w0, w1,
     w2) (w2 unused in the lateral model, n_w = 2). Returns dx/dt (dx2 = 0 in the lateral model)."""
@@ -337,7 +346,7 @@ def _t_const(nn, p):
 
 
 
-@njit(**_JIT)
+@njit(**_JIT_IN)
 def _common_dof(nu_w):
     """nu~ when every particle has it, else 0 (the reference's `_common`)."""
     n = nu_w.shape[0]
@@ -350,7 +359,7 @@ def _common_dof(nu_w):
 
 
 
-@njit(**_JIT)
+@njit(**_JIT_IN)
 def _normalise_into(logw, add):
     """logw := normalised (logw + add), NaN as -inf, uniform when all are -inf
     (`normalize_log_weights`); returns the ESS (`effective_sample_size`)."""
@@ -478,7 +487,8 @@ def _weigh(x, a, B, full, roll_gain, h, D, nu, nu_w, gamma, Lam, L11, avail, L12
 @njit(**_JIT)
 def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise, noise_scale,
                   b, P, q, bias_on, forget, lam, nu_min, gamma, mu, Lam, nu, uk, y, avail, R, roll_gain, vp, full,
-                  rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc, want_nis, beta, yaw_max, gate_speed):
+                  rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc, want_nis, beta, yaw_max, gate_speed,
+                  sizes):
     """Steps 1 and 2 of `StiffnessMPF.step`, in place. Per particle: the first stage of the
     propagation, a (N, 3), B (N, 3, n_w), slip (2, N) kept from the last sample, or with
     `interval` (full model, slip_hold = "interval") the model at x with the wheel slip averaged
@@ -499,60 +509,25 @@ def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, int
     Returns (innovation, ESS (-1: no channel, logw unchanged), number of plausible
     particles, nu~ common to all particles or 0). The caller zeroes the weights of the
     implausible particles when some (not all) are, as `_plausible` does.
-    `predict_weigh_full` and `predict_weigh_lateral` are the same for the full model with every
-    channel (n_w = na = 3) and the lateral one (n_w = na = 2) with the sizes as constants, so that
-    the compiler unrolls the small loops: each compiles on its first call only."""
-    t1 = (x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise, noise_scale, b, P,
-          q, bias_on, forget, lam, nu_min, gamma, mu, Lam)
-    t2 = (nu, uk, y, avail, R, roll_gain, vp, full, rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc,
-          want_nis, beta, yaw_max, gate_speed)
-    return _predict_weigh(t1, t2, mu.shape[1], avail.shape[0])
-
-
-@njit(**_JIT)
-def predict_weigh_full(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise,
-                       noise_scale, b, P, q, bias_on, forget, lam, nu_min, gamma, mu, Lam, nu, uk, y, avail, R,
-                       roll_gain, vp, full, rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc, want_nis,
-                       beta, yaw_max, gate_speed):
-    """`predict_weigh` for the full model with every channel (n_w = na = 3)."""
-    if mu.shape[1] != 3 or avail.shape[0] != 3:
-        raise ValueError("predict_weigh_full: n_w = na = 3 only")
-    t1 = (x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise, noise_scale, b, P,
-          q, bias_on, forget, lam, nu_min, gamma, mu, Lam)
-    t2 = (nu, uk, y, avail, R, roll_gain, vp, full, rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc,
-          want_nis, beta, yaw_max, gate_speed)
-    return _predict_weigh(t1, t2, 3, 3)
-
-
-@njit(**_JIT)
-def predict_weigh_lateral(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise,
-                          noise_scale, b, P, q, bias_on, forget, lam, nu_min, gamma, mu, Lam, nu, uk, y, avail, R,
-                          roll_gain, vp, full, rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc, want_nis,
-                          beta, yaw_max, gate_speed):
-    """`predict_weigh` for the lateral model with every channel (n_w = na = 2)."""
-    if mu.shape[1] != 2 or avail.shape[0] != 2:
-        raise ValueError("predict_weigh_lateral: n_w = na = 2 only")
-    t1 = (x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise, noise_scale, b, P,
-          q, bias_on, forget, lam, nu_min, gamma, mu, Lam)
-    t2 = (nu, uk, y, avail, R, roll_gain, vp, full, rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc,
-          want_nis, beta, yaw_max, gate_speed)
-    return _predict_weigh(t1, t2, 2, 2)
-
-
-@njit(**_JIT)
-def _predict_weigh(t1, t2, n_w, na):
-    """`predict_weigh` with its arguments in t1, t2 and the sizes given (n_w = mu.shape[1]). An ordinary
-    call, not numba-IR inlining: the entry points call it with the sizes as literals, so it compiles
-    once per pair of sizes with them as constants, and inlining it (the whole pass, copied into
-    each entry point's IR) cost 8-15 s of compile per entry point (benchmarks/README.md, "Test suite
-    time: the compile (stop 25)")."""
-    (x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise, noise_scale, b, P, q,
-     bias_on, forget, lam, nu_min, gamma, mu, Lam) = t1
-    (nu, uk, y, avail, R, roll_gain, vp, full, rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc, want_nis,
-     beta, yaw_max, gate_speed) = t2
+    `sizes` (an empty array) picks the sizes by its number of dimensions, a constant of its type:
+    3 the full model with every channel (n_w = na = 3), 2 the lateral one with every channel
+    (n_w = na = 2), 1 any (n_w = mu.shape[1], na = avail.shape[0]; a missing sample). Each is a
+    signature of its own, compiled on its first call only, the first two with the sizes as
+    constants, so that the compiler unrolls the small loops (`SIZES_FULL`, `SIZES_LATERAL`,
+    `SIZES_ANY`)."""
+    if sizes.ndim == 3:
+        if mu.shape[1] != 3 or avail.shape[0] != 3:
+            raise ValueError("predict_weigh with SIZES_FULL: n_w = na = 3 only")
+        n_w, na = 3, 3
+    elif sizes.ndim == 2:
+        if mu.shape[1] != 2 or avail.shape[0] != 2:
+            raise ValueError("predict_weigh with SIZES_LATERAL: n_w = na = 2 only")
+        n_w, na = 2, 2
+    else:
+        n_w, na = mu.shape[1], avail.shape[0]
     n, nx = x.shape
-    # the sizes as constants in the propagation too (the entry points' checks gave the compiler
-    # n_w = mu.shape[1] when this body was inlined into them; taken from mu here it ran slower)
+    # the sizes as constants in the propagation too (taken from mu.shape[1] there, the step ran
+    # slower: benchmarks/README.md, "Test suite time: the compile (stop 25)")
     n_wp = n_w
     mch = q.shape[0]
     kp = _steer_consts(u_prev[0], vp)  # (once per sample, not per particle)
@@ -656,17 +631,15 @@ def _predict_weigh(t1, t2, n_w, na):
     return innovation, ess, count, _common_dof(nu_w)
 
 
-@njit(**_JIT)
+@njit(**_JIT_IN)
 def _take_rows(src, dst, idx):
-    """dst[i] = src[idx[i]] for C-contiguous arrays of N rows, copied as flat (N, k) rows."""
-    n = idx.shape[0]
-    k = src.size // n
-    s2 = src.reshape((n, k))
-    d2 = dst.reshape((n, k))
+    """dst[i] = src[idx[i]] for C-contiguous (N, k) arrays (`resample_gate` passes the others as
+    such views)."""
+    n, k = src.shape
     for i in range(n):
         r = idx[i]
         for c in range(k):
-            d2[i, c] = s2[r, c]
+            dst[i, c] = src[r, c]
 
 
 @njit(**_JIT)
@@ -684,15 +657,16 @@ def resample_gate(logw, u0, resample, idx, x, b, P, gamma, mu, Lam, nu, a, B, sl
     n = logw.shape[0]
     if resample:
         systematic_into(logw, u0, idx)
+        # (each array as (N, k) rows: `_take_rows` compiles once, not once per number of dimensions)
         _take_rows(x, x2, idx)
         _take_rows(b, b2, idx)
-        _take_rows(P, P2, idx)
-        _take_rows(gamma, gamma2, idx)
+        _take_rows(P.reshape((n, P.size // n)), P2.reshape((n, P2.size // n)), idx)
+        _take_rows(gamma.reshape((n, 1)), gamma2.reshape((n, 1)), idx)
         _take_rows(mu, mu2, idx)
-        _take_rows(Lam, Lam2, idx)
-        _take_rows(nu, nu2, idx)
+        _take_rows(Lam.reshape((n, Lam.size // n)), Lam2.reshape((n, Lam2.size // n)), idx)
+        _take_rows(nu.reshape((n, 1)), nu2.reshape((n, 1)), idx)
         _take_rows(a, a2, idx)
-        _take_rows(B, B2, idx)
+        _take_rows(B.reshape((n, B.size // n)), B2.reshape((n, B2.size // n)), idx)
         for k in range(n):
             slip2[0, k] = slip[0, idx[k]]
             slip2[1, k] = slip[1, idx[k]]
@@ -840,9 +814,9 @@ def _sample(idx, gamma, mu, Lam, nu, L11, nu_w, L12, Lc, v, z, chi, nu_draw, w, 
 
 
 @njit(**_JIT)
-def sample_update(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z, chi, nu_draw, w,
+def sample_update(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc_, z, chi, nu_draw, w,
                   use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw,
-                  infl):
+                  infl, sizes):
     """Steps 3-5 of `StiffnessMPF.step`, in place. Per particle i (its weighting arrays h, D,
     L11, nu_w, L12, Lc, v at row idx[i], the ancestor when resampled):
     - w_i (into w) from the conditional of w given the first nc (accelerometer) residuals,
@@ -862,50 +836,19 @@ def sample_update(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, 
     sigma^2 of eq. (27b), bias mean. Returns the drift statistic z' of `_track_drift`, NaN
     when not computed (or when the lean is not finite: the reference then keeps its state).
     The weights exp(logw) are read from qw (N,), as `resample_gate` left them.
-    `sample_update_full` and `sample_update_lateral` are the same for the full model with both
-    accelerometers (n_w = 3, nc = 2) and the lateral one (n_w = 2, nc = 1) with the sizes as
-    constants."""
-    t1 = (idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z)
-    t2 = (chi, nu_draw, w, use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw,
-          infl)
-    return _sample_update(t1, t2, mu.shape[1], nc)
-
-
-@njit(**_JIT)
-def sample_update_full(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z, chi, nu_draw, w,
-                       use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw,
-                       infl):
-    """`sample_update` for the full model with both accelerometers (n_w = 3, nc = 2)."""
-    if mu.shape[1] != 3 or nc != 2:
-        raise ValueError("sample_update_full: n_w = 3, nc = 2 only")
-    t1 = (idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z)
-    t2 = (chi, nu_draw, w, use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw,
-          infl)
-    return _sample_update(t1, t2, 3, 2)
-
-
-@njit(**_JIT)
-def sample_update_lateral(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z, chi, nu_draw, w,
-                          use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw,
-                          infl):
-    """`sample_update` for the lateral model with its accelerometer (n_w = 2, nc = 1)."""
-    if mu.shape[1] != 2 or nc != 1:
-        raise ValueError("sample_update_lateral: n_w = 2, nc = 1 only")
-    t1 = (idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z)
-    t2 = (chi, nu_draw, w, use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw,
-          infl)
-    return _sample_update(t1, t2, 2, 1)
-
-
-@njit(**_JIT)
-def _sample_update(t1, t2, n_w, nc_):
-    """`sample_update` with its arguments in t1, t2 and the sizes given; an ordinary call, as
-    `_predict_weigh`."""
-    (idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc, z) = t1
-    (chi, nu_draw, w, use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw,
-     infl) = t2
+    `sizes` as in `predict_weigh`: 3 dimensions the full model with both accelerometers (n_w = 3,
+    nc = 2), 2 the lateral one (n_w = 2, nc = 1), 1 any (n_w = mu.shape[1], the given nc)."""
+    if sizes.ndim == 3:
+        if mu.shape[1] != 3 or nc_ != 2:
+            raise ValueError("sample_update with SIZES_FULL: n_w = 3, nc = 2 only")
+        n_w, nc = 3, 2
+    elif sizes.ndim == 2:
+        if mu.shape[1] != 2 or nc_ != 1:
+            raise ValueError("sample_update with SIZES_LATERAL: n_w = 2, nc = 1 only")
+        n_w, nc = 2, 1
+    else:
+        n_w, nc = mu.shape[1], nc_
     n = mu.shape[0]
-    nc = nc_
     na = avail.shape[0]
     mch = b.shape[1]
     nb = max(na, 1)
@@ -994,7 +937,7 @@ def estimate_moments(logw, x, gamma, mu, Lam, nu, b, mom):
     _moments(q, x, gamma, mu, Lam, nu, b, mom)
 
 
-@njit(**_JIT)
+@njit(**_JIT_IN)
 def _moments(q, x, gamma, mu, Lam, nu, b, mom):
     """`estimate_moments` with the weights q = exp(logw) (N,) given."""
     n, nx = x.shape

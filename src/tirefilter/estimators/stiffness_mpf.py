@@ -921,11 +921,10 @@ class StiffnessMPF:
         ch = self.channels
         yl = [y.ax, y.ay, y.yaw_rate] if self.full else [y.ay, y.yaw_rate]
         yk = np.array(yl, float)
-        if math.isfinite(sum(yl)):  # the kernels compiled for this model's sizes (mpf_numba.predict_weigh_full ...)
-            a, nc = wk.avail_all, wk.nc_all
-            predict_weigh, sample_update = getattr(nb, wk.kernels_all[0]), getattr(nb, wk.kernels_all[1])
+        if math.isfinite(sum(yl)):  # the kernels compiled for this model's sizes (mpf_numba.SIZES_FULL ...)
+            a, nc, sizes = wk.avail_all, wk.nc_all, wk.sizes_all
         else:
-            predict_weigh, sample_update = nb.predict_weigh, nb.sample_update
+            sizes = wk.sizes_any
             a = np.flatnonzero(np.isfinite(yk))
             nc = int(sum(ch[j] in (0, 1) for j in a))
         adaptive = cfg.forgetting_mode == "adaptive"
@@ -937,12 +936,12 @@ class StiffnessMPF:
         if wk.keep_pred:
             logw_pred = wk.logw_pred
             np.copyto(logw_pred, self.logw)
-        innovation, ess, count, nu_common = predict_weigh(
+        innovation, ess, count, nu_common = nb.predict_weigh(
             self.x, u_prev, self.w_prev, wk.a, wk.B, wk.af, wk.ar, wk.slip, dt, cfg.max_step, wk.heun, wk.interval,
             self._jw, self._c_floor, noise, noise_scale, self.b, self.P, q, self.bias_on, self.active, self.lam,
             self.nu0, st.gamma, st.mu, st.Lam, st.nu, uk, yk, a, self.R, self.roll_gain, self._vp, self.full,
             self.rear_drive, wk.h, wk.D, wk.L11, wk.nu_w, wk.L12, wk.Lc, wk.e, wk.v, wk.ll, wk.ok, self.logw, nc,
-            adaptive, cfg.plausible_beta, cfg.plausible_yaw_rate, cfg.gate_speed)
+            adaptive, cfg.plausible_beta, cfg.plausible_yaw_rate, cfg.gate_speed, sizes)
         if math.isfinite(innovation):  # adaptive forgetting (`_adapt_forgetting`)
             self._smooth_surprise(innovation, dt)
         if wk.predicted_ay and a.size:  # (the calibration's residual alone waits for the gate: `_ay_residual`)
@@ -988,11 +987,11 @@ class StiffnessMPF:
             if not (self.drift.flags.c_contiguous and self.drift.dtype == np.float64):
                 self.drift = np.array(self.drift, float)
             wk.drift_checked = self.drift
-        zd = sample_update(
+        zd = nb.sample_update(
             wk.idx, self.x, self.logw, st.gamma, st.mu, st.Lam, st.nu, self.b, self.P, wk.h, wk.D, wk.L11, wk.nu_w,
             wk.L12, wk.Lc, wk.v, nc, z, chi, nu_draw, wk.w, use_mask, self._outlier_bound(nc) if use_mask else 0.0,
             bool(a.size and self.bias_on), self.R, a, yk, self.active, drift, self.drift,
-            -math.expm1(-dt / cfg.drift_time), wk.lo, wk.hi, wk.mom, wk.q, self._draw_factors(wk.ones2))
+            -math.expm1(-dt / cfg.drift_time), wk.lo, wk.hi, wk.mom, wk.q, self._draw_factors(wk.ones2), sizes)
         if zd == zd:  # `_track_drift` (the statistic is NaN when not computed)
             self._cap_forgetting(zd)
         if self.full:
@@ -1404,10 +1403,10 @@ class _MPFWork:
         self.heun = mpf.cfg.integrator == "heun"
         self.interval = mpf.full and mpf.cfg.slip_hold == "interval"
         cfg = mpf.cfg
-        # the kernels compiled for this model's sizes when every channel is there (looked up by name in the step:
-        # the kernel module is not state)
-        self.kernels_all = ("predict_weigh_full", "sample_update_full") if mpf.full else (
-            "predict_weigh_lateral", "sample_update_lateral")
+        # the kernels' sizes when every channel is there, as constants (`mpf_numba.predict_weigh`'s `sizes`), and
+        # otherwise from the arrays
+        self.sizes_all = np.empty((0, 0, 0)) if mpf.full else np.empty((0, 0))
+        self.sizes_any = np.empty(0)
         # the predictive weights kept for `_predict_ay` and `_match_state_noise` (the calibration's residual,
         # `_ay_residual`, Sec. 29; the gate's a^Y prediction, Sec. 26; the state noise from the data, Sec. 28)
         self.predicted_ay = cfg.gate_ay == "predicted"

@@ -23,7 +23,8 @@ from numba import njit
 
 from tirefilter.stats.mniw import MNIW, MNIWRank1
 
-_JIT = dict(cache=True, nogil=True)
+_JIT = dict(cache=True, nogil=True, no_cfunc_wrapper=True)  # (no C callback is taken of a kernel)
+_JIT_IN = dict(_JIT, no_cpython_wrapper=True)  # a helper only kernels call: no wrapper for Python calls
 # Sigma + V up to this size is factorised by the loop below, larger by LAPACK's dpotrf
 # (numba's np.linalg.cholesky): measured faster for the 50- and 100-function tensor bases
 _LAPACK_FROM = 24
@@ -80,7 +81,7 @@ def axle_features(af, ar, L, m, keep):
 
 
 # ---- exact statistics ---------------------------------------------------------------------
-@njit(**_JIT)
+@njit(**_JIT_IN)
 def _cholesky(A, C):
     """Lower Cholesky factor of the symmetric positive definite A into C (row-wise dots)."""
     m = A.shape[0]
@@ -95,7 +96,7 @@ def _cholesky(A, C):
                 C[i, j] = s / C[j, j]
 
 
-@njit(**_JIT)
+@njit(**_JIT_IN)
 def _chol_solve(C, B):
     """B <- A^-1 B for A = C C^T, B (m, r) overwritten."""
     m, r = B.shape
