@@ -20,6 +20,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import weakref
 from pathlib import Path
 
 import numpy as np
@@ -139,13 +140,32 @@ def browser_page(viewport=None):
             ctx.close()
 
 
+_CDP = weakref.WeakKeyDictionary()  # page -> its DevTools session
+
+
+def screenshot_png(page) -> bytes:
+    """The page as PNG, from the DevTools protocol's Page.captureScreenshot (a session per
+    page), not Playwright's `page.screenshot`: the viewer's page under software GL took 3-5 s
+    and as many CPU s of the GPU process for each of Playwright's screenshots (whose steps
+    around the capture make the viewer draw again), about 0.4 s and a tenth of that for this
+    (benchmarks/README.md, "Test suite time: the browser tests (stop 26)"); the pixels are the
+    compositor's frame either way."""
+    import base64
+
+    if page not in _CDP:
+        _CDP[page] = page.context.new_cdp_session(page)
+    return base64.b64decode(_CDP[page].send("Page.captureScreenshot", {"format": "png"})["data"])
+
+
 def pixels(page, path: Path | None = None) -> np.ndarray:
     """A screenshot as an (h, w, 3) uint8 array (also saved to `path`)."""
     import io
 
     from PIL import Image
 
-    png = page.screenshot(path=str(path) if path else None)
+    png = screenshot_png(page)
+    if path:
+        Path(path).write_bytes(png)
     return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
 
 
