@@ -126,16 +126,27 @@ def serve_web_viewer(rrd: Path, log: Path | None = None):
             out.close()
 
 
+# Rerun's wasm viewer logs at debug level to the browser's console: naga (the shader translator)
+# alone wrote 18 652 console.debug lines in one run of the web test, each formatted by the
+# renderer, passed to the browser process and sent to Playwright's driver (about 18 of its CPU s;
+# benchmarks/README.md, "Test suite time: the browser tests (stop 26)"). Nothing reads them;
+# warnings and errors still reach the console.
+QUIET_CONSOLE_DEBUG = "console.debug = () => {};"
+
+
 @contextlib.contextmanager
 def browser_page(viewport=None):
-    """A Playwright page in Debian's chromium (never Playwright's own browser download)."""
+    """A Playwright page in Debian's chromium (never Playwright's own browser download), its
+    console.debug silenced (`QUIET_CONSOLE_DEBUG`)."""
     from playwright import sync_api
 
     with sync_api.sync_playwright() as pw, tempfile.TemporaryDirectory() as profile:
         ctx = pw.chromium.launch_persistent_context(profile, executable_path=str(CHROMIUM), headless=True,
                                                     args=CHROMIUM_FLAGS, viewport=viewport or VIEWPORT)
         try:
-            yield ctx.new_page()
+            page = ctx.new_page()
+            page.add_init_script(QUIET_CONSOLE_DEBUG)
+            yield page
         finally:
             ctx.close()
 
