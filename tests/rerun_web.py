@@ -20,6 +20,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import weakref
 from pathlib import Path
 
 import numpy as np
@@ -47,14 +48,55 @@ def rerun_exe() -> str:
 
 
 @contextlib.contextmanager
+def _serve_file(path: Path):
+    """`path` over HTTP on 127.0.0.1 (a free port), to pages of any origin (the viewer's page
+    is on another port); yields its URL. Nothing else is served."""
+    import http.server
+    import threading
+
+    class Handler(http.server.BaseHTTPRequestHandler):
+        def do_GET(self):  # noqa: N802 (http.server's name)
+            if self.path.split("?", 1)[0] != "/" + path.name:
+                self.send_error(404)
+                return
+            data = path.read_bytes()
+            self.send_response(200)
+            self.send_header("Content-Type", "application/octet-stream")
+            self.send_header("Content-Length", str(len(data)))
+            self.send_header("Access-Control-Allow-Origin", "*")
+            self.end_headers()
+            self.wfile.write(data)
+
+        def log_message(self, *args):
+            pass
+
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    try:
+        yield f"http://127.0.0.1:{server.server_address[1]}/{path.name}"
+    finally:
+        server.shutdown()
+        server.server_close()
+        thread.join(10)
+
+
+@contextlib.contextmanager
 def serve_web_viewer(rrd: Path, log: Path | None = None):
-    """rerun-sdk's web viewer serving `rrd` on 127.0.0.1 (HTTP and gRPC on free ports);
-    yields (page URL, gRPC proxy URL). The server is stopped on leaving."""
+    """rerun-sdk's web viewer (HTTP) and gRPC proxy on 127.0.0.1 (free ports), and `rrd` over
+    HTTP; yields (page URL, gRPC proxy URL). The page opens both: the viewer fetches the file
+    (as it opens any .rrd URL) and stays connected to the proxy, through which the tests send
+    blueprints and probes into the same recording. The file is not given to the `rerun`
+    process: rerun 0.41's server, once a file it loaded has been read to its end, polls its
+    finished source in a loop (`re_grpc_server::spawn_from_rx_set`: 0.4 CPU s per second for as
+    long as it runs, about a third of the web test's CPU; with nothing loaded it idles at 0;
+    benchmarks/README.md, "Test suite time: the browser tests (stop 26)"). `--serve-web`, not
+    `--web-viewer`, which also tries to open a browser of its own. Everything stops on leaving."""
     grpc, http = free_port(), free_port()
     env = dict(os.environ, RERUN_ANALYTICS="0")  # the welcome text only; nothing leaves the machine
     out = open(log, "w") if log else subprocess.DEVNULL
-    proc = subprocess.Popen([rerun_exe(), "--web-viewer", "--bind", "127.0.0.1", "--port", str(grpc),
-                             "--web-viewer-port", str(http), "--renderer", "webgl", str(rrd)],
+    proc = subprocess.Popen([rerun_exe(), "--serve-web", "--bind", "127.0.0.1", "--port", str(grpc),
+                             "--web-viewer-port", str(http), "--renderer", "webgl"],
                             stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT, env=env,
                             start_new_session=True)
     try:
@@ -71,7 +113,9 @@ def serve_web_viewer(rrd: Path, log: Path | None = None):
         proxy = f"rerun+http://127.0.0.1:{grpc}/proxy"
         from urllib.parse import quote
 
-        yield f"http://127.0.0.1:{http}/?url={quote(proxy, safe='')}&renderer=webgl", proxy
+        with _serve_file(Path(rrd)) as file_url:
+            yield (f"http://127.0.0.1:{http}/?url={quote(file_url, safe='')}&url={quote(proxy, safe='')}"
+                   "&renderer=webgl"), proxy
     finally:
         proc.terminate()
         try:
@@ -82,18 +126,46 @@ def serve_web_viewer(rrd: Path, log: Path | None = None):
             out.close()
 
 
+# Rerun's wasm viewer logs at debug level to the browser's console: naga (the shader translator)
+# alone wrote 18 652 console.debug lines in one run of the web test, each formatted by the
+# renderer, passed to the browser process and sent to Playwright's driver (about 18 of its CPU s;
+# benchmarks/README.md, "Test suite time: the browser tests (stop 26)"). Nothing reads them;
+# warnings and errors still reach the console.
+QUIET_CONSOLE_DEBUG = "console.debug = () => {};"
+
+
 @contextlib.contextmanager
 def browser_page(viewport=None):
-    """A Playwright page in Debian's chromium (never Playwright's own browser download)."""
+    """A Playwright page in Debian's chromium (never Playwright's own browser download), its
+    console.debug silenced (`QUIET_CONSOLE_DEBUG`)."""
     from playwright import sync_api
 
     with sync_api.sync_playwright() as pw, tempfile.TemporaryDirectory() as profile:
         ctx = pw.chromium.launch_persistent_context(profile, executable_path=str(CHROMIUM), headless=True,
                                                     args=CHROMIUM_FLAGS, viewport=viewport or VIEWPORT)
         try:
-            yield ctx.new_page()
+            page = ctx.new_page()
+            page.add_init_script(QUIET_CONSOLE_DEBUG)
+            yield page
         finally:
             ctx.close()
+
+
+_CDP = weakref.WeakKeyDictionary()  # page -> its DevTools session
+
+
+def screenshot_png(page) -> bytes:
+    """The page as PNG, from the DevTools protocol's Page.captureScreenshot (a session per
+    page), not Playwright's `page.screenshot`: the viewer's page under software GL took 3-5 s
+    and as many CPU s of the GPU process for each of Playwright's screenshots (whose steps
+    around the capture make the viewer draw again), about 0.4 s and a tenth of that for this
+    (benchmarks/README.md, "Test suite time: the browser tests (stop 26)"); the pixels are the
+    compositor's frame either way."""
+    import base64
+
+    if page not in _CDP:
+        _CDP[page] = page.context.new_cdp_session(page)
+    return base64.b64decode(_CDP[page].send("Page.captureScreenshot", {"format": "png"})["data"])
 
 
 def pixels(page, path: Path | None = None) -> np.ndarray:
@@ -102,7 +174,9 @@ def pixels(page, path: Path | None = None) -> np.ndarray:
 
     from PIL import Image
 
-    png = page.screenshot(path=str(path) if path else None)
+    png = screenshot_png(page)
+    if path:
+        Path(path).write_bytes(png)
     return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
 
 
@@ -166,8 +240,7 @@ def wait_loaded(page, boxes, timeout: float = LOAD_TIMEOUT, shot: Path | None = 
     Under load the viewer sometimes draws a frame with its time series empty; the next frames
     have them. `changed_from`: only a frame that differs from this one counts (the previous
     tab's: until a new blueprint is applied the old tab's frame would pass the new views'
-    checks). The viewer keeps drawing (software GL, a core's worth) while it is open, so a
-    short poll costs only the screenshots' encoding and ends the wait sooner."""
+    checks)."""
     from PIL import Image
 
     end = time.monotonic() + timeout

@@ -539,6 +539,15 @@ def test_the_friction_gpssm_live_and_from_its_friction_csv(dashboard, tmp_path):
 
 
 # ---- the page in a real browser -------------------------------------------------------------------
+def _shot(page, path: Path) -> None:
+    """The page as a PNG at `path` (DevTools' Page.captureScreenshot, as tests/rerun_web.py
+    takes them: Playwright's `page.screenshot` makes the page draw again, which costs CPU
+    seconds under software GL)."""
+    from rerun_web import screenshot_png
+
+    path.write_bytes(screenshot_png(page))
+
+
 def _not_blank(path: Path) -> float:
     from PIL import Image
 
@@ -621,7 +630,7 @@ def _check_layout(page, tmp_path) -> None:
         # a redraw with data (the texts of this drawing are the newest ones)
         wait_for(lambda: all(len(_tick_labels(c)) >= 4 for c in _charts_on_page(page)), timeout=60,
                  what=f"tick labels in the {tab} tab")
-        page.screenshot(path=tmp_path / f"tab-{tab.replace(', ', '-')}.png")
+        _shot(page, tmp_path / f"tab-{tab.replace(', ', '-')}.png")
         for c in _charts_on_page(page):
             assert c["width"] >= 900 and c["height"] >= 150, c["title"]
             assert c["x"] >= 0 and c["y"] >= 0 and c["y"] + c["height"] <= 1000, f"{c['title']} needs scrolling"
@@ -674,7 +683,7 @@ def test_the_page_in_a_real_browser(fmu_paths, tmp_path):
                 page.wait_for_function("() => document.querySelectorAll('.uplot canvas').length >= 3", timeout=60000)
                 wait_for(lambda: _chart_has_line(page, 0), what="a line in the Cf_y chart")
                 shots.append(tmp_path / "running.png")
-                page.screenshot(path=shots[-1])
+                _shot(page, shots[-1])
 
                 # paused before the slow layout checks, so that a slow machine cannot let the run finish first
                 page.get_by_role("button", name="Pause", exact=True).click()
@@ -693,7 +702,7 @@ def test_the_page_in_a_real_browser(fmu_paths, tmp_path):
                 assert d._run.estimator.cfg.particles == 100
                 wait_for(lambda: d.status()["rows"] > 50 and _chart_has_line(page, 0), what="the restarted run")
                 shots.append(tmp_path / "restarted.png")
-                page.screenshot(path=shots[-1])
+                _shot(page, shots[-1])
 
                 page.get_by_label("Source", exact=True).click()
                 page.get_by_role("option", name="log", exact=True).click()
@@ -706,7 +715,7 @@ def test_the_page_in_a_real_browser(fmu_paths, tmp_path):
                 message.wait_for(timeout=60000)
                 assert "steering" in message.inner_text()
                 shots.append(tmp_path / "error.png")
-                page.screenshot(path=shots[-1])
+                _shot(page, shots[-1])
                 assert urllib.request.urlopen(d.url, timeout=5).status == 200  # still serving
                 assert status.count() >= 1
                 local = (d.url, d.url.replace("http://", "ws://"), "data:", "blob:")
