@@ -57,8 +57,8 @@ def _warm_mpf(model: str, missing: bool = False, gap: bool = False) -> None:
     omega = 20.0 / vehicle.wheel_radius
     est = StiffnessMPF(vehicle, MPFConfig(particles=8, model=model))
     est.reset(np.random.default_rng(0))
-    # missing: only the first compiled step (k = 1), with a^Y missing: the entry points with the
-    # sizes as variables, not the full model's (another worker may be compiling those)
+    # missing: only the first compiled step (k = 1), with a^Y missing: the passes' signatures with the
+    # sizes as variables (`SIZES_ANY`), not the full model's (another worker may be compiling those)
     # gap: a 1 s gap after the first sample, the propagation across it (`propagate`, `slip_over_step`:
     # no other task reaches them, and both workers' tests did, each compiling them)
     for k in range(2 if (missing or gap) else 6):

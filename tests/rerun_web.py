@@ -53,10 +53,11 @@ def _serve_file(path: Path):
     is on another port); yields its URL. Nothing else is served."""
     import http.server
     import threading
+    from urllib.parse import quote, unquote
 
     class Handler(http.server.BaseHTTPRequestHandler):
         def do_GET(self):  # noqa: N802 (http.server's name)
-            if self.path.split("?", 1)[0] != "/" + path.name:
+            if unquote(self.path.split("?", 1)[0]) != "/" + path.name:  # a name with spaces comes quoted
                 self.send_error(404)
                 return
             data = path.read_bytes()
@@ -74,7 +75,7 @@ def _serve_file(path: Path):
     thread = threading.Thread(target=server.serve_forever, daemon=True)
     thread.start()
     try:
-        yield f"http://127.0.0.1:{server.server_address[1]}/{path.name}"
+        yield f"http://127.0.0.1:{server.server_address[1]}/{quote(path.name)}"
     finally:
         server.shutdown()
         server.server_close()

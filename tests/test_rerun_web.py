@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rerun_web import (CHROMIUM, blueprint_sender, browser_page, changed, check_views, error_red, layout_grid, pixels,
+from rerun_web import (CHROMIUM, _serve_file, blueprint_sender, browser_page, changed, check_views, error_red, layout_grid, pixels,
                        serve_web_viewer, view_cells, wait_loaded)
 from tirefilter.cli import main
 from tirefilter.scenarios import DATA_DIR
@@ -38,6 +38,23 @@ def _short_scenario(tmp_path: Path, duration: float = 4.0) -> Path:
     path = tmp_path / "short.toml"
     path.write_text(text)
     return path
+
+
+def test_the_recording_is_served_under_its_own_name_and_nothing_else(tmp_path):
+    """The page loads the recording from the test's own HTTP server (rerun_web._serve_file): the
+    file under its name, quoted where a URL needs it; any other path is a 404."""
+    import urllib.error
+    import urllib.request
+
+    for name in ("short.rrd", "my run.rrd", "a#b.rrd"):
+        path = tmp_path / name
+        path.write_bytes(name.encode())
+        with _serve_file(path) as url:
+            assert url.startswith("http://127.0.0.1:")
+            assert urllib.request.urlopen(url, timeout=10).read() == name.encode()
+            for other in ("other.rrd", "", "..%2Fshort.toml"):
+                with pytest.raises(urllib.error.HTTPError, match="404"):
+                    urllib.request.urlopen(url.rsplit("/", 1)[0] + "/" + other, timeout=10)
 
 
 @pytest.mark.xdist_group("browser")  # one browser at a time (make test runs two workers)

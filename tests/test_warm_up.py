@@ -14,10 +14,12 @@ from pathlib import Path
 from conftest import WARM_UP, warm_up_kernels
 
 
-def _recording_tasks(names, log, fail=()):
+def _recording_tasks(names, log, fail=(), gc_states=None):
+    gc_states = [] if gc_states is None else gc_states
+
     def task(name):
         def run():
-            assert not gc.isenabled()  # held off while the task compiles
+            gc_states.append(gc.isenabled())
             time.sleep(0.05)
             log.append((threading.current_thread().name, name))
             if name in fail:
@@ -51,8 +53,10 @@ def test_two_workers_run_every_task_once_from_opposite_ends(tmp_path):
 def test_a_failed_task_is_reported_not_marked_done_and_the_rest_run(tmp_path, capsys):
     names = ["a", "b", "c"]
     log = []
-    ran, failed = warm_up_kernels(tmp_path, tasks=_recording_tasks(names, log, fail={"b"}))
+    gc_states = []
+    ran, failed = warm_up_kernels(tmp_path, tasks=_recording_tasks(names, log, fail={"b"}, gc_states=gc_states))
     assert (ran, failed) == (["a", "c"], ["b"])
+    assert gc_states == [False] * 3  # the collector held off during each task (one process, one thread)
     assert [n for _, n in log] == names
     assert not (tmp_path / "b.done").exists() and (tmp_path / "c.done").exists()
     assert "RuntimeError: b failed" in capsys.readouterr().err

@@ -82,7 +82,9 @@ from tirefilter.stats.particles_numba import systematic_into
 from tirefilter.stats.student_t import t_draws
 
 _JIT = dict(cache=True, nogil=True, no_cfunc_wrapper=True)  # (no C callback is taken of a kernel)
-_JIT_IN = dict(_JIT, no_cpython_wrapper=True)  # a helper only kernels call: no wrapper for Python calls
+# a helper only kernels call: no wrapper for Python calls (called from Python it crashes the
+# interpreter instead of raising: tests/test_kernel_calls.py)
+_JIT_IN = dict(_JIT, no_cpython_wrapper=True)
 NAN = math.nan
 _new = object.__new__
 LANES = 32  # batch elements factorised together (eight AVX2 vectors of float64; measured best of 8-32)

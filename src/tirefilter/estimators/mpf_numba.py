@@ -71,7 +71,8 @@ from tirefilter.stats.particles_numba import systematic_into
 
 _JIT = dict(cache=True, nogil=True, no_cfunc_wrapper=True)  # (no C callback is taken of a kernel)
 # a helper only kernels call: no wrapper for Python calls either (each wrapper, which unboxes every
-# argument, was compiled and never called: benchmarks/README.md, "Test suite time: the compile (stop 26)")
+# argument, was compiled and never called: benchmarks/README.md, "Test suite time: the compile (stop 26)");
+# called from Python such a helper crashes the interpreter instead of raising (tests/test_kernel_calls.py)
 _JIT_IN = dict(_JIT, no_cpython_wrapper=True)
 # the last argument of `predict_weigh` and `sample_update`: its number of dimensions picks the sizes
 SIZES_FULL = np.empty((0, 0, 0))  # the full model with every channel: n_w = 3, na = 3, nc = 2

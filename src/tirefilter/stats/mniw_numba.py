@@ -24,7 +24,9 @@ from numba import njit
 from tirefilter.stats.mniw import MNIW, MNIWRank1
 
 _JIT = dict(cache=True, nogil=True, no_cfunc_wrapper=True)  # (no C callback is taken of a kernel)
-_JIT_IN = dict(_JIT, no_cpython_wrapper=True)  # a helper only kernels call: no wrapper for Python calls
+# a helper only kernels call: no wrapper for Python calls (called from Python it crashes the
+# interpreter instead of raising: tests/test_kernel_calls.py)
+_JIT_IN = dict(_JIT, no_cpython_wrapper=True)
 # Sigma + V up to this size is factorised by the loop below, larger by LAPACK's dpotrf
 # (numba's np.linalg.cholesky): measured faster for the 50- and 100-function tensor bases
 _LAPACK_FROM = 24
