@@ -18,7 +18,7 @@ import pytest
 
 from tirefilter.cli import build_parser, main
 from tirefilter.errors import TirefilterError
-from tirefilter.peer.drive import (K_SPEED, K_STEER, RATE, SUBSTEPS, DriveSpec, integrate, rk4_step, simulate,
+from tirefilter.peer.drive import (K_SPEED, K_STEER, RATE, SETTLE, SUBSTEPS, DriveSpec, integrate, rk4_step, simulate,
                                    steer_gain, vehicle_toml, vehicle_values, write_drive)
 from tirefilter.peer.maneuvers import Profile
 from tirefilter.peer.model import load_model
@@ -153,6 +153,51 @@ def test_rk4_step_on_floats_is_the_numpy_form_bit_for_bit(kind):
             assert all(type(v) is float for v in x_list)
         assert np.array_equal(np.array(x_list), x_np)
     assert x_np[wheel] != 0.0  # the negative wheel rate was not clipped in the state itself
+
+
+@pytest.mark.parametrize("kind", ["std", "mb"])
+def test_integrate_is_the_numpy_form_bit_for_bit(kind):
+    """`integrate` as a whole (the settling run, the control law's half-step grid, the samples)
+    gives the same bits as the numpy-form loop the drives were generated with up to stop 25,
+    written out here: over 1 s of a steer and speed sweep."""
+    model = load_model(kind, 2)
+    dt = 0.5 / (RATE * SUBSTEPS)
+    t = np.arange(0.0, 1.0 + dt / 2, dt)
+    delta, v = 0.03 * np.sin(2 * np.pi * 0.8 * t), 20.0 + 0.8 * t
+    profile = Profile(t, delta, np.gradient(delta, dt), v, np.gradient(v, dt))
+    h = 1.0 / (RATE * SUBSTEPS)
+    d, dd, sp, dsp = profile.delta, profile.delta_rate, profile.speed, profile.speed_rate
+
+    def f(j, x):  # j on the half-step grid; the inputs numpy scalars, as before
+        u = [dd[j] + K_STEER * (d[j] - x[2]), dsp[j] + K_SPEED * (sp[j] - x[3])]
+        return np.asarray(model.rhs(x.tolist(), u), float)
+
+    def g(x):
+        return np.asarray(model.rhs(x.tolist(), [K_STEER * (d[0] - x[2]), K_SPEED * (sp[0] - x[3])]), float)
+
+    x = model.initial_state(sp[0])
+    for _ in range(int(round(SETTLE / h))):
+        k1 = g(x)
+        k2 = g(x + 0.5 * h * k1)
+        k3 = g(x + 0.5 * h * k2)
+        k4 = g(x + h * k3)
+        x = x + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+    n = int(math.floor(t[-1] * RATE + 1e-6)) + 1
+    X = np.empty((n, x.size))
+    for k in range(n):
+        X[k] = x
+        if k == n - 1:
+            break
+        for s in range(SUBSTEPS):
+            j = 2 * (k * SUBSTEPS + s)
+            k1 = f(j, x)
+            k2 = f(j + 1, x + 0.5 * h * k1)
+            k3 = f(j + 1, x + 0.5 * h * k2)
+            k4 = f(j + 2, x + h * k3)
+            x = x + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+    t_out, X_out, _ = integrate(model, profile)
+    assert len(t_out) == n == 101
+    assert np.array_equal(X_out, X)
 
 
 @pytest.mark.parametrize("kind,vehicle,r_tol,beta_tol", [("std", 1, 0.01, 0.06), ("std", 2, 0.01, 0.06),
