@@ -228,6 +228,7 @@ LONG_TESTS = {
     "test_viz.py::test_spawn_starts_a_viewer_process_and_streams_to_it": 8.0,  # waits for the viewer
     "test_estimator_fmu3.py::test_cli_builds_fmi2_and_fmi3_of_every_fmu_all_validated": 7.0,
     "test_baselines.py::test_converges_on_paper_sim": 5.5,
+    "test_golden.py::test_outputs_equal_golden_master": 4.0,
     "test_study.py::test_bench_stiffness_command_writes_tables_and_plots": 5.5,
     "test_linear_kf.py::test_nees_and_nis_are_chi_square_consistent": 5.0,
     "test_faults.py::test_sideslip_recovers_within_5_s_of_the_fault_end": 3.5,

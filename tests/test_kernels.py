@@ -29,17 +29,21 @@ from tirefilter.stats.mniw import make_mniw
 from tirefilter.stats.mniw_numba import basis_features
 
 RTOL = 1e-12
+# The paper's 100-function tensor basis: its statistics M come out of solves with the 100 x 100
+# Lambda, whose conditioning spreads the two backends' rounding (summation order, fused
+# multiply-add) wider: measured 1.3e-12 of the largest |M| on a Xeon of the CI class.
+TENSOR_100_RTOL = 1e-11
 
 # (basis, symmetry, functions per slip dimension): per-axle, default, the paper's tensor
 BASES = [("axle", "odd", 20), ("tensor", "odd", 10), ("tensor", "none", 10)]
 BASIS_IDS = ["axle", "tensor-odd-50", "tensor-100"]
 
 
-def assert_equal_to_rounding(a, b, what=""):
+def assert_equal_to_rounding(a, b, what="", rtol=RTOL):
     a, b = np.asarray(a, float), np.asarray(b, float)
     assert a.shape == b.shape, (what, a.shape, b.shape)
     scale = float(np.max(np.abs(b))) if b.size else 0.0
-    np.testing.assert_allclose(a, b, rtol=RTOL, atol=RTOL * scale, err_msg=what)
+    np.testing.assert_allclose(a, b, rtol=rtol, atol=rtol * scale, err_msg=what)
 
 
 def _basis(kind, symmetry, m):
@@ -137,15 +141,16 @@ def test_friction_gpssm_backends_equal(kind, symmetry, m, stats, snapshots):
         runs[backend] = (_drive(est, 25, snapshots), est)
     (a, fast), (b, ref) = runs["numba"], runs["numpy"]
     assert ref.resamples >= 12 and fast.resamples == ref.resamples
-    assert_equal_to_rounding(a, b, "estimates")
+    rtol = TENSOR_100_RTOL if (kind, symmetry) == ("tensor", "none") else RTOL
+    assert_equal_to_rounding(a, b, "estimates", rtol)
     pa, pb = fast.posterior(), ref.posterior()
-    assert_equal_to_rounding(pa.particles, pb.particles, "particles")
-    assert_equal_to_rounding(pa.log_weights, pb.log_weights, "log-weights")
+    assert_equal_to_rounding(pa.particles, pb.particles, "particles", rtol)
+    assert_equal_to_rounding(pa.log_weights, pb.log_weights, "log-weights", rtol)
     for key in ("M", "Lam", "nu", "mu"):
-        assert_equal_to_rounding(pa.stats[key], pb.stats[key], key)
+        assert_equal_to_rounding(pa.stats[key], pb.stats[key], key, rtol)
     fa, fb = fast.friction(), ref.friction()
-    assert_equal_to_rounding(fa.mu_f, fb.mu_f, "mu_f")
-    assert_equal_to_rounding(fa.mu_r_std, fb.mu_r_std, "mu_r_std")
+    assert_equal_to_rounding(fa.mu_f, fb.mu_f, "mu_f", rtol)
+    assert_equal_to_rounding(fa.mu_r_std, fb.mu_r_std, "mu_r_std", rtol)
 
 
 @pytest.mark.parametrize("measurement_friction", ["learned", "prior"])
