@@ -8,7 +8,7 @@ cost and accuracy per seed.
 
 For each estimator and seed: the median wall time of `step()` (`median_step_us` of the run
 summary, after warm-up, inside this process), the mean and the time-averaged absolute
-steady-state error of Cf_y and Cr_y (DESIGN.md metrics, against the surface mean), and the
+steady-state error of Cf_y and Cr_y (docs/usage.md metrics, against the surface mean), and the
 v^Y RMSE after 5 s. Then the median over seeds. Particle filters run at `--particles`; rls
 and ekf ignore it. `--config` is an estimator configuration TOML as for `tirefilter run`
 (e.g. `[augpf] proposal = "bootstrap"`), `--label` names its rows.

@@ -4,7 +4,7 @@
 
 prints per task the numba compile time (wall), the process CPU time and the wall time. Run it
 with an empty cache (a clean clone's first `make test`); with the cache filled it prints what
-loading costs. benchmarks/README.md, "Test suite time (stop 23)"."""
+loading costs. docs/development.md, "How long `make test` takes"."""
 
 from __future__ import annotations
 

@@ -9,7 +9,7 @@ Prints, per FMI version, the median over repeats of
 - with CSV:  the master writing the Result CSV;
 - with CSV + rrd: and a Rerun recording;
 - with `--mpf N`, MPF N + CSV: the stiffness MPF with N particles (built as `tirefilter run
-  --estimator mpf --particles N` builds it) and the Result CSV, issue 14's end-to-end case;
+  --estimator mpf --particles N` builds it) and the Result CSV, the end-to-end case;
   its run's `median_step_us` is printed beside it;
 as wall time (`wall_time_s` of the run summary, as run.json has it, for the master's cases)
 and real-time factor (simulated seconds per wall second).

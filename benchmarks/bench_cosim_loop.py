@@ -1,4 +1,4 @@
-"""What a co-simulated sample costs besides `Estimator.step` (issue 14, stop 24).
+"""What a co-simulated sample costs besides `Estimator.step`.
 
     .venv/bin/python benchmarks/bench_cosim_loop.py [--scenario paper-sim] [--repeat 5]
 

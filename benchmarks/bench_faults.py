@@ -1,4 +1,4 @@
-"""The fault matrix (issue 17): every sensor fault of `scenarios.faults.fault_sets` against
+"""The fault matrix: every sensor fault of `scenarios.faults.fault_sets` against
 every stiffness estimator, replayed over one drive: stiffness error, sideslip RMSE,
 restarts, whether the estimates stayed finite, whether the sideslip recovered within 5 s of
 the fault's end, and what the measurement guard removed.

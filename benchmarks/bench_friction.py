@@ -1,4 +1,4 @@
-"""The friction GP-SSM's benchmarks (issue 5): tables on stdout, figures as PNG.
+"""The friction GP-SSM's benchmarks: tables on stdout, figures as PNG.
 
     PYTHONPATH=src .venv/bin/python benchmarks/bench_friction.py [--parts accuracy combined real cost]
         [--trials 20] [--combined-trials 10] [--particles 200] [--out benchmarks/figures] [--workers 2]
@@ -7,7 +7,7 @@
    s_f = 500), tensor basis (the paper's, 10 x 10 of which the odd 50 are kept) and per-axle
    basis (10 odd functions per axle) on the same seeds: RMSE of mu_f, mu_r against the
    true Pacejka curve over the slip range visited so far (the *true* slip angles up to the
-   snapshot, DESIGN.md: windows never come from the estimator) at 4, 20, 40, 50 s and the
+   snapshot; windows never come from the estimator) at 4, 20, 40, 50 s and the
    end, and the share of that range where the +-2 std band covers the truth; a plot as the
    paper's Fig. 1 (trial 0). With the basis comparison (part 2): per-step cost side by side.
 2. cost: median step time at N = 200 of tensor / axle with exact and rank-one statistics

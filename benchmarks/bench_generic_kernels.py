@@ -1,9 +1,6 @@
-"""What the MPF's specialised kernels buy (issue 14, benchmarks/README.md "Test suite time
-(stop 24)"): the step with the shipped kernels against the same step with the generic ones
+"""What the MPF's specialised kernels buy (docs/development.md, "How long `make test` takes"): the step with the shipped kernels against the same step with the generic ones
 (`mpf_numba.predict_weigh` / `sample_update` with `SIZES_ANY`, the sizes as variables, which the
-step already uses when a channel is missing) in place of `SIZES_FULL` / `SIZES_LATERAL` (before
-stop 26: the entry points `predict_weigh_full` / `_lateral`, `sample_update_full` / `_lateral`),
-in one process, alternated round by round:
+step already uses when a channel is missing) in place of `SIZES_FULL` / `SIZES_LATERAL`, in one process, alternated round by round:
 
     .venv/bin/python benchmarks/bench_generic_kernels.py [--particles 500] [--rounds 5]
 
@@ -12,7 +9,7 @@ defaults of `tirefilter run` (full model; `--model lateral` for the lateral one)
 median and 10th percentile of the thread's CPU time per `step()` after the warm-up, and
 whether the two give the same estimates (they must: the same arithmetic on the same random
 numbers). Each specialised entry point costs about as much compile as the generic one
-(benchmarks/README.md, "Test suite time (stop 23)"); a cold cache compiles the ones a run
+(docs/development.md, "How long `make test` takes"); a cold cache compiles the ones a run
 uses. The kernels themselves are not changed here.
 """
 

@@ -1,4 +1,4 @@
-"""Memory of long runs (issue 17): `tirefilter replay` streams the log and the results, so
+"""Memory of long runs: `tirefilter replay` streams the log and the results, so
 its peak memory does not grow with the drive's length; a long co-simulation with the MPF
 does not grow either.
 

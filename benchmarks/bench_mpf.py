@@ -1,4 +1,4 @@
-"""Stiffness MPF on paper-sim: accuracy against the DESIGN.md metrics, and per-step cost.
+"""Stiffness MPF on paper-sim: accuracy against the metrics of docs/usage.md, and per-step cost.
 
     .venv/bin/python benchmarks/bench_mpf.py [--seeds 1 2 3] [--particles 500] [--model full]
                                              [--duration 60] [--option KEY=VALUE ...] [--skip-cost]

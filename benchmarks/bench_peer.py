@@ -1,4 +1,4 @@
-"""Peer drives (issue 13, point 6): the estimators with their default settings on drives
+"""Peer drives: the estimators with their default settings on drives
 simulated by the CommonRoad vehicle models (`tirefilter peer-drive`; the `peer` extra),
 with data-sheet vehicle TOMLs (guessed nominal stiffness, no noise or bias keys).
 

@@ -11,7 +11,7 @@ Everything runs with default settings: the vehicle file holds the publishers' va
 the sensor noise is estimated from the log and the IMU bias model is the MEMS default (the
 kf and ekf baselines use the same noise), and the MPF runs with a replay's settings (the state's
 process noise from the data, the stiffness statistics drawn again after the gate first opens:
-derivations Sec. 28); `--config` applies an estimator configuration TOML
+derivations, "State noise from the data"); `--config` applies an estimator configuration TOML
 (its [mpf] table, say) to the MPF runs; `--mpf-only` leaves out the kf and ekf rows (which no
 [mpf] setting changes); `--vehicle` replaces examples/mbds-sideslip/vehicle.toml (for a
 diagnosis: the target is scored with the publishers' values). Sideslip RMSE in degrees over all samples and over

@@ -1,4 +1,4 @@
-"""What a study trial costs besides its co-simulation (issue 14, stop 24).
+"""What a study trial costs besides its co-simulation.
 
     .venv/bin/python benchmarks/bench_trial_overhead.py [--trials 3] [--particles 500]
 

@@ -1,5 +1,4 @@
-"""Where one warm-up task's compile goes (benchmarks/README.md, "Test suite time: the compile
-(stop 25)"): run a task of tests/conftest.py's WARM_UP in this (fresh) interpreter and print, as
+"""Where one warm-up task's compile goes (docs/development.md, "How long `make test` takes"): run a task of tests/conftest.py's WARM_UP in this (fresh) interpreter and print, as
 JSON, its CPU and wall time, the time under numba's LLVM lock (LLVM's optimisation and code
 generation), and the time per kernel (`numba:compile` events) and per compiler pass and kernel
 (`numba:run_pass`), each exclusive of the nested compiles or passes:

@@ -1,4 +1,4 @@
-"""The peer's own truth on Cx (docs/derivations.md Sec. 24): for a peer drive of the STD model,
+"""The peer's own truth on Cx (docs/derivations.md "Wheel-speed pre-filter"): for a peer drive of the STD model,
 the driven axle's longitudinal force (the peer's tire formulas at its states) against our wheel
 slip lambda = (R_w omega - v^X) / max(|v^X|, |R_w omega|, 1) from the noise-free wheel rates,
 and the a^X the MPF's measurement model expects at the true stiffness.

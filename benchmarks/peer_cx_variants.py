@@ -1,4 +1,4 @@
-"""Which part of a peer drive pulls the MPF's Cx (docs/derivations.md Sec. 24): the new user's
+"""Which part of a peer drive pulls the MPF's Cx (docs/derivations.md "Wheel-speed pre-filter"): the new user's
 drive of issue 13 replayed with the defaults and with the wheel speeds taken as exact
 (`[mpf] sigma_omega = 0`), as generated, without the wheel-speed noise, and without the peer
 tire's zero-slip offset (p_hx1 = p_vx1 = 0).

@@ -1,7 +1,6 @@
 """Replay `make test`'s scheduling (pytest-xdist `--dist loadgroup`, two workers) on measured
 per-test times, in file order and in the order tests/conftest.py gives the workers
-(`long_modules_first`), and print when each worker would end (benchmarks/README.md, "Test suite
-time: the tests (stop 25)"):
+(`long_modules_first`), and print when each worker would end (docs/development.md, "How long `make test` takes"):
 
     .venv/bin/python benchmarks/suite_schedule.py runs/suite-stats/stats [--durations LOG] [--warm-up A B]
 

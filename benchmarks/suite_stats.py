@@ -1,4 +1,4 @@
-"""pytest plugin (benchmarks/README.md, "Test suite time (stop 23)"): per xdist worker, the
+"""pytest plugin (docs/development.md, "How long `make test` takes"): per xdist worker, the
 numba compile time (numba's own compile events: real compiles, not cache loads), the
 signatures compiled per kernel, and per test its wall time, CPU time (the process and its
 reaped children: chromium, subprocesses) and compile time. Written at the end of the session

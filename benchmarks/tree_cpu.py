@@ -7,8 +7,7 @@ last reading of each process counts: a process that lives under 0.2 s is missed)
 line `tree_cpu {json}` on stderr with the wall, the sum and the seconds per kind (the command's
 own process, the `rerun` server, chromium's GPU process, renderers and other processes,
 Playwright's node driver). `/usr/bin/time -v` counts only the children their parents wait for
-and misses most of chromium's processes (benchmarks/README.md, "Test suite time: the browser
-tests (stop 26)")."""
+and misses most of chromium's processes (docs/development.md, "How long `make test` takes")."""
 
 from __future__ import annotations
 

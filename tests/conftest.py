@@ -30,7 +30,7 @@ NOISE_OFF = {
 
 # ---- the compiled kernels: each compiled once per suite run, not once per xdist worker -----------
 # A clean clone has no numba cache (`cache=True` writes it beside the sources), and compiling the
-# kernels was about 40 % of a cold suite's CPU time (benchmarks/README.md, "Test suite time").
+# kernels was about 40 % of a cold suite's CPU time (docs/development.md, "How long `make test` takes").
 # Left to the tests, both workers of `make test` reach the same kernels at about the same time and
 # both compile them. With two or more workers, each worker first runs these small warm-up tasks,
 # each under a file lock shared by the workers: a task the other worker holds is skipped and
@@ -40,12 +40,11 @@ NOISE_OFF = {
 # compiling the same helper kernels at the same time. Each worker runs its tasks in one fresh
 # interpreter (`python tests/conftest.py --warm-up LOCK_DIR [--reverse]`) that writes the disk
 # cache; the tests then load the kernels from it: inside a pytest process the same compile took
-# 1.6 times the CPU (page faults, system time; benchmarks/README.md, "Test suite time (stop 24)").
+# 1.6 times the CPU (page faults, system time; docs/development.md, "How long `make test` takes").
 # One interpreter for all of a worker's tasks, not one per task: each start imports numpy, scipy,
 # numba and the package again (about 1.5 CPU s). Python's cyclic garbage collector is held off
 # while a task compiles: numba's compile allocates millions of objects, and the collections they
-# set off (mostly full ones) took a tenth of the compile's CPU ("Test suite time: the warm-up
-# (stop 26)").
+# set off (mostly full ones) took a tenth of the compile's CPU.
 
 
 def _warm_mpf(model: str, missing: bool = False, gap: bool = False) -> None:
@@ -81,8 +80,8 @@ def _warm_gpssm(**config) -> None:
 
 
 # The order: one worker takes them first to last, the other last to first, each skipping what the
-# other holds; with stop 26's compile CPU (benchmarks/README.md, "Test suite time: the compile
-# (stop 26)": mpf-full 21, mpf-missing 18, mpf-lateral 14, mpf-gap 5, the GP-SSM 48 s) the first
+# other holds; with the tasks' compile CPU (docs/development.md, "How long `make test` takes": mpf-full 21, mpf-missing 18,
+# mpf-lateral 14, mpf-gap 5, the GP-SSM 48 s) the first
 # worker runs mpf-full, mpf-missing and mpf-lateral (54 s), the second the GP-SSM and mpf-gap
 # (53 s), so the two end within a few seconds of each other; the MPF's tasks after mpf-full load
 # the kernels it compiled that they share (`resample_gate`, `_model_t`, ...) from the cache.
@@ -217,9 +216,9 @@ def pytest_unconfigure(config):
 # sorted by module, the module with the longest test (`LONG_TESTS`) first, so the last units are
 # short and the two workers end within about a test of each other. A single process (no xdist)
 # keeps the file order. Seconds: setup + call with the numba cache filled
-# (benchmarks/README.md, "Test suite time: the tests (stop 25)"); parameters share their test's entry.
-# test_vehicle_model's FMU-against-numpy integrations (16 s) left the list at stop 26: 2-3 s since
-# their reference runs on floats ("Test suite time: test-side CPU (stop 26)").
+# (docs/development.md, "How long `make test` takes"); parameters share their test's entry.
+# test_vehicle_model's FMU-against-numpy integrations are not in the list: 2-3 s, their reference
+# runs on floats.
 LONG_TESTS = {
     "test_faults.py::test_estimators_stay_finite_and_do_not_restart_on_spikes": 10.0,
     "test_metrics.py::test_streamed_metrics_equal_run_metrics": 9.0,

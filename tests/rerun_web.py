@@ -91,7 +91,7 @@ def serve_web_viewer(rrd: Path, log: Path | None = None):
     process: rerun 0.41's server, once a file it loaded has been read to its end, polls its
     finished source in a loop (`re_grpc_server::spawn_from_rx_set`: 0.4 CPU s per second for as
     long as it runs, about a third of the web test's CPU; with nothing loaded it idles at 0;
-    benchmarks/README.md, "Test suite time: the browser tests (stop 26)"). `--serve-web`, not
+    docs/development.md, "How long `make test` takes"). `--serve-web`, not
     `--web-viewer`, which also tries to open a browser of its own. Everything stops on leaving."""
     grpc, http = free_port(), free_port()
     env = dict(os.environ, RERUN_ANALYTICS="0")  # the welcome text only; nothing leaves the machine
@@ -130,7 +130,7 @@ def serve_web_viewer(rrd: Path, log: Path | None = None):
 # Rerun's wasm viewer logs at debug level to the browser's console: naga (the shader translator)
 # alone wrote 18 652 console.debug lines in one run of the web test, each formatted by the
 # renderer, passed to the browser process and sent to Playwright's driver (about 18 of its CPU s;
-# benchmarks/README.md, "Test suite time: the browser tests (stop 26)"). Nothing reads them;
+# docs/development.md, "How long `make test` takes"). Nothing reads them;
 # warnings and errors still reach the console.
 QUIET_CONSOLE_DEBUG = "console.debug = () => {};"
 
@@ -160,7 +160,7 @@ def screenshot_png(page) -> bytes:
     page), not Playwright's `page.screenshot`: the viewer's page under software GL took 3-5 s
     and as many CPU s of the GPU process for each of Playwright's screenshots (whose steps
     around the capture make the viewer draw again), about 0.4 s and a tenth of that for this
-    (benchmarks/README.md, "Test suite time: the browser tests (stop 26)"); the pixels are the
+    (docs/development.md, "How long `make test` takes"); the pixels are the
     compositor's frame either way."""
     import base64
 

@@ -238,7 +238,7 @@ def test_augpf_borrows_the_numpy_model_by_default_and_numba_gives_the_same(fmu_p
 @pytest.mark.parametrize("name", ["ekf", "rls", "augpf"])
 def test_a_missing_ay_sample_does_not_open_a_baselines_gate(name):
     """The MPF's rule holds for every estimator's gate (`baseline_common.held_ay`, derivations
-    Sec. 26): in a steady turn at a^Y = 5 m/s^2, beyond gate_ay_max = 4, with every other a^Y
+    "Linear-region test"): in a steady turn at a^Y = 5 m/s^2, beyond gate_ay_max = 4, with every other a^Y
     sample missing (the guard's held samples), the gate stays closed; at 3 m/s^2 it opens
     after the 1 s warm-up, on the missing samples too (they hold the last a^Y)."""
     from test_stiffness_mpf import _steady_turn  # tests/, on the path as the other test helpers

@@ -148,7 +148,7 @@ def test_run_summary_states_the_metrics_of_its_results(fmu_paths, tmp_path, caps
     expected = run_metrics(read_results(out / "results.csv"), load_scenario(short), restarts=m["restarts"],
                            resamples=m["resamples"], cx_excitation=m["cx_excitation"])
     assert json.loads(json.dumps(expected)) == m
-    assert m["cx_excitation"] > 0.5  # paper-sim's torque steps excite Cx (derivations Sec. 23)
+    assert m["cx_excitation"] > 0.5  # paper-sim's torque steps excite Cx (derivations, "The undriven axle")
     assert m["settled_windows"] == [[5.0, 8.0]] and set(m["stiffness"]) == {"Cf_y", "Cr_y", "Cx"}
     assert m["resamples"] > 0 and m["restarts"] >= 0 and 0 < m["gate_open_share"] <= 1
     assert "mean |err|" in printed and "settled" in printed and "coverage90" in printed

@@ -1,4 +1,4 @@
-"""The co-simulation loop's speed-ups (issue 14, stop 24) change no number: the Result
+"""The co-simulation loop's speed-ups change no number: the Result
 CSV's text, the rows kept in memory, the CSV read back and the FMU's outputs are those of
 the straightforward code they replace."""
 

@@ -1,5 +1,5 @@
 """The Python FMUs in FMI 3.0 (pythonfmu3) beside FMI 2.0 (pythonfmu), from the same slave
-code, and what both declare and refuse (issue 16): units, the prior as the outputs at the
+code, and what both declare and refuse: units, the prior as the outputs at the
 start time, impossible inputs and parameters refused with the variable named, the state
 restored into a fresh instance."""
 

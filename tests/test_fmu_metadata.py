@@ -1,4 +1,4 @@
-"""The vehicle FMU as importing tools see it (issue 16): the model structure derived from the
+"""The vehicle FMU as importing tools see it: the model structure derived from the
 equations (checked by perturbing every input), units, the token, variabilities, refused
 steps, the serialized state, and the defects a second probe found (each test here failed
 on the FMU before its fix)."""

@@ -503,7 +503,7 @@ def test_stiffness_mpf_gap_step_takes_the_reference_path(monkeypatch):
 
 
 def test_stiffness_mpf_backends_equal_with_the_wheel_filter(monkeypatch):
-    """The wheel-speed pre-filter on (sigma_omega > 0, derivations Sec. 24): it works on the
+    """The wheel-speed pre-filter on (sigma_omega > 0, derivations, "Wheel-speed pre-filter"): it works on the
     inputs before either backend's step, so the fused step and the reference stay equal to
     rounding, through a gap that starts the filter again (0.6 s before sample 30) and the
     sample whose sensors are all missing (no drive for the filter)."""
@@ -524,14 +524,14 @@ def test_stiffness_mpf_backends_equal_with_the_wheel_filter(monkeypatch):
 
 OPTIONS = {"outlier-noise-euler": dict(outlier_prob=0.9, state_noise=(0.02, 0.01, 0.002), integrator="euler"),
            "fixed-forgetting-subgap": dict(forgetting_mode="fixed", max_step=0.004, outlier_prob=0.99),
-           # derivations Sec. 28: the state noise from the data, the combined linear-region test, the statistics
+           # derivations, "State noise from the data": the state noise from the data, the combined linear-region test, the statistics
            # drawn again after the gate's first open sample
            "redraw-combined-gate": dict(warmup_redraw="gate", gate_accel="combined"),
            "noise-from-data": dict(state_noise_from_data=True, state_noise_time=0.1),
-           # the calibrated *_std (Sec. 29) with batches short enough to close within the drive: the fused
+           # the calibrated *_std ("Batch-means sandwich") with batches short enough to close within the drive: the fused
            # step's update on floats from the moments against the reference's `_calibrate`
            "calibration-batches": dict(calibration_batch=0.03)}
-# the state noise from the data (derivations Sec. 28) subtracts two nearly equal spreads each step, which
+# the state noise from the data (derivations, "State noise from the data") subtracts two nearly equal spreads each step, which
 # amplifies the backends' rounding differences (6e-12 relative in the statistics after 60 steps)
 OPTION_RTOL = {"noise-from-data": 1e-9}
 
@@ -702,7 +702,7 @@ def test_stiffness_mpf_fused_state_pickles():
     import pickle
 
     vehicle = load_scenario("paper-sim").vehicle
-    # (short batches of the calibrated *_std, Sec. 29: its factor moves within the drive and reads the
+    # (short batches of the calibrated *_std, "Batch-means sandwich": its factor moves within the drive and reads the
     # weighting's residuals, `_ay_residual`)
     cfg = MPFConfig(particles=24, resample_threshold=1.0, gate_warmup=0.05, gate_vy_std=10.0, gate_steer=0.0,
                     calibration_batch=0.03)
@@ -762,12 +762,12 @@ def test_friction_gpssm_backends_equal_with_differing_dof(kind):
 @pytest.mark.parametrize("in_stats", [True, False], ids=["inflated-statistics", "plain-statistics"])
 @pytest.mark.parametrize("model", ["full", "lateral"])
 def test_stiffness_mpf_backends_equal_with_surprise_inflation(model, in_stats, monkeypatch):
-    """The surprise inflation of the draw of w_k (`surprise_inflation`, derivations Sec. 25) through
+    """The surprise inflation of the draw of w_k (`surprise_inflation`, derivations, "Surprise inflation") through
     the fused step: on this drive, whose truth is no single track with the nominal stiffness, the
     innovation statistic z passes 2 (the draw's scale inflated by c = z, or by the bound of the
     prior's spread), and the backends stay equal to rounding, with the statistics learning from the
     inflated draw or from its twin at c = 1 (`inflation_in_statistics`). With the plain statistics
-    the inflation is armed only after 0.1 s of open gate (`inflation_after`, derivations Sec. 27):
+    the inflation is armed only after 0.1 s of open gate (`inflation_after`, derivations, "Surprise inflation"):
     c = 1 before, in both backends."""
     fused = _count_fused_steps(monkeypatch)
     vehicle = load_scenario("paper-sim").vehicle
@@ -829,7 +829,7 @@ def test_surprise_inflation_factor():
     """c = max(1, min(1 + k (z - 1), (s^2 + init_sigma^2) / sigma_rel^2)): 1 while the data fit (z <= 1),
     with k = 0 and with fixed forgetting; with `inflation_prior_bound` at most the prior's relative
     variance of the stiffness over the last estimate's relative deviation spread (without it, the
-    default, not bounded: derivations Sec. 27)."""
+    default, not bounded: derivations, "Surprise inflation")."""
     vehicle = load_scenario("paper-sim").vehicle
     for k, z, c in ((1.0, 0.5, 1.0), (1.0, 1.0, 1.0), (1.0, 7.0, 7.0), (0.5, 7.0, 4.0), (0.0, 7.0, 1.0)):
         free = StiffnessMPF(vehicle, MPFConfig(particles=4, surprise_inflation=k, inflation_after=0.0))
@@ -858,7 +858,7 @@ def test_surprise_inflation_factor():
 def test_inflation_against_the_surprise_level():
     """`inflation_baseline_time` T > 0: c from z_k / max(1, zbar_k), zbar the normalised squared residual
     smoothed over T (exactly: zbar += (1 - exp(-dt / T)) (s_k - zbar)), so a persistent surprise (zbar = z)
-    gives c = 1 and a jump over the level inflates by the ratio (derivations Sec. 27)."""
+    gives c = 1 and a jump over the level inflates by the ratio (derivations, "Surprise inflation")."""
     vehicle = load_scenario("paper-sim").vehicle
     est = StiffnessMPF(vehicle, MPFConfig(particles=4, surprise_inflation=1.0, inflation_after=0.0,
                                           inflation_baseline_time=2.0))
@@ -883,7 +883,7 @@ def test_inflation_against_the_surprise_level():
 def test_inflation_armed_after_open_gate_time_and_disarmed_by_a_restart(backend):
     """`learned_time` adds up the time steps with the learning gate open (here 10 ms each after
     the warm-up, the gap of 50 ms before sample 30 too) and a restart sets it back to 0, so a new
-    start is no change either (`inflation_after`, derivations Sec. 27)."""
+    start is no change either (`inflation_after`, derivations, "Surprise inflation")."""
     vehicle = load_scenario("paper-sim").vehicle
     cfg = MPFConfig(particles=16, backend=backend, gate_warmup=0.05, gate_vy_std=10.0, gate_steer=0.0,
                     surprise_inflation=1.0, inflation_after=0.3)
@@ -897,7 +897,7 @@ def test_inflation_armed_after_open_gate_time_and_disarmed_by_a_restart(backend)
             open_time += t - t_last
         t_last = t
         # (a surprise as large as a change's and a converged deviation spread of 10%, whose bound by the
-        # prior, Sec. 25, is 10: the next draw's c is 5 once armed)
+        # prior, "Surprise inflation", is 10: the next draw's c is 5 once armed)
         est.surprise, est._sigma2_rel = 5.0, 0.01
         assert est._draw_inflation() == (1.0 if est.learned_time < 0.3 else pytest.approx(5.0))
     assert est.learned_time == pytest.approx(open_time, abs=1e-9) and 0.3 < open_time < 0.5

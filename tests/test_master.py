@@ -1,4 +1,4 @@
-"""The master drives any object following the Estimator protocol (DESIGN.md)."""
+"""The master drives any object following the Estimator protocol (docs/design.md)."""
 
 from __future__ import annotations
 

@@ -3,9 +3,9 @@ chromium, headless, software GL, driven by Playwright): every tab of the bluepri
 shown in turn (blueprints sent to the served recording) and screenshotted into
 runs/rerun-web/; a tab fails when one of its views is empty or shows the viewer's error
 red, or when its frame is still the previous tab's (a blueprint not yet applied). The check itself is shown to catch a real error badge (a 2-D entity in the 3-D top
-view, the defect of issue 15). One short recording, one browser session, a 1200 x 750 page
+view, a defect the layout once had). One short recording, one browser session, a 1200 x 750 page
 (the viewer draws continuously under software GL, at a cost that goes with the pixels: at
-1600 x 1000 the test took 1.5 times the CPU, benchmarks/README.md "Test suite time"): the
+1600 x 1000 the test took 1.5 times the CPU, docs/development.md, "How long `make test` takes"): the
 viewer needs 20-50 s to start, the whole test 1.5 minutes on a loaded machine."""
 
 from __future__ import annotations

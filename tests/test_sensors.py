@@ -137,7 +137,7 @@ def test_replay_summary_records_the_sensor_model(tmp_path):
 
 def test_adaptive_forgetting_follows_the_normalised_innovation():
     """z_k is the EWMA of the weighted normalised innovation; lambda_k = 1 - (1 - lambda) z_k,
-    clipped (derivations, Sec. 17). Checked against the formula on fixed residuals."""
+    clipped (derivations, "Adaptive forgetting"). Checked against the formula on fixed residuals."""
     cfg = MPFConfig(model="lateral", particles=4, forgetting=0.99, bias0_std=(0, 0, 0), bias_rw=(0, 0, 0),
                     disturbance_rw=(0, 0, 0))
     mpf = StiffnessMPF(VEHICLE, cfg)
@@ -167,7 +167,7 @@ def test_adaptive_forgetting_follows_the_normalised_innovation():
 
 def test_drift_statistic_forgets_fast_when_the_sampled_deviations_lean_one_way():
     """z'_k = |d_k|^2 (2 - a) / (a n_w) of the smoothed whitened w_k - mu (derivations,
-    Sec. 17): checked against the formula; a persistent lean drives lambda to its minimum,
+    "Adaptive forgetting"): checked against the formula; a persistent lean drives lambda to its minimum,
     zero-mean draws leave it near the configured value."""
     cfg = MPFConfig(model="lateral", particles=3, forgetting=0.99, bias0_std=(0, 0, 0), bias_rw=(0, 0, 0),
                     disturbance_rw=(0, 0, 0))

@@ -177,7 +177,7 @@ def test_small_batched_linear_algebra_matches_numpy(n):
     np.testing.assert_allclose(logdet_chol(L), np.linalg.slogdet(S)[1], rtol=1e-12, atol=1e-12)
 
 
-# ---- batch-means sandwich (stats/sandwich.py, derivations Sec. 29) ---------------------------
+# ---- batch-means sandwich (stats/sandwich.py, derivations, "Batch-means sandwich") ---------------------------
 def _ar1(phi: float, n: int, rng: np.random.Generator) -> np.ndarray:
     """A stationary AR(1) sequence with unit innovation variance."""
     from scipy.signal import lfilter

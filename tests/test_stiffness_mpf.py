@@ -52,7 +52,7 @@ def test_paper_sim_lateral_stiffness_converges(fmu_paths, tmp_path, model):
     assert vy_rmse < 0.05
     if model == "full":
         assert np.isfinite(r["Cx"]).all()
-        assert abs(stiffness_errors(r, scenario, "Cx")["mean"]) < 15.0  # weakly observable (DESIGN.md)
+        assert abs(stiffness_errors(r, scenario, "Cx")["mean"]) < 15.0  # weakly observable (docs/design.md)
     else:
         assert np.isnan(r["Cx"]).all()
 
@@ -64,7 +64,7 @@ def test_paper_sim_tracks_the_surface_change(fmu_paths, tmp_path):
     r, _, scenario = _run(tmp_path, load_scenario("paper-sim"), "full", seed=3, duration=40.0,
                           mpf={"backend": "numpy"})
     for param in ("Cf_y", "Cr_y"):
-        # a regression bound; the 4 s target of issue 3 is not met yet (benchmarks/bench_mpf.py)
+        # a regression bound; the 4 s settling target is not met yet (benchmarks/bench_mpf.py)
         assert settling_time(r, param, 30.0) < 8.0
     assert stiffness_errors(r, scenario, "Cf_y")["mean_abs"] < 4.0
 
@@ -148,7 +148,7 @@ def test_a_gap_draws_vx_again_from_the_undriven_wheels(backend):
     """Straight at R_w * 60 rad/s for 1 s, then no sample until the wheels read 64 rad/s
     (the car gained 1.44 m/s in the gap): after a gap longer than `gap_after` the particles'
     v^X is drawn around R_w omega of the undriven (rear) axle at that sample (derivations,
-    Sec. 21); a shorter step, a disabled gap_after or a missing wheel speed draws nothing
+    "After a gap in the data"); a shorter step, a disabled gap_after or a missing wheel speed draws nothing
     and the held inputs keep v^X at the speed before the gap."""
     vehicle = load_scenario("paper-sim").vehicle  # front drive: the rear axle is undriven
     R = vehicle.wheel_radius
@@ -194,8 +194,8 @@ def test_defaults_and_the_papers_variant():
     cfg = MPFConfig()
     assert (cfg.slip_hold, cfg.undriven_stiffness, cfg.x0_vx_wheel_std, cfg.restart_at_bound_after,
             cfg.cx_excitation_time) == ("interval", "learned", 0.02, 2.0, 1.0)
-    # the surprise inflation of the draw (derivations Sec. 25) an option; when on, armed after 5 s of open gate and
-    # unbounded (Sec. 27)
+    # the surprise inflation of the draw (derivations, "Surprise inflation") an option; when on, armed after 5 s of open gate and
+    # unbounded ("Surprise inflation")
     assert (cfg.surprise_inflation, cfg.inflation_in_statistics, cfg.inflation_after,
             cfg.inflation_prior_bound) == (0.0, False, 5.0, False)
     vehicle = load_scenario("paper-sim").vehicle
@@ -210,7 +210,7 @@ def test_defaults_and_the_papers_variant():
 def test_cx_excitation_weight_is_the_contraction_of_the_linear_gaussian_posterior():
     """rho = I P_0 / (1 + I P_0) equals 1 - P_N / P_0 of the scalar Kalman filter of
     y_k = b_k w + e_k (prior variance P_0, noise variance R) after the same regressors, and
-    the exact values at its ends (derivations Sec. 23)."""
+    the exact values at its ends (derivations, "The undriven axle")."""
     from tirefilter.estimators.stiffness_mpf import cx_excitation_weight
 
     rng = np.random.default_rng(2)
@@ -283,7 +283,7 @@ def test_interval_slip_predicts_the_speed_across_a_torque_step(fmu_paths):
     """One propagation step from the true state with the true stiffness of the step, on the
     FMU's paper-sim truth (wheel spin dynamics, torque square wave, 5% deviations redrawn
     every sample): the interval slip predicts v^X at t_k+1 far better than the slip of t_k
-    held (derivations, Sec. 22), at the torque switches and on average."""
+    held (derivations, "Wheel slip"), at the torque switches and on average."""
     scenario, r = _synthetic_steps(600)
     v = scenario.vehicle
     errs = {}
@@ -334,7 +334,7 @@ def test_the_combined_gate_closes_under_braking(backend):
     """A steady turn at a^Y = 3 m/s^2 (inside gate_ay_max = 4) with a^X = -3 m/s^2 (braking)
     from sample 150 to 249, one a^X sample missing in it: the lateral test (the paper's) keeps
     the gate open on every sample after the 1 s warm-up; the combined one (|(a^X, a^Y)| = 4.24,
-    derivations Sec. 28) closes it on exactly the braking samples, the missing one holding the
+    derivations, "State noise from the data") closes it on exactly the braking samples, the missing one holding the
     last a^X; "auto" is the combined test in the lateral model."""
     vehicle = load_scenario("paper-sim").vehicle
     r, delta = _steady_turn(vehicle, 3.0)
@@ -357,7 +357,7 @@ def test_the_combined_gate_closes_under_braking(backend):
 def test_a_missing_ay_sample_does_not_open_the_linear_region_gate(backend):
     """A steady turn at a^Y = 5 m/s^2 (beyond gate_ay_max = 4) with every other a^Y sample
     missing (the guard's held samples): the gate stays closed on every sample (a missing
-    sample holds the last a^Y, derivations Sec. 26); counting a missing sample as 0, the old
+    sample holds the last a^Y, derivations, "Linear-region test"); counting a missing sample as 0, the old
     rule, opens it on exactly the missing samples after the 1 s warm-up."""
     vehicle = load_scenario("paper-sim").vehicle
     r, delta = _steady_turn(vehicle, 5.0)
@@ -424,7 +424,7 @@ def test_state_noise_is_reported_only_where_it_is_estimated():
 
 
 def test_state_noise_from_data_recovers_a_known_process_noise():
-    """Covariance matching of the weights' corrections (derivations Sec. 28) against a known
+    """Covariance matching of the weights' corrections (derivations, "State noise from the data") against a known
     yaw-rate process noise (seeded): 0.1 rad/s per sqrt(s) is recovered within 10% (0.095), 0.03,
     near the gyro's noise floor (0.0035 rad/s per sample), within 30% (0.022: low); without process
     noise the estimate stays below 0.005. v^Y, which has none, stays below 0.01 m/s per sqrt(s) throughout."""
@@ -469,7 +469,7 @@ def test_warmup_redraw_draws_the_stiffness_statistics_again(when, monkeypatch):
 
 @pytest.mark.parametrize("backend", ["numpy", "numba"])
 def test_std_calibration_scales_the_lateral_std_by_the_sandwich_factor_only(fmu_paths, backend):
-    """`std_calibration = "sandwich"` (the default, derivations Sec. 29) changes nothing but the
+    """`std_calibration = "sandwich"` (the default, derivations, "Batch-means sandwich") changes nothing but the
     lateral `*_std`: the same seed gives the same estimates as "off", the paper's posterior of
     the mean, and each lateral std is the paper's times the factor of a batch-means sandwich fed
     independently, while learning, with this sample's predictive a^Y residual, the slips at the

@@ -73,7 +73,7 @@ def test_eq26_density_equals_the_scipy_student_t_mixture_and_integrates_to_one()
 
 def test_a_calibrated_std_widens_the_density_about_its_mean_by_its_factor():
     """The MPF's posterior carries `std_factor` when its lateral `*_std` is calibrated
-    (derivations Sec. 29): the density drawn is eq. (26) stretched about its mean, whose mean
+    (derivations, "Batch-means sandwich"): the density drawn is eq. (26) stretched about its mean, whose mean
     stays and whose std (integrated on a grid) is the factor times eq. (26)'s."""
     s = _niw(seed=3)
     plain = niw_mean_marginals(**s)

@@ -1,4 +1,4 @@
-"""The MPF's wheel-speed pre-filter (estimators/wheel_filter.py, derivations Sec. 24) against
+"""The MPF's wheel-speed pre-filter (estimators/wheel_filter.py, derivations, "Wheel-speed pre-filter") against
 closed forms, and how a replay and the MPF turn it on."""
 
 from __future__ import annotations

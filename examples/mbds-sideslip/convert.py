@@ -1,4 +1,4 @@
-"""Turn the MBDS race-track recording into a Log CSV (the replay input of DESIGN.md).
+"""Turn the MBDS race-track recording into a Log CSV (the replay input, docs/usage.md).
 
     .venv/bin/python examples/mbds-sideslip/convert.py [--out runs/mbds-sideslip/log.csv]
                                                       [--start T] [--end T] [--data FILE]

@@ -11,7 +11,7 @@ from tirefilter import __version__
 from tirefilter.config import read_toml
 from tirefilter.errors import ConfigError, TirefilterError
 
-from tirefilter.estimators import ESTIMATORS  # DESIGN.md reserves augpf, rls, ekf, gpssm, combined too
+from tirefilter.estimators import ESTIMATORS  # augpf, rls, ekf, gpssm, combined too (docs/design.md)
 from tirefilter.viz.options import DEFAULT_LOG_EVERY
 
 SENSOR_CHECK_S = 10.0  # s: a co-simulation's sensor noise is checked against its first seconds
@@ -94,7 +94,7 @@ def cmd_replay(args) -> int:
     q = estimator.state_noise_estimated() if callable(getattr(estimator, "state_noise_estimated", None)) else None
     if q:
         print("state process noise (std per sqrt(s)), estimated from the log at its end: "
-              + ", ".join(f"{n} {v:.3g}" for n, v in q.items()) + " [m/s, rad/s] (derivations Sec. 28)")
+              + ", ".join(f"{n} {v:.3g}" for n, v in q.items()) + " [m/s, rad/s] (docs/derivations.md, 'State noise from the data')")
     final = summary.final or {}
     estimates = [f"{p} {final[p]:.4g} +- {final[p + '_std']:.2g}" for p in ("Cf_y", "Cr_y", "Cx")
                  if final.get(p) is not None and final.get(p + "_std") is not None]
@@ -503,7 +503,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _estimator_options(p: argparse.ArgumentParser, *, default: str, particles: str) -> None:
-    """The estimator options `run` and `replay` share (DESIGN.md)."""
+    """The estimator options `run` and `replay` share (docs/usage.md)."""
     p.add_argument("--estimator", default=default, choices=ESTIMATORS, help=f"estimator (default: {default})")
     p.add_argument("--model", default="auto", choices=("full", "lateral", "auto"),
                    help="estimation model: full (wheel speeds), lateral (vx given), or auto (full with wheel speeds)")

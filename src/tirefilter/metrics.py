@@ -1,4 +1,4 @@
-"""Metrics of DESIGN.md on Result-CSV columns (windows from the scenario's schedule)."""
+"""Metrics (docs/usage.md, "Run summary") on Result-CSV columns (windows from the scenario's schedule)."""
 
 from __future__ import annotations
 
@@ -53,8 +53,8 @@ def settling_time(r: dict, param: str, t_change: float, tol: float = 0.05) -> fl
 
 PARAMS = ("Cf_y", "Cr_y", "Cx")
 STATES = (("vy", "m/s"), ("beta", "rad"), ("yaw_rate", "rad/s"), ("vx", "m/s"))
-Z90 = 1.6448536269514722  # the 90% interval of DESIGN.md's coverage: estimate +- Z90 * *_std
-CX_EXCITED = 0.5  # a run whose excitation weight of Cx (derivations Sec. 23) stays below this: "not excited"
+Z90 = 1.6448536269514722  # the 90% interval of the coverage (docs/usage.md): estimate +- Z90 * *_std
+CX_EXCITED = 0.5  # a run whose excitation weight of Cx (derivations, "The undriven axle") stays below this: "not excited"
 DIVERGED_VY = 1.0  # m/s: |v^Y - reference| beyond this is a diverged state ...
 DIVERGED_BETA = 0.1  # rad: ... or |beta - reference| beyond this, where v^Y has no reference
 
@@ -71,7 +71,7 @@ def reference(r: dict, name: str) -> tuple[str | None, np.ndarray | None]:
 
 
 def _stiffness_reference(r: dict, param: str) -> tuple[str | None, np.ndarray | None]:
-    """The surface mean (`true_<p>_mean`, DESIGN.md's stiffness error) where it exists,
+    """The surface mean (`true_<p>_mean`, the reference of the stiffness error) where it exists,
     else the effective stiffness `true_<p>` / `<p>_true` of a log."""
     col, x = reference(r, f"{param}_mean")
     return (col, x) if col else reference(r, param)
@@ -92,12 +92,12 @@ def _finite_mean(x: np.ndarray) -> float | None:
 
 def run_metrics(r: dict, schedule=None, *, restarts: int | None = None, resamples: int | None = None,
                 cx_excitation: float | None = None) -> dict:
-    """The accuracy and health figures of one run (DESIGN.md, "Metric definitions"), from
+    """The accuracy and health figures of one run (docs/usage.md, "Run summary"), from
     its Result-CSV columns `r` (name -> (n,) array).
 
     - per stiffness parameter with a reference: the mean absolute relative error (%) over
       every sample with an estimate (`mean_abs_pct`: errors cannot cancel), the same over the
-      settled window (`settled_mean_abs_pct`: DESIGN.md's steady state, from the scenario's
+      settled window (`settled_mean_abs_pct`: the steady state, from the scenario's
       `schedule` -- its `excitation` windows and `surface_changes`; None without a schedule,
       e.g. a replay), the final error, the coverage of the 90% interval estimate
       +- 1.645 `*_std` (whole run and settled window; about 0.9 when calibrated) and the
@@ -108,7 +108,7 @@ def run_metrics(r: dict, schedule=None, *, restarts: int | None = None, resample
     - restarts and resamples (the estimator's counters, None where it has none), the share
       of samples with the learning gate open (`active`);
     - `cx_excitation`: the largest excitation weight of Cx in the run (the MPF's
-      `cx_weight_max`, derivations Sec. 23; None without one);
+      `cx_weight_max`, derivations, "The undriven axle"; None without one);
     - `warnings`: one line per restart, divergence, NaN estimate or coverage below 50%, and
       one when Cx was never excited (`cx_excitation` below CX_EXCITED).
 
@@ -454,7 +454,7 @@ def _finish(out: dict, warnings: list[str], restarts, resamples, gate_open_share
     out["cx_excitation"] = None if cx_excitation is None else float(cx_excitation)
     if cx_excitation is not None and cx_excitation < CX_EXCITED:
         warnings.append(f"Cx: no wheel-slip excitation (excitation weight at most {cx_excitation:.2f} of 1, "
-                        "derivations Sec. 23): this drive cannot teach Cx, so its estimate is no measurement "
+                        "docs/derivations.md, 'The undriven axle'): this drive cannot teach Cx, so its estimate is no measurement "
                         "of it (it can drift from the vehicle file's value with the state and the a^X bias)")
     out["warnings"] = warnings
 

@@ -1,7 +1,7 @@
 """What every estimator run shares, whether its samples come from the vehicle FMU
 (`cosim.run`) or from a recorded log (`replay.run`): the seed split, the sinks of the rows
 (Result CSV, Rerun recording, rows kept in memory), the timing of `Estimator.step`, the
-progress bar, the run summary and its JSON (DESIGN.md, "Run summary JSON").
+progress bar, the run summary and its JSON (docs/usage.md, "Run summary").
 """
 
 from __future__ import annotations
@@ -332,7 +332,7 @@ def run_outputs(summary: StepSummary, columns: tuple[str, ...], **options):
 
 def write_summary_json(path: str | Path, summary: StepSummary, *, command: list[str], model: str | None,
                        particles: int | None, estimator_config: dict, **extra) -> None:
-    """The run summary JSON of DESIGN.md: version, command line, the summary's fields,
+    """The run summary JSON (docs/usage.md): version, command line, the summary's fields,
     model, N, the full estimator configuration, `extra`, and the platform."""
     record = {
         "version": __version__,

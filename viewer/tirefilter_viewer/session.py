@@ -195,7 +195,7 @@ def _open_log(s: Settings) -> LiveRun:
 
 def open_result(path: str | Path) -> dict[str, np.ndarray]:
     """The columns of a Result CSV (`tirefilter run --out` / `replay --out`), checked
-    for what the dashboard needs (the estimate columns of DESIGN.md, at least one row)."""
+    for what the dashboard needs (the estimate columns of the Result CSV, docs/design.md, at least one row)."""
     path = Path(str(path).strip())
     if not path.is_file():
         raise ConfigError(path, "", "no such Result CSV")

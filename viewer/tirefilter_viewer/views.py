@@ -14,7 +14,7 @@ import numpy as np
 from tirefilter.estimators.base import FrictionCurve
 from tirefilter_viewer.history import History
 
-Z90 = 1.6448536269514722  # the 90% interval of a Gaussian: mean +- Z90 std (DESIGN.md, coverage)
+Z90 = 1.6448536269514722  # the 90% interval of a Gaussian: mean +- Z90 std (docs/usage.md, coverage)
 STIFFNESS = ("Cf_y", "Cr_y", "Cx")
 UNITS = {"Cf_y": "kN/rad", "Cr_y": "kN/rad", "Cx": "kN/unit slip"}
 CLOUD_SCALE = 5.0  # scene units per 100% of the nominal stiffness

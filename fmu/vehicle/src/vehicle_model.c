@@ -129,7 +129,7 @@ static void axle_forces(const VehicleVars *v, double Cy, double Cx, double Fz, d
 }
 
 static double wheel_slip(double vx, double Rw_omega) {
-    /* paper 000 eq. (3) with traction positive (DESIGN.md sign conventions) */
+    /* the stiffness paper's eq. (3) with traction positive (docs/design.md sign conventions) */
     const double den = fmax(fabs(vx), fabs(Rw_omega));
     return den > 0.0 ? (Rw_omega - vx) / den : 0.0;
 }

@@ -5,7 +5,7 @@
  * VehicleModel and calls vm_initialize / vm_do_step.
  *
  * Equations (docs/vehicle_model.md):
- *   m (vx' - vy r) = Fxf cos d - Fyf sin d + Fxr - F_roll - F_drag          (paper 000, eq. 1a)
+ *   m (vx' - vy r) = Fxf cos d - Fyf sin d + Fxr - F_roll - F_drag          (stiffness paper, eq. 1a)
  *   m (vy' + vx r) = Fyf cos d + Fxf sin d + Fyr - m g sin(bank)            (eq. 1b + bank)
  *   I r'           = lf (Fyf cos d + Fxf sin d) - lr Fyr                    (eq. 1c)
  *   Iw_i w_i'      = T_drive,i - T_brake,i tanh(w_i / w_eps) - Rw Fx_i        (wheel spin)

@@ -4,7 +4,7 @@ Kept free of numpy and of the package's other modules: `ResultWriter` runs this 
 script (`python -I -S csv_format.py PATH COLUMNS`) in a helper process that takes blocks of
 rows as raw float64 bytes on its stdin and appends them to the CSV, so that a long run's
 float formatting (Python's shortest round-trip `repr`, some 60 % of a co-simulated sample
-without an estimator) runs beside the co-simulation instead of in it (issue 14).
+without an estimator) runs beside the co-simulation instead of in it.
 
 Protocol on stdin: per block an 8-byte little-endian byte count, then that many bytes of
 native float64, row after row. End of input: the process writes nothing more and exits 0.

@@ -1,10 +1,10 @@
-"""The friction CSV of DESIGN.md: snapshots of a friction estimator's curves.
+"""The friction CSV (docs/design.md): snapshots of a friction estimator's curves.
 
 `run` writes `DIR/friction.csv`, `replay` writes `RESULT.friction.csv` (the stem of
 RESULT + `.friction.csv`). Columns `t, alpha, mu_f, mu_f_std, mu_r, mu_r_std` (mu as
 lateral force over normal load, alpha in rad), plus `true_mu_f, true_mu_r` in
 co-simulation: the pure-lateral Pacejka curve at static axle load times the surface scale
-(DESIGN.md, "Metric definitions"; a linear-tire scenario: C_y alpha / F^z times the
+(docs/usage.md, "Run summary"; a linear-tire scenario: C_y alpha / F^z times the
 surface). One block of rows per snapshot: every `every` seconds of estimator time and at
 the end. Each block is flushed when written, so a run that fails keeps its snapshots.
 """

@@ -1,4 +1,4 @@
-"""The Result CSV (DESIGN.md), written incrementally so a failed run keeps its rows."""
+"""The Result CSV (docs/design.md, docs/usage.md), written incrementally so a failed run keeps its rows."""
 
 from __future__ import annotations
 

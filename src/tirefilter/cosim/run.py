@@ -272,6 +272,6 @@ def _recording_context(scenario: Scenario):
 
 def write_run_json(path: str | Path, summary: RunSummary, *, command: list[str], model: str, particles: int | None,
                    estimator_config: dict, fmi_version: str, sensors: dict | None = None) -> None:
-    """The run summary JSON of DESIGN.md (`run.json`)."""
+    """The run summary JSON (`run.json`, docs/usage.md)."""
     write_summary_json(path, summary, command=command, model=model, particles=particles,
                        estimator_config=estimator_config, fmi_version=fmi_version, sensors=sensors)

@@ -45,7 +45,7 @@ def mpf_config_for_scenario(scenario, *, model: str, particles: int | None, over
     from tirefilter.estimators.sensors import DISTURBANCE_RW
 
     kw["disturbance_rw"] = DISTURBANCE_RW if scenario.inputs.components.get("bank") else (0.0, 0.0, 0.0)
-    kw["sigma_omega"] = s.sigma_omega  # wheel-speed pre-filter where the wheels are noisy (derivations Sec. 24)
+    kw["sigma_omega"] = s.sigma_omega  # wheel-speed pre-filter where the wheels are noisy (derivations, "Wheel-speed pre-filter")
     return _mpf_config(model, particles=particles or est.get("particles"), sample_period=scenario.sample_period,
                        sigma=(s.sigma_ax, s.sigma_ay, s.sigma_yaw_rate),
                        x0_mean=tuple(x0.get("mean", (vx0, 0.0, 0.0))), overrides=overrides, **kw)
@@ -91,7 +91,7 @@ def mpf_config_for_log(vehicle, t, signals: dict, *, model: str, particles: int 
     sensors = sensors or sensors_for_log(vehicle, signals)
     # a recorded car: the model's process noise is unknown, so it comes from the data, and the log starts
     # mid-drive with the state unknown, so the stiffness statistics are drawn again once the gate first opens
-    # (derivations Sec. 28; a co-simulated scenario keeps the paper's: no state noise, no redraw)
+    # (derivations, "State noise from the data"; a co-simulated scenario keeps the paper's: no state noise, no redraw)
     return _mpf_config(model, particles=particles, sample_period=float(np.median(dt)) if dt.size else None,
                        sigma=sensors.sigma, bias0_std=sensors.bias0_std, bias_rw=sensors.bias_rw, x0_mean=x0_mean,
                        sigma_omega=sensors.sigma_omega, state_noise_from_data=True, warmup_redraw="gate",

@@ -1,4 +1,4 @@
-"""State-augmented particle filter (AUGPF): the baseline of the stiffness paper (papers/000),
+"""State-augmented particle filter (AUGPF): the baseline of the stiffness paper (Berntorp & Di Cairano, IEEE TCST 2018),
 Sec. VI-A, that models the stiffness deviations' mean and variance as extra states.
 
 Per particle i the state is the vehicle state x (full model [vx, vy, r], lateral [vy, r]),
@@ -15,7 +15,7 @@ the full model, 6 for the lateral one, as the paper's "x in R^9". A bootstrap fi
 "mean held constant, deviation 1% of the previous value"; C_ref is `init_reference`, the
 true surface-1 stiffness in a scenario, nominal for a log). The per-step deviation is then
 sampled as process noise, w_k ~ N(m_k, diag(s2_k)), and drives both the accelerations the
-IMU measures at k (eq. (12) with d = d a / d w, no Ts: DESIGN.md) and the state propagation
+IMU measures at k (eq. (12) with d = d a / d w, no Ts: docs/derivations.md, "Model") and the state propagation
 to k+1 (eq. (9), the MPF's Euler or Heun step). One step at sample k:
 
   1. propagate x with w_{k-1}; random walk of m and inverse-gamma draw of s2 (gate open);
@@ -31,7 +31,7 @@ to k+1 (eq. (9), the MPF's Euler or Heun step). One step at sample k:
      times tighter than its prior spread (sigma_ay = 0.05 m/s^2 against ~0.1-0.2 m/s^2 of
      a^X or a^Y per 10% of stiffness), in three dimensions, so a blind draw leaves an ESS of
      about 1 at every step; the cloud then wanders along the (stiffness scale, vy offset)
-     direction and diverges after paper-sim's surface change (benchmarks/README.md),
+     direction and diverges after paper-sim's surface change (docs/results.md, "Baselines on paper-sim"),
      unlike the paper's AUGPF (Fig. 4: tracking, with larger variability than the MPF);
   4. per-particle Kalman update of the bias given w_k (eq. (30) with Sigma = 0);
   5. report: stiffness = nominal + weighted mean of m, `*_std` the weighted std of the

@@ -1,4 +1,4 @@
-"""The Estimator protocol of DESIGN.md and the records it exchanges."""
+"""The Estimator protocol (docs/design.md) and the records it exchanges."""
 
 from __future__ import annotations
 

@@ -71,7 +71,7 @@ def held_ay(ay: float, last: float) -> float:
     """The a^Y that `gate_open`'s linear-region test reads, and the caller keeps as `last`: the
     sample, or where it is missing the last finite one. A sample the measurement guard marks
     missing (a held repeat, an outlier) is no evidence of the linear region; counted as 0 it
-    opened the gate at any load (derivations Sec. 26). Every estimator's gate holds it this way."""
+    opened the gate at any load (derivations, "Linear-region test"). Every estimator's gate holds it this way."""
     return ay if math.isfinite(ay) else last
 
 

@@ -1,5 +1,5 @@
 """Extended Kalman filter (EKF) on the state augmented with random-walk stiffness and IMU
-bias: the baseline of the stiffness paper (papers/000) Sec. VII-B ("EKF"), "tuned carefully".
+bias: the baseline of the stiffness paper (Berntorp & Di Cairano, IEEE TCST 2018) Sec. VII-B ("EKF"), "tuned carefully".
 
 State z = [x, c, b]: the vehicle state x (full model [vx, vy, r], lateral [vy, r] with v^X
 given), the stiffness deviations from nominal c in units of the reference stiffness (full
@@ -8,7 +8,7 @@ relative units keep the covariance well conditioned) and the biases b of the mod
 [ax, ay, yaw rate], lateral [ay, yaw rate]): 9 states (full), 6 (lateral).
 
 Model (`dynamics`, `measurement`): the MPF's accelerations, eq. (1), (2), (4) and (3) with
-the traction-positive slip sign (DESIGN.md) and the axle stiffness C_nom + c:
+the traction-positive slip sign (docs/design.md) and the axle stiffness C_nom + c:
   vx' = vy r + a^X,  vy' = a^Y - vx r,  r' = (lf F_yf,body - lr F_yr) / I,  c' = 0 + w_c,
   b' = 0 + w_b,  y = [a^X, (1 + k g) a^Y, r] + b + e,
 with slip angles alpha_f = delta - (vy + lf r)/v, alpha_r = (lr r - vy)/v, v = max(vx, 1)

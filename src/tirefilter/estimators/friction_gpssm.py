@@ -1,13 +1,14 @@
 """Online tire-friction learning by a reduced-rank GP state-space model in a particle
-filter: Algorithm 1 of Berntorp (papers/001), with the corrections of DESIGN.md and the
-combined pipeline the paper proposes but does not build (derivations, Sec. 12).
+filter: Algorithm 1 of Berntorp, "Online Bayesian tire-friction learning by Gaussian-process
+state-space models" (IFAC 2020), with the corrections of docs/derivations.md and the
+combined pipeline the paper proposes but does not build (docs/derivations.md, "Combined pipeline").
 
 Per particle: the lateral state x = [v^Y, r] (inputs u = [delta, v^X]), MNIW statistics of
 the friction deviation Delta mu(alpha) = A phi(alpha) (eq. (14), (24)-(29)), the friction
 realised over the current step. Friction mu = mu~(alpha) + Delta mu (Sec. 4): mu~ is a
 Pacejka prior (peak 0.05 by default); `combined` sets its slope from the stiffness MPF.
 
-One step at sample k (the DESIGN.md order: weight with the current predictive, resample,
+One step at sample k (the order of docs/derivations.md, "The filter step": weight with the current predictive, resample,
 then update the statistics with the same sample that drives the state):
   1. propagate x_k = x_{k-1} + T_s f(x_{k-1}, u_{k-1}, mu_{k-1}) (eq. (1), Euler with the
      friction held, sub-steps of at most `max_step`), forget the statistics (eq. (29));

@@ -47,7 +47,7 @@ so every inner loop is a vector operation over lanes; fewer lanes when the batch
 three stages per block of lanes: the pending update and the forgetting, a vector operation over
 the lanes per entry of K, since the step keeps K itself in lanes between `flush`es (`Kl`
 (blocks, m, m, LANES), loaded from the statistics by `lanes_load` at the first step after a
-flush, written back by `lanes_store`; issue 14, stop 24: the sweep over each element's K apart,
+flush, written back by `lanes_store`; the sweep over each element's K apart,
 written into its lane strided by the lane count, took half of the pass), each entry written into
 the factorisation's matrix in the same sweep (`_lane_heads` does each element's scalar part),
 the factorisation with the forward substitution (`_chol_lanes`), and the predictive's sums over
@@ -56,9 +56,8 @@ the basis accumulated over all lanes at once before each lane's scalar tail
 10-20% of the pass at m = 10). From `LANES_BELOW` up (the tensor bases) each matrix is
 factorised alone by a register-blocked row Cholesky (`_chol_rows`: four rows against two
 columns, the sums over the columns vectorised), about 0.6 of LAPACK's dpotrf called per matrix
-at m = 100 and 0.9 of the lanes at m = 50 (benchmarks/README.md, "The GP-SSM's factorisation
-(fourth pass)"). No exact low-rank update of the factor exists under the paper's forgetting
-(docs/derivations.md, Sec. 20): each step refactorises.
+at m = 100 and 0.9 of the lanes at m = 50 (docs/performance.md, "Backends"). No exact low-rank update of the factor exists under the paper's forgetting
+(docs/derivations.md, "The GP-SSM's exact statistics in the compiled step"): each step refactorises.
 
 Per-particle quantities of the step live in one (N, columns) array `work` (columns below),
 so resampling copies them with the statistics in one call. The Python around the kernels is

@@ -7,7 +7,7 @@ MPF's stiffness statistics are updated with a w drawn given the residual, a Kalm
 is linear in it. A +20 m/s^2 spike in a^Y therefore shifts the stiffness and the bias and
 can empty the plausible region (a restart). The guard removes such samples *before* the
 update by marking the component missing (NaN), which every estimator already handles as a
-missing sample (DESIGN.md, `Measurement`). It needs nothing from the estimator, so one
+missing sample (docs/design.md, `Measurement`). It needs nothing from the estimator, so one
 implementation serves them all; the run loop (`runs.RunOutputs.step`) applies the guard an
 estimator carries as `estimator.guard` (set by `estimators.build_estimator` /
 `build_log_estimator` from the `[guard]` table of `--config`).
@@ -103,7 +103,7 @@ class _Channel:
     def __call__(self, y: float) -> float:
         if not math.isfinite(y):
             return y
-        cfg, prev = self.cfg, self.prev  # locals: this runs three times a sample (issue 14)
+        cfg, prev = self.cfg, self.prev  # locals: this runs three times a sample
         if cfg.held and y == prev:
             self.held += 1
             return math.nan

@@ -2,14 +2,14 @@
 the stiffness MPF has to beat (sideslip RMSE on a real recording).
 
 Model: the lateral model of the stiffness MPF (`StiffnessMPF._accelerations` with
-`model="lateral"`, paper 000 eq. (1b)-(1c), (2), (4) with small angles), state x = [vy, r],
+`model="lateral"`, the stiffness paper's eq. (1b)-(1c), (2), (4) with small angles), state x = [vy, r],
 inputs delta (road-wheel steer) and vx (from other logic), fixed stiffness Cf, Cr:
 
     alpha_f = delta - (vy + lf r) / v,   alpha_r = (lr r - vy) / v,   v = max(vx, vx_min)
     a^Y = (Cf alpha_f cos(delta) + Cr alpha_r) / m
     vy' = -vx r + a^Y + w_vy,            r' = (lf Cf alpha_f cos(delta) - lr Cr alpha_r) / I + w_r
     y = [(1 + k g) a^Y, r] + e           (k = roll_gradient: the IMU's lateral axis sees the
-                                          roll, DESIGN.md; e ~ N(0, diag(sigma_ay^2, sigma_r^2)))
+                                          roll, docs/design.md; e ~ N(0, diag(sigma_ay^2, sigma_r^2)))
 
 The speed floor v = max(vx, vx_min) applies to the slip formulas only (as in the MPF); the
 kinematic term -vx r uses vx itself. For given (vx, delta) the model is affine in x:

@@ -3,7 +3,7 @@ every sample after the first (`StiffnessMPF._step_compiled`) in three passes ove
 particles, each a loop of straight per-particle arithmetic on arrays the caller allocated
 once and reuses from sample to sample:
 
-  predict_weigh   step 1 and 2: the wheel slip over the step (derivations, Sec. 22),
+  predict_weigh   step 1 and 2: the wheel slip over the step (derivations, "Wheel slip"),
                   propagation (eq. (9), Euler or Heun with w and the wheel slip held,
                   sub-steps), state noise, bias prediction (eq. (29)), forgetting
                   (eq. (20)), the model at x_k (eq. (1)-(4): a + B w, also the first stage of
@@ -20,7 +20,7 @@ once and reuses from sample to sample:
 Why three passes and not one kernel per stage: at N = 500 a stage does a few hundred
 nanoseconds of arithmetic per particle, and a dozen numba calls per sample with their
 argument checks, fresh output arrays and re-reads of the model's outputs cost as much
-(benchmarks/README.md, "Compiled kernels"). The per-particle code is written inline in the
+(docs/performance.md, "Backends"). The per-particle code is written inline in the
 loops: views of per-particle rows (x[i]) passed to helper functions cost a reference count
 each and measured slower.
 
@@ -29,7 +29,7 @@ and logarithms (the 3 x 3 Cholesky factorisations, the triangular solves, the St
 density, the wheel slip over the step) each run in a short loop of their own over the
 particles, reading and writing the per-particle arrays: in one long loop body the CPU
 cannot overlap one particle's chain with the next particle's, in a short one it does
-(benchmarks/README.md, "The fused MPF step (third pass)"). The weights (`_weigh`) and the
+(docs/performance.md, "Backends"). The weights (`_weigh`) and the
 conditional draw with the learning (`_sample`) are inlined functions that the passes call
 with the sizes (n_w, the available channels, the accelerometer channels) as constants in the
 usual cases, the full model with every channel and the lateral model, so that the compiler
@@ -37,11 +37,10 @@ unrolls their small loops; other sizes (a missing sample) take the same code wit
 as variables. Each case is a signature of its own of the one entry point (`predict_weigh`, the
 same for `sample_update`), picked by the number of dimensions of the empty array `sizes` that
 the caller passes last (`SIZES_FULL`, `SIZES_LATERAL`, `SIZES_ANY`: the sizes are then constants
-of the argument's type), so that a run compiles only the ones it calls, each once (before stop
-26, one entry point per case called the pass's body with the sizes as literals: each case
-compiled twice, its body and the entry point that linked it in; and inlining the body into the
-entry point instead took a third more compile: benchmarks/README.md, "Test suite time: the
-compile (stop 25)" and "(stop 26)").
+of the argument's type), so that a run compiles only the ones it calls, each once (one entry point per case calling the
+pass's body with the sizes as literals compiled each case twice, its body and the entry point
+that linked it in; inlining the body into the entry point instead took a third more compile:
+docs/development.md, "How long `make test` takes").
 
 In `predict_weigh` the propagation evaluates the model on scalars (`_model_t`, `_xdot_t`: the
 model's a, B and dx/dt returned, not stored in scratch arrays and read back, so that LLVM keeps
@@ -49,8 +48,7 @@ them in registers; 1.6-2x faster on that stage, bit for bit the same numbers); t
 kernels keep `_model1`, which computes the same expressions into arrays. The loops stay scalar
 (one particle at a time): LLVM vectorises a loop across particles only over one array per
 component and with numba's internal `noalias` flag, and the transposes into such arrays cost
-more than the vector lanes save (benchmarks/README.md, "The MPF passes across particles
-(stop 25)", benchmarks/bench_mpf_lanes.py).
+more than the vector lanes save (docs/performance.md, "Backends").
 
 The numpy methods of `StiffnessMPF` are the readable reference; the kernels compute the
 same expressions in the same order, one particle at a time, and consume random numbers
@@ -71,7 +69,7 @@ from tirefilter.stats.particles_numba import systematic_into
 
 _JIT = dict(cache=True, nogil=True, no_cfunc_wrapper=True)  # (no C callback is taken of a kernel)
 # a helper only kernels call: no wrapper for Python calls either (each wrapper, which unboxes every
-# argument, was compiled and never called: benchmarks/README.md, "Test suite time: the compile (stop 26)");
+# argument, was compiled and never called: docs/development.md, "How long `make test` takes");
 # called from Python such a helper crashes the interpreter instead of raising (tests/test_kernel_calls.py)
 _JIT_IN = dict(_JIT, no_cpython_wrapper=True)
 # the last argument of `predict_weigh` and `sample_update`: its number of dimensions picks the sizes
@@ -109,8 +107,7 @@ def _model1(x0, x1, x2, u0, u1, u2, u3, k, held, sf, sr, a, B, vp, full, rear_dr
 def _model_t(x0, x1, x2, u0, u1, u2, u3, k, held, sf, sr, vp, full, rear_drive):
     """One particle's model (`StiffnessMPF._model`) on scalars, returned, not stored: the
     propagation of `predict_weigh` keeps the values in registers this way (stored in scratch
-    arrays and read back, they cannot stay there: benchmarks/README.md, "The MPF passes across
-    particles (stop 25)"); `_model1` stores them for the other kernels. k = `_steer_consts(u0, vp)`;
+    arrays and read back, they cannot stay there: docs/performance.md, "Backends"); `_model1` stores them for the other kernels. k = `_steer_consts(u0, vp)`;
     vp = (m, I, lf, lr, Cf_y, Cr_y, C_nom_fx, C_nom_rx, R_w, undriven_share).
     Returns (a0, a1, a2, b00, b01, b02, b10, b11, b12, b20, b21, b22, af, ar, lam_f, lam_r), b_rc the
     entries of B (3, 3) in the full model; in the lateral model B is (3, 2): b_r0, b_r1, and b_r2 = 0."""
@@ -206,7 +203,7 @@ def _interval_slip1(vx, vy, r, acc0, wx, slip_f, slip_r, u0, u1, dt, vp, jw, c_f
 @njit(**_JIT)
 def slip_over_step(x, u0, u1, w, a, B, slip, dt, vp, jw, c_floor, rear_drive, n_w):
     """`StiffnessMPF._slip_over_step` (full model): the first stage of the propagation from t_k
-    to t_k + dt with the wheel slip averaged over the interval (derivations, Sec. 22).
+    to t_k + dt with the wheel slip averaged over the interval (derivations, "Wheel slip").
 
     x (N, 3) at t_k; u0, u1 (4,) the inputs at t_k and t_k+1; w (N, n_w) held over the step;
     a (N, 3), B (N, 3, n_w), slip (2, N) of `model(x, u0)`; vp as in `_model1`; jw (2,) the
@@ -450,7 +447,7 @@ def _weigh(x, a, B, full, roll_gain, h, D, nu, nu_w, gamma, Lam, L11, avail, L12
             e[i, q] = y[ch] - (h[i, ch] + b[i, ch]) - s
     # Lc = chol(S) in place (`_chol`), then v = Lc^-1 e and the weight: each in its own short loop
     # over the particles, whose latency chains (square roots, divisions, logarithms) the CPU then
-    # overlaps across particles (in one long loop body it cannot: benchmarks/README.md)
+    # overlaps across particles (in one long loop body it cannot: docs/performance.md)
     for i in range(n if na else 0):
         for j in range(na):
             Sjj = Lc[i, j, j]
@@ -528,7 +525,7 @@ def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, int
         n_w, na = mu.shape[1], avail.shape[0]
     n, nx = x.shape
     # the sizes as constants in the propagation too (taken from mu.shape[1] there, the step ran
-    # slower: benchmarks/README.md, "Test suite time: the compile (stop 25)")
+    # slower: docs/development.md, "How long `make test` takes")
     n_wp = n_w
     mch = q.shape[0]
     kp = _steer_consts(u_prev[0], vp)  # (once per sample, not per particle)
@@ -824,7 +821,7 @@ def sample_update(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, 
       eq. (39)-(41) (`t_conditional` with `L22_chol`, `x2_white`): M = Lc^-1 L21,
       mu_c = mu + M^T v, Lam_c = (nu~ + v^T v) / (nu~ + nc) (L11 - M^T M), and `t_sample`'s
       draw mu_c + chol(Lam_c) z sqrt(nu_draw / chi) with the caller's z (N, n_w), chi (N,), its
-      spread about mu_c times infl[0] (sqrt(c) of the surprise inflation, derivations Sec. 25; 1: off),
+      spread about mu_c times infl[0] (sqrt(c) of the surprise inflation, derivations, "Surprise inflation"; 1: off),
       and the statistics' update and the drift from the same draw with infl[1] in its place;
     - the outlier mask (`use_mask`): learn while |v_acc|^2 < bound;
     - the bias update (`_bias_update`, eq. (30), `do_bias`): S = P_aa + R_aa + D_a E[Sigma] D_a^T,

@@ -1,5 +1,5 @@
 """Kalman filter + recursive least squares (RLS): the regression baseline of the stiffness
-paper (papers/000) Sec. VI-A, after Lundquist and Schon (2009): a Kalman filter for the
+paper (Berntorp & Di Cairano, IEEE TCST 2018) Sec. VI-A, after Lundquist and Schon (2009): a Kalman filter for the
 lateral dynamics feeds a forgetting-factor linear regression for the lateral axle stiffness.
 
 1. Kalman filter: the linear single-track filter of `linear_kf` (state [vy, r], v^X given:
@@ -12,7 +12,7 @@ lateral dynamics feeds a forgetting-factor linear regression for the lateral axl
      a^Y_meas / g_roll = [cos(delta) alpha_f, alpha_r] / m        theta + e1,
      r'                = [lf cos(delta) alpha_f, -lr alpha_r] / I  theta + e2,
 
-   the measured lateral acceleration (g_roll = 1 + k g, the roll gain of DESIGN.md) and the
+   the measured lateral acceleration (g_roll = 1 + k g, the roll gain of docs/design.md) and the
    yaw acceleration built from the filtered yaw rates, r' = (r_k - r_{k-1}) / dt, whose
    regressor is the mean of the regressors at k-1 and k (r' is the mean slope over the
    interval). Weights W = diag(1/sigma_ay'^2, 1/sigma_yaw_acc^2) (sigma_ay' = sigma_ay /

@@ -30,7 +30,7 @@ CHANNELS = ("ax", "ay", "yaw_rate")
 UNITS = ("m/s^2", "m/s^2", "rad/s")
 MEMS_BIAS0_STD = (0.3, 0.3, 0.01)  # m/s^2, m/s^2, rad/s
 MEMS_BIAS_RW = (0.001, 0.001, 0.0001)  # per sqrt(s)
-DISTURBANCE_RW = (0.0, 0.05, 0.0)  # per sqrt(s): road bank and roll seen on a^Y (derivations, Sec. 16)
+DISTURBANCE_RW = (0.0, 0.05, 0.0)  # per sqrt(s): road bank and roll seen on a^Y (derivations, "Bias defaults and wandering offsets")
 FALLBACK_SIGMA = (0.3, 0.3, 0.005)  # no figure given and too few samples to estimate one
 DISAGREE = 3.0  # a given noise figure this many times off the data's is reported
 
@@ -50,7 +50,7 @@ class SensorModel:
     disturbance_rw: tuple[float, float, float] = (0.0, 0.0, 0.0)  # wandering offsets (road bank, roll), per sqrt(s)
     warnings: tuple[str, ...] = field(default=())
     # wheel-speed white noise (rad/s; 0: none, or none known), where it came from ("data", "scenario"); the
-    # MPF filters the wheel speeds with it (`[mpf] sigma_omega`, derivations Sec. 24)
+    # MPF filters the wheel speeds with it (`[mpf] sigma_omega`, derivations, "Wheel-speed pre-filter")
     sigma_omega: float = 0.0
     sigma_omega_source: str = ""
 

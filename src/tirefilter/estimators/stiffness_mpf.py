@@ -1,6 +1,7 @@
 """Noise-adaptive marginalized particle filter for tire stiffness, vehicle state and IMU
-bias: Algorithm 1 of Berntorp & Di Cairano (papers/000), with the corrections listed in
-DESIGN.md and derived in docs/derivations.md.
+bias: Algorithm 1 of Berntorp & Di Cairano, "Tire-stiffness and vehicle-state estimation based on
+noise-adaptive particle filtering" (IEEE TCST 2018), with the corrections listed in
+docs/design.md and derived in docs/derivations.md.
 
 Per particle: the state x (full model [vx, vy, r], lateral model [vy, r]), NiW statistics
 of the stiffness deviations w (full [dC_x, dCf_y, dCr_y], lateral [dCf_y, dCr_y]), and a
@@ -47,7 +48,7 @@ class MPFConfig:
 
     particles: int = 500
     forgetting: float = 0.99  # lambda of eq. (20); with adaptive forgetting its value when the data fit
-    # adaptive forgetting (derivations, Sec. 17): lambda_k = clip(1 - (1 - forgetting) z_k, forgetting_min,
+    # adaptive forgetting (derivations, "Adaptive forgetting"): lambda_k = clip(1 - (1 - forgetting) z_k, forgetting_min,
     # forgetting_max), z_k the smoothed normalised innovation of the accelerometers (1 when the data fit the
     # predictive): a surface change forgets fast, a drive that fits keeps a long memory. "fixed": the paper's
     forgetting_mode: str = "adaptive"  # "adaptive" | "fixed"
@@ -57,17 +58,17 @@ class MPFConfig:
     drift_time: float = 1.0  # s, time constant of the smoothing of z'_k (the lean of the sampled w)
     model: str = "full"  # "full" (wheel speeds) | "lateral" (vx given)
     integrator: str = "heun"  # "euler" (the paper) | "heun" (same w, wheel slip held)
-    # wheel slip in the propagation from t_k to t_k+1 (derivations, Sec. 22): "interval": its mean over
+    # wheel slip in the propagation from t_k to t_k+1 (derivations, "Wheel slip"): "interval": its mean over
     # the interval, the wheel settling (time constant J v^X / (R_w^2 C), a few ms) from the slip at t_k to
     # the one the wheel speeds at t_k+1 give; "start": the slip at t_k held (the paper)
     slip_hold: str = "interval"
     # longitudinal stiffness of the undriven axle: "nominal": its nominal value (the paper); "surface": its
     # nominal scaled as the driven axle's estimate (one surface under both axles: right where Cx is learned,
-    # harmful where it is not, derivations Sec. 22); "learned": scaled by the share rho of the driven axle's
-    # deviation that the wheel-slip excitation has taught (0: nominal, 1: surface; derivations Sec. 23)
+    # harmful where it is not, derivations, "Wheel slip"); "learned": scaled by the share rho of the driven axle's
+    # deviation that the wheel-slip excitation has taught (0: nominal, 1: surface; derivations, "The undriven axle")
     undriven_stiffness: str = "learned"
     # "learned": a driven-axle slip level held longer than this (s) is confounded with the a^X bias and v^X
-    # errors; only its changes within this time count as excitation of Cx (derivations Sec. 23)
+    # errors; only its changes within this time count as excitation of Cx (derivations, "The undriven axle")
     cx_excitation_time: float = 1.0
     resample_threshold: float = 0.5  # resample when ESS < threshold * N
     # initial stiffness: per-particle means drawn around `init_center` (absolute, per
@@ -83,7 +84,7 @@ class MPFConfig:
     x0_mean: tuple[float, ...] | None = None  # initial state mean (full: vx, vy, r)
     x0_std: tuple[float, ...] = (1.0, 0.5, 0.0175)  # full: vx, vy, r (lateral uses vy, r)
     state_noise: tuple[float, ...] = (0.0, 0.0, 0.0)  # additive process noise per sqrt(s), full: vx, vy, r
-    # process noise of the state from the data (derivations Sec. 28): the intensity per component that makes
+    # process noise of the state from the data (derivations, "State noise from the data"): the intensity per component that makes
     # the corrections the weights make to the state's mean consistent with the spread they remove (covariance
     # matching of the state corrections, Myers and Tapley 1976), smoothed over state_noise_time s; the applied
     # intensity is the larger of it and state_noise's. False: state_noise alone (the paper: none)
@@ -93,23 +94,23 @@ class MPFConfig:
     # (z > z_on = (1 - forgetting_min) / (1 - forgetting)): std per sqrt(s) vy_jitter sqrt(z - z_on), added
     # to state_noise's; 0: off
     vy_jitter: float = 0.0
-    # surprise inflation of the draw of w_k (derivations Sec. 25): with adaptive forgetting, the conditional
+    # surprise inflation of the draw of w_k (derivations, "Surprise inflation"): with adaptive forgetting, the conditional
     # scale of w_k is multiplied by c = max(1, 1 + surprise_inflation (z - 1)), z the smoothed innovation
-    # statistic (Sec. 17): 1 matches the deviations' covariance to the residuals the accelerometers show; 0: off,
-    # the paper's draw (the default: with it on, an unmodelled IMU gain on a peer drive ends past 10%, Sec. 27)
+    # statistic ("Adaptive forgetting"): 1 matches the deviations' covariance to the residuals the accelerometers show; 0: off,
+    # the paper's draw (the default: with it on, an unmodelled IMU gain on a peer drive ends past 10%, "Surprise inflation")
     surprise_inflation: float = 0.0
     # the draw the statistics learn from (eq. (19)) and the drift statistic sees: the same draw at c = 1,
     # mu_c + (w_k - mu_c) / sqrt(c) (False: only the state's propagation is inflated), or the inflated one (True)
     inflation_in_statistics: bool = False
     # the inflation is armed only once the learning gate has been open this long (s, in total) since the start
-    # or the last restart (derivations Sec. 27): before, a surprise is the start's own error (the prior far
+    # or the last restart (derivations, "Surprise inflation"): before, a surprise is the start's own error (the prior far
     # from the truth, a v^Y / stiffness pair not yet separated by the steer), not a change; 0: from the start
     inflation_after: float = 5.0
-    # c at most the prior's relative variance of the stiffness over the last estimate's deviation spread (Sec. 25:
-    # keeps a start from inflating; with `inflation_after` the start is disarmed anyway, Sec. 27)
+    # c at most the prior's relative variance of the stiffness over the last estimate's deviation spread ("Surprise inflation":
+    # keeps a start from inflating; with `inflation_after` the start is disarmed anyway, "Surprise inflation")
     inflation_prior_bound: bool = False
     # > 0: c from the surprise over its own level, z_k / max(1, zbar_k), zbar the innovation statistic smoothed
-    # over this many seconds (a persistent model error is no change either, Sec. 27); 0: z_k against 1
+    # over this many seconds (a persistent model error is no change either, "Surprise inflation"); 0: z_k against 1
     inflation_baseline_time: float = 0.0
     x0_vx_from_wheels: bool = True  # full model: centre vx on R_w omega of the undriven axle
     x0_vx_wheel_std: float = 0.02  # m/s, spread around it (the free-rolling wheel's slip)
@@ -120,16 +121,16 @@ class MPFConfig:
     gate_alpha_max: float = 0.08  # rad
     gate_vy_std: float = 0.15  # m/s: learn only once the lateral velocity is known this well
     gate_warmup: float = 1.0  # s after the first sample with learning off: the state settles first
-    # the stiffness statistics drawn again from the prior (derivations Sec. 28) at the end of gate_warmup
+    # the stiffness statistics drawn again from the prior (derivations, "State noise from the data") at the end of gate_warmup
     # ("warmup") or after the learning gate's first open sample ("gate"): the weights of the settling state
     # select particles, and with them stiffness, without information on it; "off": never (the paper)
     warmup_redraw: str = "off"
-    # the a^Y of the linear-region test (derivations, Sec. 26): "predicted": the filter's one-step prediction
+    # the a^Y of the linear-region test (derivations, "Linear-region test"): "predicted": the filter's one-step prediction
     # of the a^Y sample (free of the sample's own noise, which selects the learning samples otherwise);
     # "measured": the sample; "measured-zero": the sample, a missing one (the guard's held and outlying
     # samples) counting as 0, which opens the gate at any load. A missing sample holds the last value.
     gate_ay: str = "measured"
-    # the acceleration of the linear-region test (derivations, Sec. 28): "lateral": |a^Y| alone (the paper);
+    # the acceleration of the linear-region test (derivations, "State noise from the data"): "lateral": |a^Y| alone (the paper);
     # "combined": the horizontal magnitude sqrt(a^X^2 + a^Y^2) (the friction circle: braking and traction use
     # the tire's grip and move load between the axles), a missing a^X holding the last one; "auto": combined
     # in the lateral model, which models no longitudinal force, lateral in the full one (it learns Cx there)
@@ -158,10 +159,10 @@ class MPFConfig:
     bias_rw: tuple[float, float, float] = MEMS_BIAS_RW
     bias0_std: tuple[float, float, float] = MEMS_BIAS0_STD
     # unmodelled offsets that wander (road bank and crown, body roll): a random walk per
-    # sqrt(s) added to the bias's (derivations, Sec. 16); zero: the paper's bias model
+    # sqrt(s) added to the bias's (derivations, "Bias defaults and wandering offsets"); zero: the paper's bias model
     disturbance_rw: tuple[float, float, float] = DISTURBANCE_RW
     # wheel-speed white noise (rad/s): > 0 filters the wheel speeds before the model takes them (full model;
-    # `wheel_filter.WheelSpeedFilter`, derivations Sec. 24: noisy wheel speeds bias Cx low); 0: taken as exact
+    # `wheel_filter.WheelSpeedFilter`, derivations, "Wheel-speed pre-filter": noisy wheel speeds bias Cx low); 0: taken as exact
     # (the paper). A replay sets it from the log's wheel speeds, a scenario from its sensor spec
     sigma_omega: float = 0.0
     wheel_slip_rw: float = 0.02  # m/s per sqrt(s): random walk of an axle's slip speed R_w omega - v^X in that filter
@@ -169,7 +170,7 @@ class MPFConfig:
     max_step: float = 0.02  # s, longest propagation step: longer sample intervals are sub-stepped
     gap_after: float = 0.5  # s: a longer time step is a gap: v^X drawn again from the wheel speeds (0: never)
     backend: str = "numba"  # "numba": the compiled step (mpf_numba.py) | "numpy": the reference
-    # the posterior std of the lateral stiffness means (derivations Sec. 29): "sandwich": `*_std` of eq. (27)
+    # the posterior std of the lateral stiffness means (derivations, "Batch-means sandwich"): "sandwich": `*_std` of eq. (27)
     # times the batch-means sandwich factor of the scores of the a^Y residual, sqrt of their integrated
     # autocorrelation time (the misfit that a linear tire leaves over the visited slips is correlated in
     # time; the model assumes it white); "off": the paper's posterior of the mean
@@ -269,7 +270,7 @@ class StiffnessMPF:
         # "surface": the undriven axle's longitudinal stiffness moves with the driven axle's estimate,
         # C_u = C_u,nom (1 + w_x / C_x,nom): its force adds share * slip_u * w_x to B's first column;
         # "learned": C_u = C_u,nom (1 + rho w_x / C_x,nom), share = rho * C_u,nom / C_x,nom with rho the
-        # excitation weight of Cx (`_excite_cx`, derivations Sec. 23), 0 until the wheel slip has taught Cx
+        # excitation weight of Cx (`_excite_cx`, derivations, "The undriven axle"), 0 until the wheel slip has taught Cx
         self.full_share = other / v.Cx if self.cfg.undriven_stiffness in ("surface", "learned") else 0.0
         self.undriven_share = self.full_share if self.cfg.undriven_stiffness == "surface" else 0.0
         self.full = self.cfg.model == "full"
@@ -285,7 +286,7 @@ class StiffnessMPF:
         q_sensor, q_road = np.square(self.cfg.bias_rw)[ch], np.square(self.cfg.disturbance_rw)[ch]  # per s
         self.bias_on = bool(np.any(q_sensor + q_road > 0) or np.any(np.asarray(self.cfg.bias0_std) > 0))
         # the road offsets wander only where the linear tire model holds: beyond it the
-        # residual is the model's error, not the road's (derivations, Sec. 16)
+        # residual is the model's error, not the road's (derivations, "Bias defaults and wandering offsets")
         self.q_bias, self.q_bias_nonlinear = q_sensor + q_road, q_sensor
         q = np.asarray(self.cfg.state_noise, float)[-(3 if self.full else 2):]
         self.state_noise = q if np.any(q > 0) or self.cfg.vy_jitter > 0 or self.cfg.state_noise_from_data else None
@@ -340,7 +341,7 @@ class StiffnessMPF:
 
     def state_noise_estimated(self) -> dict | None:
         """The state's process noise as estimated from the data so far (`state_noise_from_data`,
-        derivations Sec. 28), std per sqrt(s) by state component; None when it is not estimated."""
+        derivations, "State noise from the data"), std per sqrt(s) by state component; None when it is not estimated."""
         if not self.cfg.state_noise_from_data or not hasattr(self, "q_state"):
             return None
         names = ("vx", "vy", "yaw_rate") if self.full else ("vy", "yaw_rate")
@@ -510,7 +511,7 @@ class StiffnessMPF:
 
     def _slip_over_step(self, x, u0, u1, w, first, dt):
         """The first stage of the propagation from t_k to t_k+1 = t_k + dt with the wheel slip
-        averaged over the interval (slip_hold = "interval", derivations Sec. 22).
+        averaged over the interval (slip_hold = "interval", derivations, "Wheel slip").
 
         x (N, 3) at t_k, u0 / u1 the inputs at t_k / t_k+1, w (N, n_w) the deviations held over
         the step, first = (a, B, af, ar, slip) of `_model(x, u0)`. The wheel settles from the
@@ -544,7 +545,7 @@ class StiffnessMPF:
     def _measurement(self, a, B, x):
         """h(x, u) and d(x, u) of eq. (12) for the model's channels, from the model's
         accelerations: the IMU sees the accelerations (a^Y times the roll gain) and the yaw
-        rate; d = d a / d w (no Ts: DESIGN.md, eq. (12) trap)."""
+        rate; d = d a / d w (no Ts: eq. (12), docs/derivations.md, "Model")."""
         gain = self.roll_gain
         r = x[:, -1]
         if self.full:
@@ -568,7 +569,7 @@ class StiffnessMPF:
 
     def _calibrate(self, est: Estimate, dt: float) -> Estimate:
         """`*_std` of the lateral stiffnesses times the batch-means sandwich factor (derivations
-        Sec. 29, `stats.sandwich`): while learning, the score of this sample's a^Y residual e (the
+        "Batch-means sandwich", `stats.sandwich`): while learning, the score of this sample's a^Y residual e (the
         predictive-weighted mean of the weighting's residuals) for the two lateral deviations is
         d e with d = (alpha_f cos delta, alpha_r), the slips at the posterior-mean state (the
         columns of eq. (12)'s d up to the factor (1 + k g) / m, which cancels in the ratio)."""
@@ -660,7 +661,7 @@ class StiffnessMPF:
         mu_w, L11, nu_w = self.stats.predictive()
 
         # 2. weights, eq. (36): the joint Student-t of (w, residual) with the common dof
-        #    nu~ = nu - n_w + 1 and every block scaled alike (derivations, Sec. 3)
+        #    nu~ = nu - n_w + 1 and every block scaled alike (derivations, "Weight and conditional")
         if a.size:
             every = a.size == len(self.channels)  # the usual case: no indexing needed
             Da = D if every else D[:, a]
@@ -726,7 +727,7 @@ class StiffnessMPF:
             vc = solve_lower(Lc[:, :nc, :nc], e[:, :nc])
             learn = np.sum(vc * vc, axis=1) < self._outlier_bound(nc)
 
-        # 4. bias, eq. (30), with the predicted statistics (DESIGN.md order)
+        # 4. bias, eq. (30), with the predicted statistics (docs/derivations.md, "Order of Algorithm 1")
         if a.size and self.bias_on:
             self._bias_update(yk, h, D, a)
         if self.active:
@@ -744,7 +745,7 @@ class StiffnessMPF:
 
     def _filter_wheels(self, t: float, u_now: np.ndarray, y: Measurement) -> None:
         """The measured wheel speeds u_now[1:3] replaced in place by the pre-filter's estimates
-        (`wheel_filter.WheelSpeedFilter`, derivations Sec. 24; a missing one stays missing). Its
+        (`wheel_filter.WheelSpeedFilter`, derivations, "Wheel-speed pre-filter"; a missing one stays missing). Its
         drive over the step from the last sample: that sample's measured a^X minus the posterior
         mean of its bias, plus the posterior mean of v^Y r (the particles as they stand, before
         this sample's propagation). The first sample and the sample after a gap (`_gap`) start
@@ -768,7 +769,7 @@ class StiffnessMPF:
         u_now[1:3] = f.step(dt, u_now[1:3], drive)
 
     def _match_state_noise(self, logw_pred: np.ndarray, dt: float) -> None:
-        """`state_noise_from_data` (derivations Sec. 28): with the predictive weights logw_pred and
+        """`state_noise_from_data` (derivations, "State noise from the data"): with the predictive weights logw_pred and
         the weights after this sample's likelihood, both over the propagated particles x, the
         correction of the state's mean d = m+ - m- and the spreads P-, P+ per component give
         g = (d^2 - (P- - P+)) / dt + q, q the intensity applied in this propagation: the intensity
@@ -789,7 +790,7 @@ class StiffnessMPF:
         """Std of the additive state noise over a step dt (nx,): `state_noise` sqrt(dt), and on
         v^Y also vy_jitter sqrt(z - z_on) sqrt(dt) while the adaptive forgetting's smoothed
         innovation statistic z of the previous sample exceeds z_on, the z that puts lambda at its
-        floor `forgetting_min` (a change: benchmarks/README, "v^Y noise at a change")."""
+        floor `forgetting_min` (a change: docs/results.md, "Options of the MPF")."""
         cfg, q = self.cfg, self.state_noise
         if cfg.state_noise_from_data:
             q = np.sqrt(np.maximum(q * q, self.q_state))
@@ -811,7 +812,7 @@ class StiffnessMPF:
         self._set_undriven_share()
 
     def _cx_prior_var(self) -> float:
-        """Prior variance of the mean of dC_x, (s C_ref,x)^2 (Sec. 7: the particles' spread plus
+        """Prior variance of the mean of dC_x, (s C_ref,x)^2 ("Initialisation": the particles' spread plus
         the within-particle share), s = init_std or init_half_width / sqrt(3)."""
         cfg = self.cfg
         s = cfg.init_std if cfg.init_distribution == "normal" else cfg.init_half_width / math.sqrt(3.0)
@@ -824,7 +825,7 @@ class StiffnessMPF:
                 self._vp[9] = self.undriven_share
 
     def _excite_cx(self, vx: float, uk: np.ndarray, dt: float) -> None:
-        """The excitation weight of Cx after sample k (derivations Sec. 23), full model.
+        """The excitation weight of Cx after sample k (derivations, "The undriven axle"), full model.
 
         The driven axle's slip at the posterior-mean v^X, lambda_k, minus its level smoothed over
         `cx_excitation_time` T (a level held longer is confounded with the a^X bias and v^X
@@ -867,9 +868,9 @@ class StiffnessMPF:
         cfg = self.cfg
         ay = self.ay_pred if cfg.gate_ay == "predicted" else y.ay
         self.ay_pred = math.nan
-        if cfg.gate_ay != "measured-zero":  # a missing sample is no evidence of the linear region (Sec. 26)
+        if cfg.gate_ay != "measured-zero":  # a missing sample is no evidence of the linear region ("Linear-region test")
             ay = self.ay_last = held_ay(ay, self.ay_last)
-        if self._gate_combined:  # the friction circle's load, sqrt(a^X^2 + a^Y^2) (Sec. 28)
+        if self._gate_combined:  # the friction circle's load, sqrt(a^X^2 + a^Y^2) ("State noise from the data")
             ax = self.ax_last = held_ay(y.ax, self.ax_last)
             if math.isfinite(ax) and math.isfinite(ay):
                 ay = math.hypot(ax, ay)
@@ -1032,7 +1033,7 @@ class StiffnessMPF:
         return est
 
     def _ay_residual(self, a: np.ndarray, logw_pred: np.ndarray, wk: "_MPFWork") -> None:
-        """`_predict_ay`'s `_e_ay` for the fused step, the residual of the calibration (Sec. 29):
+        """`_predict_ay`'s `_e_ay` for the fused step, the residual of the calibration ("Batch-means sandwich"):
         the same expression on the column of a^Y (looked up once when every channel is there) and
         a buffer for the predictive weights; NaN when the a^Y sample is missing. Computed only
         once the gate is open: a closed gate does not feed the sandwich."""
@@ -1075,7 +1076,7 @@ class StiffnessMPF:
 
     def _predict_ay(self, yk: np.ndarray, a: np.ndarray, e: np.ndarray, logw: np.ndarray | None = None) -> None:
         """`ay_pred`, the one-step prediction of the a^Y sample that the linear-region test reads
-        with `gate_ay = "predicted"` (derivations, Sec. 26): the sample less the residuals e
+        with `gate_ay = "predicted"` (derivations, "Linear-region test"): the sample less the residuals e
         (N, |a|) of the weighting, averaged with the predictive weights (`logw`, default the
         particles' before this sample's likelihood), i.e. sum_i w_{k-1}^i (h + b + d mu)^i_ay.
         NaN when the sample is missing."""
@@ -1084,13 +1085,13 @@ class StiffnessMPF:
         q = [j for j in range(len(a)) if self.channels[a[j]] == 1]
         if q:
             lw = self.logw if logw is None else logw
-            self._e_ay = float(np.exp(lw) @ e[:, q[0]])  # (the residual of `_calibrate`, Sec. 29)
+            self._e_ay = float(np.exp(lw) @ e[:, q[0]])  # (the residual of `_calibrate`, "Batch-means sandwich")
             if self.cfg.gate_ay == "predicted":
                 self.ay_pred = float(yk[a[q[0]]] - self._e_ay)
 
     def _adapt_forgetting(self, v: np.ndarray, nu: np.ndarray, dt: float) -> None:
         """The forgetting factor of the next propagation from how well the accelerometers
-        fit the predictive (derivations, Sec. 17). `v` (N, nc) are the whitened residuals of
+        fit the predictive (derivations, "Adaptive forgetting"). `v` (N, nc) are the whitened residuals of
         the weighting, Student-t with nu (N,) dof: E[v^T v] = nc nu / (nu - 2). Their
         normalised square, averaged with the predictive weights (before this sample's
         likelihood), is smoothed over `surprise_time` into z_k; lambda_k = 1 - (1 - lambda) z_k,
@@ -1105,7 +1106,7 @@ class StiffnessMPF:
             self._smooth_surprise(s_k, dt)
 
     def _draw_inflation(self) -> float:
-        """c of the surprise inflation (derivations Sec. 25): the factor on the conditional scale of
+        """c of the surprise inflation (derivations, "Surprise inflation"): the factor on the conditional scale of
         the draw of w_k, max(1, 1 + surprise_inflation (z - 1)) with z the smoothed innovation
         statistic of this sample (`_smooth_surprise`; over its own level with `inflation_baseline_time`),
         bounded by the prior (`inflation_prior_bound`); 1 when
@@ -1148,7 +1149,7 @@ class StiffnessMPF:
         self.lam = min(self.lam, max(1.0 - (1.0 - cfg.forgetting) * z, cfg.forgetting_min))
 
     def _track_drift(self, dw: np.ndarray, L11: np.ndarray, dt: float) -> None:
-        """The second surprise statistic of the adaptive forgetting (derivations, Sec. 17):
+        """The second surprise statistic of the adaptive forgetting (derivations, "Adaptive forgetting"):
         w_k - mu_{k|k-1} (N, n_w), whitened by the predictive scale L11 (N, n_w, n_w), has
         mean zero while the statistics' mean is right, whatever the deviation spread; a
         stale mean makes it lean one way sample after sample. Its weighted mean over the
@@ -1174,7 +1175,7 @@ class StiffnessMPF:
 
         Why: weighting prior draws by the first a^Y collapses the cloud onto the few
         particles whose vy happens to fit their stiffness (ESS of a handful out of 500), and
-        a biased stiffness prior then locks in a vy offset (derivations, Sec. 9). Drawn
+        a biased stiffness prior then locks in a vy offset (derivations, "Start-up, plausibility and restart"). Drawn
         this way, every stiffness hypothesis keeps a consistent state and the yaw dynamics
         decide between them."""
         logw = np.zeros(len(self.x))
@@ -1242,7 +1243,7 @@ class StiffnessMPF:
     def _redraw_after_gap(self, dt: float, u_now) -> bool:
         """After a gap in the data (a time step `dt` longer than `gap_after`), with the
         particles propagated across it: their v^X drawn again around the speed of the
-        undriven wheels at the sample after the gap (derivations, Sec. 21); `u_now` is that
+        undriven wheels at the sample after the gap (derivations, "After a gap in the data"); `u_now` is that
         sample's inputs as measured (no held value: without the wheel speed nothing is drawn). Over the gap the
         filter held its last inputs, so its v^X misses the acceleration it did not see, and
         through the driven axle's wheel slip that error becomes a longitudinal force error
@@ -1368,7 +1369,7 @@ class StiffnessMPF:
         stats = {"gamma": self.stats.gamma.copy(), "mu": self.stats.mu.copy(), "Lam": self.stats.Lam.copy(),
                  "nu": self.stats.nu.copy(), "bias": self.b.copy(), "bias_cov": self.P.copy(),
                  "C_nominal": self.C_nom.copy(), "params": self.params}
-        if self._calib is not None:  # the factor of the calibrated lateral *_std (Sec. 29), 1 for Cx
+        if self._calib is not None:  # the factor of the calibrated lateral *_std ("Batch-means sandwich"), 1 for Cx
             stats["std_factor"] = np.concatenate([np.ones(len(self.params) - 2), self._calib.factor])
         return Posterior(self.x.copy(), self.logw.copy(), stats)
 
@@ -1408,7 +1409,7 @@ class _MPFWork:
         self.sizes_all = np.empty((0, 0, 0)) if mpf.full else np.empty((0, 0))
         self.sizes_any = np.empty(0)
         # the predictive weights kept for `_predict_ay` and `_match_state_noise` (the calibration's residual,
-        # `_ay_residual`, Sec. 29; the gate's a^Y prediction, Sec. 26; the state noise from the data, Sec. 28)
+        # `_ay_residual`, "Batch-means sandwich"; the gate's a^Y prediction, "Linear-region test"; the state noise from the data, "State noise from the data")
         self.predicted_ay = cfg.gate_ay == "predicted"
         self.keep_pred = self.predicted_ay or cfg.state_noise_from_data or mpf._calib is not None
         self.logw_pred, self.q_pred = np.zeros(N), np.zeros(N)
@@ -1432,7 +1433,7 @@ class _MPFWork:
 def cx_excitation_weight(info: float, prior_var: float) -> float:
     """rho = 1 - P / P_0 for the posterior variance P = 1 / (1 / P_0 + info) of a scalar
     linear-Gaussian parameter with prior variance P_0 and data information `info` (derivations
-    Sec. 23), written I P_0 / (1 + I P_0): 0 without information or with a certain prior."""
+    "The undriven axle"), written I P_0 / (1 + I P_0): 0 without information or with a certain prior."""
     if not (info >= 0 and prior_var >= 0):
         raise ValueError(f"information and prior variance must be >= 0, got {info!r}, {prior_var!r}")
     ip = info * prior_var

@@ -1,6 +1,6 @@
 """Wheel-speed pre-filter of the stiffness MPF: a Kalman filter per axle for the rolling
 speed s = R_w omega, driven by the IMU's longitudinal acceleration (docs/derivations.md,
-Sec. 24).
+"Wheel-speed pre-filter").
 
 Why: the MPF takes the wheel speeds as exact inputs (the paper's model). Their white noise
 then enters the predicted a^X through the wheel slip, C (R_w omega - v^X) / (m D), as a noise
@@ -18,7 +18,7 @@ The vehicle's own acceleration d v^X / dt = a^X + v^Y r carries the wheels along
 leaves out is the accelerometer's white noise over the step (sigma_ax dt) and the change of
 the axle's slip speed s - v^X, a random walk with `slip_rw` q_s (m/s per sqrt(s)). A common
 error of both axles' s (an accelerometer bias left over, a pitch or grade) shifts the MPF's
-v^X with it and leaves the stiffness alone (Sec. 24). `drive` is the bracket, given by the
+v^X with it and leaves the stiffness alone ("Wheel-speed pre-filter"). `drive` is the bracket, given by the
 caller (the MPF: the last sample's measured a^X minus its posterior-mean bias plus the
 posterior-mean v^Y r).
 """

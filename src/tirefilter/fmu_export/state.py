@@ -17,8 +17,8 @@ MAGIC = b"TIREFILTER-FMU-STATE\x00"
 # The pickle holds the estimator objects as they are: raise FORMAT whenever a pickled class
 # gains, loses or renames an attribute, so that an older state is refused by this check
 # instead of failing inside the object. 2: the MPF's float sandwich (BatchMeansSandwichPair),
-# the GP-SSM's K in lanes and its deferred resampling copy of K (issue 14, stops 24-25). 3: the
-# MPF's work arrays name the kernels' sizes (`sizes_all`, `sizes_any`), not entry points (stop 26).
+# the GP-SSM's K in lanes and its deferred resampling copy of K. 3: the MPF's work arrays name
+# the kernels' sizes (`sizes_all`, `sizes_any`), not entry points.
 FORMAT = 3
 
 _NUMPY_ALLOWED = {

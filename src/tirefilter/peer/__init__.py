@@ -2,7 +2,7 @@
 (PyPI `commonroad-vehicle-models`, import `vehiclemodels`; Althoff and Wuersching,
 "CommonRoad: Vehicle Models", TU Munich, 2020), as Log CSVs with reference columns and
 a vehicle TOML of data-sheet values, for testing the estimators against a truth that is
-not ours (issue 13, point 6).
+not ours.
 
 - `model`: the peer's models (single-track drift STD, multi-body MB) and parameter sets,
   what the log needs from their states (accelerations, wheel rates, true stiffness).

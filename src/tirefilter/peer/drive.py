@@ -1,5 +1,5 @@
 """A peer drive: integrate a peer model under a maneuver, sample it at 100 Hz, add the
-sensors, and write the Log CSV (DESIGN.md "Log CSV") and a vehicle TOML of data-sheet
+sensors, and write the Log CSV (docs/usage.md, "Replaying recorded logs") and a vehicle TOML of data-sheet
 values.
 
 Integration: classical Runge-Kutta (RK4) with a fixed step of 1 ms (10 steps per sample;
@@ -113,7 +113,7 @@ def integrate(model: PeerModel, profile: Profile, rate: float = RATE, substeps: 
     The state, the inputs and the stages stay Python floats (`rk4_step`): the peer's right-hand
     side is pure Python, and numpy scalars in its inputs made each of its operations a numpy-scalar
     operation (an STD call 24 instead of 16 us); the drives are bit-identical to the numpy form's
-    (benchmarks/README.md, "Test suite time: the peer drives (stop 26)")."""
+    (docs/development.md, "How long `make test` takes")."""
     h = 1.0 / (rate * substeps)
     if abs(profile.dt - h / 2) > 1e-12:
         raise ValueError(f"profile grid {profile.dt} s, expected {h / 2} s")

@@ -1,7 +1,7 @@
 """The peer drives' sensors: a cheap automotive MEMS IMU and wheel-speed sensors.
 
 Accelerometers and gyro: white noise plus a bias that is constant with a slow random
-walk, b(t) = b0 + sum of N(0, q^2 dt) increments (bias = measured - true, DESIGN.md),
+walk, b(t) = b0 + sum of N(0, q^2 dt) increments (bias = measured - true, docs/design.md),
 b0 uniform in [-b_max, b_max] per channel. The defaults sit in the range of automotive
 MEMS data sheets (accelerometer noise 0.1-0.3 m/s^2 and zero-g offset up to a few
 0.1 m/s^2 over temperature; gyro noise 0.003-0.01 rad/s and zero-rate offset up to about

@@ -1,4 +1,4 @@
-"""The Log CSV of DESIGN.md (replay input): its schema, the reader and its checks.
+"""The Log CSV (replay input, docs/usage.md): its schema, the reader and its checks.
 
 One row per sample, header names exactly: `t` [s], `delta` [rad, road-wheel] or
 `steering_wheel_angle` [rad] (divided by the vehicle TOML's `steering_ratio`), `ax`, `ay`

@@ -5,7 +5,7 @@ log-weights and resampling.
 The names below are imported from their modules when first asked for (PEP 562), so that
 importing one module of the package (`stats.noise` for the sensor check of every run) does
 not import scipy.special with the Student-t (some 0.3 s of a `tirefilter run --estimator
-none`, issue 14)."""
+none`)."""
 
 from importlib import import_module
 

@@ -9,7 +9,7 @@ conditions, their eigenvalues and the spectral density of the squared-exponentia
 
 `s_f` is the kernel's variance, kappa(r) = s_f exp(-r^2 / (2 l^2)) as the paper writes
 the kernel (Sec. 4); the paper prints S for ordinary frequency, with the Laplacian
-eigenvalues the angular-frequency form above is the right one (DESIGN.md, derivations).
+eigenvalues the angular-frequency form above is the right one (docs/derivations.md, "Reduced-rank basis").
 
 Two layouts over the axle slip angles alpha = (alpha_f, alpha_r):
 - `TensorBasis`: the paper's 2-D basis, products phi_j1(alpha_f) phi_j2(alpha_r) with

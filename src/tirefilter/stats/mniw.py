@@ -11,7 +11,7 @@ Psi (..., d, m), Sigma (..., m, m), nu (...). Update (27)/(28), with the (28c) t
 (Phi += zeta zeta^T, as (27a)); forgetting (29): Phi, Psi, Sigma, nu times lambda;
 posterior M = Psi (Sigma + V)^-1, Lambda = Lambda_0 + Phi - M Psi^T.
 
-Predictive of zeta = A phi + w integrating both A and Q (eq. (31); DESIGN.md trap):
+Predictive of zeta = A phi + w integrating both A and Q (eq. (31); docs/derivations.md, "Predictive of the next state"):
 A phi + w | Q ~ N(M phi, c Q), c = 1 + phi^T Sigma* phi, and with Q ~ iW(nu, Lambda) the
 marginal is the multivariate t St(M phi, c Lambda / (nu - d + 1), nu - d + 1).
 

@@ -1,5 +1,5 @@
 """White-noise level of a sampled signal, from the signal alone (docs/derivations.md,
-Sec. 15).
+"White noise from the data").
 
 A vehicle signal sampled at 100 Hz is smooth on the scale of a few samples, while the
 sensor's white noise is not. The second difference

@@ -1,5 +1,5 @@
 """Batch-means sandwich: how much wider the posterior of a regression coefficient is when
-its per-sample scores are correlated in time (derivations, Sec. 29).
+its per-sample scores are correlated in time (derivations, "Batch-means sandwich").
 
 A linear-Gaussian posterior of a coefficient vector theta from samples y_k = d_k' theta +
 e_k with white e_k has the covariance A^-1 (A = sum d_k d_k' / s^2, the information). When
@@ -100,7 +100,7 @@ class BatchMeansSandwichPair(BatchMeansSandwich):
     """`BatchMeansSandwich` for n = 2 with the open batch's sums held as Python floats: the same
     arithmetic, element by element, as the parent's array updates (so the same numbers, bit for
     bit: tests/test_stats.py), without the parent's per-sample numpy calls (about 10 us per
-    sample against 1-2 us; the MPF feeds one sample per step, issue 14). `update_pair` takes the
+    sample against 1-2 us; the MPF feeds one sample per step). `update_pair` takes the
     score and regressor components as floats; `update` (arrays) goes through it. `factor_pair` is
     `factor` as a tuple of floats. A closed batch hands the sums to the parent's `_close`."""
 

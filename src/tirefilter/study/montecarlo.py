@@ -220,7 +220,7 @@ def _worker_trial(spec: TrialSpec, index: int, seed: int) -> TrialResult:
 
 
 def run_trial(spec: TrialSpec, index: int, seed: int, *, fmu) -> TrialResult:
-    """Co-simulate one trial and reduce it to metrics (DESIGN.md definitions) and series.
+    """Co-simulate one trial and reduce it to metrics (docs/usage.md definitions) and series.
 
     A failing estimator gives a trial with `status: failed`, its error and NaN metrics;
     the study goes on.
@@ -276,7 +276,7 @@ def final_error(r: dict, param: str, window: float) -> float:
 
 
 def trial_metrics(r: dict, scenario) -> dict:
-    """Per stiffness parameter the DESIGN.md metrics (steady-state errors, coverage,
+    """Per stiffness parameter the metrics of docs/usage.md (steady-state errors, coverage,
     spread, settling time after the first surface change, and the error of the spread
     against the scenario's true deviation std, in points of the mean), plus the
     time-averaged v^Y RMSE (Fig. 5) and the share of samples with learning active."""

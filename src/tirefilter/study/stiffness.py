@@ -149,7 +149,7 @@ def converged(m: dict) -> bool:
 
 
 def _error_table(report, runs, scenario) -> None:
-    report(f"\n### {scenario}: steady-state stiffness error against the surface mean (DESIGN.md)")
+    report(f"\n### {scenario}: steady-state stiffness error against the surface mean")
     for (_, est, n), run in runs.items():
         ok = run.ok()
         good = [m for m in ok if converged(m)]

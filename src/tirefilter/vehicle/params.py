@@ -12,7 +12,7 @@ DRIVES = ("front", "rear", "all")
 
 @dataclass(frozen=True)
 class VehicleParams:
-    """Single-track vehicle (keys of the vehicle TOML, DESIGN.md)."""
+    """Single-track vehicle (keys of the vehicle TOML, docs/design.md)."""
 
     mass: float  # kg
     yaw_inertia: float  # kg m^2
@@ -112,7 +112,7 @@ _POSITIVE = ("mass", "yaw_inertia", "lf", "lr", "wheel_radius", "Cf_y", "Cr_y", 
 
 
 def load_vehicle(path: str | Path) -> VehicleParams:
-    """Read and check a vehicle TOML (DESIGN.md keys, SI units)."""
+    """Read and check a vehicle TOML (docs/design.md keys, SI units)."""
     return vehicle_from_dict(read_toml(path), path)
 
 

@@ -49,7 +49,7 @@ def slip_angles(vx, vy, r, delta, lf, lr):
 
 def wheel_slip(vx, rw_omega):
     """Wheel slip (R_w omega - vx) / max(|vx|, |R_w omega|): eq. (3) of the stiffness
-    paper with the sign that makes traction positive (DESIGN.md)."""
+    paper with the sign that makes traction positive (docs/design.md)."""
     den = np.maximum(np.abs(vx), np.abs(rw_omega))
     return np.where(den > 0, (rw_omega - vx) / np.where(den > 0, den, 1.0), 0.0)
 
@@ -89,7 +89,7 @@ def derivatives(x, u, model: TruthModel, dev=(0.0, 0.0, 0.0, 0.0)):
     front = {"front": 1.0, "rear": 0.0, "all": v.awd_front_share}[v.drive]
     T, Tb = u["drive_torque"], u["brake_torque"]
     dx = np.empty(np.broadcast(x, ax[..., None]).shape)
-    dx[..., VX] = vy * r + ax  # paper 000 eq. (1a)
+    dx[..., VX] = vy * r + ax  # the stiffness paper's eq. (1a)
     dx[..., VY] = -vx * r + ay - GRAVITY * np.sin(u["bank"])  # eq. (1b), plus road bank
     dx[..., R] = (v.lf * (Fy_f * cd + Fx_f * sd) - v.lr * Fy_r) / v.yaw_inertia  # eq. (1c)
     dx[..., WF] = (front * T - v.brake_front_share * Tb * np.tanh(x[..., WF] / WHEEL_OMEGA_EPS) - Rw * Fx_f) / v.wheel_inertia_f

@@ -37,5 +37,5 @@ def pacejka_forces(p: PacejkaParams, Fz, alpha, lam, dev_y=0.0, dev_x=0.0):
 
 def pure_lateral_friction(p: PacejkaParams, alpha, surface=1.0):
     """mu_y(alpha) = Fy / Fz of the pure-lateral Magic Formula times the surface scale
-    (the friction truth of DESIGN.md)."""
+    (the friction truth of docs/design.md)."""
     return surface * magic_formula(p.B_y, p.C_y, p.mu_y, p.E_y, alpha)

@@ -6,7 +6,7 @@ The stiffness MPF's parameter posterior is eq. (26) of the stiffness paper,
 
 a weighted mixture over particles of the NiW posterior (25) of each particle. Its marginal
 for the mean of parameter j is a mixture of univariate Student-t densities, one per
-particle (docs/derivations.md, Sec. 13): under mu | Sigma ~ N(mu_hat, gamma Sigma),
+particle (docs/derivations.md, "Posterior density"): under mu | Sigma ~ N(mu_hat, gamma Sigma),
 Sigma ~ iW(nu, Lambda) of dimension n,
 
     mu ~ St(mu_hat, gamma Lambda / (nu - n + 1), nu - n + 1)       (scale matrix, dof)
@@ -96,7 +96,7 @@ def widened(mix: Mixture, factor) -> Mixture:
     """The mixture stretched about its mean by `factor` (n,) per parameter: each component's
     location moved to m + f (loc - m) and its scale times f, so that the mean stays and the
     std of the whole mixture is f times its own, exactly (the MPF's calibrated `*_std`,
-    derivations Sec. 29, is the std of eq. (26) times the sandwich factor)."""
+    derivations, "Batch-means sandwich", is the std of eq. (26) times the sandwich factor)."""
     f = np.asarray(factor, float)
     if f.shape != (len(mix.params),) or not np.all(f >= 1.0):
         raise ValueError(f"std_factor must be {len(mix.params)} values >= 1, got {factor!r}")

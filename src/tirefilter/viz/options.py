@@ -11,7 +11,7 @@ from tirefilter.errors import ConfigError
 # Clouds, densities and friction curves are logged at every DEFAULT_LOG_EVERY-th estimator
 # step (series every step): 5 per second at 100 Hz. Chosen with benchmarks/bench_viz.py:
 # paper-sim with N = 500 takes 1.2 times the wall time and 1.4-1.5 times the CPU time with
-# `--rrd` than without; K = 10 exceeds 2 in some runs (benchmarks/README.md, "Cost of the
+# `--rrd` than without; K = 10 exceeds 2 in some runs (docs/results.md, "Cost of the
 # Rerun recording"). The target is <= 2.
 DEFAULT_LOG_EVERY = 20
 DEFAULT_SPAWN_PORT = 9876

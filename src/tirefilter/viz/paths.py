@@ -1,4 +1,4 @@
-"""Entity paths of the recordings (DESIGN.md, "Rerun entity paths"; the table of docs/rerun.md).
+"""Entity paths of the recordings (docs/design.md, "Rerun entity paths"; the table of docs/rerun.md).
 
 One function per kind of entity so the recorder, the blueprint and the tests agree.
 """
