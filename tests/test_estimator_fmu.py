@@ -315,7 +315,7 @@ def test_native_host_runs_the_fmu_with_libpython_preloaded(fmus, tmp_path):
 
     from fmpy import read_model_description
 
-    from tirefilter.cosim.fmu import fmu_build_module
+    from tirefilter.vehicle_fmu.build import fmi_headers_dir
 
     cc = shutil.which("cc") or shutil.which("gcc")
     libpython = Path(sysconfig.get_config_var("LIBDIR") or "") / (sysconfig.get_config_var("LDLIBRARY") or "")
@@ -323,7 +323,7 @@ def test_native_host_runs_the_fmu_with_libpython_preloaded(fmus, tmp_path):
         pytest.skip("needs a C compiler and a shared libpython")
     host = tmp_path / "host_python_fmu"
     src = Path(__file__).resolve().parents[1] / "fmu" / "tests" / "host_python_fmu.c"
-    subprocess.run([cc, "-std=c99", f"-I{fmu_build_module().fmi_headers_dir()}", str(src), "-ldl", "-o", str(host)],
+    subprocess.run([cc, "-std=c99", f"-I{fmi_headers_dir()}", str(src), "-ldl", "-o", str(host)],
                    check=True, capture_output=True)
     unzipped = tmp_path / "fmu"
     with zipfile.ZipFile(fmus["estimator"]) as zf:

@@ -16,10 +16,10 @@ from pathlib import Path
 import pytest
 from fmpy import read_model_description
 
-from tirefilter.cosim.fmu import VehicleFMU, fmu_build_module
+from tirefilter.cosim.fmu import VehicleFMU
+from tirefilter.vehicle_fmu import build
 
-build = fmu_build_module()
-TESTS_DIR = build.HERE / "tests"
+TESTS_DIR = Path(__file__).resolve().parents[1] / "fmu" / "tests"
 CFLAGS = ["-std=c99", "-O2", "-Wall", "-Wextra", "-Werror"]
 CLEAN_ENV = {"PATH": "/usr/bin:/bin"}  # no PYTHONPATH, no venv: the C programs must not need them
 

@@ -20,7 +20,8 @@ import pytest
 from fmpy import read_model_description
 from fmpy.fmi1 import FMICallException
 
-from tirefilter.cosim.fmu import INPUT_NAMES, VehicleFMU, fmu_build_module, variable_table
+from tirefilter.cosim.fmu import INPUT_NAMES, VehicleFMU, variable_table
+from tirefilter.vehicle_fmu.build import fmi_headers_dir
 
 H = 0.01  # s: the default sample period
 PERTURB = {"delta": 0.03, "drive_torque": 300.0, "brake_torque": 200.0, "surface": 0.8, "bank": 0.05}
@@ -337,7 +338,7 @@ def test_fmi3_sources_build_from_their_build_description(fmu_paths, tmp_path):
     libs = [f"-l{lib.get('name')}" for lib in conf.iter("Library")]
     lib = unzipped / "binaries" / "x86_64-linux" / "TirefilterVehicle.so"
     lib.unlink()
-    subprocess.run([cc, "-std=c99", "-shared", "-fPIC", f"-I{src}", f"-I{fmu_build_module().fmi_headers_dir()}",
+    subprocess.run([cc, "-std=c99", "-shared", "-fPIC", f"-I{src}", f"-I{fmi_headers_dir()}",
                     "-o", str(lib), *files, *libs], check=True, capture_output=True)
     rebuilt = tmp_path / "rebuilt.fmu"
     with zipfile.ZipFile(rebuilt, "w") as zf:

@@ -1,8 +1,9 @@
 /* Unit test of the vehicle equations, without any FMI code.
  *
  * Build (tests/test_fmu_c.py does this with the generated header in a temporary folder):
- *   cc -std=c99 -O2 -Wall -Wextra -Werror -Ifmu/vehicle/src -I<gen> \
- *      fmu/tests/test_model.c fmu/vehicle/src/vehicle_model.c fmu/vehicle/src/var_access.c -lm
+ *   cc -std=c99 -O2 -Wall -Wextra -Werror -Isrc/tirefilter/vehicle_fmu/c -I<gen> \
+ *      fmu/tests/test_model.c src/tirefilter/vehicle_fmu/c/vehicle_model.c \
+ *      src/tirefilter/vehicle_fmu/c/var_access.c -lm
  *
  * Prints one line per check ("PASS ..." or "FAIL ...") and exits nonzero if any failed.
  */

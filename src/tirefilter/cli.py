@@ -463,10 +463,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     fmu = sub.add_parser("fmu", help="FMU tools")
     fsub = fmu.add_subparsers(dest="fmu_command", required=True)
-    build = fsub.add_parser("build", help="build FMUs from source into fmu/build/")
+    build = fsub.add_parser("build", help="build FMUs from source into $TIREFILTER_FMU_DIR if set, else fmu/build/ "
+                            "in a checkout, else ~/.cache/tirefilter/fmu (docs/usage.md)")
     build.add_argument("target", nargs="?", default="vehicle", choices=("vehicle", "estimator", "ssp", "all"),
                        help="vehicle: the C vehicle FMU (FMI 2.0, 3.0); estimator: the estimator FMU(s) (pythonfmu); "
-                       "ssp: fmu/build/<scenario>.ssp wiring driver -> vehicle -> estimator; all: all of them")
+                       "ssp: <build folder>/<scenario>.ssp wiring driver -> vehicle -> estimator; all: all of them")
     build.add_argument("--fmi", choices=("2", "3", "all"),
                        help="FMI version of the Python FMUs (estimator, driver): 2 (default; pythonfmu), 3 (pythonfmu3) "
                        "or all; `all` targets build both; the vehicle FMU is built in both unless this is given")

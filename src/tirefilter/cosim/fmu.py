@@ -8,48 +8,31 @@ a few microseconds of Python.
 from __future__ import annotations
 
 import ctypes
-import importlib.util
 import shutil
-import sys
-from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
 from tirefilter.errors import FMUError
+from tirefilter.vehicle_fmu import build
 
-REPO_ROOT = Path(__file__).resolve().parents[3]
-FMU_DIR = REPO_ROOT / "fmu"
-BUILD_DIR = FMU_DIR / "build"
+REPO_ROOT = Path(__file__).resolve().parents[3]  # the checkout's root, when running from one
+BUILD_DIR = build.DEFAULT_OUT  # fmu/build/ in a checkout, else $TIREFILTER_FMU_DIR or the user cache
 INPUT_NAMES = ("delta", "drive_torque", "brake_torque", "surface", "bank")
 
 
-@lru_cache(maxsize=1)
-def fmu_build_module():
-    """fmu/build.py (the generator and compiler), imported by path."""
-    path = FMU_DIR / "build.py"
-    if not path.is_file():
-        raise FMUError(f"{path} not found: the FMU sources ship with the repository checkout")
-    spec = importlib.util.spec_from_file_location("tirefilter_fmu_build", path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
 def variable_table():
-    return fmu_build_module().load_table()
+    return build.load_table()
 
 
 def vehicle_fmu_path(fmi_version: str = "2", build_dir: Path = BUILD_DIR) -> Path:
-    return fmu_build_module().fmu_path(build_dir, fmi_version)
+    return build.fmu_path(build_dir, fmi_version)
 
 
 def build_vehicle_fmu(build_dir: Path = BUILD_DIR, versions=("2", "3")) -> dict[str, Path]:
-    module = fmu_build_module()
     try:
-        return module.build_vehicle(build_dir, tuple(versions))
-    except module.BuildError as exc:
+        return build.build_vehicle(build_dir, tuple(versions))
+    except build.BuildError as exc:
         raise FMUError(str(exc)) from None
 
 
@@ -76,8 +59,7 @@ class VehicleFMU:
         self.path = Path(path) if path else vehicle_fmu_path(self.fmi_version)
         if not self.path.is_file():
             raise FMUError(
-                f"vehicle FMU not found at {self.path}; build it with `tirefilter fmu build vehicle` "
-                "(or `python fmu/build.py`)"
+                f"vehicle FMU not found at {self.path}; build it with `tirefilter fmu build vehicle`"
             )
         self.model_description = read_model_description(str(self.path))
         self._unzip_dir = extract(str(self.path))

@@ -32,8 +32,9 @@ Qd = Ad G12[:2, :2] (G12's third row is zero for the same reason).
 The filter is the textbook Kalman filter on that model: the prior N(x0_mean, diag(x0_std^2))
 holds at the first sample time; each later sample predicts with the previous sample's inputs
 and then updates with the measurement components that are finite (a missing component is
-left out of that update; with none, there is no update). A non-finite steer angle holds the
-last finite one (0 before any), as the MPF does; a non-finite vx is an error.
+left out of that update; with none, there is no update). A non-finite steer angle or vx
+holds the last finite one, as the MPF and the EKF do: the steer angle is 0 before any, and
+a vx missing before any finite one is an error (the lateral model needs it).
 """
 
 from __future__ import annotations
@@ -223,11 +224,13 @@ class LinearKF:
 
     def step(self, t: float, u: Inputs, y: Measurement) -> Estimate:
         t = float(t)
-        vx = float(u.vx)
-        if not math.isfinite(vx):
-            raise ConfigError("inputs", "vx", f"the linear KF needs a finite vx at every sample, got {vx!r} at t = {t} s")
         if not math.isfinite(t):
             raise ConfigError("inputs", "t", f"time must be finite, got {t!r}")
+        vx = float(u.vx)
+        if not math.isfinite(vx):  # a missing vx sample holds the last one (u_prev's is finite)
+            if self.u_prev is None:
+                raise ConfigError("inputs", "vx", f"the lateral model needs vx; none given up to t = {t} s")
+            vx = self.u_prev[0]
         if math.isfinite(u.delta):
             self.delta_last = float(u.delta)
         delta = self.delta_last  # a missing steer sample holds the last one

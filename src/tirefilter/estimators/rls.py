@@ -39,7 +39,7 @@ is unused; no particles (`--particles` is accepted and ignored).
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
@@ -202,13 +202,11 @@ class RLSEstimator:
         return self._estimate(est)
 
     def _kf_step(self, t, u, y):
-        """The Kalman filter's step (`LinearKF.step`: checks of t and vx, a missing steer
-        sample held), returning its estimate and the state the regressors use: the
+        """The Kalman filter's step (`LinearKF.step`: checks of t and vx, a missing steer or
+        vx sample held), returning its estimate and the state the regressors use: the
         predicted one (`regressor_state = "predicted"`, before this sample's update) or the
         filtered one."""
         kf = self.kf
-        if not math.isfinite(u.vx) and kf.u_prev is not None:  # a missing vx sample holds the last one
-            u = replace(u, vx=kf.u_prev[0])
         if self.cfg.regressor_state == "filtered":
             est = kf.step(t, u, y)
             return est, tuple(kf.x)

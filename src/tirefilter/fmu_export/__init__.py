@@ -4,7 +4,8 @@ vehicle FMU -> estimator FMU. docs/using-the-fmus.md is the user's guide.
 
 - `slaves.py`: the FMU classes (`EstimatorSlave`, `DriverSlave`; `...3` for FMI 3.0);
 - `state.py`: the serialised FMU state (restricted unpickling);
-- `build.py`: building the FMUs into `fmu/build/` (`tirefilter fmu build estimator`);
+- `build.py`: building the FMUs into the build folder (`fmu/build/` in a checkout;
+  `tirefilter fmu build estimator`);
 - `ssp.py`: the SSP of a scenario and running it with `fmpy.ssp.simulation.simulate_ssp`.
 
 The Python FMUs need Python and packages on the target machine: `REQUIREMENTS` says

@@ -1,5 +1,6 @@
-"""Build the Python FMUs into `fmu/build/`: FMI 2.0 with pythonfmu 0.7 (`<Name>.fmu`), FMI
-3.0 with pythonfmu3 (`<Name>_fmi3.fmu`), from the same slave code (`slaves.py`).
+"""Build the Python FMUs into the build folder (`fmu/build/` in a checkout; `BUILD_DIR` of
+`tirefilter.cosim.fmu`): FMI 2.0 with pythonfmu 0.7 (`<Name>.fmu`), FMI 3.0 with pythonfmu3
+(`<Name>_fmi3.fmu`), from the same slave code (`slaves.py`).
 
 Each FMU is one generated entry script (pythonfmu finds the FMU class by the line
 `class <Name>(Fmi2Slave):` in it, pythonfmu3 by `class <Name>(Fmi3Slave):`) plus the tirefilter package as a project file, so the
@@ -135,7 +136,7 @@ def _build(identifier: str, base: str, body: str, dest: Path, resources: dict[st
 def build_estimator_fmu(name: str = "mpf", dest: Path | None = None, *, config_toml: str | None = None,
                         identifier: str | None = None, fmi: str = "2") -> Path:
     """Build the FMU of estimator `name` (a key of ESTIMATOR_FMUS) into `dest` (default
-    fmu/build) for FMI `fmi` ("2" or "3"); `config_toml` becomes the start value of its
+    the build folder) for FMI `fmi` ("2" or "3"); `config_toml` becomes the start value of its
     `config` parameter."""
     from tirefilter.cosim.fmu import BUILD_DIR
 

@@ -1,6 +1,6 @@
 """Single-track (bicycle) dynamics with wheel spin and load transfer, batch-first.
 
-The same equations as the vehicle FMU (fmu/vehicle/src/vehicle_model.c), written
+The same equations as the vehicle FMU (vehicle_fmu/c/vehicle_model.c), written
 independently in numpy; tests integrate both and compare. State (..., 9):
 [vx, vy, yaw_rate, omega_f, omega_r, x, y, psi, a_lt] (a_lt: the lagged longitudinal
 acceleration that sets the load transfer).

@@ -1,7 +1,7 @@
 /* FMI 3.0 Co-Simulation entry points for the vehicle model. Only moves values between
  * the FMI API and VehicleModel; the equations are in vehicle_model.c. The entry points
  * this FMU does not support (Model Exchange, Scheduled Execution, clocks, other types)
- * are generated as stubs into fmi3_stubs.c by fmu/build.py. */
+ * are generated as stubs into fmi3_stubs.c by build.py (vehicle_fmu/). */
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>

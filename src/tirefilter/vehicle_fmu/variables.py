@@ -1,7 +1,8 @@
 """The vehicle FMU's variables, defined once.
 
-`fmu/build.py` generates from this table both `modelDescription.xml` (FMI 2.0 and 3.0) and
-the C header with the value references and the variable struct, so the two cannot drift.
+`build.py` (beside this file) generates from this table both `modelDescription.xml` (FMI 2.0
+and 3.0) and the C header with the value references and the variable struct, so the two
+cannot drift.
 
 Each row: name, type ("Real" or "Integer"), causality, start (parameters and inputs),
 unit, description, and optional min/max; outputs also their variability ("continuous",
@@ -12,7 +13,7 @@ assigned in table order, starting at 1 (0 is `time` in FMI 3.0).
 `vehicle_model.c`, what it is computed from at the same instant (inputs, other
 quantities; the continuous state and the parameters are left out: they never change
 within an instant). `direct_inputs(name)` closes over it: the inputs an output depends on
-directly, which `fmu/build.py` writes as the output's `dependencies` in the model
+directly, which `build.py` writes as the output's `dependencies` in the model
 structure. tests/test_fmu_metadata.py perturbs every input after a step and checks that
 exactly these outputs move at once.
 

@@ -19,7 +19,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#include "vehicle_vars.h" /* generated from fmu/vehicle/variables.py */
+#include "vehicle_vars.h" /* generated from variables.py (vehicle_fmu/) */
 
 #define VM_GRAVITY 9.80665
 
