@@ -52,7 +52,9 @@ def _site_packages() -> list[str]:
     paths = sysconfig.get_paths()
     found = [paths["purelib"], paths["platlib"]]
     found += [p for p in sys.path if p.endswith(("site-packages", "dist-packages"))]
-    return [p for p in dict.fromkeys(found) if Path(p).is_dir() and not Path(p).resolve().is_relative_to(REPO)]
+    sources = (REPO / "src", REPO / "viewer")  # the checkout's packages (a venv inside the checkout is fine)
+    return [p for p in dict.fromkeys(found)
+            if Path(p).is_dir() and not any(Path(p).resolve().is_relative_to(s) for s in sources)]
 
 
 def _run(cmd: list, **kwargs) -> subprocess.CompletedProcess:
