@@ -185,7 +185,7 @@ def test_rerun_recording_parameter(fmus, snow, tmp_path):
 
     t, v = _rrd_series(rrd, "/estimator/mpf/stiffness/Cf_y")
     np.testing.assert_allclose(t, got[:, 0], atol=1e-9)
-    np.testing.assert_allclose(v, got[:, OUT.index("Cf_y")], rtol=1e-12)
+    np.testing.assert_allclose(v, got[:, OUT.index("Cf_y")] * 1e-3, rtol=1e-12)  # recorded in kN/rad
     # the posterior snapshots too, every log_every-th sample as in `tirefilter run`
     from test_viz import read_recording
     from tirefilter.viz.options import RecordingOptions

@@ -64,7 +64,7 @@ def test_master_feeds_sensors_and_writes_estimates(fmu_paths, tmp_path):
     assert np.isnan(r["b_ax"]).all() and np.isnan(r["Cx"]).all()
     # and the recording has the estimator's series under /estimator/echo/...
     t_rrd, cf = _rrd_series(tmp_path / "r.rrd", "/estimator/echo/stiffness/Cf_y")
-    np.testing.assert_allclose(cf, r["Cf_y"], rtol=1e-15)
+    np.testing.assert_allclose(cf, r["Cf_y"] * 1e-3, rtol=1e-15)  # recorded in kN/rad
     _, yaw = _rrd_series(tmp_path / "r.rrd", "/estimator/echo/state/yaw_rate")
     np.testing.assert_allclose(yaw, r["yaw_rate"], rtol=1e-15)
 

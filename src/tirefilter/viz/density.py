@@ -75,6 +75,46 @@ class Mixture:
     def mean(self, param: str) -> float:
         return float(self.weights @ self.loc[:, self.index(param)])
 
+    def std(self, param: str) -> float:
+        """The std of the mixture: per component scale^2 df / (df - 2) (scale^2 for a
+        Gaussian), plus the spread of the locations. A component with df <= 2 (no finite
+        variance) counts as df = 3, so that the value stays a usable width for the
+        recording's plots."""
+        j = self.index(param)
+        df = self.df
+        with np.errstate(divide="ignore", invalid="ignore"):
+            f = np.where(np.isinf(df), 1.0, np.where(df > 2, df / (df - 2.0), 3.0))
+        loc, scale = self.loc[:, j], self.scale[:, j]
+        m = self.weights @ loc
+        return float(math.sqrt(max(self.weights @ (scale ** 2 * f + (loc - m) ** 2), 0.0)))
+
+    def cdf(self, param: str, x) -> np.ndarray:
+        """P(param <= x) for each x (K,), from the components' CDFs."""
+        j = self.index(param)
+        return _mixture_cdf(np.asarray(x, float), *_unique(self.weights, self.loc[:, j], self.scale[:, j], self.df))
+
+    def quantiles(self, param: str, q) -> np.ndarray:
+        """The q-quantiles (K,) of `param`: the CDF inverted by bisection, to 1e-9 of the std
+        (or the floats' resolution at the mean, for a posterior narrower than that)."""
+        j = self.index(param)
+        comps = _unique(self.weights, self.loc[:, j], self.scale[:, j], self.df)
+        q = np.asarray(q, float)
+        m, s = self.mean(param), max(self.std(param), 1e-12 * max(abs(self.mean(param)), 1.0))
+        lo, hi = np.full(q.shape, m - 8 * s), np.full(q.shape, m + 8 * s)
+        for _ in range(60):  # widen the bracket where a heavy tail holds more than 8 std
+            below, above = _mixture_cdf(lo, *comps) > q, _mixture_cdf(hi, *comps) < q
+            if not (below.any() or above.any()):
+                break
+            lo, hi = np.where(below, lo - 8 * s, lo), np.where(above, hi + 8 * s, hi)
+        tol = max(1e-9 * s, 8 * np.spacing(abs(m) + 8 * s))  # not below the floats' resolution at m
+        for _ in range(200):  # halves the bracket: 16 std to 1e-9 std takes 34
+            if np.max(hi - lo) <= tol:
+                break
+            mid = 0.5 * (lo + hi)
+            left = _mixture_cdf(mid, *comps) < q
+            lo, hi = np.where(left, mid, lo), np.where(left, hi, mid)
+        return 0.5 * (lo + hi)
+
 
 def niw_mean_marginals(log_weights, gamma, mu, Lam, nu, C_nominal, params) -> Mixture:
     """Eq. (26) for the mean: per particle i and parameter j the Student-t marginal of the
@@ -134,6 +174,32 @@ def _weights(log_weights) -> np.ndarray:
         return np.full(lw.shape, 1.0 / lw.size)
     w = np.exp(lw - m)
     return w / w.sum()
+
+
+def _unique(weights, loc, scale, df):
+    """Distinct usable components (resampled copies merged, their weights summed):
+    (weights, loc, scale, df), each (M',)."""
+    w, loc, scale, df = (np.asarray(a, float).ravel() for a in (weights, loc, scale, df))
+    keep = (w > 0) & (scale > 0) & np.isfinite(loc)
+    comps, inverse = np.unique(np.column_stack([loc[keep], scale[keep], df[keep]]), axis=0, return_inverse=True)
+    wu = np.bincount(inverse.ravel(), weights=w[keep], minlength=len(comps))
+    return wu / wu.sum() if wu.sum() > 0 else wu, comps[:, 0], comps[:, 1], comps[:, 2]
+
+
+def _mixture_cdf(x, w, loc, scale, df) -> np.ndarray:
+    """sum_i w_i F_i(x) for x (K,) over components (M,)."""
+    z = (np.asarray(x, float)[:, None] - loc[None, :]) / scale[None, :]  # (K, M)
+    t = np.isfinite(df)
+    cdf = np.where(t[None, :], stdtr(np.where(t, df, 1.0)[None, :], z), ndtr(z))
+    return cdf @ w
+
+
+def window_grid(mean: float, std: float, k: float, points: int) -> np.ndarray:
+    """`points` values over mean -+ k std: the recording's density snapshot shows the
+    posterior there (a physical axis zoomed on it, not a fixed range of the run)."""
+    if points < 2 or not (std > 0 and math.isfinite(std) and math.isfinite(mean)):
+        raise ValueError(f"bad density window: {points} points over {mean} +- {k} x {std}")
+    return np.linspace(mean - k * std, mean + k * std, int(points))
 
 
 def _half_width(df: np.ndarray) -> np.ndarray:

@@ -25,15 +25,15 @@ class RecordingOptions:
     viewer (port `spawn_port`) and stream to it; connect: stream to a running viewer or
     gRPC proxy at this URL (e.g. rerun+http://127.0.0.1:9876/proxy). Any combination.
     log_every: log particle clouds, posterior densities and friction curves at every
-    log_every-th estimator step. density_points: points of the fixed density grid per
-    stiffness parameter.
+    log_every-th estimator step. density_points: points of each density snapshot, over
+    the posterior's mean -+ 4 std (`viz.rerun_log.DENSITY_REACH`).
     """
 
     rrd: str | Path | None = None
     spawn: bool = False
     connect: str | None = None
     log_every: int = DEFAULT_LOG_EVERY
-    density_points: int = 1601
+    density_points: int = 201
     spawn_port: int = DEFAULT_SPAWN_PORT
 
     @property

@@ -41,32 +41,57 @@ def estimator_root(estimator: str) -> str:
 
 
 def stiffness_band(estimator: str, param: str, which: str) -> str:
-    """Bands drawn around the estimate: `posterior_lower|upper` = param -+ 2 param_std,
-    `spread_lower|upper` = param -+ 2 param_sigma."""
+    """Bands drawn around the estimate (90 %, Z90 = 1.645): `posterior_lower|upper` =
+    param -+ Z90 param_std, `spread_lower|upper` = param -+ Z90 param_sigma."""
     return f"{estimator_root(estimator)}/stiffness/{param}/{which}"
+
+
+def particles_root(estimator: str) -> str:
+    """The clouds' views look from here: each cloud's transform (viz.clouds) applies below it."""
+    return f"{estimator_root(estimator)}/particles"
 
 
 def particles(estimator: str, what: str) -> str:
     """`stiffness` (per-particle stiffness means) or `state` (state particles)."""
-    return f"{estimator_root(estimator)}/particles/{what}"
+    return f"{particles_root(estimator)}/{what}"
+
+
+def particle_axes(estimator: str, what: str) -> str:
+    """The axes, tick labels and weight colour scale drawn with a cloud, in its normalised frame."""
+    return f"{particles_root(estimator)}/{what}_axes"
 
 
 def density(estimator: str, param: str) -> str:
     return f"{estimator_root(estimator)}/density/{param}"
 
 
-def density_history(estimator: str, param: str) -> str:
-    """The density of every snapshot as an image (stiffness up, time to the right), static."""
-    return f"{estimator_root(estimator)}/density_history/{param}"
-
-
 def density_mass(estimator: str, param: str) -> str:
-    """The exact probability of the density grid's range (scalar beside the density)."""
+    """The exact probability of the density window's range (scalar beside the density)."""
     return f"{density(estimator, param)}/mass"
 
 
+def density_truth(estimator: str, param: str) -> str:
+    """The true surface mean as one black bar in the density's view."""
+    return f"{density(estimator, param)}/true_mean"
+
+
+def density_quantile(estimator: str, param: str, which: str) -> str:
+    """`q05`, `q95`: the 5 % and 95 % quantiles of the posterior density (scalars per snapshot)."""
+    return f"{density(estimator, param)}/{which}"
+
+
+def ess_line(estimator: str, which: str) -> str:
+    """`particles` (N) and `threshold` (the ESS below which the filter resamples), beside the ESS."""
+    return f"{estimator_root(estimator)}/ess/{which}"
+
+
+def note(estimator: str, what: str) -> str:
+    """A text note on the recording: `bias` (not estimated), `Cx` (not excited)."""
+    return f"{estimator_root(estimator)}/notes/{what}"
+
+
 def friction(estimator: str, axle: str, part: str | None = None) -> str:
-    """The posterior-mean curve of an axle, or its `band` (+-2 std) / `visited` range."""
+    """The posterior-mean curve of an axle, or its `band` (90 %) / `visited` range."""
     base = f"{estimator_root(estimator)}/friction/{axle}"
     return base if part is None else f"{base}/{part}"
 
@@ -78,7 +103,13 @@ def truth_friction(axle: str) -> str:
 VEHICLE_BODY = "/vehicle/body"  # pose (transform per step), outline and heading arrow below it
 VEHICLE_OUTLINE = "/vehicle/body/outline"
 VEHICLE_HEADING = "/vehicle/body/heading"
-VEHICLE_FRAME = "/vehicle/body/frame"  # a faint square around the car that the top view's camera follows
 VEHICLE_STEER = "/vehicle/body/steer"  # front wheel: transform (lf, steer angle) and arrow
+VEHICLE_VELOCITY = "/vehicle/body/velocity"  # true velocity direction per step (body frame), labelled with beta
+VEHICLE_VELOCITY_ESTIMATE = "/vehicle/body/velocity_estimate"  # estimated velocity direction per step
+VEHICLE_MARKER = "/vehicle/body/marker"  # the car as a dot of fixed screen size (the overview)
+VEHICLE_POSITION = "/vehicle/position"  # the car's position without its heading (translation per step)
+VEHICLE_FRAME = "/vehicle/position/frame"  # a faint square around the car that the close-up's camera follows
+VEHICLE_CLOSE_SCALE = "/vehicle/position/scale"  # a 10 m scale bar beside the car
 VEHICLE_TRAIL = "/vehicle/trail"  # one point per sample: the path up to the time cursor
 VEHICLE_PATH = "/vehicle/path"  # the whole path, static, written at the end
+VEHICLE_SCALE = "/vehicle/scale"  # the overview's scale bar, static, written at the end

@@ -1,18 +1,22 @@
 """Rerun recordings of a run: truth, sensors, vehicle pose, estimate series, and the
-estimator's posterior (particle clouds, stiffness densities, friction curves).
+estimator's posterior (particle clouds, stiffness densities and their quantiles, friction
+curves).
 
 Result-CSV rows are buffered and sent in bulk with `send_columns` every `chunk` rows and
 at close, so the series cost little per step and a run that fails keeps what was sent.
-At every `log_every`-th estimator step the posterior is logged as well (`_snapshot`):
-per-particle stiffness means and state particles coloured by weight, the posterior
-density of each stiffness parameter on a fixed grid (eq. (26), `viz.density`), and the
-friction curves of estimators that have `friction()`.
+Values are recorded in the units of `viz.units` (stiffness in kN, beta in degrees). At
+every `log_every`-th estimator step the posterior is logged as well (`_snapshot`): the
+particle clouds in their normalised frame with axes and a weight colour scale
+(`viz.clouds`), the posterior density of each stiffness parameter over its mean -+
+DENSITY_REACH std (eq. (26), `viz.density`) with the true mean as a bar, its 5 % and 95 %
+quantiles, and the friction curves of estimators that have `friction()`.
 
 The recording goes to any of: an .rrd file, a viewer spawned here, a viewer or gRPC proxy
 at a URL (`RecordingOptions`). The layout (`viz.blueprint`) is decided once the recorder
-knows what the estimator provides (its first step) and sent at the end with the y ranges of
-the stiffness plots fitted to the data after the start-up (STARTUP_S); a viewer that
-watches live also gets it at the first step, without the ranges.
+knows what the estimator provides (its first step) and sent to every sink at once, before
+any data, so a viewer shows it from the start; the final blueprint follows at the end,
+with the y ranges fitted to the data after the start-up (STARTUP_S), the notes the run's
+metrics call for (Cx not excited) and the overview's camera over the whole path.
 
 Entity paths: `viz.paths` and the table of docs/rerun.md.
 """
@@ -24,38 +28,81 @@ import math
 import shutil
 import socket
 import sys
-import warnings
 from pathlib import Path
 from urllib.parse import urlparse
 
 import numpy as np
 
 from tirefilter.errors import ConfigError
-from tirefilter.viz import paths
-from tirefilter.viz.blueprint import ESTIMATE, POSTERIOR_BAND, SPREAD_BAND, TRUTH, TRUTH_STEP, Layout, build_blueprint
-from tirefilter.viz.density import ComponentCache, stiffness_grid, stiffness_mixture
+from tirefilter.viz import clouds, paths
+from tirefilter.viz.blueprint import (BODY, ESTIMATE, POSTERIOR_BAND, SPREAD_BAND, STATE_NAMES, STEER, TRUTH, Z90,
+                                      Layout, build_blueprint, layout_json, overview_scale)
+from tirefilter.viz.density import ComponentCache, stiffness_mixture, window_grid
 from tirefilter.viz.options import RecordingContext, RecordingOptions
 from tirefilter.viz.paths import TIMELINE, entity_path
+from tirefilter.viz.units import DEG, scale, unit
 
 LIVE_FLUSH_TIMEOUT = 10.0  # s, the end of a run waits this long for a viewer to take the rest
-HISTORY_SHAPE = (120, 240)  # px (stiffness, time) of a density-history image
-FRAME_HALF_SIZE = 25.0  # m
-STARTUP_S = 5.0  # s: the stiffness plots' y axes fit the data from this long after the first row
-_VIRIDIS = np.array([[68, 1, 84], [59, 82, 139], [33, 145, 140], [94, 201, 98], [253, 231, 37]], float)
-_VIRIDIS_LUT = np.stack([np.interp(np.linspace(0, len(_VIRIDIS) - 1, 256), np.arange(len(_VIRIDIS)), _VIRIDIS[:, c])
-                         for c in range(3)], axis=-1).astype(np.uint8)  # (256, 3)
+CLOSE_UP_HALF_SIZE = 15.0  # m: the close-up's camera frames a square of twice this around the car
+ARROW_LENGTH = 12.0  # m: heading and velocity arrows (their angle is beta)
+STARTUP_S = 5.0  # s: the y ranges fit the data from this long after the first row
+DENSITY_REACH = 4.0  # the density snapshot shows the posterior over its mean -+ this many std
+MIN_WINDOW = 1e-4  # ... and at least -+ this share of the mean
+SETTLED_LIMIT = 100_000  # values kept per view for its y range (thinned by 2 beyond)
+BIAS_NOTE = ("**Bias not estimated.** This estimator takes the IMU as unbiased: its bias prior "
+             "(`bias0_std`) and random walk (`bias_rw`) are zero, as in the stiffness paper's Sec. VI. "
+             "Its `b_ax`, `b_ay`, `b_yaw_rate` columns are that zero, not an estimate; the true "
+             "biases are `/truth/b_<sensor>` (drawn here when they are not zero).")
+CX_NOTE = ("**Cx not excited on this drive.** The largest excitation weight of Cx was {w:.2f} of 1 "
+           "(below {limit:g}: `metrics.CX_EXCITED`; derivations, \"The undriven axle\"). The wheel "
+           "slip never carried information about Cx, so its estimate is the prior, not learned; "
+           "its narrow band is the prior's, and its error says nothing about the filter.")
 
 
-def weight_colors(log_weights) -> np.ndarray:
-    """(N, 3) uint8 colours of particles by normalised weight q / max q (viridis-like:
-    dark purple = lightest, yellow = heaviest)."""
-    lw = np.asarray(log_weights, float)
-    lw = np.where(np.isnan(lw), -np.inf, lw)
-    m = np.max(lw) if lw.size else 0.0
-    s = np.exp(lw - m) if np.isfinite(m) else np.ones_like(lw)
-    x = s * (len(_VIRIDIS) - 1)
-    anchors = np.arange(len(_VIRIDIS))
-    return np.stack([np.interp(x, anchors, _VIRIDIS[:, c]) for c in range(3)], axis=-1).astype(np.uint8)
+class _Samples:
+    """Values of one view after the start-up, thinned by 2 (every other one kept from then
+    on) whenever more than SETTLED_LIMIT are held: the quantiles of a long run from about
+    SETTLED_LIMIT evenly spread values."""
+
+    def __init__(self):
+        self.parts: list[np.ndarray] = []
+        self.n, self.stride, self.phase = 0, 1, 0
+
+    def add(self, x: np.ndarray) -> None:
+        x = np.asarray(x, float).ravel()
+        if self.stride > 1:
+            keep = np.arange(self.phase, len(x), self.stride)
+            self.phase = (self.phase - len(x)) % self.stride
+            x = x[keep]
+        x = x[np.isfinite(x)]
+        self.parts.append(x)
+        self.n += len(x)
+        if self.n > SETTLED_LIMIT:
+            v = np.concatenate(self.parts)[::2]
+            self.parts, self.n, self.stride = [v], len(v), 2 * self.stride
+
+    def values(self) -> np.ndarray:
+        return np.concatenate(self.parts) if self.parts else np.zeros(0)
+
+
+def robust_range(x: np.ndarray) -> tuple[float, float] | None:
+    """The y range of a view from its settled data: the 0.5 .. 99.5 % quantiles widened by 15 %
+    of their span (at least 5 % of their mid value) on each side; None without a span."""
+    x = x[np.isfinite(x)]
+    if x.size < 2:
+        return None
+    lo, hi = np.quantile(x, [0.005, 0.995])
+    pad = max(0.15 * (hi - lo), 0.05 * abs(0.5 * (lo + hi)))
+    return (float(lo - pad), float(hi + pad)) if pad > 0 else None
+
+
+def _view_columns(columns) -> dict[str, tuple[str, ...]]:
+    """Per view key of `build_blueprint`, the Result-CSV columns its y range fits."""
+    out = {p: (p, f"true_{p}_mean") for p in paths.STIFFNESS}
+    out.update({"vx": ("vx", "true_vx", "meas_vx"), "vy": ("vy", "true_vy"), "beta": ("beta", "true_beta"),
+                "yaw_rate": ("yaw_rate", "true_yaw_rate", "meas_yaw_rate")})
+    out.update({f"b_{s}": (f"b_{s}", f"true_b_{s}") for s in paths.SENSORS})
+    return {k: tuple(c for c in cols if c in columns) for k, cols in out.items() if any(c in columns for c in cols)}
 
 
 class RerunRecorder:
@@ -77,21 +124,26 @@ class RerunRecorder:
         self.columns = tuple(columns)
         self._col = {c: j for j, c in enumerate(self.columns)}
         self._paths = [entity_path(c, estimator) for c in self.columns]
+        self._scales = np.array([scale(c) for c in self.columns])
         self._t_index = self.columns.index("t")
         self._truth = "true_x" in self._col and "true_y" in self._col
         self._references = tuple(s for s in paths.STATES if f"true_{s}" in self._col)  # a log's references
         self._t0: float | None = None
-        self._settled: dict[str, list[np.ndarray]] = {}  # per parameter: estimate and true mean after start-up
-        self._history: dict[str, list[tuple[float, np.ndarray]]] = {}  # per parameter: (t, density) per snapshot
+        self._views = _view_columns(self._col)
+        self._settled: dict[str, _Samples] = {}  # per view key: its values after the start-up
         self._rows: list[np.ndarray] = []
         # rows per bulk send: large for a file, small when a viewer watches live (0.5 s at 100 Hz)
         self._chunk = chunk or (50 if opts.spawn or opts.connect else 1000)
-        self._xy: list[np.ndarray] = []
+        self._bounds = [math.inf, -math.inf, math.inf, -math.inf]  # x0, x1, y0, y1 of the path
+        self._path_parts: list[np.ndarray] = []
+        self._biased: set[str] = set()  # channels whose true bias is not zero somewhere
         self._pending = None  # (estimator, Estimate) of the step whose row comes next
+        self._last_estimator = None
         self._steps = 0
         self._layout: Layout | None = None
-        self._grids: dict[str, np.ndarray] = {}
+        self._ess_lines: tuple[float, float | None] | None = None  # N, resampling threshold
         self._caches: dict[str, ComponentCache] = {}  # per parameter: density rows of unchanged components
+        self._scale_logged: set[str] = set()  # clouds whose weight colour scale is drawn
         self._dead_reckoning = (0.0, 0.0, 0.0, None)  # x, y, psi, t of the last row (replay)
         self._lf = None
         self.snapshots = 0
@@ -115,30 +167,28 @@ class RerunRecorder:
         self.rec.set_sinks(*sinks)
 
     def _send_layout(self, layout: Layout) -> None:
-        """Decide the layout; a live viewer gets it now (the file gets it at the end)."""
+        """Decide the layout and send it to every sink now, before the data (a viewer that
+        opens the file or watches the stream shows it from the first row on)."""
         self._layout = layout
         self._log_vehicle_drawing()
-        if self.options.spawn or self.options.connect:
-            self.rec.send_blueprint(build_blueprint(layout), make_active=True, make_default=True)
+        if layout.estimator and not layout.bias_estimated:
+            self.rec.log(paths.note(layout.estimator, "bias"),
+                         self._rr.TextDocument(BIAS_NOTE, media_type=self._rr.MediaType.MARKDOWN), static=True)
+        self.rec.send_blueprint(build_blueprint(layout), make_active=True, make_default=True)
 
     def y_ranges(self) -> dict[str, tuple[float, float]]:
-        """Per stiffness parameter, the y range of its plot: the 0.5 .. 99.5 % quantiles of
-        the estimate and the true surface mean after the start-up, widened by 15 % (at least
-        5 % of the mean) on each side; none for a parameter without such data."""
-        out = {}
-        for p, chunks in self._settled.items():
-            x = np.concatenate(chunks)
-            x = x[np.isfinite(x)]
-            if x.size < 2:
-                continue
-            lo, hi = np.quantile(x, [0.005, 0.995])
-            pad = max(0.15 * (hi - lo), 0.05 * abs(0.5 * (lo + hi)))
-            if pad > 0:
-                out[p] = (float(lo - pad), float(hi + pad))
+        """Per view key (stiffness parameters, states, `b_<sensor>`, `q_<param>`), the y range
+        of its plot from the data after the start-up (`robust_range`); `ess` from 0 to 1.05 N,
+        `active` (the gate) -0.05 .. 1.05. None for a view without such data."""
+        out = {k: r for k, v in self._settled.items() if (r := robust_range(v.values())) is not None}
+        if self._ess_lines is not None:
+            out["ess"] = (0.0, 1.05 * self._ess_lines[0])
+        out["active"] = (-0.05, 1.05)
         return out
 
     def _log_vehicle_drawing(self) -> None:
-        """The car in its body frame (static): outline, heading arrow, front wheel."""
+        """The car in its body frame (static): outline, heading arrow, front wheel, a dot for
+        the overview; the close-up's frame and scale bar around its position."""
         rr, log = self._rr, self.rec.log
         v = self.context.vehicle
         lf, lr = (float(v.lf), float(v.lr)) if v is not None else (1.2, 1.6)
@@ -147,14 +197,31 @@ class RerunRecorder:
         front, rear = lf + 0.8, -(lr + 0.9)
         outline = [[front, half_w, 0], [rear, half_w, 0], [rear, -half_w, 0], [front, -half_w, 0], [front, half_w, 0]]
         log("/vehicle", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-        log(paths.VEHICLE_OUTLINE, rr.LineStrips3D([outline], colors=[ESTIMATE]), static=True)
-        log(paths.VEHICLE_HEADING, rr.Arrows3D(vectors=[[front + 1.5, 0, 0]], colors=[TRUTH]), static=True)
-        # the top view's camera follows this square, and frames it: the car with 25 m of its path around it
-        f = FRAME_HALF_SIZE
+        log(paths.VEHICLE_OUTLINE, rr.LineStrips3D([outline], colors=[BODY], radii=rr.Radius.ui_points(1.5)),
+            static=True)
+        log(paths.VEHICLE_HEADING, rr.Arrows3D(vectors=[[ARROW_LENGTH, 0, 0]], colors=[SPREAD_BAND],
+                                               radii=rr.Radius.ui_points(1.5), labels=["heading"]), static=True)
+        log(paths.VEHICLE_STEER, rr.Arrows3D(origins=[[-0.35, 0, 0]], vectors=[[0.7, 0, 0]], colors=[STEER],
+                                             radii=[0.08]), static=True)
+        log(paths.VEHICLE_MARKER, rr.Points3D([[0, 0, 0]], colors=[ESTIMATE], radii=rr.Radius.ui_points(5.0)),
+            static=True)
+        for path, color in ((paths.VEHICLE_VELOCITY, TRUTH), (paths.VEHICLE_VELOCITY_ESTIMATE, ESTIMATE)):
+            log(path, rr.Arrows3D.from_fields(colors=[color], radii=rr.Radius.ui_points(1.5)), static=True)
+        log(paths.VEHICLE_TRAIL, rr.Points3D.from_fields(colors=[POSTERIOR_BAND], radii=rr.Radius.ui_points(1.5)),
+            static=True)
+        # the close-up's camera follows this square (it does not turn with the car), and frames it
+        f = CLOSE_UP_HALF_SIZE
         log(paths.VEHICLE_FRAME, rr.LineStrips3D([[[f, f, 0], [-f, f, 0], [-f, -f, 0], [f, -f, 0], [f, f, 0]]],
                                                  colors=[(225, 225, 225)]), static=True)
-        log(paths.VEHICLE_STEER, rr.Arrows3D(origins=[[-0.35, 0, 0]], vectors=[[0.7, 0, 0]], colors=[TRUTH_STEP],
-                                             radii=[0.08]), static=True)
+        # 10 m along the screen's right (-y, the camera looks down with x up) at its lower left
+        x0, y0 = -0.85 * f, 0.85 * f
+        log(paths.VEHICLE_CLOSE_SCALE, rr.LineStrips3D(
+            [[[x0, y0, 0], [x0, y0 - 10.0, 0]], [[x0 - 0.6, y0, 0], [x0 + 0.6, y0, 0]],
+             [[x0 - 0.6, y0 - 10.0, 0], [x0 + 0.6, y0 - 10.0, 0]]], colors=[TRUTH], radii=rr.Radius.ui_points(1.5)),
+            static=True)
+        log(f"{paths.VEHICLE_CLOSE_SCALE}/label", rr.Points3D([[x0 + 1.6, y0 - 5.0, 0]], labels=["10 m"],
+                                                              colors=[TRUTH], radii=[0.01], show_labels=True),
+            static=True)
 
     def _layout_for(self, estimator, est, mixture, post) -> Layout:
         params = tuple(getattr(estimator, "params", ())) or (mixture.params if mixture is not None else ())
@@ -162,12 +229,18 @@ class RerunRecorder:
             params = tuple(p for p in ("Cx", "Cf_y", "Cr_y") if math.isfinite(getattr(est, p, math.nan)))
         order = tuple(p for p in ("Cx", "Cf_y", "Cr_y") if p in params)
         particles = post is not None and len(post.log_weights) > 1
+        cfg = getattr(estimator, "cfg", None)
+        if particles:
+            n = float(len(post.log_weights))
+            threshold = getattr(cfg, "resample_threshold", None)
+            self._ess_lines = (n, None if threshold is None else float(threshold) * n)
         return Layout(self.estimator, params=order, lateral="Cx" not in order,
                       clouds=particles, references=self._references,
                       densities=tuple(p for p in order if mixture is not None and p in mixture.params),
                       friction=callable(getattr(estimator, "friction", None)), truth=self._truth,
                       sensors=tuple(s for s in paths.SENSORS if est is None or math.isfinite(getattr(est, f"b_{s}",
-                                                                                                     math.nan))))
+                                                                                                     math.nan))),
+                      bias_estimated=bool(getattr(estimator, "bias_on", True)), ess_lines=particles)
 
     # ---- per step -------------------------------------------------------------------------
     def note_step(self, estimator, est) -> None:
@@ -177,9 +250,12 @@ class RerunRecorder:
     def log_row(self, values) -> None:
         row = np.asarray(values, dtype=float)
         self._rows.append(row)
+        if self._t0 is None:
+            self._t0 = float(row[self._t_index])
         if self._pending is not None:
             estimator, est = self._pending
             self._pending = None
+            self._last_estimator = estimator
             if self._steps % self.options.log_every == 0:
                 self._snapshot(row, estimator, est)
             self._steps += 1
@@ -187,110 +263,97 @@ class RerunRecorder:
             self.flush()
 
     def _snapshot(self, row: np.ndarray, estimator, est) -> None:
-        rr = self._rr
         post = _posterior(estimator)
         mixture = stiffness_mixture(post, est, params=getattr(estimator, "params", None),
                                     gaussian=getattr(estimator, "posterior_family", None) == "gaussian")
         if self._layout is None:
             self._send_layout(self._layout_for(estimator, est, mixture, post))
         layout = self._layout
-        e = self.estimator
-        self.rec.set_time(TIMELINE, duration=float(row[self._t_index]))
+        t = float(row[self._t_index])
+        self.rec.set_time(TIMELINE, duration=t)
         if layout.clouds and mixture is not None:
-            cols = [mixture.index(p) for p in layout.params if p in mixture.params]
-            with np.errstate(divide="ignore"):
-                colors = weight_colors(np.log(mixture.weights))
-            pts = mixture.loc[:, cols]
-            arch = rr.Points2D if pts.shape[1] == 2 else rr.Points3D
-            if pts.shape[1] in (2, 3):
-                self.rec.log(paths.particles(e, "stiffness"), arch(pts, colors=colors, radii=rr.Radius.ui_points(2.5)))
+            names = [p for p in layout.params if p in mixture.params]
+            if len(names) in (2, 3):
+                pts = mixture.loc[:, [mixture.index(p) for p in names]] * np.array([scale(p) for p in names])
+                with np.errstate(divide="ignore"):
+                    self._log_cloud("stiffness", pts, [f"{p} [{unit(p)}]" for p in names], np.log(mixture.weights))
         if post is not None and len(post.log_weights) > 1:
             x = np.asarray(post.particles, float)
             stats = post.stats or {}
             if "mu" in stats and "var" in stats and "gamma" not in stats and x.ndim == 2:  # AUGPF: [x, m, s2]
                 x = x[:, :x.shape[1] - np.shape(stats["mu"])[-1] - np.shape(stats["var"])[-1]]
             if x.ndim == 2 and x.shape[1] in (2, 3):
-                arch = rr.Points2D if x.shape[1] == 2 else rr.Points3D
-                self.rec.log(paths.particles(e, "state"),
-                             arch(x, colors=weight_colors(post.log_weights), radii=rr.Radius.ui_points(2.5)))
+                states = ("vx", "vy", "yaw_rate")[3 - x.shape[1]:]
+                self._log_cloud("state", x, [f"{STATE_NAMES[s]} [{unit(s)}]" for s in states], post.log_weights)
         if mixture is not None:
-            grids = {p: self._grid(p, estimator, mixture, post) for p in layout.densities}
-            if mixture.kind == "kde" and grids:  # a kernel narrower than the grid spacing would fall between points
-                spacing = np.array([grids[p][1] - grids[p][0] if p in grids else 0.0 for p in mixture.params])
-                mixture = dataclasses.replace(mixture, scale=np.maximum(mixture.scale, spacing))
-            for p, grid in grids.items():
-                values = mixture.pdf(p, grid, self._caches.setdefault(p, ComponentCache())).astype(np.float32)
-                self._history.setdefault(p, []).append((float(row[self._t_index]), values))
-                self.rec.log(paths.density(e, p), rr.BarChart.from_fields(values=values))
-                self.rec.log(paths.density_mass(e, p), rr.Scalars(mixture.mass(p, grid[0], grid[-1])))
+            for p in layout.densities:
+                self._log_density(p, mixture, row, t)
         if layout.friction:
             self._log_friction(estimator.friction(), row)
         self.snapshots += 1
 
-    def _grid(self, param: str, estimator, mixture, post) -> np.ndarray:
-        """The fixed density grid of `param` (chosen at the first snapshot, then kept):
-        [0, 1.2 bound_high] x the reference stiffness of the MPF (its means stay inside the
-        projection bounds [bound_low, bound_high] x reference; the margin holds the
-        densities of particles at a bound); [0, 3.6] x the nominal (or first) value for
-        other estimators."""
-        if param in self._grids:
-            return self._grids[param]
-        names = tuple(getattr(estimator, "params", ()))
-        cfg = getattr(estimator, "cfg", None)
-        ref = None
-        if param in names and getattr(estimator, "C_ref", None) is not None:
-            ref = float(np.asarray(estimator.C_ref)[names.index(param)])
-        stats = getattr(post, "stats", None) or {}
-        if ref is None and "C_nominal" in stats and param in tuple(stats.get("params", ())):
-            ref = float(np.asarray(stats["C_nominal"])[tuple(stats["params"]).index(param)])
-        if ref is None or not ref > 0:
-            ref = abs(mixture.mean(param))
-        grid = stiffness_grid(ref, 0.0, 1.2 * getattr(cfg, "bound_high", 3.0), self.options.density_points)
-        self._grids[param] = grid
-        with warnings.catch_warnings():  # rerun-sdk 0.41 warns about the absent `values` of a partial update
-            warnings.simplefilter("ignore")
-            self.rec.log(paths.density(self.estimator, param),
-                         self._rr.BarChart.from_fields(abscissa=grid.astype(np.float32), color=ESTIMATE,
-                                                       # bars as wide as the grid step (the default, 1, is 1 N/rad)
-                                                       widths=np.full(grid.size, grid[1] - grid[0], np.float32)),
+    def _log_cloud(self, what: str, pts: np.ndarray, names: list[str], log_weights) -> None:
+        """A cloud in physical units with the transform to its normalised frame, and its
+        axes, tick labels and weight colour scale in that frame (`viz.clouds`)."""
+        rr, e = self._rr, self.estimator
+        d = pts.shape[1]
+        frame = clouds.normalising(pts)
+        translation, scale3 = clouds.transform(frame)
+        points, strips = (rr.Points2D, rr.LineStrips2D) if d == 2 else (rr.Points3D, rr.LineStrips3D)
+        self.rec.log(paths.particles(e, what),
+                     points(pts, colors=clouds.weight_colors(log_weights), radii=rr.Radius.ui_points(2.5)),
+                     rr.Transform3D(translation=translation, scale=scale3))
+        ax = clouds.axes(frame, tuple(names))
+        base = paths.particle_axes(e, what)
+        self.rec.log(base, strips(ax.strips, colors=[clouds.AXIS_COLOR], radii=rr.Radius.ui_points(0.75)))
+        self.rec.log(f"{base}/labels", points(ax.label_positions, labels=ax.labels, colors=[clouds.AXIS_COLOR],
+                                              radii=rr.Radius.ui_points(0.5), show_labels=True))
+        if what not in self._scale_logged:
+            self._scale_logged.add(what)
+            pos, colors, label_pos, labels = clouds.weight_scale(d)
+            self.rec.log(f"{base}/weight_scale", points(pos, colors=colors, radii=rr.Radius.ui_points(4.0)),
                          static=True)
-        return grid
+            self.rec.log(f"{base}/weight_scale/labels", points(label_pos, labels=labels, colors=[clouds.AXIS_COLOR],
+                                                               radii=rr.Radius.ui_points(0.5), show_labels=True),
+                         static=True)
 
-    def density_history(self) -> dict[str, dict]:
-        """Per parameter with densities: the image of all snapshots (`image`: (rows, cols, 3)
-        uint8, stiffness increasing upwards, one column per snapshot, each column scaled to
-        its own peak and coloured viridis-like), cropped to the stiffness range where some
-        snapshot exceeds 1 % of its peak (`range`, N/rad), and the time span (`t`, s)."""
-        out = {}
-        for p, snaps in self._history.items():
-            grid = self._grids.get(p)
-            if grid is None or not snaps:
-                continue
-            d = np.stack([v for _, v in snaps]).astype(float)  # (snapshots, grid)
-            peak = d.max(axis=1, keepdims=True)
-            d = np.divide(d, peak, out=np.zeros_like(d), where=peak > 0)
-            used = np.flatnonzero((d > 0.01).any(axis=0))
-            if used.size == 0:
-                continue
-            lo, hi = max(int(used[0]) - 2, 0), min(int(used[-1]) + 3, grid.size)
-            img = _VIRIDIS_LUT[np.clip((d[:, lo:hi] * 255).astype(int), 0, 255)]  # (snapshots, rows, 3)
-            img = img.transpose(1, 0, 2)[::-1]
-            rows = np.linspace(0, img.shape[0] - 1, HISTORY_SHAPE[0]).round().astype(int)  # nearest neighbour
-            cols = np.linspace(0, img.shape[1] - 1, HISTORY_SHAPE[1]).round().astype(int)
-            out[p] = {"image": np.ascontiguousarray(img[rows][:, cols]),
-                      "range": (float(grid[lo]), float(grid[hi - 1])), "t": (snaps[0][0], snaps[-1][0])}
-        return out
-
-    def _log_density_history(self) -> dict[str, tuple[float, float]]:
-        ranges = {}
-        for p, h in self.density_history().items():
-            self.rec.log(paths.density_history(self.estimator, p), self._rr.Image(h["image"]), static=True)
-            ranges[p] = h["range"] + h["t"]
-        return ranges
+    def _log_density(self, p: str, mixture, row: np.ndarray, t: float) -> None:
+        """The density of `p` over its mean -+ DENSITY_REACH std (at least -+ MIN_WINDOW of the
+        mean; per recorded unit: kN/rad,
+        kN/unit slip), the exact mass of that window, the true mean as a bar as high as the
+        density's peak, and the 5 % and 95 % quantiles."""
+        rr, e = self._rr, self.estimator
+        m, s = mixture.mean(p), mixture.std(p)
+        if not (s > 0 and math.isfinite(s) and math.isfinite(m)):
+            return
+        # a collapsed posterior (one distinct particle) still gets a window that float32 resolves
+        grid = window_grid(m, max(s, MIN_WINDOW * abs(m) / DENSITY_REACH), DENSITY_REACH, self.options.density_points)
+        if mixture.kind == "kde":  # a kernel narrower than the grid spacing would fall between its points
+            j = mixture.index(p)
+            widths = mixture.scale.copy()
+            widths[:, j] = np.maximum(widths[:, j], grid[1] - grid[0])
+            mixture = dataclasses.replace(mixture, scale=widths)
+        k = scale(p)
+        values = mixture.pdf(p, grid, self._caches.setdefault(p, ComponentCache())) / k
+        step = (grid[1] - grid[0]) * k
+        self.rec.log(paths.density(e, p), rr.BarChart(values.astype(np.float32), abscissa=grid * k,
+                                                      widths=np.full(grid.size, step, np.float32), color=ESTIMATE))
+        self.rec.log(paths.density_mass(e, p), rr.Scalars(mixture.mass(p, grid[0], grid[-1])))
+        j = self._col.get(f"true_{p}_mean")
+        truth = float(row[j]) * k if j is not None else math.nan
+        if math.isfinite(truth):
+            self.rec.log(paths.density_truth(e, p), rr.BarChart(np.array([values.max()], np.float32),
+                                                                abscissa=np.array([truth]),
+                                                                widths=np.array([2 * step], np.float32), color=TRUTH))
+        q = mixture.quantiles(p, [0.05, 0.95]) * k
+        for which, v in zip(("q05", "q95"), q):
+            self.rec.log(paths.density_quantile(e, p, which), rr.Scalars(float(v)))
+        if self._t0 is not None and t >= self._t0 + STARTUP_S:
+            self._settled.setdefault(f"q_{p}", _Samples()).add(np.append(q, truth))
 
     def _log_friction(self, curve, row: np.ndarray) -> None:
-        """Per axle: the posterior mean mu(alpha), the +-2 std band, the visited slip range,
-        and the true curve at the current surface (co-simulation)."""
+        """Per axle: the posterior mean mu(alpha), its 90 % band, the visited slip range, and
+        the true curve at the current surface (co-simulation)."""
         if curve is None:
             return
         rr, e = self._rr, self.estimator
@@ -303,7 +366,8 @@ class RerunRecorder:
             self.rec.log(paths.friction(e, axle), rr.LineStrips3D([np.stack([alpha, mu, z], 1)], colors=[ESTIMATE],
                                                                   radii=rr.Radius.ui_points(1.5)))
             self.rec.log(paths.friction(e, axle, "band"),
-                         rr.LineStrips3D([np.stack([alpha, mu - 2 * std, z], 1), np.stack([alpha, mu + 2 * std, z], 1)],
+                         rr.LineStrips3D([np.stack([alpha, mu - Z90 * std, z], 1),
+                                          np.stack([alpha, mu + Z90 * std, z], 1)],
                                          colors=[POSTERIOR_BAND], radii=rr.Radius.ui_points(1.0)))
             lo, hi = visited[k]
             if math.isfinite(lo) and math.isfinite(hi):
@@ -323,21 +387,21 @@ class RerunRecorder:
     def flush(self) -> None:
         if not self._rows:
             return
-        rr = self._rr
         data = np.vstack(self._rows)
         self._rows.clear()
         t = data[:, self._t_index]
-        if self._t0 is None:
-            self._t0 = float(t[0])
         after = t >= self._t0 + STARTUP_S
         if after.any():
-            for p in paths.STIFFNESS:
-                for c in (p, f"true_{p}_mean"):
-                    if c in self._col:
-                        self._settled.setdefault(p, []).append(data[after, self._col[c]])
+            for key, cols in self._views.items():
+                self._settled.setdefault(key, _Samples()).add(
+                    np.concatenate([data[after, self._col[c]] * scale(c) for c in cols]))
+        for s in paths.SENSORS:
+            j = self._col.get(f"true_b_{s}")
+            if j is not None and np.any(np.abs(np.nan_to_num(data[:, j])) > 0):
+                self._biased.add(s)
         for j, path in enumerate(self._paths):
             if path is not None:
-                self._send_scalars(path, t, data[:, j])
+                self._send_scalars(path, t, data[:, j] * self._scales[j])
         if self.estimator is not None:
             if self._layout is None:  # rows without estimator steps (the estimator FMU): layout from the columns
                 params = tuple(p for p in ("Cx", "Cf_y", "Cr_y")
@@ -347,12 +411,17 @@ class RerunRecorder:
             for p in paths.STIFFNESS:
                 if p not in self._col:
                     continue
-                c = data[:, self._col[p]]
+                c = data[:, self._col[p]] * scale(p)
                 for which, col in (("posterior", f"{p}_std"), ("spread", f"{p}_sigma")):
                     if col in self._col:
-                        s = data[:, self._col[col]]
-                        self._send_scalars(paths.stiffness_band(self.estimator, p, f"{which}_lower"), t, c - 2 * s)
-                        self._send_scalars(paths.stiffness_band(self.estimator, p, f"{which}_upper"), t, c + 2 * s)
+                        s = data[:, self._col[col]] * scale(p)
+                        self._send_scalars(paths.stiffness_band(self.estimator, p, f"{which}_lower"), t, c - Z90 * s)
+                        self._send_scalars(paths.stiffness_band(self.estimator, p, f"{which}_upper"), t, c + Z90 * s)
+            if self._ess_lines is not None and "ess" in self._col:
+                n, threshold = self._ess_lines
+                self._send_scalars(paths.ess_line(self.estimator, "particles"), t, np.full(t.shape, n))
+                if threshold is not None:
+                    self._send_scalars(paths.ess_line(self.estimator, "threshold"), t, np.full(t.shape, threshold))
         self._send_pose(data, t)
 
     def _send_scalars(self, path: str, t: np.ndarray, column: np.ndarray) -> None:
@@ -366,9 +435,10 @@ class RerunRecorder:
                               columns=rr.Scalars.columns(scalars=column))
 
     def _send_pose(self, data: np.ndarray, t: np.ndarray) -> None:
-        """Vehicle pose per row (transform of /vehicle/body, steer angle of the front wheel,
-        trail point): the true pose in co-simulation, dead reckoning of the estimated (else
-        measured) speed and yaw rate in replay."""
+        """Vehicle pose per row (transform of /vehicle/body, of /vehicle/position without the
+        heading, steer angle of the front wheel, trail point) and the velocity directions:
+        the true pose and velocity in co-simulation; in replay, dead reckoning of the
+        estimated (else measured) speed and yaw rate, and the estimated velocity."""
         rr = self._rr
         col = self._col
         if self._truth:
@@ -378,21 +448,52 @@ class RerunRecorder:
             x, y, psi = self._dead_reckon(data, t)
             if x is None:
                 return
-        self._xy.append(np.stack([x, y], 1))
         steer = next((data[:, col[c]] for c in ("true_delta", "meas_delta") if c in col), np.zeros_like(x))
         steer = np.nan_to_num(steer)
         ok = np.isfinite(x) & np.isfinite(y) & np.isfinite(psi)
         if not ok.any():
             return
+        self._path_parts.append(np.stack([x[ok], y[ok]], 1))
+        self._bounds = [min(self._bounds[0], float(x[ok].min())), max(self._bounds[1], float(x[ok].max())),
+                        min(self._bounds[2], float(y[ok].min())), max(self._bounds[3], float(y[ok].max()))]
+        rows = data[ok]
         x, y, psi, steer, tt = x[ok], y[ok], psi[ok], steer[ok], t[ok]
         times = [rr.TimeColumn(TIMELINE, duration=tt)]
         pos = np.stack([x, y, np.zeros_like(x)], 1)
         self.rec.send_columns(paths.VEHICLE_BODY, indexes=times,
                               columns=rr.Transform3D.columns(translation=pos, quaternion=_yaw_quaternion(psi)))
+        self.rec.send_columns(paths.VEHICLE_POSITION, indexes=times, columns=rr.Transform3D.columns(translation=pos))
         lf = np.broadcast_to([self._lf or 1.2, 0.0, 0.0], pos.shape)
         self.rec.send_columns(paths.VEHICLE_STEER, indexes=times,
                               columns=rr.Transform3D.columns(translation=lf, quaternion=_yaw_quaternion(steer)))
         self.rec.send_columns(paths.VEHICLE_TRAIL, indexes=times, columns=rr.Points3D.columns(positions=pos))
+        self._send_velocities(rows, tt)
+
+    def _send_velocities(self, rows: np.ndarray, t: np.ndarray) -> None:
+        """Per row, the direction of the true (black) and the estimated (blue) velocity in the
+        body frame, ARROW_LENGTH long from the centre of gravity like the heading arrow: their
+        angle to it is the sideslip beta = atan2(vy, vx). One label per row gives both in
+        degrees (on the true arrow; on the estimated one in replay)."""
+        rr, col = self._rr, self._col
+        nan = np.full(len(rows), np.nan)
+
+        def angle(vx: str, vy: str) -> np.ndarray:
+            return np.arctan2(rows[:, col[vy]], rows[:, col[vx]]) if vx in col and vy in col else nan
+
+        true_beta, est_beta = angle("true_vx", "true_vy"), angle("vx", "vy")
+        labels = [", ".join(([f"true {b:+.1f}°"] if math.isfinite(b) else []) +
+                            ([f"est. {c:+.1f}°"] if math.isfinite(c) else [])) for b, c in zip(true_beta * DEG,
+                                                                                              est_beta * DEG)]
+        labels = np.array(["beta " + x if x else "" for x in labels], dtype=object)
+        labelled = paths.VEHICLE_VELOCITY if np.isfinite(true_beta).any() else paths.VEHICLE_VELOCITY_ESTIMATE
+        for path, beta in ((paths.VEHICLE_VELOCITY, true_beta), (paths.VEHICLE_VELOCITY_ESTIMATE, est_beta)):
+            keep = np.isfinite(beta)
+            if not keep.any():
+                continue
+            vectors = ARROW_LENGTH * np.stack([np.cos(beta), np.sin(beta), np.zeros_like(beta)], 1)[keep]
+            self.rec.send_columns(path, indexes=[rr.TimeColumn(TIMELINE, duration=t[keep])],
+                                  columns=rr.Arrows3D.columns(vectors=vectors,
+                                                              labels=list(labels[keep]) if path == labelled else None))
 
     def _dead_reckon(self, data: np.ndarray, t: np.ndarray):
         col = self._col
@@ -416,18 +517,46 @@ class RerunRecorder:
         self._dead_reckoning = (float(x[-1]), float(y[-1]), float(psi[-1]), float(t[-1]))
         return x, y, psi
 
+    def final_layout(self) -> Layout:
+        """The layout with what the end of the run knows: the channels with a true bias, whether
+        Cx was excited (the estimator's `cx_weight_max` against `metrics.CX_EXCITED`), the
+        bounding box of the path."""
+        from tirefilter.metrics import CX_EXCITED
+
+        layout = self._layout
+        w = getattr(self._last_estimator, "cx_weight_max", None)
+        excited = None if w is None or "Cx" not in layout.params else bool(w >= CX_EXCITED)
+        bounds = tuple(self._bounds) if math.isfinite(self._bounds[0]) else None
+        return dataclasses.replace(layout, true_bias=tuple(s for s in paths.SENSORS if s in self._biased),
+                                   cx_excited=excited, path_bounds=bounds)
+
     def close(self) -> None:
         self.flush()
         if self._layout is None:
             self._send_layout(Layout(self.estimator, truth=self._truth, references=self._references))
-        if self._xy:
-            path = np.vstack(self._xy)
-            path = path[np.all(np.isfinite(path), axis=1)]
+        final = self.final_layout()
+        rr = self._rr
+        if self._path_parts:
+            path = np.vstack(self._path_parts)
             path3 = np.column_stack([path, np.zeros(len(path))])  # 3-D: the top view is a 3-D view
-            self.rec.log(paths.VEHICLE_PATH, self._rr.LineStrips3D([path3], colors=[SPREAD_BAND]), static=True)
-        self.rec.send_blueprint(build_blueprint(self._layout, y_ranges=self.y_ranges(),
-                                                density_history=self._log_density_history()),
-                                make_active=True, make_default=True)
+            self.rec.log(paths.VEHICLE_PATH, rr.LineStrips3D([path3], colors=[SPREAD_BAND],
+                                                              radii=rr.Radius.ui_points(1.0)), static=True)
+        if final.path_bounds is not None:
+            strips, label_at, label = overview_scale(final.path_bounds)
+            self.rec.log(paths.VEHICLE_SCALE, rr.LineStrips3D(strips, colors=[TRUTH], radii=rr.Radius.ui_points(1.5)),
+                         static=True)
+            self.rec.log(f"{paths.VEHICLE_SCALE}/label", rr.Points3D([label_at], labels=[label], colors=[TRUTH],
+                                                                     radii=[0.01], show_labels=True), static=True)
+        if final.cx_excited is False:
+            from tirefilter.metrics import CX_EXCITED
+
+            text = CX_NOTE.format(w=float(self._last_estimator.cx_weight_max), limit=CX_EXCITED)
+            self.rec.log(paths.note(self.estimator, "Cx"), rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN),
+                         static=True)
+        self._layout = final
+        ranges = self.y_ranges()
+        self.rec.send_property("tirefilter", rr.AnyValues(layout=layout_json(final, ranges)))
+        self.rec.send_blueprint(build_blueprint(final, y_ranges=ranges), make_active=True, make_default=True)
         live = self.options.spawn or self.options.connect
         try:
             # a viewer that went away must not hang the end of the run (the file sink is flushed too)
