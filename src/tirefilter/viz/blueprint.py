@@ -285,14 +285,15 @@ def _overview(layout: Layout, live):
         eye = rrb.EyeControls3D(position=position, look_target=target, eye_up=up)
     return rrb.Spatial3DView(name="path of the run [m]", origin="/vehicle", time_ranges=live, line_grid=False,
                              contents=[f"+ {paths.VEHICLE_PATH}", f"+ {paths.VEHICLE_TRAIL}",
-                                       f"+ {paths.VEHICLE_MARKER}", f"+ {paths.VEHICLE_SCALE}"],
+                                       f"+ {paths.VEHICLE_MARKER}", f"+ {paths.VEHICLE_SCALE}/**"],
                              eye_controls=eye)
 
 
 def _close_up(live):
     """The car from above, the camera following it (a square of 2 CLOSE_UP_HALF_SIZE m):
-    outline, heading, steered wheel, the true and the estimated velocity vectors (their
-    angle to the heading is the sideslip beta), the trail, a 10 m scale bar."""
+    outline, heading, steered wheel, the directions of the true and the estimated velocity
+    (drawn at rerun_log.BETA_GAIN times the sideslip beta to the heading, labelled), the
+    trail, a 10 m scale bar."""
     import rerun.blueprint as rrb
 
     return rrb.Spatial3DView(

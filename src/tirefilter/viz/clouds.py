@@ -149,7 +149,7 @@ def weight_scale(d: int, n: int = 24) -> tuple[np.ndarray, np.ndarray, np.ndarra
     box's back right edge, pushed out to the right; 2-D: up its right side."""
     s = np.linspace(0.0, 1.0, n)
     if d == 3:
-        base, up, side = np.array([1.5, 1.5, 0.0]) * REACH, np.array([0.0, 0.0, 1.0]), np.array([0.5, 0.35, 0.0])
+        base, up, side = np.array([1.0, 1.05, 0.0]) * REACH, np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.7, 0.0])
     else:
         base, up, side = np.array([1.3 * REACH, 0.0]), np.array([0.0, -1.0]), np.array([0.4, 0.0])
     pos = base + np.outer((2 * s - 1) * REACH * 0.8, up)
@@ -157,7 +157,7 @@ def weight_scale(d: int, n: int = 24) -> tuple[np.ndarray, np.ndarray, np.ndarra
     for v in WEIGHT_TICKS:
         label_pos.append(base + (2 * weight_position(v) - 1) * REACH * 0.8 * up + side)
         labels.append(f"{v:g}" + (" = uniform" if v == 1 else ""))
-    label_pos.append(base + REACH * 1.0 * up)
+    label_pos.append(base + REACH * 1.0 * up + 0.5 * side)
     labels.append("weight x N")
     return pos, viridis(s), np.array(label_pos), labels
 

@@ -44,7 +44,8 @@ from tirefilter.viz.units import DEG, scale, unit
 
 LIVE_FLUSH_TIMEOUT = 10.0  # s, the end of a run waits this long for a viewer to take the rest
 CLOSE_UP_HALF_SIZE = 15.0  # m: the close-up's camera frames a square of twice this around the car
-ARROW_LENGTH = 12.0  # m: heading and velocity arrows (their angle is beta)
+ARROW_LENGTH = 12.0  # m: heading and velocity arrows
+BETA_GAIN = 10.0  # the velocity arrows are drawn at this many times beta to the heading (a few degrees: else unseen)
 STARTUP_S = 5.0  # s: the y ranges fit the data from this long after the first row
 DENSITY_REACH = 4.0  # the density snapshot shows the posterior over its mean -+ this many std
 MIN_WINDOW = 1e-4  # ... and at least -+ this share of the mean
@@ -87,13 +88,24 @@ class _Samples:
 
 def robust_range(x: np.ndarray) -> tuple[float, float] | None:
     """The y range of a view from its settled data: the 0.5 .. 99.5 % quantiles widened by 15 %
-    of their span (at least 5 % of their mid value) on each side; None without a span."""
+    of their span (at least 5 % of their mid value) on each side, then out to multiples of the
+    power of ten P below that span where this at most doubles it (`snap_range`); None without
+    a span."""
     x = x[np.isfinite(x)]
     if x.size < 2:
         return None
     lo, hi = np.quantile(x, [0.005, 0.995])
     pad = max(0.15 * (hi - lo), 0.05 * abs(0.5 * (lo + hi)))
-    return (float(lo - pad), float(hi + pad)) if pad > 0 else None
+    return snap_range(float(lo - pad), float(hi + pad)) if pad > 0 else None
+
+
+def snap_range(lo: float, hi: float) -> tuple[float, float]:
+    """(lo, hi) widened out to multiples of P = 10^floor(log10(hi - lo)), unless that more than
+    doubles it. Rerun's plots label their y axis at powers of ten only: a range of 105 .. 290
+    showed the single label 200, -0.55 .. 0.5 only 0; 100 .. 300 and -1 .. 1 show three."""
+    p = 10.0 ** math.floor(math.log10(hi - lo))
+    a, b = math.floor(lo / p) * p, math.ceil(hi / p) * p
+    return (a, b) if b - a <= 2 * (hi - lo) else (lo, hi)
 
 
 def _view_columns(columns) -> dict[str, tuple[str, ...]]:
@@ -471,9 +483,10 @@ class RerunRecorder:
 
     def _send_velocities(self, rows: np.ndarray, t: np.ndarray) -> None:
         """Per row, the direction of the true (black) and the estimated (blue) velocity in the
-        body frame, ARROW_LENGTH long from the centre of gravity like the heading arrow: their
-        angle to it is the sideslip beta = atan2(vy, vx). One label per row gives both in
-        degrees (on the true arrow; on the estimated one in replay)."""
+        body frame, ARROW_LENGTH long from the centre of gravity like the heading arrow, at
+        BETA_GAIN times the sideslip beta = atan2(vy, vx) to it (beta is a few degrees: drawn as
+        it is, the arrows would lie on the heading). One label per row says so and gives both
+        angles in degrees (on the true arrow; on the estimated one in replay)."""
         rr, col = self._rr, self._col
         nan = np.full(len(rows), np.nan)
 
@@ -484,13 +497,14 @@ class RerunRecorder:
         labels = [", ".join(([f"true {b:+.1f}°"] if math.isfinite(b) else []) +
                             ([f"est. {c:+.1f}°"] if math.isfinite(c) else [])) for b, c in zip(true_beta * DEG,
                                                                                               est_beta * DEG)]
-        labels = np.array(["beta " + x if x else "" for x in labels], dtype=object)
+        labels = np.array([f"beta (drawn x{BETA_GAIN:g}) " + x if x else "" for x in labels], dtype=object)
         labelled = paths.VEHICLE_VELOCITY if np.isfinite(true_beta).any() else paths.VEHICLE_VELOCITY_ESTIMATE
         for path, beta in ((paths.VEHICLE_VELOCITY, true_beta), (paths.VEHICLE_VELOCITY_ESTIMATE, est_beta)):
             keep = np.isfinite(beta)
             if not keep.any():
                 continue
-            vectors = ARROW_LENGTH * np.stack([np.cos(beta), np.sin(beta), np.zeros_like(beta)], 1)[keep]
+            drawn = BETA_GAIN * beta
+            vectors = ARROW_LENGTH * np.stack([np.cos(drawn), np.sin(drawn), np.zeros_like(beta)], 1)[keep]
             self.rec.send_columns(path, indexes=[rr.TimeColumn(TIMELINE, duration=t[keep])],
                                   columns=rr.Arrows3D.columns(vectors=vectors,
                                                               labels=list(labels[keep]) if path == labelled else None))
