@@ -299,6 +299,8 @@ def read_blueprints(path) -> list[dict[str, dict]]:
                 v["range"] = tuple(cols["ScalarAxis:range"][0])
             elif parts[2] == "PlotLegend" and cols.get("PlotLegend:visible"):
                 v["legend"] = cols["PlotLegend:visible"][0]
+            elif parts[2] == "VisibleTimeRanges":
+                v["time_ranges"] = True
             elif parts[2] == "EyeControls3D":
                 v["eye"].update({k.split(":")[1]: x[0] if x else None for k, x in cols.items()})
             elif parts[2] == "ViewContents" and len(parts) == 3:
@@ -985,7 +987,8 @@ def test_top_view_shows_the_whole_path_a_scale_and_the_sideslip(cosim_recording)
     np.testing.assert_allclose(np.hypot(v[:, 0], v[:, 1]), ARROW_LENGTH, rtol=1e-6)
     k = int(np.argmax(np.abs(r["true_beta"])))
     label = arrows[k]["Arrows3D:labels"][0]
-    assert label.startswith("beta (drawn x10) ") and f"true {np.degrees(r['true_beta'][k]):+.1f}°" in label
+    assert label.startswith("beta (drawn x10 to the grey heading): ")
+    assert f"true {np.degrees(r['true_beta'][k]):+.1f}° (black)" in label and "° (blue)" in label
     assert abs(np.degrees(BETA_GAIN * r["true_beta"][k])) > 10  # an angle one sees
     est = np.array([a["Arrows3D:vectors"][0] for a in temporal(rec, "/vehicle/body/velocity_estimate",
                                                                   "Arrows3D:vectors")])
@@ -1006,8 +1009,11 @@ def test_top_view_shows_the_whole_path_a_scale_and_the_sideslip(cosim_recording)
     label = [x for x in rec["/vehicle/scale/label"] if x["t"] is None][0]["Points3D:labels"][0]
     length = float(np.linalg.norm(np.subtract(bar[1], bar[0])))
     assert label == f"{length:g} m" and length >= 0.1 * max(x.max() - x.min(), y.max() - y.min())
-    # the close-up follows the car (its position without heading) with a 10 m bar
-    assert views["car: heading vs velocity (beta)"]["eye"]["tracking_entity"] == "/vehicle/position/frame"
+    # the close-up follows the car (its position without heading) with a 10 m bar; it shows the time
+    # cursor's arrows only (a visible time range drew every past arrow as a fan), the overview the trail to it
+    close_up = views["car: heading vs velocity (beta)"]
+    assert close_up["eye"]["tracking_entity"] == "/vehicle/position/frame" and "time_ranges" not in close_up
+    assert views["path of the run [m]"].get("time_ranges")
     pos = np.array([p["Transform3D:translation"][0][:2] for p in temporal(rec, "/vehicle/position",
                                                                          "Transform3D:translation")])
     np.testing.assert_allclose(pos, np.column_stack([x, y]), rtol=1e-6, atol=1e-4)

@@ -192,7 +192,7 @@ def build_blueprint(layout: Layout, *, y_ranges: dict | None = None, active: tup
             contents=[f"+ {paths.friction(e, axle)}/**", f"+ {paths.friction(e, axle)}",
                       f"+ {paths.truth_friction(axle)}"], eye_controls=top) for axle in paths.AXLES],
             name="friction"))
-    right.append(rrb.Vertical(_overview(layout, live), _close_up(live), name="top view"))
+    right.append(rrb.Vertical(_overview(layout, live), _close_up(), name="top view"))
     columns = [rrb.Vertical(*stiffness, name="stiffness")] if stiffness else []
     columns += [rrb.Tabs(*middle, active_tab=min(active[0], len(middle) - 1)),
                 rrb.Tabs(*right, active_tab=min(active[1], len(right) - 1))]
@@ -289,16 +289,18 @@ def _overview(layout: Layout, live):
                              eye_controls=eye)
 
 
-def _close_up(live):
+def _close_up():
     """The car from above, the camera following it (a square of 2 CLOSE_UP_HALF_SIZE m):
     outline, heading, steered wheel, the directions of the true and the estimated velocity
     (drawn at rerun_log.BETA_GAIN times the sideslip beta to the heading, labelled), the
-    trail, a 10 m scale bar."""
+    path, a 10 m scale bar."""
     import rerun.blueprint as rrb
 
+    # the data at the time cursor only (a visible time range would draw every past arrow), with the
+    # whole path (static) around the car
     return rrb.Spatial3DView(
-        name="car: heading vs velocity (beta)", origin="/vehicle", time_ranges=live, line_grid=False,
-        contents=[f"+ {paths.VEHICLE_BODY}/**", f"- {paths.VEHICLE_MARKER}", f"+ {paths.VEHICLE_TRAIL}",
+        name="car: heading vs velocity (beta)", origin="/vehicle", line_grid=False,
+        contents=[f"+ {paths.VEHICLE_BODY}/**", f"- {paths.VEHICLE_MARKER}", f"+ {paths.VEHICLE_PATH}",
                   f"+ {paths.VEHICLE_POSITION}/**"],
         # from straight above, x up; the eye follows (and frames) the square around the car
         eye_controls=rrb.EyeControls3D(position=(0.0, -1.0, 100.0), look_target=(0.0, 0.0, 0.0),

@@ -212,7 +212,7 @@ class RerunRecorder:
         log(paths.VEHICLE_OUTLINE, rr.LineStrips3D([outline], colors=[BODY], radii=rr.Radius.ui_points(1.5)),
             static=True)
         log(paths.VEHICLE_HEADING, rr.Arrows3D(vectors=[[ARROW_LENGTH, 0, 0]], colors=[SPREAD_BAND],
-                                               radii=rr.Radius.ui_points(1.5), labels=["heading"]), static=True)
+                                               radii=rr.Radius.ui_points(1.5)), static=True)
         log(paths.VEHICLE_STEER, rr.Arrows3D(origins=[[-0.35, 0, 0]], vectors=[[0.7, 0, 0]], colors=[STEER],
                                              radii=[0.08]), static=True)
         log(paths.VEHICLE_MARKER, rr.Points3D([[0, 0, 0]], colors=[ESTIMATE], radii=rr.Radius.ui_points(5.0)),
@@ -494,10 +494,11 @@ class RerunRecorder:
             return np.arctan2(rows[:, col[vy]], rows[:, col[vx]]) if vx in col and vy in col else nan
 
         true_beta, est_beta = angle("true_vx", "true_vy"), angle("vx", "vy")
-        labels = [", ".join(([f"true {b:+.1f}°"] if math.isfinite(b) else []) +
-                            ([f"est. {c:+.1f}°"] if math.isfinite(c) else [])) for b, c in zip(true_beta * DEG,
-                                                                                              est_beta * DEG)]
-        labels = np.array([f"beta (drawn x{BETA_GAIN:g}) " + x if x else "" for x in labels], dtype=object)
+        labels = [", ".join(([f"true {b:+.1f}° (black)"] if math.isfinite(b) else []) +
+                            ([f"est. {c:+.1f}° (blue)"] if math.isfinite(c) else []))
+                  for b, c in zip(true_beta * DEG, est_beta * DEG)]
+        labels = np.array([f"beta (drawn x{BETA_GAIN:g} to the grey heading): " + x if x else "" for x in labels],
+                          dtype=object)
         labelled = paths.VEHICLE_VELOCITY if np.isfinite(true_beta).any() else paths.VEHICLE_VELOCITY_ESTIMATE
         for path, beta in ((paths.VEHICLE_VELOCITY, true_beta), (paths.VEHICLE_VELOCITY_ESTIMATE, est_beta)):
             keep = np.isfinite(beta)
