@@ -92,7 +92,7 @@ def test_every_tab_of_the_layout_renders_without_errors_or_empty_views(fmu_paths
         Image.fromarray(early).save(ARTIFACTS / "early.png")
         gate.release()
         middle, right = tab_counts(layout)
-        assert (middle, right) == (3, 5)
+        assert (middle, right) == (3, 4)  # states, bias, ESS; particles, densities, quantiles, top view
         tabs = [(min(k, middle - 1), min(k, right - 1)) for k in range(max(middle, right))]
         for active, img, boxes, text in screenshot_tabs(page, rrd, proxy, SIZE, tabs, ARTIFACTS, timeout=150):
             name = f"tab-{active[0]}-{active[1]}"
@@ -103,10 +103,10 @@ def test_every_tab_of_the_layout_renders_without_errors_or_empty_views(fmu_paths
                 problems["early"] = [] if (m := title_strips_match(early, img, boxes)) > 0.9 else [
                     f"the start of the file shows another layout ({m:.0%} of the title bars alike); see early.png"]
 
-        # the check sees a real error badge: a 2-D line strip in the 3-D top view (what /vehicle/path was)
+        # the check sees a real error badge: a 2-D line strip in the 3-D close-up (what /vehicle/path once was)
         before = int(error_red(img).sum())
         sender = blueprint_sender(rrd, proxy)
-        sender.log("/vehicle/probe_2d", rr.LineStrips2D([[[0, 0], [10, 0]]]), static=True)
+        sender.log("/vehicle/body/probe_2d", rr.LineStrips2D([[[0, 0], [10, 0]]]), static=True)
         sender.flush()
         deadline = time.monotonic() + 60
         while True:

@@ -250,7 +250,8 @@ def documented_paths(e: str, params, lateral: bool, bias_note: bool = True) -> l
                                    "Cf_y_mean", "Cr_y_mean", "Cx_mean", "b_ax", "b_ay", "b_yaw_rate", "delta")]
     out += [f"/sensors/{s}" for s in ("ax", "ay", "yaw_rate", "omega_f", "omega_r", "delta")]
     out += ["/vehicle/x", "/vehicle/y", "/vehicle/psi", "/vehicle/path", "/vehicle/scale", "/vehicle/trail",
-            "/vehicle/body", "/vehicle/body/outline", "/vehicle/body/heading", "/vehicle/body/steer",
+            "/vehicle/body", "/vehicle/body/outline", "/vehicle/body/shape", "/vehicle/body/heading",
+            "/vehicle/body/steer",
             "/vehicle/body/marker", "/vehicle/body/velocity", "/vehicle/body/velocity_estimate", "/vehicle/position",
             "/vehicle/position/frame", "/vehicle/position/scale"]
     b = f"/estimator/{e}"
@@ -987,8 +988,8 @@ def test_top_view_shows_the_whole_path_a_scale_and_the_sideslip(cosim_recording)
     np.testing.assert_allclose(np.hypot(v[:, 0], v[:, 1]), ARROW_LENGTH, rtol=1e-6)
     k = int(np.argmax(np.abs(r["true_beta"])))
     label = arrows[k]["Arrows3D:labels"][0]
-    assert label.startswith("beta (drawn x10 to the grey heading): ")
-    assert f"true {np.degrees(r['true_beta'][k]):+.1f}° (black)" in label and "° (blue)" in label
+    assert label.startswith("beta, drawn x10: ")
+    assert f"{np.degrees(r['true_beta'][k]):+.1f}° true (black)" in label and "° est. (blue)" in label
     assert abs(np.degrees(BETA_GAIN * r["true_beta"][k])) > 10  # an angle one sees
     est = np.array([a["Arrows3D:vectors"][0] for a in temporal(rec, "/vehicle/body/velocity_estimate",
                                                                   "Arrows3D:vectors")])

@@ -102,6 +102,7 @@ def truth_friction(axle: str) -> str:
 
 VEHICLE_BODY = "/vehicle/body"  # pose (transform per step), outline and heading arrow below it
 VEHICLE_OUTLINE = "/vehicle/body/outline"
+VEHICLE_SHAPE = "/vehicle/body/shape"  # the car's footprint, filled
 VEHICLE_HEADING = "/vehicle/body/heading"
 VEHICLE_STEER = "/vehicle/body/steer"  # front wheel: transform (lf, steer angle) and arrow
 VEHICLE_VELOCITY = "/vehicle/body/velocity"  # true velocity direction per step (body frame), labelled with beta

@@ -199,7 +199,7 @@ class RerunRecorder:
         return out
 
     def _log_vehicle_drawing(self) -> None:
-        """The car in its body frame (static): outline, heading arrow, front wheel, a dot for
+        """The car in its body frame (static): outline and filled shape, heading arrow, front wheel, a dot for
         the overview; the close-up's frame and scale bar around its position."""
         rr, log = self._rr, self.rec.log
         v = self.context.vehicle
@@ -211,6 +211,8 @@ class RerunRecorder:
         log("/vehicle", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         log(paths.VEHICLE_OUTLINE, rr.LineStrips3D([outline], colors=[BODY], radii=rr.Radius.ui_points(1.5)),
             static=True)
+        log(paths.VEHICLE_SHAPE, rr.Boxes3D(mins=[[rear, -half_w, -0.01]], sizes=[[front - rear, 2 * half_w, 0.01]],
+                                            colors=[(*POSTERIOR_BAND, 160)], fill_mode="solid"), static=True)
         log(paths.VEHICLE_HEADING, rr.Arrows3D(vectors=[[ARROW_LENGTH, 0, 0]], colors=[SPREAD_BAND],
                                                radii=rr.Radius.ui_points(1.5)), static=True)
         log(paths.VEHICLE_STEER, rr.Arrows3D(origins=[[-0.35, 0, 0]], vectors=[[0.7, 0, 0]], colors=[STEER],
@@ -494,11 +496,10 @@ class RerunRecorder:
             return np.arctan2(rows[:, col[vy]], rows[:, col[vx]]) if vx in col and vy in col else nan
 
         true_beta, est_beta = angle("true_vx", "true_vy"), angle("vx", "vy")
-        labels = [", ".join(([f"true {b:+.1f}° (black)"] if math.isfinite(b) else []) +
-                            ([f"est. {c:+.1f}° (blue)"] if math.isfinite(c) else []))
+        labels = [", ".join(([f"{b:+.1f}° true (black)"] if math.isfinite(b) else []) +
+                            ([f"{c:+.1f}° est. (blue)"] if math.isfinite(c) else []))
                   for b, c in zip(true_beta * DEG, est_beta * DEG)]
-        labels = np.array([f"beta (drawn x{BETA_GAIN:g} to the grey heading): " + x if x else "" for x in labels],
-                          dtype=object)
+        labels = np.array([f"beta, drawn x{BETA_GAIN:g}: " + x if x else "" for x in labels], dtype=object)
         labelled = paths.VEHICLE_VELOCITY if np.isfinite(true_beta).any() else paths.VEHICLE_VELOCITY_ESTIMATE
         for path, beta in ((paths.VEHICLE_VELOCITY, true_beta), (paths.VEHICLE_VELOCITY_ESTIMATE, est_beta)):
             keep = np.isfinite(beta)
