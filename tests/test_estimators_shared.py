@@ -1,4 +1,4 @@
-"""Tests every estimator of the registry inherits (STYLE.md 12): finite outputs on every
+"""Tests every estimator of the registry inherits (the same tests for every variant): finite outputs on every
 scenario, determinism for a seed, missing samples in a replayed log, --particles accepted
 and ignored by the estimators without particles."""
 

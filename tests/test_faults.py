@@ -25,7 +25,7 @@ from tirefilter.scenarios.faults import Fault, fault_log_columns, fault_sets, fa
 DURATION, SEED, N = 20.0, 2, 100
 # the MPF at its default N: at N = 100 this replay diverges and restarts on about a third of the estimator
 # seeds (17 of 48 with main's defaults, 18 of 48 with the interval wheel slip), at N = 500 on none of 24
-# (benchmarks/bench_short_replay.py), so a test at N = 100 passes or fails by its seed
+# (tools/bench_short_replay.py), so a test at N = 100 passes or fails by its seed
 MPF_N = 500
 RECOVERED_DEG = 0.1  # sideslip RMS error over [end + 5 s, end + 10 s) at most this above the clean replay's
 

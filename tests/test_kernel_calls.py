@@ -76,7 +76,7 @@ def test_every_helper_without_a_python_wrapper_is_called_only_from_compiled_code
     assert helpers["tirefilter.estimators.mpf_numba"] >= {"_model_t", "_xdot_t"}  # the finder finds them
     module_of = {str(REPO / "src" / (m.replace(".", "/") + ".py")): m for m in KERNEL_MODULES}
     calls = {}
-    for folder in ("src", "tests", "benchmarks", "fmu"):
+    for folder in ("src", "tests", "benchmarks", "tools", "fmu"):
         for path in sorted((REPO / folder).rglob("*.py")):
             if ".venv" in path.parts or "build" in path.parts:
                 continue

@@ -21,7 +21,7 @@ from tirefilter.scenarios import load_scenario
 def _run(tmp_path, scenario, model, seed, particles=300, duration=None, mpf=None):
     """A run from a known initial state: the truth starts at x0 exactly and the filter
     knows it to 0.05 m/s. (From the paper's P0 = diag([1, 1, pi/180]^2) start-up, the
-    filter still locks onto a wrong state in some runs; see the issue-3 note.)"""
+    filter still locks onto a wrong state in some runs; derivations, "Start-up, plausibility and restart".)"""
     if duration:
         scenario = replace(scenario, duration=duration, surface_changes=tuple(t for t in scenario.surface_changes
                                                                                if t < duration))
@@ -60,7 +60,7 @@ def test_paper_sim_lateral_stiffness_converges(fmu_paths, tmp_path, model):
 def test_paper_sim_tracks_the_surface_change(fmu_paths, tmp_path):
     # The numpy reference: this run's outcome after the change hangs on rounding. The numba
     # backend equals it to 1e-12 up to 15 s and 1e-9 up to 31.6 s; from 33 s the resampling
-    # draws part and that run does not settle within 8 s (issue-14 note for the lead).
+    # draws part and that run does not settle within 8 s.
     r, _, scenario = _run(tmp_path, load_scenario("paper-sim"), "full", seed=3, duration=40.0,
                           mpf={"backend": "numpy"})
     for param in ("Cf_y", "Cr_y"):

@@ -5,7 +5,7 @@ as a log with default settings (so with the replay's bias estimation and noise f
 at N = 100, once per estimator seed: how often the filter diverges (restarts, sideslip RMSE),
 the robustness behind that test's fixed seed.
 
-    .venv/bin/python benchmarks/bench_short_replay.py --seeds 0-23 [--particles N] [--config FILE.toml]
+    .venv/bin/python tools/bench_short_replay.py --seeds 0-23 [--particles N] [--config FILE.toml]
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
 from bench_faults import paper_sim_drive  # noqa: E402
 

@@ -3,7 +3,7 @@ synthetic slalom, N = 50, resampling at every step so that every kernel is used)
 fresh process with the numba cache directory given. Run it twice with the same empty
 directory: the first run compiles and fills the cache, the second loads it.
 
-    D=$(mktemp -d); for i in 1 2; do NUMBA_CACHE_DIR=$D .venv/bin/python benchmarks/bench_gpssm_compile.py; done
+    D=$(mktemp -d); for i in 1 2; do NUMBA_CACHE_DIR=$D .venv/bin/python tools/bench_gpssm_compile.py; done
 
 Prints, per basis, the first step() call and the whole run (first call included) in ms, and
 the import of numba and the kernels' modules."""

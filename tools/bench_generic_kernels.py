@@ -2,7 +2,7 @@
 (`mpf_numba.predict_weigh` / `sample_update` with `SIZES_ANY`, the sizes as variables, which the
 step already uses when a channel is missing) in place of `SIZES_FULL` / `SIZES_LATERAL`, in one process, alternated round by round:
 
-    .venv/bin/python benchmarks/bench_generic_kernels.py [--particles 500] [--rounds 5]
+    .venv/bin/python tools/bench_generic_kernels.py [--particles 500] [--rounds 5]
 
 Both filters step through the same 5 s of recorded paper-sim samples (seed 0) with the
 defaults of `tirefilter run` (full model; `--model lateral` for the lateral one) and print the
@@ -27,7 +27,7 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 from bench_cost import WARMUP, record  # noqa: E402
 
 from tirefilter.estimators import build_estimator  # noqa: E402

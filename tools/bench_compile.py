@@ -1,6 +1,6 @@
 """The compile cost of the kernels, per warm-up task of tests/conftest.py, in one process:
 
-    NUMBA_CACHE_DIR=$(mktemp -d) .venv/bin/python benchmarks/bench_compile.py
+    NUMBA_CACHE_DIR=$(mktemp -d) .venv/bin/python tools/bench_compile.py
 
 prints per task the numba compile time (wall), the process CPU time and the wall time. Run it
 with an empty cache (a clean clone's first `make test`); with the cache filled it prints what
@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path[:0] = [str(ROOT / "benchmarks"), str(ROOT / "tests")]
+sys.path[:0] = [str(ROOT / "tools"), str(ROOT / "tests")]
 
 import suite_stats  # noqa: E402  (registers the compile listener)
 from conftest import WARM_UP  # noqa: E402

@@ -1,6 +1,6 @@
 """CPU seconds of a command and all its descendants, by kind of process (Linux /proc).
 
-    .venv/bin/python benchmarks/tree_cpu.py [--dump FILE] -- COMMAND...
+    .venv/bin/python tools/tree_cpu.py [--dump FILE] -- COMMAND...
 
 Starts COMMAND and reads every descendant's utime + stime from /proc/PID/stat every 0.2 s (the
 last reading of each process counts: a process that lives under 0.2 s is missed); prints one

@@ -5,7 +5,7 @@ reaped children: chromium, subprocesses) and compile time. Written at the end of
 to SUITE_STATS_OUT_<worker>.json and SUITE_STATS_OUT_<worker>.timeline.json
 (SUITE_STATS_OUT defaults to runs/suite-stats/stats):
 
-    PYTHONPATH=benchmarks NUMBA_CACHE_DIR=$(mktemp -d) .venv/bin/python -m pytest tests -n 2 \\
+    PYTHONPATH=tools NUMBA_CACHE_DIR=$(mktemp -d) .venv/bin/python -m pytest tests -n 2 \\
         --dist loadgroup -p suite_stats -p no:cacheprovider --durations=30
 """
 

@@ -2,7 +2,7 @@
 per-test times, in file order and in the order tests/conftest.py gives the workers
 (`long_modules_first`), and print when each worker would end (docs/development.md, "How long `make test` takes"):
 
-    .venv/bin/python benchmarks/suite_schedule.py runs/suite-stats/stats [--durations LOG] [--warm-up A B]
+    .venv/bin/python tools/suite_schedule.py runs/suite-stats/stats [--durations LOG] [--warm-up A B]
 
 STATS: the prefix of `suite_stats`' timelines (STATS_gw0.timeline.json, ...): each test's wall time.
 `--durations LOG`: pytest's `--durations` output of another run (an idle machine's); its setup +

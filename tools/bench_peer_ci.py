@@ -1,7 +1,7 @@
 """The CI peer drives of tests/test_peer_drive.py (40 s, 0.5 Hz steer sine, vehicle 2, seed 1), replayed
 as `test_default_replay_meets_the_issue_13_targets` replays them, with `[mpf]` settings given as TOML files.
 
-    .venv/bin/python benchmarks/bench_peer_ci.py [--kind mb] [CONFIG.toml ...]
+    .venv/bin/python tools/bench_peer_ci.py [--kind mb] [CONFIG.toml ...]
 
 Prints, per configuration (first the defaults), the lateral stiffness errors over the last 20 s (%,
 target 10), the Cx error and the sideslip RMSE (deg, target 0.1), as the test scores them. `--kind`:

@@ -1,6 +1,6 @@
 """Chosen trials of a `tirefilter bench stiffness` study, with the study's own seeds (screening).
 
-    .venv/bin/python benchmarks/bench_trials.py paper-sim 44 34 8 [--config X.toml] [--set key=value ...]
+    .venv/bin/python tools/bench_trials.py paper-sim 44 34 8 [--config X.toml] [--set key=value ...]
         [--particles 500] [--workers 2] [--study-seed 0]
 
 Trial i of a study with study seed S runs with `trial_seeds(S, i + 1)[i]`, the same truth, noise and
