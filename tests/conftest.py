@@ -222,7 +222,7 @@ def pytest_unconfigure(config):
 LONG_TESTS = {
     "test_faults.py::test_estimators_stay_finite_and_do_not_restart_on_spikes": 10.0,
     "test_metrics.py::test_streamed_metrics_equal_run_metrics": 9.0,
-    "test_stiffness_mpf.py::test_paper_sim_tracks_the_surface_change": 8.0,
+    "test_stiffness_mpf.py::test_paper_sim_tracks_the_surface_change": 3.0,
     "test_viz.py::test_connect_streams_to_a_local_grpc_receiver": 8.0,  # waits for its receiver (cold: 20 s)
     "test_viz.py::test_spawn_starts_a_viewer_process_and_streams_to_it": 8.0,  # waits for the viewer
     "test_estimator_fmu3.py::test_cli_builds_fmi2_and_fmi3_of_every_fmu_all_validated": 7.0,

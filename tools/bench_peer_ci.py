@@ -1,5 +1,5 @@
 """The CI peer drives of tests/test_peer_drive.py (40 s, 0.5 Hz steer sine, vehicle 2, seed 1), replayed
-as `test_default_replay_meets_the_issue_13_targets` replays them, with `[mpf]` settings given as TOML files.
+as `test_default_replay_meets_the_peer_drive_targets` replays them, with `[mpf]` settings given as TOML files.
 
     .venv/bin/python tools/bench_peer_ci.py [--kind mb] [CONFIG.toml ...]
 
