@@ -180,33 +180,6 @@ def python_fmu(tmp_path_factory):
     return get
 
 
-# The Python FMUs (pythonfmu, pythonfmu3) run an embedded interpreter's objects inside this
-# process. Their libraries are unloaded during the interpreter's own teardown, after every
-# test has run and the summary is printed, and that unloading intermittently corrupts the
-# heap ("corrupted double-linked list", SIGABRT), which would turn a passing run into a
-# failed one. The session therefore ends with its own exit status, skipping that teardown.
-_EXIT = {}
-
-
-@pytest.hookimpl(trylast=True)
-def pytest_sessionfinish(session, exitstatus):
-    _EXIT["status"] = int(exitstatus)
-
-
-@pytest.hookimpl(trylast=True)
-def pytest_unconfigure(config):
-    import os
-    import sys
-
-    if "status" in _EXIT:
-        reporter = config.pluginmanager.get_plugin("terminalreporter")
-        if reporter is not None:
-            reporter._tw.flush()
-        for stream in (sys.stdout, sys.stderr, sys.__stdout__, sys.__stderr__):
-            stream.flush()
-        os._exit(_EXIT["status"])
-
-
 # ---- the order in which make test's workers get the tests: the long ones first ---------------------
 # `--dist loadgroup` (pytest-xdist) makes each xdist group one unit of work and every other test a
 # unit of its own; it sends the units with the most tests first (the groups `peer_drive` and
