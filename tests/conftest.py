@@ -180,6 +180,33 @@ def python_fmu(tmp_path_factory):
     return get
 
 
+# ---- what CI must not skip -------------------------------------------------------------------------
+# CI runs `bash .ci/run` with CI=true; .ci/run installs Debian's chromium and stops unless the
+# shared data sets are beside the clone (../shared/data). Under CI a test that lacks either fails,
+# so a green run means the browser and real-data tests ran; elsewhere it skips, saying what is missing.
+CHROMIUM = Path("/usr/bin/chromium")  # Debian's chromium, driven by Playwright (never its own download)
+
+
+def in_ci() -> bool:
+    """Whether the tests run under CI (the environment variable CI is true, as .ci/run sets it)."""
+    return os.environ.get("CI", "").strip().lower() in ("1", "true", "yes")
+
+
+def skip_or_fail_in_ci(reason: str) -> None:
+    """Skip the current test for `reason`; under CI (`in_ci`) fail it instead."""
+    if in_ci():
+        pytest.fail(f"{reason}: under CI (CI={os.environ['CI']}) this test must run, not skip", pytrace=False)
+    pytest.skip(reason)
+
+
+@pytest.fixture(scope="session")
+def chromium() -> Path:
+    """The browser of the browser tests: skips without it, fails under CI (`skip_or_fail_in_ci`)."""
+    if not CHROMIUM.is_file():
+        skip_or_fail_in_ci(f"{CHROMIUM} is absent (Debian package `chromium`; .ci/run installs it)")
+    return CHROMIUM
+
+
 # ---- the order in which make test's workers get the tests: the long ones first ---------------------
 # `--dist loadgroup` (pytest-xdist) makes each xdist group one unit of work and every other test a
 # unit of its own; it sends the units with the most tests first (the groups `peer_drive` and
