@@ -657,9 +657,7 @@ def _check_layout(page, tmp_path) -> None:
 
 
 @pytest.mark.xdist_group("browser")  # one browser at a time (make test runs two workers)
-@pytest.mark.skipif(not CHROMIUM.is_file(), reason="/usr/bin/chromium is absent (Debian package `chromium`; "
-                    ".ci/run installs it)")
-def test_the_page_in_a_real_browser(fmu_paths, tmp_path):
+def test_the_page_in_a_real_browser(fmu_paths, tmp_path, chromium):
     from playwright import sync_api  # the test extra (pip); its browser download is never used
     bad = tmp_path / "bad_log.csv"
     bad.write_text("t,ax,ay,yaw_rate,vx\n0.0,0.1,0.2,0.0,20.0\n")  # no steering column

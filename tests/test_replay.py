@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import skip_or_fail_in_ci
 from tirefilter.cli import main
 from tirefilter.cosim.fmu import VehicleFMU
 from tirefilter.cosim.results import ESTIMATE_COLUMNS, INPUT_TRUTH_COLUMNS, read_results, truth_column
@@ -406,7 +407,7 @@ def test_help_starts_without_numpy():
 @pytest.fixture(scope="module")
 def mbds_log(tmp_path_factory):
     if not MBDS.is_dir():
-        pytest.skip(f"the MBDS recording is not at {MBDS} (shared data beside the repository)")
+        skip_or_fail_in_ci(f"the MBDS recording is not at {MBDS} (shared data beside the repository)")
     spec = importlib.util.spec_from_file_location("mbds_convert", EXAMPLE / "convert.py")
     convert = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(convert)

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rerun_web import (CHROMIUM, _serve_file, blueprint_sender, browser_page, changed, check_views, error_red, layout_grid, pixels,
+from rerun_web import (_serve_file, blueprint_sender, browser_page, changed, check_views, error_red, layout_grid, pixels,
                        serve_web_viewer, view_cells, wait_loaded)
 from tirefilter.cli import main
 from tirefilter.scenarios import DATA_DIR
@@ -58,9 +58,7 @@ def test_the_recording_is_served_under_its_own_name_and_nothing_else(tmp_path):
 
 
 @pytest.mark.xdist_group("browser")  # one browser at a time (make test runs two workers)
-@pytest.mark.skipif(not CHROMIUM.is_file(), reason="/usr/bin/chromium is absent (Debian package `chromium`; "
-                    ".ci/run installs it)")
-def test_every_tab_of_the_layout_renders_without_errors_or_empty_views(fmu_paths, tmp_path):
+def test_every_tab_of_the_layout_renders_without_errors_or_empty_views(fmu_paths, tmp_path, chromium):
     import rerun as rr
 
     rrd = tmp_path / "short.rrd"

@@ -227,9 +227,13 @@ def ssp_step_size(path: str | Path) -> float:
 def run_ssp(path: str | Path, *, stop_time: float | None = None, step_size: float | None = None) -> np.ndarray:
     """Simulate the SSP with fmpy.ssp.simulation.simulate_ssp and its parameter set;
     returns fmpy's structured array (column `time`, then `component.connector`; each row
-    holds the values after the step that starts at `time`)."""
+    holds the values after the step that starts at `time`). simulate_ssp loads and frees
+    the FMUs itself; the Python FMUs' binaries it leaves loaded are released after it
+    (`release.python_fmus_released`: their destructor would corrupt the heap at exit)."""
     from fmpy.ssp.simulation import simulate_ssp
     from fmpy.ssp.ssd import read_ssd
+
+    from tirefilter.fmu_export.release import python_fmus_released
 
     path = Path(path)
     ssd = read_ssd(str(path))
@@ -241,5 +245,6 @@ def run_ssp(path: str | Path, *, stop_time: float | None = None, step_size: floa
         stop_time = float(exp.get("stopTime"))
     h = step_size or ssp_step_size(path)
     # fmpy accumulates time += h; stop half a step early so round-off adds no extra step
-    return simulate_ssp(str(path), start_time=0.0, stop_time=stop_time - 0.5 * h, step_size=h,
-                        parameter_set=parameters)
+    with python_fmus_released():
+        return simulate_ssp(str(path), start_time=0.0, stop_time=stop_time - 0.5 * h, step_size=h,
+                            parameter_set=parameters)
