@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from tirefilter.cosim.results import ESTIMATE_COLUMNS, ResultWriter, iter_results, read_results
@@ -64,8 +64,15 @@ def logs(draw) -> dict[str, np.ndarray]:
     return cols
 
 
+BIG = 1.7976931348623157e308  # the largest double: the corner mean must not overflow
+
+
 @settings(CI, max_examples=60)
 @given(cols=logs(), gz=st.booleans(), chunk=st.integers(1, 5))
+@example(cols={"t": np.array([0.0, 0.01]), "delta": np.array([0.0, 0.01]), "ax": np.array([0.1, math.nan]),
+               "ay": np.array([math.nan, 0.2]), "yaw_rate": np.array([0.0, -0.0]), "vx": np.array([20.0, 20.0]),
+               "omega_fl": np.array([BIG, -BIG]), "omega_fr": np.array([BIG, -BIG]), "omega_rl": np.array([5e-324, 1.0]),
+               "omega_rr": np.array([BIG, 3.0])}, gz=False, chunk=1)
 def test_log_written_and_read_back_is_the_same_log(cols, gz, chunk):
     """`write_log` then `read_log`: every column (the references as `true_<name>`) bit for bit,
     NaN where it was NaN, the unknown column ignored; `iter_log_chunks` in chunks of `chunk`
@@ -84,6 +91,14 @@ def test_log_written_and_read_back_is_the_same_log(cols, gz, chunk):
         joined = np.concatenate([c.references[_ref(name)] if _ref(name) else c.columns[name] for c in chunks])
         assert _same_bits(joined, x), name
     assert [c.row0 for c in chunks] == list(range(0, len(cols["t"]), chunk))
+    # what the estimators get: every sample a finite number or missing (the reader rejects an
+    # infinite cell), an axle's speed the mean of its corners where the log has only those
+    for name, x in log.signals.items():
+        assert not np.isinf(x).any(), name
+    for axle, (left, right) in (("omega_f", ("omega_fl", "omega_fr")), ("omega_r", ("omega_rl", "omega_rr"))):
+        if axle not in cols and left in cols:
+            mean = ((np.longdouble(cols[left]) + np.longdouble(cols[right])) / 2).astype(float)
+            np.testing.assert_allclose(log.signals[axle], mean, rtol=2**-52, atol=1e-323)
 
 
 def _ref(name: str) -> str | None:
