@@ -6,7 +6,7 @@ reader, each with --examples inputs (default 2000), randomised unless --seed is 
     .venv/bin/python benchmarks/bench_fuzz.py [--examples 2000] [--seed S] [--targets log vehicle ...]
 
 Prints per target the examples run, the wall time and the first falsifying example (none
-when every input gave a result or the project's own error).
+when every input gave a result or the error it deserves: tests/fuzz_targets.py).
 """
 
 from __future__ import annotations

@@ -111,18 +111,51 @@ def _synthetic_steps(n=300, seed=0):
 
 
 def test_missing_measurements_are_skipped_not_propagated(fmu_paths):
+    """Missing samples (NaN) on the paper-sim drive, checked sample by sample against a copy of
+    the filter stepped otherwise:
+    - skipped: where every measurement is missing there is no likelihood, the weights stay
+      exactly as they were; where one channel is missing the step is not the one given that
+      channel's last sample (a measurement is skipped, not held);
+    - a missing input holds the last one: the step equals the step given that value;
+    - not propagated: every estimate and every log-weight stays finite, to the end and through a
+      final sample with nothing measured."""
+    import copy
+
     scenario, r = _synthetic_steps()
     est = build_estimator("mpf", scenario, model="full", particles=200, config={})
     est.reset(np.random.default_rng(0))
+    last_ay = math.nan
+    checked = {"none": 0, "ay": 0, "input": 0}
     for k in range(len(r["t"])):
-        y = Measurement(np.nan if k % 3 == 0 else r["meas_ax"][k], np.nan if k % 5 == 0 else r["meas_ay"][k],
-                        np.nan if 100 <= k < 120 else r["meas_yaw_rate"][k])
+        gone = 200 <= k < 204  # every measurement missing
+        y = Measurement(np.nan if k % 3 == 0 or gone else r["meas_ax"][k],
+                        np.nan if k % 5 == 0 or gone else r["meas_ay"][k],
+                        np.nan if 100 <= k < 120 or gone else r["meas_yaw_rate"][k])
         u = Inputs(r["meas_delta"][k], r["meas_omega_f"][k], np.nan if k == 50 else r["meas_omega_r"][k])
+        before = est.posterior().log_weights
+        twin = copy.deepcopy(est) if (k == 50 or gone or (k % 5 == 0 and k % 10 == 5)) else None
         e = est.step(r["t"][k], u, y)
         values = [e.vx, e.vy, e.yaw_rate, e.Cf_y, e.Cr_y, e.Cx, e.Cf_y_std, e.Cf_y_sigma, e.ess]
         assert all(math.isfinite(v) for v in values), (k, e)
+        assert np.isfinite(est.posterior().log_weights).all(), k
+        if k == 50:  # omega_r missing: the one held is the last sample's
+            held = twin.step(r["t"][k], Inputs(u.delta, u.omega_f, float(twin.u_prev[2])), y)
+            assert repr(held) == repr(e) and np.array_equal(twin.posterior().particles, est.posterior().particles)
+            checked["input"] += 1
+        elif gone:
+            np.testing.assert_array_equal(est.posterior().log_weights, before)
+            checked["none"] += 1
+        elif twin is not None and math.isfinite(last_ay):  # a^Y missing: not held at its last sample
+            with_last = twin.step(r["t"][k], u, replace(y, ay=last_ay))
+            assert with_last.vy != e.vy
+            checked["ay"] += 1
+        if math.isfinite(y.ay):
+            last_ay = y.ay
+    assert checked == {"none": 4, "ay": 30, "input": 1}
+    before = est.posterior().log_weights
     e_all_nan = est.step(r["t"][-1] + 0.01, Inputs(0.01, r["meas_omega_f"][-1], r["meas_omega_r"][-1]), Measurement())
     assert math.isfinite(e_all_nan.Cf_y) and math.isfinite(e_all_nan.vy)
+    np.testing.assert_array_equal(est.posterior().log_weights, before)
 
 
 def test_same_seed_same_estimates(fmu_paths):

@@ -1346,12 +1346,14 @@ class StiffnessMPF:
             C_nom = np.asarray(state["C_nominal"], float)
         except (KeyError, TypeError, ValueError) as exc:
             bad("", f"not a stiffness state ({exc})")
-        n, N = len(params), len(logw)
+        n, N = len(params), (len(logw) if logw.ndim == 1 else -1)
         if (stats.mu.shape != (N, n) or stats.Lam.shape != (N, n, n) or stats.gamma.shape != (N,)
                 or stats.nu.shape != (N,) or C_nom.shape != (n,)):
             bad("", "array shapes do not match the parameter list and the number of particles")
         if not all(np.all(np.isfinite(a)) for a in (stats.gamma, stats.mu, stats.Lam, stats.nu)):
             bad("", "statistics contain non-finite values")
+        if np.any(np.isnan(logw) | (logw == np.inf)):
+            bad("log_weights", "expected finite log-weights (or -inf for a particle of weight zero)")
         keep = [params.index(p) for p in self.params if p in params]
         if len(keep) != self.n_w:
             bad("params", f"saved for {', '.join(params)}; this filter estimates {', '.join(self.params)}")

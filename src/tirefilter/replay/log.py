@@ -149,7 +149,7 @@ def _chunk_log(path, header, lines, cells, vehicle, vehicle_name, need_steering_
                            f"steering_ratio in {where}", column="steering_wheel_angle")
     for axle, (left, right) in CORNERS.items():
         if axle not in columns and left in columns and right in columns:
-            signals[axle] = 0.5 * (columns[left] + columns[right])
+            signals[axle] = 0.5 * columns[left] + 0.5 * columns[right]  # (no overflow near the largest double)
             derived[axle] = f"mean of {left} and {right}"
     if "vx" in signals:
         bad = np.flatnonzero(signals["vx"] < -VX_REVERSE_TOL)
