@@ -81,18 +81,23 @@ def _gap_log(directory: Path) -> tuple[Path, Path]:
     return write_log(directory / "peer.csv", {k: v[keep] for k, v in columns.items()}), vehicle
 
 
-def run_case(name: str, directory: Path) -> dict[str, np.ndarray]:
-    """Run one case in `directory`; return its outputs as {file: 2-D array of the kept columns}."""
+def run_case(name: str, directory: Path, printed: list[str] | None = None) -> dict[str, np.ndarray]:
+    """Run one case in `directory`; return its outputs as {file: 2-D array of the kept columns}
+    (and append what the command printed to `printed`, when given)."""
     directory = Path(directory)
     if name == "replay-gaps":
         log, vehicle = _gap_log(directory)
         result = directory / "result.csv"
-        _cli(["replay", str(log), "--vehicle", str(vehicle), "--seed", "0", "--out", str(result), "--quiet"])
+        text = _cli(["replay", str(log), "--vehicle", str(vehicle), "--seed", "0", "--out", str(result), "--quiet"])
+        if printed is not None:
+            printed.append(text)
         return {"results": _estimates(result)}
     argv = ["run", "--scenario", name, "--seed", "0", "--out", str(directory), "--quiet"]
     if name == "friction-snow":
         argv[3:3] = ["--estimator", "gpssm"]
-    _cli(argv)
+    text = _cli(argv)
+    if printed is not None:
+        printed.append(text)
     outputs = {"results": _estimates(directory / "results.csv")}
     if (directory / "friction.csv").exists():
         outputs["friction"] = np.loadtxt(directory / "friction.csv", delimiter=",", skiprows=1, ndmin=2)
