@@ -35,6 +35,7 @@ from tirefilter.stats import NiW, effective_sample_size, normalize_log_weights, 
 from tirefilter.stats.linalg import chol, chol_solve, logdet_chol, solve_lower
 from tirefilter.stats.sandwich import BatchMeansSandwichPair
 from tirefilter.stats.student_t import t_conditional, t_logpdf_whitened, t_sample
+from tirefilter.vehicle import single_track
 from tirefilter.vehicle.params import VehicleParams
 from tirefilter.vehicle.single_track import GRAVITY
 
@@ -262,11 +263,10 @@ class StiffnessMPF:
         self.vehicle = vehicle
         self.cfg = config.validated()
         v = vehicle
-        other = v.Cx if v.Cx_undriven is None else v.Cx_undriven
         self.rear_drive = v.drive == "rear"
         # nominal axle stiffness: driven axle's Cx is estimated, the other axle's is nominal
-        self.C_nom_fx = other if self.rear_drive else v.Cx
-        self.C_nom_rx = v.Cx if self.rear_drive else other
+        self.C_nom_fx, self.C_nom_rx = single_track.longitudinal_stiffness(v)
+        other = self.C_nom_fx if self.rear_drive else self.C_nom_rx
         # "surface": the undriven axle's longitudinal stiffness moves with the driven axle's estimate,
         # C_u = C_u,nom (1 + w_x / C_x,nom): its force adds share * slip_u * w_x to B's first column;
         # "learned": C_u = C_u,nom (1 + rho w_x / C_x,nom), share = rho * C_u,nom / C_x,nom with rho the
@@ -301,27 +301,29 @@ class StiffnessMPF:
         self._lf, self._lr = float(v.lf), float(v.lr)  # (`_calibrate_moments`)
         self._calib_power = 1.0 / self.cfg.calibration_memory  # (`_calibrate`)
         self._carried = None
-        self._nb = None
+        self._nb = self._st = None
+        # the model's packed parameters (`single_track.model_params`; `_set_undriven_share` updates the share)
+        self._vp = single_track.model_params(v, self.undriven_share)
         # the settling of the wheel slip (slip_hold = "interval"): spin inertia per axle over R_w^2, and the
         # floor of the axle stiffness in its time constant (the lower projection bound)
         self._jw = np.array([v.wheel_inertia_f, v.wheel_inertia_r], float) / v.wheel_radius**2
         self._c_floor = self.cfg.bound_low * np.array([self.C_nom_fx, self.C_nom_rx], float)
         if self.cfg.backend == "numba":  # the compiled stages; the numpy methods stay the reference
-            from tirefilter.estimators import mpf_numba
+            self._load_kernels()
 
-            self._nb = mpf_numba
-            self._vp = np.array([v.mass, v.yaw_inertia, v.lf, v.lr, v.Cf_y, v.Cr_y, self.C_nom_fx, self.C_nom_rx,
-                                 v.wheel_radius, self.undriven_share], float)
+    def _load_kernels(self) -> None:
+        from tirefilter.estimators import mpf_numba
+        from tirefilter.vehicle import single_track_numba
 
-    def __getstate__(self):  # (copies and FMU states: the kernel module is not state)
-        return {**self.__dict__, "_nb": None}
+        self._nb, self._st = mpf_numba, single_track_numba
+
+    def __getstate__(self):  # (copies and FMU states: the kernel modules are not state)
+        return {**self.__dict__, "_nb": None, "_st": None}
 
     def __setstate__(self, state):
         self.__dict__.update(state)
         if self.cfg.backend == "numba":
-            from tirefilter.estimators import mpf_numba
-
-            self._nb = mpf_numba
+            self._load_kernels()
 
     def _outlier_bound(self, nc: int) -> float:
         cache = self.__dict__.setdefault("_bounds", {})
@@ -427,137 +429,38 @@ class StiffnessMPF:
         self.P = np.broadcast_to(np.diag(np.asarray(cfg.bias0_std)[list(self.channels)] ** 2), (N, m, m)).copy()
         self.logw = np.full(N, -math.log(N))
 
-    # ---- model ------------------------------------------------------------------------
+    # ---- model: `vehicle.single_track` (numpy) or its compiled twin ---------------------
     def _model(self, x, u, slip=None):
-        """The accelerations of eq. (1) with F = (C_n + w) slip (eq. (2), (7)), split as
-        a(x, u) + B(x, u) w: returns a (N, 3) = (a^X, a^Y, r') at w = 0, B = d a / d w
-        (N, 3, n_w), the slip angles and the wheel slip of eq. (3)-(4) (small-angle form
-        of the paper; `slip` given: held from an earlier evaluation)."""
-        if self._nb is not None and slip is None:  # (the compiled model: mpf_numba.model)
-            a, B, af, ar, slip = self._nb.model(x, u, self._vp, self.full, self.rear_drive, self.n_w)
+        """`single_track.accelerations`: a (N, 3), B (N, 3, n_w), af, ar, the wheel slip (2, N)
+        (None in the lateral model; `slip` given: held from an earlier evaluation)."""
+        if self._nb is not None and slip is None:
+            a, B, af, ar, slip = self._st.accelerations(x, u, self._vp, self.full, self.rear_drive, self.n_w)
             return a, B, af, ar, slip if self.full else None
-        v = self.vehicle
-        if self.full:
-            vx, vy, r = x[:, 0], x[:, 1], x[:, 2]
-        else:
-            vx, vy, r = u[3], x[:, 0], x[:, 1]
-        inv_vx = 1.0 / np.maximum(vx, 1.0)
-        af = u[0] - (vy + v.lf * r) * inv_vx
-        ar = (v.lr * r - vy) * inv_vx
-        cd, sd = math.cos(u[0]), math.sin(u[0])
-        m, I, lf, lr = v.mass, v.yaw_inertia, v.lf, v.lr
-        Ffy, Fry = v.Cf_y * af, v.Cr_y * ar
-        B = np.zeros((len(x), 3, self.n_w))
-        j = 0
-        if self.full:
-            if slip is None:
-                wr = v.wheel_radius * u[1:3, None]  # (2, 1) against vx (N,)
-                slip = (wr - vx) / np.maximum(np.maximum(np.abs(vx), np.abs(wr)), 1.0)
-            lam_f, lam_r = slip
-            Ffx, Frx = self.C_nom_fx * lam_f, self.C_nom_rx * lam_r
-            s = self.undriven_share  # d F_undriven / d w_x per unit slip ("surface"; 0: "nominal")
-            if self.rear_drive:
-                B[:, 0, 0] = lam_r * (1.0 / m) + (s * lam_f) * (cd / m)
-                B[:, 1, 0] = (s * lam_f) * (sd / m)
-                B[:, 2, 0] = (s * lam_f) * (lf * sd / I)
-            else:
-                B[:, 0, 0] = lam_f * (cd / m) + (s * lam_r) * (1.0 / m)
-                B[:, 1, 0] = lam_f * (sd / m)
-                B[:, 2, 0] = lam_f * (lf * sd / I)
-            j = 1
-            Fy_f = Ffy * cd + Ffx * sd
-            aX = (Ffx * cd - Ffy * sd + Frx) * (1.0 / m)
-        else:
-            Fy_f = Ffy * cd
-            aX = np.zeros_like(af)
-        B[:, 0, j] = af * (-sd / m)
-        B[:, 1, j] = af * (cd / m)
-        B[:, 2, j] = af * (lf * cd / I)
-        B[:, 1, j + 1] = ar * (1.0 / m)
-        B[:, 2, j + 1] = ar * (-lr / I)
-        a = np.array([aX, (Fy_f + Fry) * (1.0 / m), (lf * Fy_f - lr * Fry) * (1.0 / I)]).T
-        return a, B, af, ar, slip
-
-    def _xdot(self, x, u, a, B, w):
-        """x' of eq. (1) from the accelerations a + B w."""
-        acc = a + np.einsum("nij,nj->ni", B, w)
-        if self.full:
-            vy, r = x[:, 1], x[:, 2]
-            return np.array([vy * r + acc[:, 0], acc[:, 1] - x[:, 0] * r, acc[:, 2]]).T
-        return np.array([acc[:, 1] - u[3] * x[:, 1], acc[:, 2]]).T
+        return single_track.accelerations(x, u, self._vp, self.full, self.rear_drive, slip)
 
     def _propagate(self, x, u, w, dt, first):
-        """x_{k+1} = f(x_k) + g(x_k) w_k (eq. (9)): Euler, or Heun with the same w and the
-        wheel slip held over the step. `first` = (a, B, slip) at x_k from the measurement
-        step. A step longer than `max_step` (a gap in a log) is split into equal
-        sub-steps with u and w held."""
-        if self._nb is not None:  # (the compiled propagation: mpf_numba.propagate)
+        """`single_track.propagate` (eq. (9)) with `first` = (a, B, af, ar, slip) at x_k."""
+        heun = self.cfg.integrator == "heun"
+        if self._nb is not None:
             a, B, _, _, slip = first
-            return self._nb.propagate(x, u, w, a, B, np.zeros((2, len(x))) if slip is None else slip, dt,
-                                      self.cfg.max_step, self.cfg.integrator == "heun", self._vp, self.full,
-                                      self.rear_drive, self.n_w)
-        n_sub = max(1, math.ceil(dt / self.cfg.max_step - 1e-9))
-        h = dt / n_sub
-        for i in range(n_sub):
-            a, B, _, _, slip = first if i == 0 else self._model(x, u)
-            k1 = self._xdot(x, u, a, B, w)
-            if self.cfg.integrator == "euler":
-                x = x + h * k1
-                continue
-            x1 = x + h * k1
-            a2, B2, *_ = self._model(x1, u, slip)
-            x = x + (0.5 * h) * (k1 + self._xdot(x1, u, a2, B2, w))
-        return x
+            return self._st.propagate(x, u, w, a, B, np.zeros((2, len(x))) if slip is None else slip, dt,
+                                      self.cfg.max_step, heun, self._vp, self.full, self.rear_drive, self.n_w)
+        return single_track.propagate(x, u, w, dt, first, self._vp, self.full, self.rear_drive, self.cfg.max_step,
+                                      heun)
 
     def _slip_over_step(self, x, u0, u1, w, first, dt):
-        """The first stage of the propagation from t_k to t_k+1 = t_k + dt with the wheel slip
-        averaged over the interval (slip_hold = "interval", derivations, "Wheel slip").
-
-        x (N, 3) at t_k, u0 / u1 the inputs at t_k / t_k+1, w (N, n_w) the deviations held over
-        the step, first = (a, B, af, ar, slip) of `_model(x, u0)`. The wheel settles from the
-        slip at t_k, slip_0, towards the one at t_k+1, slip_1 = (R_w omega_k+1 - v^X_k+1) / max(...),
-        with v^X_k+1 = v^X_k + dt (v^Y r + a^X + B_0 w) (its error O(dt^2)), as
-        slip(t) = slip_1 + (slip_0 - slip_1) exp(-(t - t_k) / tau), tau = J D / (R_w^2 C) per axle
-        (J its spin inertia, D = max(|v^X|, |R_w omega_k|, 1), C its stiffness: nominal plus the
-        particle's w where it is estimated, floored at bound_low times nominal); the mean over
-        the interval is slip_1 + (slip_0 - slip_1) (tau / dt) (1 - exp(-dt / tau)). Returns
-        (a, B, af, ar, slip) at x_k with that slip, which `_propagate` then holds."""
-        a, B, _, _, slip0 = first
+        """`single_track.slip_over_step`: the first stage of the propagation from t_k to t_k + dt
+        with the wheel slip averaged over the interval (slip_hold = "interval")."""
         if self._nb is not None:
-            return self._nb.slip_over_step(x, u0, u1, w, a, B, slip0, dt, self._vp, self._jw, self._c_floor,
+            a, B, _, _, slip0 = first
+            return self._st.slip_over_step(x, u0, u1, w, a, B, slip0, dt, self._vp, self._jw, self._c_floor,
                                            self.rear_drive, self.n_w)
-        Rw = self.vehicle.wheel_radius
-        vx = x[:, 0]
-        acc0 = a[:, 0] + np.einsum("nj,nj->n", B[:, 0], w)
-        vx1 = vx + dt * (x[:, 1] * x[:, 2] + acc0)  # eq. (1a), first stage
-        wr1 = Rw * u1[1:3, None]
-        slip1 = (wr1 - vx1) / np.maximum(np.maximum(np.abs(vx1), np.abs(wr1)), 1.0)
-        wx, s = w[:, 0], self.undriven_share
-        C = np.array([self.C_nom_fx + (s * wx if self.rear_drive else wx),
-                      self.C_nom_rx + (wx if self.rear_drive else s * wx)])
-        C = np.maximum(C, self._c_floor[:, None])
-        D = np.maximum(np.maximum(np.abs(vx), np.abs(Rw * u0[1:3, None])), 1.0)
-        tau = np.maximum(self._jw[:, None] * D / C, 1e-12)
-        share = (tau / dt) * -np.expm1(-dt / tau)  # (1 / dt) int_0^dt exp(-t / tau) dt
-        slip = slip1 + (slip0 - slip1) * share
-        return self._model(x, u0, slip)
+        return single_track.slip_over_step(x, u0, u1, w, first, dt, self._vp, self._jw, self._c_floor,
+                                           self.rear_drive)
 
     def _measurement(self, a, B, x):
-        """h(x, u) and d(x, u) of eq. (12) for the model's channels, from the model's
-        accelerations: the IMU sees the accelerations (a^Y times the roll gain) and the yaw
-        rate; d = d a / d w (no Ts: eq. (12), docs/derivations.md, "Model")."""
-        gain = self.roll_gain
-        r = x[:, -1]
-        if self.full:
-            h = np.array([a[:, 0], gain * a[:, 1], r]).T
-            D = B.copy()
-            D[:, 1] *= gain
-            D[:, 2] = 0.0
-        else:
-            h = np.array([gain * a[:, 1], r]).T
-            D = np.zeros((len(x), 2, self.n_w))
-            D[:, 0] = gain * B[:, 1]
-        return h, D
+        """`single_track.measurement`: h (N, m) and d (N, m, n_w) of eq. (12)."""
+        return single_track.measurement(a, B, x, self.roll_gain, self.full)
 
     # ---- the filter -------------------------------------------------------------------
     def step(self, t: float, u: Inputs, y: Measurement) -> Estimate:
@@ -577,9 +480,7 @@ class StiffnessMPF:
         if self.active and math.isfinite(self._e_ay) and dt > 0:
             v = self.vehicle
             delta = float(self.u_prev[0])
-            inv_vx = 1.0 / max(est.vx, 1.0)
-            af = delta - (est.vy + v.lf * est.yaw_rate) * inv_vx
-            ar = (v.lr * est.yaw_rate - est.vy) * inv_vx
+            af, ar = single_track.small_slip_angles(est.vx, est.vy, est.yaw_rate, delta, v.lf, v.lr)
             d = np.array([af * math.cos(delta), ar])
             # forgotten with the statistics' factor (eq. (20)), over calibration_memory times their memory
             cal.update(d * self._e_ay, d, dt, self._lam_step ** self._calib_power)
@@ -596,9 +497,7 @@ class StiffnessMPF:
         self._calib_in_step = True
         if self.active and math.isfinite(self._e_ay):  # (dt > 0 in the fused step)
             delta = float(self.u_prev[0])
-            inv_vx = 1.0 / max(vx, 1.0)
-            af = delta - (vy + self._lf * r) * inv_vx
-            ar = (self._lr * r - vy) * inv_vx
+            af, ar = single_track.small_slip_angles(vx, vy, r, delta, self._lf, self._lr)
             d0, e = af * math.cos(delta), self._e_ay
             cal.update_pair(d0 * e, ar * e, d0, ar, dt, self._lam_step ** self._calib_power)
         return cal.factor_pair
@@ -821,8 +720,7 @@ class StiffnessMPF:
     def _set_undriven_share(self) -> None:
         if self.cfg.undriven_stiffness == "learned":
             self.undriven_share = self.full_share * self.cx_weight
-            if self._nb is not None:
-                self._vp[9] = self.undriven_share
+            self._vp[single_track.P_UNDRIVEN_SHARE] = self.undriven_share
 
     def _excite_cx(self, vx: float, uk: np.ndarray, dt: float) -> None:
         """The excitation weight of Cx after sample k (derivations, "The undriven axle"), full model.
@@ -837,8 +735,7 @@ class StiffnessMPF:
         "learned" the undriven axle takes the share rho_k of the driven axle's relative deviation
         from the next propagation on."""
         omega = uk[2] if self.rear_drive else uk[1]
-        wr = self.vehicle.wheel_radius * omega
-        slip = (wr - vx) / max(abs(vx), abs(wr), 1.0)
+        slip = single_track.floored_wheel_slip(vx, self.vehicle.wheel_radius * omega)
         if not math.isfinite(slip):
             return
         if not math.isfinite(self._slip_level):
@@ -1222,10 +1119,8 @@ class StiffnessMPF:
         return None  # some left: the weights changed
 
     def _vx_from_wheels(self, uk) -> float:
-        """R_w omega of the undriven axle (it hardly slips): the speed the wheels measure; NaN
-        without that wheel speed."""
-        omega = uk[1] if self.rear_drive else uk[2]
-        return self.vehicle.wheel_radius * omega
+        """`single_track.vx_from_wheels`: R_w omega of the undriven axle; NaN without that wheel speed."""
+        return single_track.vx_from_wheels(uk, self._vp, self.rear_drive)
 
     def _draw_vx_from_wheels(self, uk) -> bool:
         """The particles' v^X drawn around `_vx_from_wheels(uk)` with std `x0_vx_wheel_std`;
