@@ -7,8 +7,10 @@ On a shared machine two separate benchmark runs see different loads; here both f
 through the same 5 s of recorded paper-sim samples (seed 0) in the same process, one
 after the other, `--rounds` times, with the same configuration (this checkout's defaults,
 as `tirefilter run` builds them; options the other version lacks are dropped). The other
-version's `stiffness_mpf.py`, `mpf_numba.py` and `baseline_common.py` are copied into a
-temporary package with their imports renamed, so both compile and cache apart. Prints the median and 10th
+version's MPF (its `estimators/mpf/` package with `vehicle/single_track.py` and
+`single_track_numba.py`, or an older checkout's `stiffness_mpf.py` and `mpf_numba.py`) and its
+`baseline_common.py` are copied into a temporary folder with their imports renamed, so both
+compile and cache apart. Prints the median and 10th
 percentile of the thread's CPU time per `step()` (after 10 warm-up steps) and their ratios.
 """
 
@@ -37,13 +39,34 @@ from tirefilter.estimators import build_estimator  # noqa: E402
 def load_base(src: Path, into: Path):
     """The other version's StiffnessMPF and MPFConfig, from `src` (a `src` directory)."""
     est_dir = src / "tirefilter" / "estimators"
-    (into / "base_mpf_numba.py").write_text((est_dir / "mpf_numba.py").read_text())
     (into / "base_baseline_common.py").write_text((est_dir / "baseline_common.py").read_text())
+    sys.path.insert(0, str(into))
+    if (est_dir / "mpf").is_dir():  # the MPF package and the vehicle model it calls
+        swaps = [("from tirefilter.estimators.mpf", "from base_mpf"),
+                 ("from tirefilter.estimators.baseline_common import", "from base_baseline_common import"),
+                 ("from tirefilter.vehicle import single_track_numba\n",
+                  "import base_single_track_numba as single_track_numba\n"),
+                 ("from tirefilter.vehicle import single_track\n", "import base_single_track as single_track\n"),
+                 ("from tirefilter.vehicle.single_track_numba import", "from base_single_track_numba import"),
+                 ("from tirefilter.vehicle.single_track import", "from base_single_track import")]
+
+        def copy(path: Path, to: Path) -> None:
+            text = path.read_text()
+            for a, b in swaps:
+                text = text.replace(a, b)
+            to.write_text(text)
+
+        (into / "base_mpf").mkdir()
+        for path in (est_dir / "mpf").glob("*.py"):
+            copy(path, into / "base_mpf" / path.name)
+        for name in ("single_track", "single_track_numba"):
+            copy(src / "tirefilter" / "vehicle" / f"{name}.py", into / f"base_{name}.py")
+        return importlib.import_module("base_mpf")
+    (into / "base_mpf_numba.py").write_text((est_dir / "mpf_numba.py").read_text())
     text = (est_dir / "stiffness_mpf.py").read_text()
     text = text.replace("from tirefilter.estimators import mpf_numba\n", "import base_mpf_numba as mpf_numba\n")
     text = text.replace("from tirefilter.estimators.baseline_common import", "from base_baseline_common import")
     (into / "base_stiffness_mpf.py").write_text(text)
-    sys.path.insert(0, str(into))
     return importlib.import_module("base_stiffness_mpf")
 
 

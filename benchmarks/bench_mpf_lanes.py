@@ -18,7 +18,7 @@ middle sample are kept, and each variant below runs on fresh copies of them. Pri
    compared with the first bit for bit:
    - "arrays": stop 24's loop (`_model1` and `_xdot1` write the model's a, B and dx/dt into
      scratch arrays and read them back);
-   - "registers": the same arithmetic on scalars (`mpf_numba._model_t`, `_xdot_t`: the model's
+   - "registers": the same arithmetic on scalars (`single_track_numba._model_t`, `_xdot_t`: the model's
      values returned, not stored), on the same (N, 3) / (N, 3, 3) arrays: what the pass now runs;
    - "lanes": the registers' code over one 1D array per component (structure of arrays: x0[i],
      x1[i], ..., B22[i]), compiled with numba's internal `noalias` flag on the arguments (a
@@ -55,14 +55,13 @@ from bench_cost import record  # noqa: E402
 from profile_mpf_step import captured  # noqa: E402
 
 from tirefilter.estimators import build_estimator  # noqa: E402
-from tirefilter.estimators import mpf_numba as M  # noqa: E402
-from tirefilter.estimators.mpf_numba import (  # noqa: E402
+from tirefilter.estimators.mpf import kernels as M  # noqa: E402
+from tirefilter.estimators.mpf.kernels_weigh import _normalise_into, _t_const  # noqa: E402
+from tirefilter.vehicle.single_track_numba import (  # noqa: E402
     _interval_slip1,
     _model1,
     _model_t,
-    _normalise_into,
     _steer_consts,
-    _t_const,
     _xdot1,
     _xdot_t,
 )
@@ -70,7 +69,7 @@ from tirefilter.estimators.mpf_numba import (  # noqa: E402
 _J = dict(nogil=True)
 NAMES = ("x u_prev w_prev a B af ar slip dt max_step heun interval jw c_floor noise noise_scale b P q bias_on forget "
          "lam nu_min gamma mu Lam nu uk y avail R roll_gain vp full rear_drive h D L11 nu_w L12 Lc e v ll ok logw nc "
-         "want_nis beta yaw_max gate_speed sizes").split()  # (sizes: since stop 26, mpf_numba.SIZES_FULL)
+         "want_nis beta yaw_max gate_speed sizes").split()  # (sizes: kernels.SIZES_FULL)
 
 
 # ---- stop 24's predict_weigh_full (f46c9b0), stage by stage ----------------------------------------------------

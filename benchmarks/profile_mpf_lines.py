@@ -2,7 +2,8 @@
 
     .venv/bin/python benchmarks/profile_mpf_lines.py SRC_DIR N [DURATION] [FUNCTIONS]
 
-Loads SRC_DIR's `tirefilter/estimators/stiffness_mpf.py` (and `stats/sandwich.py`) as a module of its own
+Loads SRC_DIR's MPF (the modules of `tirefilter/estimators/mpf/`, or an older checkout's single
+`tirefilter/estimators/stiffness_mpf.py`; and `stats/sandwich.py`) as modules of their own
 with a timing mark (`_lp`) inserted by `ast` before every statement of the step's methods (FUNCTIONS, comma
 separated; default: `step`, `_step_compiled` and what they call per sample), builds the filter with this
 checkout's defaults as `tirefilter run` does, and steps it three times through the first DURATION s
@@ -11,7 +12,7 @@ the steps of the wall time from its mark to the next one (exclusive: a statement
 method gets the time until the callee's first mark; a compiled pass's statement includes numba's dispatch),
 times the share of steps that ran it, less the cost of one mark (measured first; on a loaded machine the
 subtraction is rough: compare statements within one run, and the step's median with the uninstrumented
-bench_mpf_ab.py). The kernels are this checkout's (`mpf_numba` is imported, not copied).
+bench_mpf_ab.py). The kernels are this checkout's (imported, not copied).
 """
 import ast, os, sys, time, types, dataclasses
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -77,8 +78,21 @@ def load(path, modname, extra=None):
 
 est_dir = src_dir / "tirefilter" / "estimators"
 sw = load(src_dir / "tirefilter" / "stats" / "sandwich.py", "prof_sandwich")
-mpf = load(est_dir / "stiffness_mpf.py", "prof_mpf",
-           [("from tirefilter.stats.sandwich import", "from prof_sandwich import")])
+swaps = [("from tirefilter.stats.sandwich import", "from prof_sandwich import")]
+if (est_dir / "mpf").is_dir():  # the package: its modules in the order they import each other
+    parts = ("config", "supervision", "adaptation", "compiled", "filter")
+    swaps += [(f"from tirefilter.estimators.mpf.{p} import", f"from prof_mpf_{p} import") for p in parts]
+    files = [est_dir / "mpf" / f"{p}.py" for p in parts]
+    for p, f in zip(parts, files):
+        load(f, f"prof_mpf_{p}", swaps)
+    mpf = types.SimpleNamespace(MPFConfig=sys.modules["prof_mpf_config"].MPFConfig,
+                                StiffnessMPF=sys.modules["prof_mpf_filter"].StiffnessMPF)
+else:
+    files = [est_dir / "stiffness_mpf.py"]
+    mpf = load(files[0], "prof_mpf", swaps)
+# the file of each instrumented function, for its lines
+file_of = {node.name: f for f in files for node in ast.walk(ast.parse(f.read_text()))
+           if isinstance(node, ast.FunctionDef)}
 sim, samples = record("paper-sim", dur)
 new = build_estimator("mpf", sim, model="auto", particles=N, config={})
 fields = {f.name for f in dataclasses.fields(mpf.MPFConfig)}
@@ -108,7 +122,7 @@ for r in range(rounds):
             steps.append(dict(acc))
         acc.clear()
 nsteps = rounds * (len(samples) - WARMUP)
-lines = (src_dir / "tirefilter" / "estimators" / "stiffness_mpf.py").read_text().splitlines()
+lines = {f: f.read_text().splitlines() for f in files}
 swl = (src_dir / "tirefilter" / "stats" / "sandwich.py").read_text().splitlines()
 print(f"N = {N}: {nsteps} steps, step median {np.median(totals):.1f} us mean {np.mean(totals):.1f}; "
       f"mark {mark:.0f} ns (subtracted)")
@@ -120,7 +134,7 @@ for key in keys:
     if ":" not in key: continue
     f, ln = key.split(":")
     ln = int(ln)
-    src = (swl if f in SANDWICH else lines)[ln - 1].strip()[:90]
+    src = (swl if f in SANDWICH else lines[file_of[f]])[ln - 1].strip()[:90]
     rows.append((v / nsteps / 1e3 - mark / 1e3, f, ln, src))
 rows.sort(reverse=True)
 tot = sum(r[0] for r in rows)

@@ -5,7 +5,7 @@
 
 The filter (this checkout's defaults, as `tirefilter run` builds them) steps through the
 first `--duration` s of recorded paper-sim samples (seed 0); at every step after the warm-up
-each call of a compiled pass (`mpf_numba.<name>`) and each draw of the generator is timed
+each call of a compiled pass (`estimators.mpf.kernels.<name>`) and each draw of the generator is timed
 (the thread's CPU time), and the rest of `step()` is the Python around them (plus about a
 microsecond per timed call for the timing itself). Printed: the median and 10th percentile
 per step of each over the steps (a draw that is not made at every step, the resampling

@@ -211,7 +211,7 @@ def _build_with_config(config: dict) -> None:
 # -- state files ------------------------------------------------------------------------------
 def base_state() -> dict:
     from tirefilter.estimators.state_file import FORMAT, _vehicle_record
-    from tirefilter.estimators.stiffness_mpf import MPFConfig, StiffnessMPF
+    from tirefilter.estimators.mpf import MPFConfig, StiffnessMPF
     from tirefilter.vehicle.params import load_vehicle
 
     vehicle = load_vehicle(VEHICLE_FILE)
@@ -224,7 +224,7 @@ def base_state() -> dict:
 
 def fuzz_state(tmp: Path, content) -> None:
     from tirefilter.estimators.state_file import load_state
-    from tirefilter.estimators.stiffness_mpf import MPFConfig, StiffnessMPF
+    from tirefilter.estimators.mpf import MPFConfig, StiffnessMPF
     from tirefilter.vehicle.params import load_vehicle
 
     path = tmp / "state.json"
