@@ -70,6 +70,26 @@ _J = dict(nogil=True)
 NAMES = ("x u_prev w_prev a B af ar slip dt max_step heun interval jw c_floor noise noise_scale b P q bias_on forget "
          "lam nu_min gamma mu Lam nu uk y avail R roll_gain vp full rear_drive h D L11 nu_w L12 Lc e v ll ok logw nc "
          "want_nis beta yaw_max gate_speed sizes").split()  # (sizes: kernels.SIZES_FULL)
+# `predict_weigh`'s workspace tuples (kernels_weigh.py), by the names above
+LAYOUT = ("x b P gamma mu Lam nu a B slip", "af ar h D L11 nu_w L12 Lc e v ll ok",
+          "u_prev uk y avail w_prev logw noise noise_scale", "vp jw c_floor R q",
+          "dt max_step lam nu_min roll_gain beta yaw_max gate_speed",
+          "heun interval bias_on forget full rear_drive want_nis",
+          "nc", "sizes")
+
+
+def unpack(args) -> dict:
+    """`predict_weigh`'s arguments by name."""
+    out = {}
+    for names, arg in zip(LAYOUT, args):
+        names = names.split()
+        out.update(zip(names, arg) if len(names) > 1 else [(names[0], arg)])
+    return out
+
+
+def pack(d: dict) -> list:
+    """`predict_weigh`'s arguments from their names."""
+    return [tuple(d[k] for k in names.split()) if " " in names else d[names] for names in LAYOUT]
 
 
 # ---- stop 24's predict_weigh_full (f46c9b0), stage by stage ----------------------------------------------------
@@ -80,8 +100,8 @@ def st_slip(x, a, B, w_prev, slip, u_prev, uk, dt, vp, jw, c_floor, rear_drive):
         for j in range(3):
             acc0 += B[i, 0, j] * w_prev[i, j]
         acc0 = a[i, 0] + acc0
-        slip[0, i], slip[1, i] = _interval_slip1(x[i, 0], x[i, 1], x[i, 2], acc0, w_prev[i, 0], slip[0, i],
-                                                 slip[1, i], u_prev, uk, dt, vp, jw, c_floor, rear_drive)
+        slip[0, i], slip[1, i] = _interval_slip1((x[i, 0], x[i, 1], x[i, 2]), acc0, w_prev[i, 0],
+                                                 (slip[0, i], slip[1, i]), u_prev, uk, dt, vp, jw, c_floor, rear_drive)
 
 
 @njit(**_J)
@@ -103,13 +123,13 @@ def st_prop(x, a, B, af, ar, slip, w_prev, u_prev, uk, dt, vp, rear_drive, gamma
         for c in range(nx):
             xi[c] = x[i, c]
         sf, sr = slip[0, i], slip[1, i]
-        _model1(xi[0], xi[1], xi[2], u_prev[0], u_prev[1], u_prev[2], u_prev[3], kp, True, sf, sr, ai, Bi, vp, True,
-                rear_drive, 3)
+        _model1((xi[0], xi[1], xi[2]), (u_prev[0], u_prev[1], u_prev[2], u_prev[3]), kp, True, sf, sr, ai, Bi, vp,
+                True, rear_drive, 3)
         _xdot1(xi, u_prev[3], ai, Bi, w_prev[i], k1, True, 3)
         for c in range(nx):
             x1[c] = xi[c] + hs * k1[c]
-        _model1(x1[0], x1[1], x1[2], u_prev[0], u_prev[1], u_prev[2], u_prev[3], kp, True, sf, sr, ai, Bi, vp, True,
-                rear_drive, 3)
+        _model1((x1[0], x1[1], x1[2]), (u_prev[0], u_prev[1], u_prev[2], u_prev[3]), kp, True, sf, sr, ai, Bi, vp,
+                True, rear_drive, 3)
         _xdot1(x1, u_prev[3], ai, Bi, w_prev[i], k2, True, 3)
         for c in range(nx):
             xi[c] = xi[c] + (0.5 * hs) * (k1[c] + k2[c])
@@ -121,7 +141,7 @@ def st_prop(x, a, B, af, ar, slip, w_prev, u_prev, uk, dt, vp, rear_drive, gamma
         for j in range(3):
             for k in range(3):
                 Lam[i, j, k] = Lam[i, j, k] * f
-        af[i], ar[i], slip[0, i], slip[1, i] = _model1(x[i, 0], x[i, 1], x[i, 2], uk[0], uk[1], uk[2], uk[3], kk,
+        af[i], ar[i], slip[0, i], slip[1, i] = _model1((x[i, 0], x[i, 1], x[i, 2]), (uk[0], uk[1], uk[2], uk[3]), kk,
                                                        False, 0.0, 0.0, a[i], B[i], vp, True, rear_drive, 3)
         ok[i] = abs(x[i, nx - 2]) <= beta * max(abs(x[i, 0]), gate_speed) and abs(x[i, nx - 1]) <= yaw_max
         count += ok[i]
@@ -257,10 +277,10 @@ def regs_prop(x, a, B, af, ar, slip, w_prev, u_prev, uk, dt, vp, rear_drive, gam
         x0, x1, x2 = x[i, 0], x[i, 1], x[i, 2]
         w0, w1, w2 = w_prev[i, 0], w_prev[i, 1], w_prev[i, 2]
         sf, sr = slip[0, i], slip[1, i]
-        m = _model_t(x0, x1, x2, u_prev[0], u_prev[1], u_prev[2], u_prev[3], kp, True, sf, sr, vp, True, rear_drive)
+        m = _model_t((x0, x1, x2), (u_prev[0], u_prev[1], u_prev[2], u_prev[3]), kp, True, sf, sr, vp, True, rear_drive)
         k10, k11, k12 = _xdot_t(x0, x1, x2, u_prev[3], m, w0, w1, w2, True)
         y0, y1, y2 = x0 + hs * k10, x1 + hs * k11, x2 + hs * k12
-        m = _model_t(y0, y1, y2, u_prev[0], u_prev[1], u_prev[2], u_prev[3], kp, True, sf, sr, vp, True, rear_drive)
+        m = _model_t((y0, y1, y2), (u_prev[0], u_prev[1], u_prev[2], u_prev[3]), kp, True, sf, sr, vp, True, rear_drive)
         k20, k21, k22 = _xdot_t(y0, y1, y2, u_prev[3], m, w0, w1, w2, True)
         x0 = x0 + (0.5 * hs) * (k10 + k20)
         x1 = x1 + (0.5 * hs) * (k11 + k21)
@@ -272,7 +292,7 @@ def regs_prop(x, a, B, af, ar, slip, w_prev, u_prev, uk, dt, vp, rear_drive, gam
         for j in range(3):
             for k in range(3):
                 Lam[i, j, k] = Lam[i, j, k] * f
-        m = _model_t(x0, x1, x2, uk[0], uk[1], uk[2], uk[3], kk, False, 0.0, 0.0, vp, True, rear_drive)
+        m = _model_t((x0, x1, x2), (uk[0], uk[1], uk[2], uk[3]), kk, False, 0.0, 0.0, vp, True, rear_drive)
         a[i, 0], a[i, 1], a[i, 2] = m[0], m[1], m[2]
         B[i, 0, 0], B[i, 0, 1], B[i, 0, 2] = m[3], m[4], m[5]
         B[i, 1, 0], B[i, 1, 1], B[i, 1, 2] = m[6], m[7], m[8]
@@ -305,10 +325,10 @@ def lanes_prop(X0, X1, X2, W0, W1, W2, SF, SR, G, NU, L0, L1, L2, L3, L4, L5, L6
         x0, x1, x2 = X0[i], X1[i], X2[i]
         w0, w1, w2 = W0[i], W1[i], W2[i]
         sf, sr = SF[i], SR[i]
-        m = _model_t(x0, x1, x2, u_prev[0], u_prev[1], u_prev[2], u_prev[3], kp, True, sf, sr, vp, True, rear_drive)
+        m = _model_t((x0, x1, x2), (u_prev[0], u_prev[1], u_prev[2], u_prev[3]), kp, True, sf, sr, vp, True, rear_drive)
         k10, k11, k12 = _xdot_t(x0, x1, x2, u_prev[3], m, w0, w1, w2, True)
         y0, y1, y2 = x0 + hs * k10, x1 + hs * k11, x2 + hs * k12
-        m = _model_t(y0, y1, y2, u_prev[0], u_prev[1], u_prev[2], u_prev[3], kp, True, sf, sr, vp, True, rear_drive)
+        m = _model_t((y0, y1, y2), (u_prev[0], u_prev[1], u_prev[2], u_prev[3]), kp, True, sf, sr, vp, True, rear_drive)
         k20, k21, k22 = _xdot_t(y0, y1, y2, u_prev[3], m, w0, w1, w2, True)
         x0 = x0 + (0.5 * hs) * (k10 + k20)
         x1 = x1 + (0.5 * hs) * (k11 + k21)
@@ -327,7 +347,7 @@ def lanes_prop(X0, X1, X2, W0, W1, W2, SF, SR, G, NU, L0, L1, L2, L3, L4, L5, L6
         L6[i] *= f
         L7[i] *= f
         L8[i] *= f
-        m = _model_t(x0, x1, x2, uk[0], uk[1], uk[2], uk[3], kk, False, 0.0, 0.0, vp, True, rear_drive)
+        m = _model_t((x0, x1, x2), (uk[0], uk[1], uk[2], uk[3]), kk, False, 0.0, 0.0, vp, True, rear_drive)
         A0[i], A1[i], A2[i] = m[0], m[1], m[2]
         B0[i], B1[i], B2[i], B3[i], B4[i], B5[i], B6[i], B7[i], B8[i] = m[3], m[4], m[5], m[6], m[7], m[8], m[9], \
             m[10], m[11]
@@ -453,21 +473,21 @@ def main() -> int:
     sim, samples = record("paper-sim", 5.0)
     est = build_estimator("mpf", sim, model="auto", particles=args.particles, config={})
     f_pw, a_pw = captured(est, samples)["predict_weigh"]
-    cap = dict(zip(NAMES, a_pw))
+    cap = unpack(a_pw)
     if not (cap["interval"] and cap["heun"] and cap["noise"].shape[0] == 0 and cap["dt"] <= cap["max_step"]):
         raise SystemExit("the stage copies assume paper-sim's defaults: interval slip, Heun, one sub-step, no noise")
     fresh = lambda: copy.deepcopy(cap)  # noqa: E731
 
     # the stages in sequence against the pass, bit for bit
     t1, t2 = fresh(), fresh()
-    f_pw(*[t1[k] for k in NAMES])
+    f_pw(*pack(t1))
     for _, f, a in stage_calls(t2):
         f(*a)
     same = all(np.array_equal(t1[k], t2[k], equal_nan=True) for k in NAMES if isinstance(t1[k], np.ndarray))
     print(f"N = {args.particles}; load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores")
     print(f"stop 24's stages in sequence == {f_pw.py_func.__name__} of this checkout, bit for bit: {same}")
     uncached = njit(**_J)(f_pw.py_func)  # (numba shows no machine code of a kernel loaded from its cache)
-    uncached(*[fresh()[k] for k in NAMES])
+    uncached(*pack(fresh()))
     print(f"{f_pw.py_func.__name__}'s machine code: {_packed(uncached)}")
 
     # 2. the stages
@@ -479,7 +499,7 @@ def main() -> int:
             best.setdefault(name, []).append(_t(f, a))
             best.setdefault(name + " (dispatch)", []).append(_t(_empty, a))
         t = fresh()
-        whole.append(_t(f_pw, [t[k] for k in NAMES]))
+        whole.append(_t(f_pw, pack(t)))
     print(f"stages of stop 24's pass, us, min (median) over {args.repeat} rounds; net = min - dispatch min:")
     for name, _, _ in stage_calls(fresh()):
         v, d = np.array(best[name]) / 1e3, np.array(best[name + " (dispatch)"]) / 1e3

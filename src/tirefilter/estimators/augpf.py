@@ -218,7 +218,7 @@ class AugmentedPF:
         heun = self.cfg.integrator == "heun"
         if self._st is not None:
             a, B, _, _, slip = first
-            return self._st.propagate(x, u, w, a, B, np.zeros((2, len(x))) if slip is None else slip, dt,
+            return self._st.propagate(x, u, w, (a, B, np.zeros((2, len(x))) if slip is None else slip), dt,
                                       self.cfg.max_step, heun, self._vp, self.full, self.rear_drive, self.n_w)
         return single_track.propagate(x, u, w, dt, first, self._vp, self.full, self.rear_drive, self.cfg.max_step,
                                       heun)

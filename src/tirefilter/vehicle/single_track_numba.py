@@ -41,11 +41,11 @@ def _steer_consts(u0, vp):
 
 
 @njit(inline="always", **_JIT)
-def _model1(x0, x1, x2, u0, u1, u2, u3, k, held, sf, sr, a, B, vp, full, rear_drive, n_w):
+def _model1(xs, us, k, held, sf, sr, a, B, vp, full, rear_drive, n_w):
     """One particle of `accelerations`: `_model_t` stored, a (3,) and B (3, n_w) filled; returns (af, ar,
-    lam_f, lam_r). k = `_steer_consts(u0, vp)`; vp = (m, I, lf, lr, Cf_y, Cr_y, C_nom_fx, C_nom_rx,
+    lam_f, lam_r). xs, us, k as in `_model_t`; vp = (m, I, lf, lr, Cf_y, Cr_y, C_nom_fx, C_nom_rx,
     R_w, undriven_share)."""
-    m = _model_t(x0, x1, x2, u0, u1, u2, u3, k, held, sf, sr, vp, full, rear_drive)
+    m = _model_t(xs, us, k, held, sf, sr, vp, full, rear_drive)
     a[0], a[1], a[2] = m[0], m[1], m[2]
     for i in range(3):
         for j in range(n_w):
@@ -54,16 +54,20 @@ def _model1(x0, x1, x2, u0, u1, u2, u3, k, held, sf, sr, a, B, vp, full, rear_dr
 
 
 @njit(**_JIT_IN)
-def _model_t(x0, x1, x2, u0, u1, u2, u3, k, held, sf, sr, vp, full, rear_drive):
+def _model_t(xs, us, k, held, sf, sr, vp, full, rear_drive):
     """One particle's model (`single_track.accelerations`) on scalars, returned, not stored: the
     propagation of the MPF's `predict_weigh` keeps the values in registers this way (stored in
     scratch arrays and read back, they cannot stay there: docs/performance.md, "Backends");
-    `_model1` stores them for the other kernels. k = `_steer_consts(u0, vp)`;
+    `_model1` stores them for the other kernels. xs = (x0, x1, x2) the state ([vx, vy, r], or
+    [vy, r, 0] in the lateral model), us = (u0, u1, u2, u3) the inputs [delta, omega_f, omega_r,
+    vx], k = `_steer_consts(u0, vp)`; `held`: the wheel slip (sf, sr) held, not computed;
     vp = (m, I, lf, lr, Cf_y, Cr_y, C_nom_fx, C_nom_rx, R_w, undriven_share).
     Returns (a0, a1, a2, b00, b01, b02, b10, b11, b12, b20, b21, b22, af, ar, lam_f, lam_r), b_rc the
     entries of B (3, 3) in the full model; in the lateral model B is (3, 2): b_r0, b_r1, and b_r2 = 0."""
     lf, lr, Cfy, Cry, Cfx, Crx, Rw = vp[2], vp[3], vp[4], vp[5], vp[6], vp[7], vp[8]
     s = vp[9]
+    x0, x1, x2 = xs
+    u0, u1, u2, u3 = us
     cd, sd, inv_m, inv_I, cd_m, sd_m, lf_sd_I, msd_m, lf_cd_I, mlr_I = k
     if full:
         vx, vy, r = x0, x1, x2
@@ -126,10 +130,12 @@ def _xdot_t(x0, x1, x2, u3, m, w0, w1, w2, full):
 
 
 @njit(inline="always", **_JIT)
-def _interval_slip1(vx, vy, r, acc0, wx, slip_f, slip_r, u0, u1, dt, vp, jw, c_floor, rear_drive):
+def _interval_slip1(xs, acc0, wx, slips, u0, u1, dt, vp, jw, c_floor, rear_drive):
     """One particle of `slip_over_step`: the front and rear wheel slip averaged over the step
-    from the slips (slip_f, slip_r) at t_k, x = (vx, vy, r), acc0 = a^X + B_0 w at t_k, the
+    from the slips = (slip_f, slip_r) at t_k, xs = (vx, vy, r), acc0 = a^X + B_0 w at t_k, the
     driven axle's deviation wx, the inputs u0, u1 (4,) at t_k and t_k+1."""
+    vx, vy, r = xs
+    slip_f, slip_r = slips
     Rw, s, Cfx, Crx = vp[8], vp[9], vp[6], vp[7]
     vx1 = vx + dt * (vy * r + acc0)
     if rear_drive:
@@ -152,18 +158,20 @@ def _interval_slip1(vx, vy, r, acc0, wx, slip_f, slip_r, u0, u1, dt, vp, jw, c_f
 
 
 @njit(**_JIT)
-def slip_over_step(x, u0, u1, w, a, B, slip, dt, vp, jw, c_floor, rear_drive, n_w):
+def slip_over_step(x, u0, u1, w, first, dt, vp, jw, c_floor, rear_drive, n_w):
     """`single_track.slip_over_step` (full model): the first stage of the propagation from t_k
     to t_k + dt with the wheel slip averaged over the interval (derivations, "Wheel slip").
 
     x (N, 3) at t_k; u0, u1 (4,) the inputs at t_k and t_k+1; w (N, n_w) held over the step;
-    a (N, 3), B (N, 3, n_w), slip (2, N) of `accelerations(x, u0)`; vp as in `_model1`; jw (2,) the
+    first = (a (N, 3), B (N, 3, n_w), slip (2, N)) of `accelerations(x, u0)`; vp as in `_model1`; jw (2,) the
     front and rear spin inertia over R_w^2; c_floor (2,) the lowest axle stiffness in the time
     constant. Returns (a, B, af, ar, slip) (new arrays) at x with the interval slip. The same
     per-particle arithmetic as the first stage in the MPF's `predict_weigh`; for the reference path and
     tests/test_kernels.py."""
+    a, B, slip = first
     n = x.shape[0]
     k0 = _steer_consts(u0[0], vp)
+    us = (u0[0], u0[1], u0[2], u0[3])
     a2 = np.empty((n, 3))
     B2 = np.empty((n, 3, n_w))
     af = np.empty(n)
@@ -174,10 +182,10 @@ def slip_over_step(x, u0, u1, w, a, B, slip, dt, vp, jw, c_floor, rear_drive, n_
         for j in range(n_w):
             acc0 += B[i, 0, j] * w[i, j]
         acc0 = a[i, 0] + acc0
-        out[0, i], out[1, i] = _interval_slip1(x[i, 0], x[i, 1], x[i, 2], acc0, w[i, 0], slip[0, i], slip[1, i], u0,
-                                               u1, dt, vp, jw, c_floor, rear_drive)
-        af[i], ar[i], _, _ = _model1(x[i, 0], x[i, 1], x[i, 2], u0[0], u0[1], u0[2], u0[3], k0, True, out[0, i],
-                                     out[1, i], a2[i], B2[i], vp, True, rear_drive, n_w)
+        xs = (x[i, 0], x[i, 1], x[i, 2])
+        out[0, i], out[1, i] = _interval_slip1(xs, acc0, w[i, 0], (slip[0, i], slip[1, i]), u0, u1, dt, vp, jw,
+                                               c_floor, rear_drive)
+        af[i], ar[i], _, _ = _model1(xs, us, k0, True, out[0, i], out[1, i], a2[i], B2[i], vp, True, rear_drive, n_w)
     return a2, B2, af, ar, out
 
 
@@ -205,6 +213,7 @@ def accelerations(x, u, vp, full, rear_drive, n_w):
     reference path's compiled model (the first sample, restarts, gaps) and the AUGPF."""
     n = x.shape[0]
     ku = _steer_consts(u[0], vp)
+    us = (u[0], u[1], u[2], u[3])
     a = np.empty((n, 3))
     B = np.empty((n, 3, n_w))
     af = np.empty(n)
@@ -212,19 +221,21 @@ def accelerations(x, u, vp, full, rear_drive, n_w):
     slip = np.zeros((2, n))
     for i in range(n):
         x2 = x[i, 2] if full else 0.0
-        af[i], ar[i], slip[0, i], slip[1, i] = _model1(x[i, 0], x[i, 1], x2, u[0], u[1], u[2], u[3], ku, False, 0.0,
-                                                       0.0, a[i], B[i], vp, full, rear_drive, n_w)
+        af[i], ar[i], slip[0, i], slip[1, i] = _model1((x[i, 0], x[i, 1], x2), us, ku, False, 0.0, 0.0, a[i], B[i], vp,
+                                                       full, rear_drive, n_w)
     return a, B, af, ar, slip
 
 
 @njit(**_JIT)
-def propagate(x, u, w, a, B, slip, dt, max_step, heun, vp, full, rear_drive, n_w):
+def propagate(x, u, w, first, dt, max_step, heun, vp, full, rear_drive, n_w):
     """`single_track.propagate`: x_{k+1} from x_k (N, nx) with w (N, n_w) held, the first
-    stage (a, B, slip) evaluated at x_k; a step longer than max_step is split into equal
+    stage first = (a, B, slip) evaluated at x_k; a step longer than max_step is split into equal
     sub-steps (the model re-evaluated, slip recomputed). The same loop as the propagation
     in the MPF's `predict_weigh`; for the reference path and the AUGPF."""
+    a, B, slip = first
     n, nx = x.shape
     ku = _steer_consts(u[0], vp)
+    us = (u[0], u[1], u[2], u[3])
     n_sub = max(1, math.ceil(dt / max_step - 1e-9))
     hs = dt / n_sub
     out = np.empty((n, nx))
@@ -246,8 +257,7 @@ def propagate(x, u, w, a, B, slip, dt, max_step, heun, vp, full, rear_drive, n_w
                         Bi[c, j] = B[i, c, j]
             else:
                 xs2 = xi[2] if full else 0.0
-                _, _, sf, sr = _model1(xi[0], xi[1], xs2, u[0], u[1], u[2], u[3], ku, False, 0.0, 0.0, ai, Bi, vp, full,
-                                       rear_drive, n_w)
+                _, _, sf, sr = _model1((xi[0], xi[1], xs2), us, ku, False, 0.0, 0.0, ai, Bi, vp, full, rear_drive, n_w)
             _xdot1(xi, u[3], ai, Bi, w[i], k1, full, n_w)
             if not heun:
                 for c in range(nx):
@@ -256,7 +266,7 @@ def propagate(x, u, w, a, B, slip, dt, max_step, heun, vp, full, rear_drive, n_w
             for c in range(nx):
                 x1[c] = xi[c] + hs * k1[c]
             xs2 = x1[2] if full else 0.0
-            _model1(x1[0], x1[1], xs2, u[0], u[1], u[2], u[3], ku, full, sf, sr, ai, Bi, vp, full, rear_drive, n_w)
+            _model1((x1[0], x1[1], xs2), us, ku, full, sf, sr, ai, Bi, vp, full, rear_drive, n_w)
             _xdot1(x1, u[3], ai, Bi, w[i], k2, full, n_w)
             for c in range(nx):
                 xi[c] = xi[c] + (0.5 * hs) * (k1[c] + k2[c])

@@ -27,13 +27,12 @@ class CompiledStep:
         allocated once (`_MPFWork`), with the random numbers drawn here by the reference's
         generator calls in the reference's order: the same numbers as the numpy path
         (tests/test_kernels.py). The rare branches (restarts) go through the reference methods."""
-        cfg, nb, rng, st = self.cfg, self._nb, self.rng, self.stats
+        cfg, nb, rng = self.cfg, self._nb, self.rng
         wk = self._work()
         if self.state_noise is not None:  # optional regularisation against sample impoverishment
             noise, noise_scale = rng.standard_normal(self.x.shape), self._state_noise_scale(dt)
         else:
             noise, noise_scale = wk.no_noise, wk.no_scale
-        q = self.q_bias if self.linear_region else self.q_bias_nonlinear
         ch = self.channels
         yl = [y.ax, y.ay, y.yaw_rate] if self.full else [y.ay, y.yaw_rate]
         yk = np.array(yl, float)
@@ -53,11 +52,10 @@ class CompiledStep:
             logw_pred = wk.logw_pred
             np.copyto(logw_pred, self.logw)
         innovation, ess, count, nu_common = nb.predict_weigh(
-            self.x, u_prev, self.w_prev, wk.a, wk.B, wk.af, wk.ar, wk.slip, dt, cfg.max_step, wk.heun, wk.interval,
-            self._jw, self._c_floor, noise, noise_scale, self.b, self.P, q, self.bias_on, self.active, self.lam,
-            self.nu0, st.gamma, st.mu, st.Lam, st.nu, uk, yk, a, self.R, self.roll_gain, self._vp, self.full,
-            self.rear_drive, wk.h, wk.D, wk.L11, wk.nu_w, wk.L12, wk.Lc, wk.e, wk.v, wk.ll, wk.ok, self.logw, nc,
-            adaptive, cfg.plausible_beta, cfg.plausible_yaw_rate, cfg.gate_speed, sizes)
+            wk.own, wk.scratch, (u_prev, uk, yk, a, self.w_prev, self.logw, noise, noise_scale),
+            wk.model[self.linear_region],
+            (dt, wk.max_step, float(self.lam), self.nu0, self.roll_gain, wk.beta, wk.yaw_max, wk.gate_speed),
+            wk.flags[self.active], nc, sizes)
         if math.isfinite(innovation):  # adaptive forgetting (`_adapt_forgetting`)
             self._smooth_surprise(innovation, dt)
         if wk.predicted_ay and a.size:  # (the calibration's residual alone waits for the gate: `_ay_residual`)
@@ -76,9 +74,8 @@ class CompiledStep:
             ess = float(effective_sample_size(self.logw))
         resample = ess < cfg.resample_threshold * cfg.particles
         u0 = float(rng.random((1,))[0]) if resample else 0.0
-        vx_est, vy_std, alpha, pinned = nb.resample_gate(
-            self.logw, u0, resample, wk.idx, self.x, self.b, self.P, st.gamma, st.mu, st.Lam, st.nu, wk.a, wk.B,
-            wk.slip, *wk.spares, wk.af, wk.ar, self.full, wk.pin_lo, wk.pin_hi, wk.q)
+        vx_est, vy_std, alpha, pinned = nb.resample_gate(self.logw, u0, resample, wk.idx, wk.own, wk.spares, wk.af,
+                                                         wk.ar, self.full, wk.pin_lo, wk.pin_hi, wk.q)
         if resample:
             self._swap_work(wk)
             self.resamples += 1
@@ -97,17 +94,15 @@ class CompiledStep:
             nu_draw = wk.nu_w[wk.idx] + nc if nc else wk.nu_w[wk.idx]
             chi = rng.chisquare(nu_draw)
         use_mask = bool(nc and cfg.outlier_prob < 1)
-        st = self.stats
         drift = bool(self.active and nc and adaptive)
         if drift and self.drift is not wk.drift_checked:  # (the kernel writes into it)
             if not (self.drift.flags.c_contiguous and self.drift.dtype == np.float64):
                 self.drift = np.array(self.drift, float)
             wk.drift_checked = self.drift
         zd = nb.sample_update(
-            wk.idx, self.x, self.logw, st.gamma, st.mu, st.Lam, st.nu, self.b, self.P, wk.h, wk.D, wk.L11, wk.nu_w,
-            wk.L12, wk.Lc, wk.v, nc, z, chi, nu_draw, wk.w, use_mask, self._outlier_bound(nc) if use_mask else 0.0,
-            bool(a.size and self.bias_on), self.R, a, yk, self.active, drift, self.drift,
-            -math.expm1(-dt / cfg.drift_time), wk.lo, wk.hi, wk.mom, wk.q, self._draw_factors(wk.ones2), sizes)
+            wk.idx, wk.own, wk.scratch, (z, chi, nu_draw, self._draw_factors(wk.ones2)), wk.w, (self.R, a, yk),
+            (self._outlier_bound(nc) if use_mask else 0.0, -math.expm1(-dt / cfg.drift_time), wk.lo, wk.hi),
+            (use_mask, bool(a.size and self.bias_on), self.active, drift), nc, (self.drift, wk.mom, wk.q), sizes)
         if zd == zd:  # `_track_drift` (the statistic is NaN when not computed)
             self._cap_forgetting(zd)
         if self.full:
@@ -194,7 +189,8 @@ class _MPFWork:
     """The arrays of `StiffnessMPF._step_compiled`, allocated once per filter: the
     particles' own arrays (x, b, P, the NiW statistics, the model's first stage a, B, slip)
     with a spare of each for resampling, and the weighting's per-particle arrays for all m
-    channels (the first na columns are used when samples are missing)."""
+    channels (the first na columns are used when samples are missing). The kernels take them
+    as tuples (their workspace): `own` (the arrays named OWN), `spares` (OWN2) and `scratch`."""
 
     OWN = ("x", "b", "P", "gamma", "mu", "Lam", "nu", "a", "B", "slip")
     OWN2 = tuple(name + "2" for name in OWN)
@@ -234,15 +230,26 @@ class _MPFWork:
         self.drift_checked = None  # the drift statistic's array once checked C-contiguous float64
         self.lo = cfg.bound_low * mpf.C_ref - mpf.C_nom
         self.hi = cfg.bound_high * mpf.C_ref - mpf.C_nom
+        # what `predict_weigh` takes besides the arrays: the options as floats, the model's arrays (the bias's random
+        # walk q by the linear region, `model[linear_region]`), and the flags (by the gate, `flags[active]`)
+        self.max_step, self.beta = float(cfg.max_step), float(cfg.plausible_beta)
+        self.yaw_max, self.gate_speed = float(cfg.plausible_yaw_rate), float(cfg.gate_speed)
+        self.model = {linear: (mpf._vp, mpf._jw, mpf._c_floor, mpf.R, mpf.q_bias if linear else mpf.q_bias_nonlinear)
+                      for linear in (False, True)}
+        self.flags = {active: (self.heun, self.interval, mpf.bias_on, active, mpf.full, mpf.rear_drive,
+                               cfg.forgetting_mode == "adaptive") for active in (False, True)}
 
+        self.own = tuple(getattr(self, name) for name in self.OWN)
         self.spares = tuple(getattr(self, name + "2") for name in self.OWN)
+        self.scratch = (self.af, self.ar, self.h, self.D, self.L11, self.nu_w, self.L12, self.Lc, self.e, self.v,
+                        self.ll, self.ok)
 
     def swap(self) -> None:
-        """The spares become the particles' arrays and the other way round (`spares` is always
-        the tuple of the arrays named OWN2)."""
+        """The spares become the particles' arrays and the other way round (`own` and `spares`
+        are always the tuples of the arrays named OWN and OWN2)."""
         d = self.__dict__
-        own, self.spares = self.spares, tuple(map(d.__getitem__, self.OWN))
-        d.update(zip(self.OWN, own))
+        self.own, self.spares = self.spares, self.own
+        d.update(zip(self.OWN, self.own))
         d.update(zip(self.OWN2, self.spares))
 
 

@@ -201,7 +201,7 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         heun = self.cfg.integrator == "heun"
         if self._nb is not None:
             a, B, _, _, slip = first
-            return self._st.propagate(x, u, w, a, B, np.zeros((2, len(x))) if slip is None else slip, dt,
+            return self._st.propagate(x, u, w, (a, B, np.zeros((2, len(x))) if slip is None else slip), dt,
                                       self.cfg.max_step, heun, self._vp, self.full, self.rear_drive, self.n_w)
         return single_track.propagate(x, u, w, dt, first, self._vp, self.full, self.rear_drive, self.cfg.max_step,
                                       heun)
@@ -211,7 +211,7 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         with the wheel slip averaged over the interval (slip_hold = "interval")."""
         if self._nb is not None:
             a, B, _, _, slip0 = first
-            return self._st.slip_over_step(x, u0, u1, w, a, B, slip0, dt, self._vp, self._jw, self._c_floor,
+            return self._st.slip_over_step(x, u0, u1, w, (a, B, slip0), dt, self._vp, self._jw, self._c_floor,
                                            self.rear_drive, self.n_w)
         return single_track.slip_over_step(x, u0, u1, w, first, dt, self._vp, self._jw, self._c_floor,
                                            self.rear_drive)

@@ -52,17 +52,19 @@ def _take_rows(src, dst, idx):
 
 
 @njit(**_JIT)
-def resample_gate(logw, u0, resample, idx, x, b, P, gamma, mu, Lam, nu, a, B, slip, x2, b2, P2, gamma2, mu2, Lam2,
-                  nu2, a2, B2, slip2, af, ar, full, pin_lo, pin_hi, qw):
+def resample_gate(logw, u0, resample, idx, own, spares, af, ar, full, pin_lo, pin_hi, qw):
     """Resampling and the gate's moments. `resample`: systematic resampling
     (`systematic_resample` with the caller's uniform u0) into idx, the particles' arrays
-    (x, b, P, the statistics, the model's first stage a, B, slip) copied by idx into their
-    spares (x2, ...; the caller swaps), logw uniform; else idx = 0..N-1. The arrays of the
-    weighting (h, D, L11, ...) are not copied: `sample_update` reads them through idx.
+    own = (x, b, P, gamma, mu, Lam, nu, a, B, slip) (the statistics, the model's first stage a,
+    B, slip) copied by idx into their spares (the same tuple; the caller swaps), logw uniform;
+    else idx = 0..N-1. The arrays of the weighting (h, D, L11, ...) are not copied:
+    `sample_update` reads them through idx.
     Returns the gate's moments over the (resampled) particles, E[vx] (full model), the std
     of vy and max(|E[af]|, |E[ar]|), and whether the posterior mean of mu lies at or beyond
     pin_lo or pin_hi (n_w,) in some component (the bound restart, `_pinned`). The weights
     exp(logw) after resampling go into qw (N,), for `sample_update`."""
+    x, b, P, gamma, mu, Lam, nu, a, B, slip = own
+    x2, b2, P2, gamma2, mu2, Lam2, nu2, a2, B2, slip2 = spares
     n = logw.shape[0]
     if resample:
         systematic_into(logw, u0, idx)
@@ -112,12 +114,16 @@ def resample_gate(logw, u0, resample, idx, x, b, P, gamma, mu, Lam, nu, a, B, sl
 
 
 @njit(inline="always", **_JIT)
-def _sample(idx, gamma, mu, Lam, nu, L11, nu_w, L12, Lc, v, z, chi, nu_draw, w, use_mask, bound, active, drift,
-            lo, hi, qw, ub, infl, n_w, nc):
+def _sample(idx, own, scratch, draws, w, learning, flags, qw, ub, n_w, nc):
     """Steps 3 and 5 of `sample_update` (its arguments, n_w and nc the sizes; ub (n_w,) the weighted
-    lean of the drift, accumulated; infl (2,) the std factors of the draw about mu_c, sqrt(c) of the
-    surprise inflation (1 when off), of the draw that drives the state (into w) and of the one the
-    drift and the statistics learn from (the same draw when they are equal))."""
+    lean of the drift, accumulated; infl (2,) of `draws` the std factors of the draw about mu_c,
+    sqrt(c) of the surprise inflation (1 when off), of the draw that drives the state (into w) and
+    of the one the drift and the statistics learn from (the same draw when they are equal))."""
+    x, b, P, gamma, mu, Lam, nu, a, B, slip = own
+    af, ar, h, D, L11, nu_w, L12, Lc, e, v, ll, ok = scratch
+    z, chi, nu_draw, infl = draws
+    bound, drift_a, lo, hi = learning
+    use_mask, do_bias, active, drift = flags
     n = mu.shape[0]
     M = np.empty((max(nc, 1), n_w))
     ui = np.empty(n_w)
@@ -221,11 +227,16 @@ def _sample(idx, gamma, mu, Lam, nu, L11, nu_w, L12, Lc, v, z, chi, nu_draw, w, 
 
 
 @njit(**_JIT)
-def sample_update(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, Lc, v, nc_, z, chi, nu_draw, w,
-                  use_mask, bound, do_bias, R, avail, y, active, drift, drift_state, drift_a, lo, hi, mom, qw,
-                  infl, sizes):
-    """Steps 3-5 of `StiffnessMPF.step`, in place. Per particle i (its weighting arrays h, D,
-    L11, nu_w, L12, Lc, v at row idx[i], the ancestor when resampled):
+def sample_update(idx, own, scratch, draws, w, obs, learning, flags, nc_, out, sizes):
+    """Steps 3-5 of `StiffnessMPF.step`, in place, on the workspace of `compiled._MPFWork`:
+      own = (x, b, P, gamma, mu, Lam, nu, a, B, slip) as `resample_gate` left them (read and written);
+      scratch = (af, ar, h, D, L11, nu_w, L12, Lc, e, v, ll, ok) of `predict_weigh` (read, by idx);
+      draws = (z, chi, nu_draw, infl), the caller's random numbers and the draw's std factors;
+      w (N, n_w) written; obs = (R, avail, y); learning = (bound, drift_a, lo, hi);
+      flags = (use_mask, do_bias, active, drift); nc_ the accelerometer channels;
+      out = (drift_state, mom, qw): the drift statistic (updated), the moments (written), the weights (read).
+    Per particle i (its weighting arrays h, D, L11, nu_w, L12, Lc, v at row idx[i], the ancestor
+    when resampled):
     - w_i (into w) from the conditional of w given the first nc (accelerometer) residuals,
       eq. (39)-(41) (`t_conditional` with `L22_chol`, `x2_white`): M = Lc^-1 L21,
       mu_c = mu + M^T v, Lam_c = (nu~ + v^T v) / (nu~ + nc) (L11 - M^T M), and `t_sample`'s
@@ -245,6 +256,12 @@ def sample_update(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, 
     The weights exp(logw) are read from qw (N,), as `resample_gate` left them.
     `sizes` as in `predict_weigh`: 3 dimensions the full model with both accelerometers (n_w = 3,
     nc = 2), 2 the lateral one (n_w = 2, nc = 1), 1 any (n_w = mu.shape[1], the given nc)."""
+    x, b, P, gamma, mu, Lam, nu, a, B, slip = own
+    af, ar, h, D, L11, nu_w, L12, Lc, e, v, ll, ok = scratch
+    R, avail, y = obs
+    use_mask, do_bias, active, drift = flags
+    bound, drift_a, lo, hi = learning
+    drift_state, mom, qw = out
     if sizes.ndim == 3:
         if mu.shape[1] != 3 or nc_ != 2:
             raise ValueError("sample_update with SIZES_FULL: n_w = 3, nc = 2 only")
@@ -315,8 +332,7 @@ def sample_update(idx, x, logw, gamma, mu, Lam, nu, b, P, h, D, L11, nu_w, L12, 
             for c2 in range(mch):
                 P[i, c, c2] = 0.5 * (Pn[c, c2] + Pn[c2, c])
     # 3. and 5.
-    _sample(idx, gamma, mu, Lam, nu, L11, nu_w, L12, Lc, v, z, chi, nu_draw, w, use_mask, bound, active, drift, lo,
-            hi, qw, ub, infl, n_w, nc)
+    _sample(idx, own, scratch, draws, w, learning, flags, qw, ub, n_w, nc)
     zd = math.nan
     if active and drift:
         finite = True

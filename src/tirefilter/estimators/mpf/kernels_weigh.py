@@ -70,10 +70,11 @@ def _normalise_into(logw, add):
 
 
 @njit(inline="always", **_JIT)
-def _weigh(x, a, B, full, roll_gain, h, D, nu, nu_w, gamma, Lam, L11, avail, L12, R, bias_on, P, Lc, mu, y, b, e, v, ll,
-           n_w, na):
+def _weigh(own, scratch, y, avail, R, roll_gain, full, bias_on, n_w, na):
     """Step 2 of `predict_weigh` (its arguments, n_w and na the sizes): per particle h, D, nu~ (nu_w),
-    L11, L12, Lc = chol(S), e, v and the Student-t log-density ll."""
+    L11, L12, Lc = chol(S), e, v and the Student-t log-density ll, into `scratch`."""
+    x, b, P, gamma, mu, Lam, nu, a, B, slip = own
+    af, ar, h, D, L11, nu_w, L12, Lc, e, v, ll, ok = scratch
     n, nx = x.shape
     DL = np.empty((max(na, 1), n_w))
     p = float(na)
@@ -165,11 +166,15 @@ def _weigh(x, a, B, full, roll_gain, h, D, nu, nu_w, gamma, Lam, L11, avail, L12
 
 # ---- the first pass ----------------------------------------------------------------------------
 @njit(**_JIT)
-def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, interval, jw, c_floor, noise, noise_scale,
-                  b, P, q, bias_on, forget, lam, nu_min, gamma, mu, Lam, nu, uk, y, avail, R, roll_gain, vp, full,
-                  rear_drive, h, D, L11, nu_w, L12, Lc, e, v, ll, ok, logw, nc, want_nis, beta, yaw_max, gate_speed,
-                  sizes):
-    """Steps 1 and 2 of `StiffnessMPF.step`, in place. Per particle: the first stage of the
+def predict_weigh(own, scratch, inputs, model, scalars, flags, nc, sizes):
+    """Steps 1 and 2 of `StiffnessMPF.step`, in place, on the workspace of `compiled._MPFWork`:
+      own = (x, b, P, gamma, mu, Lam, nu, a, B, slip), the particles' own arrays (read and written);
+      scratch = (af, ar, h, D, L11, nu_w, L12, Lc, e, v, ll, ok), the weighting's arrays (written);
+      inputs = (u_prev, uk, y, avail, w_prev, logw, noise, noise_scale), this sample's (logw written);
+      model = (vp, jw, c_floor, R, q); scalars = (dt, max_step, lam, nu_min, roll_gain, beta, yaw_max,
+      gate_speed); flags = (heun, interval, bias_on, forget, full, rear_drive, want_nis);
+      nc the accelerometer channels among `avail`; `sizes` below.
+    Per particle: the first stage of the
     propagation, a (N, 3), B (N, 3, n_w), slip (2, N) kept from the last sample, or with
     `interval` (full model, slip_hold = "interval") the model at x with the wheel slip averaged
     over the step (`_slip_over_step`, jw, c_floor as there, towards the slip of uk); propagate
@@ -195,6 +200,12 @@ def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, int
     signature of its own, compiled on its first call only, the first two with the sizes as
     constants, so that the compiler unrolls the small loops (`SIZES_FULL`, `SIZES_LATERAL`,
     `SIZES_ANY`)."""
+    x, b, P, gamma, mu, Lam, nu, a, B, slip = own
+    af, ar, h, D, L11, nu_w, L12, Lc, e, v, ll, ok = scratch
+    u_prev, uk, y, avail, w_prev, logw, noise, noise_scale = inputs
+    vp, jw, c_floor, R, q = model
+    dt, max_step, lam, nu_min, roll_gain, beta, yaw_max, gate_speed = scalars
+    heun, interval, bias_on, forget, full, rear_drive, want_nis = flags
     if sizes.ndim == 3:
         if mu.shape[1] != 3 or avail.shape[0] != 3:
             raise ValueError("predict_weigh with SIZES_FULL: n_w = na = 3 only")
@@ -212,6 +223,8 @@ def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, int
     mch = q.shape[0]
     kp = _steer_consts(u_prev[0], vp)  # (once per sample, not per particle)
     kk = _steer_consts(uk[0], vp)
+    up = (u_prev[0], u_prev[1], u_prev[2], u_prev[3])
+    uu = (uk[0], uk[1], uk[2], uk[3])
     n_sub = max(1, math.ceil(dt / max_step - 1e-9))
     hs = dt / n_sub
     with_noise = noise.shape[0] > 0
@@ -222,8 +235,9 @@ def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, int
             for j in range(n_wp):
                 acc0 += B[i, 0, j] * w_prev[i, j]
             acc0 = a[i, 0] + acc0
-            slip[0, i], slip[1, i] = _interval_slip1(x[i, 0], x[i, 1], x[i, 2], acc0, w_prev[i, 0], slip[0, i],
-                                                     slip[1, i], u_prev, uk, dt, vp, jw, c_floor, rear_drive)
+            slip[0, i], slip[1, i] = _interval_slip1((x[i, 0], x[i, 1], x[i, 2]), acc0, w_prev[i, 0],
+                                                     (slip[0, i], slip[1, i]), u_prev, uk, dt, vp, jw, c_floor,
+                                                     rear_drive)
     for i in range(n):
         # 1. propagation (`_propagate`), the first stage from the last sample; the state, w and the
         # model's values as scalars (`_model_t`, `_xdot_t`: in registers, not through scratch arrays)
@@ -235,8 +249,7 @@ def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, int
         w2 = w_prev[i, 2] if full else 0.0
         sf, sr = slip[0, i], slip[1, i]
         if interval:
-            m = _model_t(x0, x1, x2, u_prev[0], u_prev[1], u_prev[2], u_prev[3], kp, True, sf, sr, vp, True,
-                         rear_drive)
+            m = _model_t((x0, x1, x2), up, kp, True, sf, sr, vp, True, rear_drive)
         elif full:
             m = (a[i, 0], a[i, 1], a[i, 2], B[i, 0, 0], B[i, 0, 1], B[i, 0, 2], B[i, 1, 0], B[i, 1, 1], B[i, 1, 2],
                  B[i, 2, 0], B[i, 2, 1], B[i, 2, 2], 0.0, 0.0, 0.0, 0.0)
@@ -245,8 +258,7 @@ def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, int
                  B[i, 2, 1], 0.0, 0.0, 0.0, 0.0, 0.0)
         for s in range(n_sub):
             if s > 0:
-                m = _model_t(x0, x1, x2, u_prev[0], u_prev[1], u_prev[2], u_prev[3], kp, False, 0.0, 0.0, vp, full,
-                             rear_drive)
+                m = _model_t((x0, x1, x2), up, kp, False, 0.0, 0.0, vp, full, rear_drive)
                 sf, sr = m[14], m[15]
             k10, k11, k12 = _xdot_t(x0, x1, x2, u_prev[3], m, w0, w1, w2, full)
             if not heun:
@@ -258,8 +270,7 @@ def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, int
             y0 = x0 + hs * k10
             y1 = x1 + hs * k11
             y2 = x2 + hs * k12 if full else 0.0
-            m = _model_t(y0, y1, y2, u_prev[0], u_prev[1], u_prev[2], u_prev[3], kp, full, sf, sr, vp, full,
-                         rear_drive)
+            m = _model_t((y0, y1, y2), up, kp, full, sf, sr, vp, full, rear_drive)
             k20, k21, k22 = _xdot_t(y0, y1, y2, u_prev[3], m, w0, w1, w2, full)
             x0 = x0 + (0.5 * hs) * (k10 + k20)
             x1 = x1 + (0.5 * hs) * (k11 + k21)
@@ -285,7 +296,7 @@ def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, int
                 for k in range(n_wp):
                     Lam[i, j, k] = Lam[i, j, k] * f
         # the model at x_k, u_k (`_model`) and the plausible region (`_plausible`)
-        m = _model_t(x0, x1, x2, uk[0], uk[1], uk[2], uk[3], kk, False, 0.0, 0.0, vp, full, rear_drive)
+        m = _model_t((x0, x1, x2), uu, kk, False, 0.0, 0.0, vp, full, rear_drive)
         a[i, 0], a[i, 1], a[i, 2] = m[0], m[1], m[2]
         B[i, 0, 0], B[i, 0, 1] = m[3], m[4]
         B[i, 1, 0], B[i, 1, 1] = m[6], m[7]
@@ -297,8 +308,7 @@ def predict_weigh(x, u_prev, w_prev, a, B, af, ar, slip, dt, max_step, heun, int
         ok[i] = abs(x[i, nx - 2]) <= beta * max(abs(vxp), gate_speed) and abs(x[i, nx - 1]) <= yaw_max
         count += ok[i]
     # 2. the weights
-    _weigh(x, a, B, full, roll_gain, h, D, nu, nu_w, gamma, Lam, L11, avail, L12, R, bias_on, P, Lc, mu, y, b, e, v,
-           ll, n_w, na)
+    _weigh(own, scratch, y, avail, R, roll_gain, full, bias_on, n_w, na)
     innovation = math.nan
     if want_nis and nc:
         innovation = 0.0
