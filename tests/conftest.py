@@ -49,7 +49,7 @@ NOISE_OFF = {
 
 def _warm_mpf(model: str, missing: bool = False, gap: bool = False) -> None:
     from tirefilter.estimators.base import Inputs, Measurement
-    from tirefilter.estimators.stiffness_mpf import MPFConfig, StiffnessMPF
+    from tirefilter.estimators.mpf import MPFConfig, StiffnessMPF
     from tirefilter.scenarios import load_scenario
 
     vehicle = load_scenario("paper-sim").vehicle

@@ -388,7 +388,7 @@ def _build_each(config: dict) -> None:
 # -- state files ------------------------------------------------------------------------------
 def base_state() -> dict:
     from tirefilter.estimators.state_file import FORMAT, _vehicle_record
-    from tirefilter.estimators.stiffness_mpf import MPFConfig, StiffnessMPF
+    from tirefilter.estimators.mpf import MPFConfig, StiffnessMPF
     from tirefilter.vehicle.params import load_vehicle
 
     vehicle = load_vehicle(VEHICLE_FILE)
@@ -404,7 +404,7 @@ def fuzz_state(tmp: Path, content) -> None:
     order: not JSON, not this format, another format version, the vehicle (not a table, or
     another vehicle's), then the statistics; a state that loads is used by the next reset."""
     from tirefilter.estimators.state_file import FORMAT, FORMAT_VERSION, _vehicle_record, load_state
-    from tirefilter.estimators.stiffness_mpf import MPFConfig, StiffnessMPF
+    from tirefilter.estimators.mpf import MPFConfig, StiffnessMPF
     from tirefilter.vehicle.params import load_vehicle
 
     path = tmp / "state.json"

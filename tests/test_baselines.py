@@ -254,7 +254,7 @@ def test_a_missing_ay_sample_does_not_open_a_baselines_gate(name):
     from test_stiffness_mpf import _steady_turn  # tests/, on the path as the other test helpers
 
     from tirefilter.estimators import _baseline
-    from tirefilter.estimators.stiffness_mpf import MPFConfig
+    from tirefilter.estimators.mpf import MPFConfig
 
     vehicle = load_scenario("paper-sim").vehicle
     cfg = MPFConfig(model="lateral", particles=100, bias0_std=(0.0, 0.0, 0.0), bias_rw=(0.0, 0.0, 0.0),

@@ -55,7 +55,7 @@ def compiled_kernels(fmu_paths):
     through a small default MPF, full and lateral model, and 0.2 s of friction-snow through
     a small GP-SSM."""
     from tirefilter.estimators.base import Inputs, Measurement
-    from tirefilter.estimators.stiffness_mpf import MPFConfig, StiffnessMPF
+    from tirefilter.estimators.mpf import MPFConfig, StiffnessMPF
 
     vehicle = load_scenario("paper-sim").vehicle
     omega = 20.0 / vehicle.wheel_radius

@@ -23,7 +23,7 @@ from scipy.special import logsumexp
 from scipy.stats import multivariate_t
 
 from tirefilter.estimators.base import Inputs, Measurement
-from tirefilter.estimators.stiffness_mpf import MPFConfig, StiffnessMPF
+from tirefilter.estimators.mpf import MPFConfig, StiffnessMPF
 from tirefilter.scenarios import load_scenario
 from tirefilter.stats.niw import NiW
 

@@ -22,7 +22,7 @@ import pytest
 
 from tirefilter.estimators.base import Inputs, Measurement
 from tirefilter.estimators.friction_gpssm import FrictionGPSSM, GPSSMConfig
-from tirefilter.estimators.stiffness_mpf import MPFConfig, StiffnessMPF
+from tirefilter.estimators.mpf import MPFConfig, StiffnessMPF
 from tirefilter.scenarios import load_scenario
 from tirefilter.stats.gp import GPBasis1D, make_basis
 from tirefilter.stats.mniw import make_mniw
@@ -345,7 +345,7 @@ def test_backend_is_checked():
 @pytest.mark.parametrize("undriven", ["surface", "nominal"])
 @pytest.mark.parametrize("drive", ["front", "rear"])
 def test_slip_over_step_kernel_equal(drive, undriven):
-    """`mpf_numba.slip_over_step` against `StiffnessMPF._slip_over_step` on a spread of
+    """`single_track_numba.slip_over_step` against `single_track.slip_over_step` on a spread of
     particles (traction and braking slips, a driven stiffness deviation below the floor),
     and the reference's interval slip between the slips at the two ends of the step."""
     import dataclasses

@@ -13,7 +13,7 @@ from tirefilter.cosim.run import run_scenario
 from tirefilter.errors import ConfigError
 from tirefilter.estimators import build_estimator
 from tirefilter.estimators.base import Inputs, Measurement
-from tirefilter.estimators.stiffness_mpf import MPFConfig, StiffnessMPF
+from tirefilter.estimators.mpf import MPFConfig, StiffnessMPF
 from tirefilter.metrics import settling_time, stiffness_errors
 from tirefilter.scenarios import load_scenario
 
@@ -279,7 +279,7 @@ def test_cx_excitation_weight_is_the_contraction_of_the_linear_gaussian_posterio
     """rho = I P_0 / (1 + I P_0) equals 1 - P_N / P_0 of the scalar Kalman filter of
     y_k = b_k w + e_k (prior variance P_0, noise variance R) after the same regressors, and
     the exact values at its ends (derivations, "The undriven axle")."""
-    from tirefilter.estimators.stiffness_mpf import cx_excitation_weight
+    from tirefilter.estimators.mpf import cx_excitation_weight
 
     rng = np.random.default_rng(2)
     b, R, P0 = rng.normal(0.0, 5e-6, 300), 0.05**2, (0.3 * 2.632e5) ** 2

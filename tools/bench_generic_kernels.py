@@ -1,5 +1,5 @@
 """What the MPF's specialised kernels buy (docs/development.md, "How long `make test` takes"): the step with the shipped kernels against the same step with the generic ones
-(`mpf_numba.predict_weigh` / `sample_update` with `SIZES_ANY`, the sizes as variables, which the
+(`estimators.mpf.kernels.predict_weigh` / `sample_update` with `SIZES_ANY`, the sizes as variables, which the
 step already uses when a channel is missing) in place of `SIZES_FULL` / `SIZES_LATERAL`, in one process, alternated round by round:
 
     .venv/bin/python tools/bench_generic_kernels.py [--particles 500] [--rounds 5]

@@ -101,7 +101,7 @@ def mpf_config_for_log(vehicle, t, signals: dict, *, model: str, particles: int 
 def _mpf_config(model: str, *, particles: int | None, sample_period: float | None, sigma, x0_mean, overrides: dict,
                 **kw):
     """What a scenario and a log both set, then the user's overrides."""
-    from tirefilter.estimators.stiffness_mpf import MPFConfig
+    from tirefilter.estimators.mpf import MPFConfig
 
     defaults = MPFConfig()
     config = MPFConfig(model=model, particles=particles or defaults.particles,
@@ -209,7 +209,7 @@ def build_estimator(name: str, scenario, *, model: str, particles: int | None, c
 
 def _build_estimator(name: str, scenario, *, model: str, particles: int | None, config: dict):
     if _known(name) == "mpf":
-        from tirefilter.estimators.stiffness_mpf import StiffnessMPF
+        from tirefilter.estimators.mpf import StiffnessMPF
 
         model = resolve_model(model, scenario.sensors)
         check_model_signals(model, scenario.sensors, scenario.file, "sensors")
@@ -227,7 +227,7 @@ def _build_estimator(name: str, scenario, *, model: str, particles: int | None, 
         p = scenario.model.pacejka
         mpf = None
         if name == "combined":
-            from tirefilter.estimators.stiffness_mpf import StiffnessMPF
+            from tirefilter.estimators.mpf import StiffnessMPF
 
             mpf = StiffnessMPF(scenario.vehicle, mpf_config_for_scenario(scenario, model="lateral", particles=None,
                                                                          overrides=config.get("mpf", {})))
@@ -286,7 +286,7 @@ def _with_sensors(estimator, sensors):
 def _build_log_estimator(name: str, vehicle, t, signals: dict, *, model: str, particles: int | None, config: dict,
                          source, sensors):
     if _known(name) == "mpf":
-        from tirefilter.estimators.stiffness_mpf import StiffnessMPF
+        from tirefilter.estimators.mpf import StiffnessMPF
 
         model = resolve_model(model, signals)
         check_model_signals(model, tuple(signals), source, "columns")
@@ -305,7 +305,7 @@ def _build_log_estimator(name: str, vehicle, t, signals: dict, *, model: str, pa
         check_model_signals(_friction_model(model), tuple(signals), source, "columns")
         mpf = None
         if name == "combined":
-            from tirefilter.estimators.stiffness_mpf import StiffnessMPF
+            from tirefilter.estimators.mpf import StiffnessMPF
 
             mpf = StiffnessMPF(vehicle, mpf_config_for_log(vehicle, t, signals, model="lateral", particles=None,
                                                            overrides=config.get("mpf", {}), sensors=sensors))

@@ -39,7 +39,7 @@ from tirefilter.stats.gp import GPBasis1D, make_basis
 from tirefilter.stats.mniw import make_mniw
 from tirefilter.stats.student_t import t_sample
 from tirefilter.vehicle.params import VehicleParams
-from tirefilter.vehicle.single_track import GRAVITY
+from tirefilter.vehicle.single_track import GRAVITY, slip_angles
 from tirefilter.vehicle.tires import magic_formula
 
 NAN = math.nan
@@ -270,8 +270,7 @@ class FrictionGPSSM:
         """Slip angles of eq. (4) (single track): alpha_f = delta - atan((vy + lf r) / vx),
         alpha_r = -atan((vy - lr r) / vx)."""
         v = self.vehicle
-        vx = max(vx, 1.0)
-        return delta - np.arctan((x[:, 0] + v.lf * x[:, 1]) / vx), -np.arctan((x[:, 0] - v.lr * x[:, 1]) / vx)
+        return slip_angles(max(vx, 1.0), x[:, 0], x[:, 1], delta, v.lf, v.lr)
 
     def _propagate(self, x, u, dt):
         """Eq. (1a)-(1b) with mu^x = 0 and the friction mu_k drawn at this sample held over

@@ -79,6 +79,7 @@ from tirefilter.estimators.base import Estimate
 from tirefilter.stats.mniw_numba import _factor, _phi1, _rank1_forget1, _rank1_update1, exact_update
 from tirefilter.stats.particles_numba import systematic_into
 from tirefilter.stats.student_t import t_draws
+from tirefilter.vehicle.single_track_numba import slip_angles1
 
 _JIT = dict(cache=True, nogil=True, no_cfunc_wrapper=True)  # (no C callback is taken of a kernel)
 # a helper only kernels call: no wrapper for Python calls (called from Python it crashes the
@@ -142,8 +143,7 @@ def front(x, mu, work, propagate, n_sub, h, cd, vx_prev, Fz0, Fz1, mass, lf, lr,
                 x0 += h * (ay - vx_prev * x1)
                 x1 += h * rdot
             x[i, 0], x[i, 1] = x0, x1
-        af = delta - math.atan((x0 + lf * x1) / vxc)
-        ar = -math.atan((x0 - lr * x1) / vxc)
+        af, ar = slip_angles1(vxc, x0, x1, delta, lf, lr)
         if abs(af) > L or abs(ar) > L:
             out += 1
         af = min(max(af, -L), L)
