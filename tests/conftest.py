@@ -56,14 +56,18 @@ def _warm_mpf(model: str, missing: bool = False, gap: bool = False) -> None:
     omega = 20.0 / vehicle.wheel_radius
     est = StiffnessMPF(vehicle, MPFConfig(particles=8, model=model))
     est.reset(np.random.default_rng(0))
-    # missing: only the first compiled step (k = 1), with a^Y missing: the passes' signatures with the
-    # sizes as variables (`SIZES_ANY`), not the full model's (another worker may be compiling those)
-    # gap: a 1 s gap after the first sample, the propagation across it (`propagate`, `slip_over_step`:
-    # no other task reaches them, and both workers' tests did, each compiling them)
-    for k in range(2 if (missing or gap) else 6):
-        ay = math.nan if (missing and k == 1) else 0.5
-        est.step(0.01 * k + (1.0 if gap and k else 0.0), Inputs(delta=0.01, omega_f=omega, omega_r=omega, vx=20.0),
+    # missing: two compiled steps with a^Y missing: the passes' signatures with the sizes as variables
+    # (`SIZES_ANY`), not the full model's (another worker may be compiling those)
+    # gap: after the first sample, the model's compiled propagation across a 1 s gap (the model twin's
+    # `propagate`, `slip_over_step`: the AUGPF and the tests' reference calls reach them, and both workers'
+    # tests did, each compiling them; the filter's own step across a gap runs the passes of mpf-full)
+    for k in range(1 if gap else 2 if missing else 6):
+        ay = math.nan if missing else 0.5
+        est.step(0.01 * k, Inputs(delta=0.01, omega_f=omega, omega_r=omega, vx=20.0),
                  Measurement(ax=0.0, ay=ay, yaw_rate=0.03))
+    if gap:
+        first = est._slip_over_step(est.x, est.u_prev, est.u_prev, est.w_prev, est._at_x, 1.0)
+        est._propagate(est.x, est.u_prev, est.w_prev, 1.0, first)
 
 
 def _warm_gpssm(**config) -> None:

@@ -433,7 +433,7 @@ def test_stiffness_mpf_backends_equal(model, bias, restarts, paper, monkeypatch)
     False: the surface-scaled undriven axle; "learned": the undriven axle scaled by the excitation
     weight of Cx (the default), on a drive whose front slip swings by 0.5% (the weight grows), and
     the v^Y noise of the adaptive forgetting's innovation statistic (`vy_jitter`).
-    The numba filter runs its fused step (`_step_compiled`) on every sample but the first
+    The numba filter runs its fused step (`_step_compiled`) on every sample, the first among them
     (a restart is decided inside it); the numpy filter never does."""
     if paper == "learned" and model == "lateral":
         pytest.skip("the lateral model has no Cx")
@@ -453,7 +453,7 @@ def test_stiffness_mpf_backends_equal(model, bias, restarts, paper, monkeypatch)
     (a, fast), (b, ref) = runs["numba"], runs["numpy"]
     if paper == "learned" and not restarts:  # the weight has grown: the undriven axle's share moved
         assert b[-1, -2] > 0.5 and b[-1, -1] == pytest.approx(b[-1, -2] * ref.full_share)
-    assert fused[id(ref)] == 0 and fused[id(fast)] == 79  # (a restart is decided inside the fused step)
+    assert fused[id(ref)] == 0 and fused[id(fast)] == 80  # (a restart is decided inside the fused step)
     assert ref.resamples >= 30 and fast.resamples == ref.resamples
     assert fast.restarts == ref.restarts and (ref.restarts >= 2 if restarts else ref.restarts == 0)
     assert np.isfinite(b[:, :7]).all()
@@ -485,10 +485,10 @@ def _count_fused_steps(monkeypatch) -> dict:
     return calls
 
 
-def test_stiffness_mpf_gap_step_takes_the_reference_path(monkeypatch):
+def test_stiffness_mpf_gap_step_takes_the_compiled_path(monkeypatch):
     """A 0.6 s gap (longer than gap_after, 0.5 s) before sample 30: the numba filter runs that
-    step through the numpy reference (v^X drawn again from the wheels), then the fused step
-    again from arrays the reference replaced; both backends stay equal to rounding."""
+    step through the fused step too (sub-steps, v^X drawn again from the wheels); both backends
+    stay equal to rounding."""
     fused = _count_fused_steps(monkeypatch)
     vehicle = load_scenario("paper-sim").vehicle
     runs = {}
@@ -499,7 +499,7 @@ def test_stiffness_mpf_gap_step_takes_the_reference_path(monkeypatch):
         runs[backend] = (_mpf_drive(est, 60, gap=0.6), est)
     (a, fast), (b, ref) = runs["numba"], runs["numpy"]
     assert ref.gap_redraws == fast.gap_redraws == 1 and ref.restarts == fast.restarts == 0
-    assert fused[id(ref)] == 0 and fused[id(fast)] == 60 - 2  # not the first sample, not the gap
+    assert fused[id(ref)] == 0 and fused[id(fast)] == 60  # the first sample and the gap among them
     _assert_mpf_runs_equal(a, b, fast, ref)
 
 
@@ -518,7 +518,7 @@ def test_stiffness_mpf_backends_equal_with_the_wheel_filter(monkeypatch):
         runs[backend] = (_mpf_drive(est, 60, gap=0.6, slip_wave=0.005), est)
     (a, fast), (b, ref) = runs["numba"], runs["numpy"]
     assert ref.wheels is not None and fast.wheels is not None
-    assert fused[id(fast)] == 60 - 2 and ref.gap_redraws == fast.gap_redraws == 1
+    assert fused[id(fast)] == 60 and ref.gap_redraws == fast.gap_redraws == 1
     assert_equal_to_rounding(fast.wheels.s, ref.wheels.s, "filtered wheel speeds")
     _assert_mpf_runs_equal(a, b, fast, ref)
 
@@ -555,7 +555,7 @@ def test_stiffness_mpf_backends_equal_options(options, model, monkeypatch):
         est = StiffnessMPF(vehicle, cfg)
         runs[backend] = (_mpf_drive(est, 60), est)
     (a, fast), (b, ref) = runs["numba"], runs["numpy"]
-    assert fused[id(fast)] == 59 and fast.resamples == ref.resamples >= 20
+    assert fused[id(fast)] == 60 and fast.resamples == ref.resamples >= 20
     assert np.isfinite(b[:, :7]).all()
     if options == "calibration-batches":
         assert ref._calib.batches >= 10 and ref._calib.factor.max() > 1.0
@@ -605,7 +605,7 @@ def test_stiffness_mpf_bound_restart_in_the_fused_step_equal(monkeypatch):
         est = StiffnessMPF(vehicle, cfg)
         runs[backend] = (_mpf_drive(est, 60), est)
     (a, fast), (b, ref) = runs["numba"], runs["numpy"]
-    assert ref.restarts >= 2 and fast.restarts == ref.restarts and fused[id(fast)] == 59
+    assert ref.restarts >= 2 and fast.restarts == ref.restarts and fused[id(fast)] == 60
     _assert_mpf_runs_equal(a, b, fast, ref)
 
 
@@ -790,7 +790,7 @@ def test_stiffness_mpf_backends_equal_with_surprise_inflation(model, in_stats, m
             rows.append(_mpf_outputs(est.step(t, u, y)))
         runs[backend] = (np.array(rows), est, c_max, c_disarmed)
     (a, fast, c_fast, off_fast), (b, ref, c_ref, off_ref) = runs["numba"], runs["numpy"]
-    assert fused[id(fast)] == 59 and c_ref > 2.5 and c_fast == pytest.approx(c_ref, rel=1e-9)
+    assert fused[id(fast)] == 60 and c_ref > 2.5 and c_fast == pytest.approx(c_ref, rel=1e-9)
     assert fast.learned_time == pytest.approx(ref.learned_time, abs=1e-12) and ref.learned_time > after + 0.2
     if after > 0:  # disarmed while the gate had been open less than `after`, though z was above 1
         assert len(off_ref) == len(off_fast) > 10 and all(c == 1.0 for c, _ in off_ref + off_fast)

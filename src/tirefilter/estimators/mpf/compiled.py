@@ -21,21 +21,41 @@ _new_object = object.__new__  # (`CompiledStep._estimate_fused`)
 class CompiledStep:
     """`StiffnessMPF._step_compiled` and what it needs: the fused estimate and the work arrays."""
 
-    def _step_compiled(self, t: float, uk: np.ndarray, y: Measurement, dt: float) -> Estimate:
-        """Steps 1-5 of `step` for every sample after the first, by three compiled passes over
-        the particles (`kernels.predict_weigh`, `resample_gate`, `sample_update`) on arrays
-        allocated once (`_MPFWork`), with the random numbers drawn here by the reference's
+    def _step_compiled(self, t: float, uk: np.ndarray, y: Measurement, dt: float, u_now: np.ndarray) -> Estimate:
+        """Steps 1-5 of `step` (`_step`, the numpy reference) for every sample, by three compiled
+        passes over the particles (`kernels.predict_weigh`, `resample_gate`, `sample_update`) on
+        arrays allocated once (`_MPFWork`), with the random numbers drawn here by the reference's
         generator calls in the reference's order: the same numbers as the numpy path
-        (tests/test_kernels.py). The rare branches (restarts) go through the reference methods."""
+        (tests/test_kernels.py). The first sample skips the propagation and, with the informed
+        start, takes its weights (`_informed_start`) instead of the likelihood's; after a gap
+        v^X is drawn again from the wheel speeds `u_now` (`_redraw_after_gap`). A restart
+        (`_restart`) draws the prior with the reference's methods."""
         cfg, nb, rng = self.cfg, self._nb, self.rng
+        start = self.t_prev is None
         wk = self._work()
-        if self.state_noise is not None:  # optional regularisation against sample impoverishment
-            noise, noise_scale = rng.standard_normal(self.x.shape), self._state_noise_scale(dt)
-        else:
-            noise, noise_scale = wk.no_noise, wk.no_scale
         ch = self.channels
         yl = [y.ax, y.ay, y.yaw_rate] if self.full else [y.ay, y.yaw_rate]
         yk = np.array(yl, float)
+        # the predictive weights (`_predict_ay`: the gate's a^Y prediction, the residual of `_calibrate`;
+        # `_match_state_noise`), into a buffer
+        logw_pred = None
+        if wk.keep_pred:
+            logw_pred = wk.logw_pred
+            np.copyto(logw_pred, self.logw)
+        redraw, weigh = wk.no_redraw, True
+        if start:  # the first sample: the informed start's weights in place of the likelihood's
+            self.t_start = t
+            if cfg.informed_start:
+                self.logw, weigh = self._informed_start(uk, yk), False
+        elif self._gap(dt):  # v^X drawn again around the wheel speeds after the gap (`_redraw_after_gap`)
+            vx = self._vx_from_wheels(u_now)
+            if math.isfinite(vx):
+                redraw = vx + cfg.x0_vx_wheel_std * rng.standard_normal(cfg.particles)
+                self.gap_redraws += 1
+        if self.state_noise is not None and not start:  # optional regularisation against sample impoverishment
+            noise, noise_scale = rng.standard_normal(self.x.shape), self._state_noise_scale(dt)
+        else:
+            noise, noise_scale = wk.no_noise, wk.no_scale
         if math.isfinite(sum(yl)):  # the kernels compiled for this model's sizes (kernels.SIZES_FULL ...)
             a, nc, sizes = wk.avail_all, wk.nc_all, wk.sizes_all
         else:
@@ -43,19 +63,13 @@ class CompiledStep:
             a = np.flatnonzero(np.isfinite(yk))
             nc = int(sum(ch[j] in (0, 1) for j in a))
         adaptive = cfg.forgetting_mode == "adaptive"
-        u_prev = self.u_prev
+        u_prev = uk if start else self.u_prev  # (not read without the propagation)
         self.t_prev, self.u_prev = t, uk
-        # the predictive weights (`_predict_ay`: the gate's a^Y prediction, the residual of `_calibrate`;
-        # `_match_state_noise`), into a buffer
-        logw_pred = None
-        if wk.keep_pred:
-            logw_pred = wk.logw_pred
-            np.copyto(logw_pred, self.logw)
         innovation, ess, count, nu_common = nb.predict_weigh(
-            wk.own, wk.scratch, (u_prev, uk, yk, a, self.w_prev, self.logw, noise, noise_scale),
+            wk.own, wk.scratch, (u_prev, uk, yk, a, self.w_prev, self.logw, noise, noise_scale, redraw),
             wk.model[self.linear_region],
             (dt, wk.max_step, float(self.lam), self.nu0, self.roll_gain, wk.beta, wk.yaw_max, wk.gate_speed),
-            wk.flags[self.active], nc, sizes)
+            wk.flags[self.active] if not start else wk.start_flags[weigh], nc, sizes)
         if math.isfinite(innovation):  # adaptive forgetting (`_adapt_forgetting`)
             self._smooth_surprise(innovation, dt)
         if wk.predicted_ay and a.size:  # (the calibration's residual alone waits for the gate: `_ay_residual`)
@@ -68,7 +82,7 @@ class CompiledStep:
         if count < cfg.particles:  # some particles left the plausible region (`_plausible`)
             self.logw = normalize_log_weights(np.where(wk.ok, self.logw, -np.inf))
             ess = -1.0
-        if cfg.state_noise_from_data and a.size:
+        if cfg.state_noise_from_data and a.size and weigh:
             self._match_state_noise(logw_pred, dt)
         if ess < 0:
             ess = float(effective_sample_size(self.logw))
@@ -142,6 +156,13 @@ class CompiledStep:
                             b_yaw_rate=bm[1], ess=float(ess), state_std=(0.0, xs[0], xs[1]))
         return est
 
+    def _estimate_compiled(self, ess: float) -> Estimate:
+        """`_estimate` by the compiled moments (`kernels.estimate_moments`) and `_estimate_fused`."""
+        st = self.stats
+        mom = np.zeros((6, max(self.x.shape[1], self.n_w, len(self.channels))))
+        self._nb.estimate_moments(self.logw, self.x, st.gamma, st.mu, st.Lam, st.nu, self.b, mom)
+        return self._estimate_fused(ess, mom)
+
     def _ay_residual(self, a: np.ndarray, logw_pred: np.ndarray, wk: "_MPFWork") -> None:
         """`_predict_ay`'s `_e_ay` for the fused step, the residual of the calibration ("Batch-means sandwich"):
         the same expression on the column of a^Y (looked up once when every channel is there) and
@@ -156,9 +177,10 @@ class CompiledStep:
         reference path replaced (first sample, restart, a loaded state) is copied in."""
         wk = self.__dict__.get("_wk")
         st = self.stats
+        first = self.__dict__.get("_at_x")  # (none before the first sample)
         if (wk is not None and self.x is wk.x and self.w_prev is wk.w and st.mu is wk.mu and st.Lam is wk.Lam
                 and st.gamma is wk.gamma and st.nu is wk.nu and self.b is wk.b and self.P is wk.P
-                and self._at_x[0] is wk.a):  # the last sample's fused step left them all in place
+                and first is not None and first[0] is wk.a):  # the last sample's fused step left them all in place
             return wk
         nx = self.x.shape[1]
         if wk is None or wk.x.shape != self.x.shape:
@@ -166,12 +188,11 @@ class CompiledStep:
         for name, arr in (("x", self.x), ("b", self.b), ("P", self.P), ("gamma", st.gamma), ("mu", st.mu),
                           ("Lam", st.Lam), ("nu", st.nu), ("w", self.w_prev)):
             buf = getattr(wk, name)
-            if arr is not buf:
+            if arr is not buf and arr is not None:  # (no w before the first sample)
                 buf[...] = arr
         self.x, self.b, self.P, self.w_prev = wk.x, wk.b, wk.P, wk.w
         st.gamma, st.mu, st.Lam, st.nu = wk.gamma, wk.mu, wk.Lam, wk.nu
-        first = self._at_x
-        if first[0] is not wk.a:
+        if first is not None and first[0] is not wk.a:
             wk.a[...], wk.B[...] = first[0], first[1]
             wk.slip[...] = 0.0 if first[4] is None else first[4]
         return wk
@@ -236,8 +257,13 @@ class _MPFWork:
         self.yaw_max, self.gate_speed = float(cfg.plausible_yaw_rate), float(cfg.gate_speed)
         self.model = {linear: (mpf._vp, mpf._jw, mpf._c_floor, mpf.R, mpf.q_bias if linear else mpf.q_bias_nonlinear)
                       for linear in (False, True)}
-        self.flags = {active: (self.heun, self.interval, mpf.bias_on, active, mpf.full, mpf.rear_drive,
-                               cfg.forgetting_mode == "adaptive") for active in (False, True)}
+        adaptive = cfg.forgetting_mode == "adaptive"
+        self.flags = {active: (self.heun, self.interval, mpf.bias_on, active, mpf.full, mpf.rear_drive, adaptive,
+                               True, True) for active in (False, True)}
+        # the first sample's: no propagation; the likelihood's weights, or the informed start's (`start_flags[False]`)
+        self.start_flags = {weigh: (self.heun, self.interval, mpf.bias_on, False, mpf.full, mpf.rear_drive,
+                                    adaptive and weigh, False, weigh) for weigh in (False, True)}
+        self.no_redraw = np.zeros(0)  # (`predict_weigh`'s redraw when v^X is not drawn again)
 
         self.own = tuple(getattr(self, name) for name in self.OWN)
         self.spares = tuple(getattr(self, name + "2") for name in self.OWN)

@@ -253,16 +253,16 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
             self._draw_prior_stats()
         # 1. propagate from the previous sample
         dt = t - self.t_prev if self.t_prev is not None else cfg.sample_period
+        if self.t_prev is not None and dt <= 0:
+            raise ConfigError("inputs", "t", f"time must increase: {t} after {self.t_prev}")
+        if self._nb is not None:  # every sample by three compiled passes; the numpy code below is the reference
+            return self._step_compiled(t, uk, y, dt, u_now)
         if self.t_prev is not None:
-            if dt <= 0:
-                raise ConfigError("inputs", "t", f"time must increase: {t} after {self.t_prev}")
-            if self._nb is not None and not self._gap(dt):  # the usual sample: three compiled passes
-                return self._step_compiled(t, uk, y, dt)
             first = self._at_x
             if self.full and cfg.slip_hold == "interval":
                 first = self._slip_over_step(self.x, self.u_prev, uk, self.w_prev, first, dt)
             self.x = self._propagate(self.x, self.u_prev, self.w_prev, dt, first)
-            self._redraw_after_gap(dt, u_now)  # (a gap: the compiled backend comes this way too)
+            self._redraw_after_gap(dt, u_now)
             if self.state_noise is not None:  # optional regularisation against sample impoverishment
                 self.x = self.x + self._state_noise_scale(dt) * self.rng.standard_normal(self.x.shape)
             if self.bias_on:

@@ -170,16 +170,20 @@ def predict_weigh(own, scratch, inputs, model, scalars, flags, nc, sizes):
     """Steps 1 and 2 of `StiffnessMPF.step`, in place, on the workspace of `compiled._MPFWork`:
       own = (x, b, P, gamma, mu, Lam, nu, a, B, slip), the particles' own arrays (read and written);
       scratch = (af, ar, h, D, L11, nu_w, L12, Lc, e, v, ll, ok), the weighting's arrays (written);
-      inputs = (u_prev, uk, y, avail, w_prev, logw, noise, noise_scale), this sample's (logw written);
-      model = (vp, jw, c_floor, R, q); scalars = (dt, max_step, lam, nu_min, roll_gain, beta, yaw_max,
-      gate_speed); flags = (heun, interval, bias_on, forget, full, rear_drive, want_nis);
-      nc the accelerometer channels among `avail`; `sizes` below.
-    Per particle: the first stage of the
+      inputs = (u_prev, uk, y, avail, w_prev, logw, noise, noise_scale, redraw), this sample's
+      (logw written); model = (vp, jw, c_floor, R, q); scalars = (dt, max_step, lam, nu_min, roll_gain,
+      beta, yaw_max, gate_speed); flags = (heun, interval, bias_on, forget, full, rear_drive, want_nis,
+      propagate, weigh); nc the accelerometer channels among `avail`; `sizes` below.
+    `propagate` False (the first sample) skips step 1 (propagation, bias prediction, forgetting);
+    `weigh` False (the informed start) normalises the start's weights that the caller put in logw
+    instead of adding the likelihood. Per particle: the first stage of the
     propagation, a (N, 3), B (N, 3, n_w), slip (2, N) kept from the last sample, or with
     `interval` (full model, slip_hold = "interval") the model at x with the wheel slip averaged
     over the step (`_slip_over_step`, jw, c_floor as there, towards the slip of uk); propagate
     x (N, nx) (`_propagate`: eq. (9), w_prev held, `max_step` sub-steps), add the state noise
-    noise_scale * noise (the caller's normals; noise of shape (0, nx) when off), predict the
+    noise_scale * noise (the caller's normals; noise of shape (0, nx) when off; after a gap v^X
+    first set to redraw (N,), the caller's draw around the wheel speeds, `_redraw_after_gap`; redraw
+    of shape (0,) otherwise), predict the
     bias covariance P += diag(q dt) (eq. (29)), forget (`NiW.forget`, eq. (20), when
     `forget`), evaluate the model at x_k with uk (`_model`: a, B, af, ar, slip, the first
     stage of the next propagation), mark the plausible particles (`_plausible`: ok), and for
@@ -202,10 +206,10 @@ def predict_weigh(own, scratch, inputs, model, scalars, flags, nc, sizes):
     `SIZES_ANY`)."""
     x, b, P, gamma, mu, Lam, nu, a, B, slip = own
     af, ar, h, D, L11, nu_w, L12, Lc, e, v, ll, ok = scratch
-    u_prev, uk, y, avail, w_prev, logw, noise, noise_scale = inputs
+    u_prev, uk, y, avail, w_prev, logw, noise, noise_scale, redraw = inputs
     vp, jw, c_floor, R, q = model
     dt, max_step, lam, nu_min, roll_gain, beta, yaw_max, gate_speed = scalars
-    heun, interval, bias_on, forget, full, rear_drive, want_nis = flags
+    heun, interval, bias_on, forget, full, rear_drive, want_nis, propagate, weigh = flags
     if sizes.ndim == 3:
         if mu.shape[1] != 3 or avail.shape[0] != 3:
             raise ValueError("predict_weigh with SIZES_FULL: n_w = na = 3 only")
@@ -228,8 +232,9 @@ def predict_weigh(own, scratch, inputs, model, scalars, flags, nc, sizes):
     n_sub = max(1, math.ceil(dt / max_step - 1e-9))
     hs = dt / n_sub
     with_noise = noise.shape[0] > 0
+    with_redraw = redraw.shape[0] > 0
     count = 0
-    if interval:  # the slip over the step (`_slip_over_step`) into slip, in a short loop of its own
+    if interval and propagate:  # the slip over the step (`_slip_over_step`) into slip, in a short loop of its own
         for i in range(n):
             acc0 = 0.0
             for j in range(n_wp):
@@ -239,62 +244,65 @@ def predict_weigh(own, scratch, inputs, model, scalars, flags, nc, sizes):
                                                      (slip[0, i], slip[1, i]), u_prev, uk, dt, vp, jw, c_floor,
                                                      rear_drive)
     for i in range(n):
-        # 1. propagation (`_propagate`), the first stage from the last sample; the state, w and the
-        # model's values as scalars (`_model_t`, `_xdot_t`: in registers, not through scratch arrays)
         x0 = x[i, 0]
         x1 = x[i, 1]
         x2 = x[i, 2] if full else 0.0
-        w0 = w_prev[i, 0]
-        w1 = w_prev[i, 1]
-        w2 = w_prev[i, 2] if full else 0.0
-        sf, sr = slip[0, i], slip[1, i]
-        if interval:
-            m = _model_t((x0, x1, x2), up, kp, True, sf, sr, vp, True, rear_drive)
-        elif full:
-            m = (a[i, 0], a[i, 1], a[i, 2], B[i, 0, 0], B[i, 0, 1], B[i, 0, 2], B[i, 1, 0], B[i, 1, 1], B[i, 1, 2],
-                 B[i, 2, 0], B[i, 2, 1], B[i, 2, 2], 0.0, 0.0, 0.0, 0.0)
-        else:
-            m = (a[i, 0], a[i, 1], a[i, 2], B[i, 0, 0], B[i, 0, 1], 0.0, B[i, 1, 0], B[i, 1, 1], 0.0, B[i, 2, 0],
-                 B[i, 2, 1], 0.0, 0.0, 0.0, 0.0, 0.0)
-        for s in range(n_sub):
-            if s > 0:
-                m = _model_t((x0, x1, x2), up, kp, False, 0.0, 0.0, vp, full, rear_drive)
-                sf, sr = m[14], m[15]
-            k10, k11, k12 = _xdot_t(x0, x1, x2, u_prev[3], m, w0, w1, w2, full)
-            if not heun:
-                x0 = x0 + hs * k10
-                x1 = x1 + hs * k11
+        if propagate:
+            # 1. propagation (`_propagate`), the first stage from the last sample; the state, w and the
+            # model's values as scalars (`_model_t`, `_xdot_t`: in registers, not through scratch arrays)
+            w0 = w_prev[i, 0]
+            w1 = w_prev[i, 1]
+            w2 = w_prev[i, 2] if full else 0.0
+            sf, sr = slip[0, i], slip[1, i]
+            if interval:
+                m = _model_t((x0, x1, x2), up, kp, True, sf, sr, vp, True, rear_drive)
+            elif full:
+                m = (a[i, 0], a[i, 1], a[i, 2], B[i, 0, 0], B[i, 0, 1], B[i, 0, 2], B[i, 1, 0], B[i, 1, 1],
+                     B[i, 1, 2], B[i, 2, 0], B[i, 2, 1], B[i, 2, 2], 0.0, 0.0, 0.0, 0.0)
+            else:
+                m = (a[i, 0], a[i, 1], a[i, 2], B[i, 0, 0], B[i, 0, 1], 0.0, B[i, 1, 0], B[i, 1, 1], 0.0, B[i, 2, 0],
+                     B[i, 2, 1], 0.0, 0.0, 0.0, 0.0, 0.0)
+            for s in range(n_sub):
+                if s > 0:
+                    m = _model_t((x0, x1, x2), up, kp, False, 0.0, 0.0, vp, full, rear_drive)
+                    sf, sr = m[14], m[15]
+                k10, k11, k12 = _xdot_t(x0, x1, x2, u_prev[3], m, w0, w1, w2, full)
+                if not heun:
+                    x0 = x0 + hs * k10
+                    x1 = x1 + hs * k11
+                    if full:
+                        x2 = x2 + hs * k12
+                    continue
+                y0 = x0 + hs * k10
+                y1 = x1 + hs * k11
+                y2 = x2 + hs * k12 if full else 0.0
+                m = _model_t((y0, y1, y2), up, kp, full, sf, sr, vp, full, rear_drive)
+                k20, k21, k22 = _xdot_t(y0, y1, y2, u_prev[3], m, w0, w1, w2, full)
+                x0 = x0 + (0.5 * hs) * (k10 + k20)
+                x1 = x1 + (0.5 * hs) * (k11 + k21)
                 if full:
-                    x2 = x2 + hs * k12
-                continue
-            y0 = x0 + hs * k10
-            y1 = x1 + hs * k11
-            y2 = x2 + hs * k12 if full else 0.0
-            m = _model_t((y0, y1, y2), up, kp, full, sf, sr, vp, full, rear_drive)
-            k20, k21, k22 = _xdot_t(y0, y1, y2, u_prev[3], m, w0, w1, w2, full)
-            x0 = x0 + (0.5 * hs) * (k10 + k20)
-            x1 = x1 + (0.5 * hs) * (k11 + k21)
+                    x2 = x2 + (0.5 * hs) * (k12 + k22)
+            if with_redraw:  # after a gap: v^X drawn again from the wheel speeds (`_redraw_after_gap`)
+                x0 = redraw[i]
+            if with_noise:
+                x0 = x0 + noise_scale[0] * noise[i, 0]
+                x1 = x1 + noise_scale[1] * noise[i, 1]
+                if full:
+                    x2 = x2 + noise_scale[2] * noise[i, 2]
+            x[i, 0] = x0
+            x[i, 1] = x1
             if full:
-                x2 = x2 + (0.5 * hs) * (k12 + k22)
-        if with_noise:
-            x0 = x0 + noise_scale[0] * noise[i, 0]
-            x1 = x1 + noise_scale[1] * noise[i, 1]
-            if full:
-                x2 = x2 + noise_scale[2] * noise[i, 2]
-        x[i, 0] = x0
-        x[i, 1] = x1
-        if full:
-            x[i, 2] = x2
-        if bias_on:  # eq. (29)
-            for c in range(mch):
-                P[i, c, c] = P[i, c, c] + q[c] * dt
-        if forget:  # eq. (20), `NiW.forget`
-            f = max(lam, min(1.0, nu_min / nu[i])) if nu_min > 0 else lam
-            gamma[i] = gamma[i] / f
-            nu[i] = nu[i] * f
-            for j in range(n_wp):
-                for k in range(n_wp):
-                    Lam[i, j, k] = Lam[i, j, k] * f
+                x[i, 2] = x2
+            if bias_on:  # eq. (29)
+                for c in range(mch):
+                    P[i, c, c] = P[i, c, c] + q[c] * dt
+            if forget:  # eq. (20), `NiW.forget`
+                f = max(lam, min(1.0, nu_min / nu[i])) if nu_min > 0 else lam
+                gamma[i] = gamma[i] / f
+                nu[i] = nu[i] * f
+                for j in range(n_wp):
+                    for k in range(n_wp):
+                        Lam[i, j, k] = Lam[i, j, k] * f
         # the model at x_k, u_k (`_model`) and the plausible region (`_plausible`)
         m = _model_t((x0, x1, x2), uu, kk, False, 0.0, 0.0, vp, full, rear_drive)
         a[i, 0], a[i, 1], a[i, 2] = m[0], m[1], m[2]
@@ -317,5 +325,8 @@ def predict_weigh(own, scratch, inputs, model, scalars, flags, nc, sizes):
             for q in range(nc):
                 vv += v[i, q] * v[i, q]
             innovation += math.exp(logw[i]) * (vv * (nu_w[i] - 2.0) / (nu_w[i] * nc))
-    ess = _normalise_into(logw, ll) if na else -1.0
+    if weigh:
+        ess = _normalise_into(logw, ll) if na else -1.0
+    else:  # the start's weights (`_informed_start`) in logw take the place of the likelihood's
+        ess = _normalise_into(logw, np.zeros(n))
     return innovation, ess, count, _common_dof(nu_w)

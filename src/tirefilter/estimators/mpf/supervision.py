@@ -192,4 +192,6 @@ class Supervision:
         self.ay_pred = math.nan  # (the old cloud's prediction)
         self._at_x = self._model(self.x, uk)
         self.w_prev = self.stats.mu.copy()  # the next propagation uses the prior means
+        if self._nb is not None:  # (the compiled moments)
+            return self._estimate_compiled(float(self.cfg.particles))
         return self._estimate(float(self.cfg.particles))
