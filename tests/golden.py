@@ -21,7 +21,9 @@ Commands (run from the repository root):
 The committed masters keep every EVERY-th row with all estimate columns in `repr` precision,
 so they stay small while any change of the filter shows within a few steps. tests/test_golden.py
 compares each case with its master to a relative tolerance of 1e-9: bit-identical on one
-machine, robust to the last-digit differences of another CPU's floating point.
+machine. Across CPUs it is not a safe margin for paper-sim: resampling amplifies a rounding
+difference about tenfold every 5 s of that run (1e-12 at 10 s, 1e-9 at 23 s), so on a machine
+whose compiled kernels round differently the masters are rewritten there, not loosened.
 """
 
 from __future__ import annotations
