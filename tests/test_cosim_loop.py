@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from tirefilter import runs
-from tirefilter.cosim import results
-from tirefilter.cosim.csv_format import format_rows
+from tirefilter.io import results
+from tirefilter.io.csv_format import format_rows
 from tirefilter.cosim.fmu import VehicleFMU
-from tirefilter.cosim.results import ResultWriter, iter_results, read_results
+from tirefilter.io.results import ResultWriter, iter_results, read_results
 from tirefilter.cosim.run import cosim_samples
 from tirefilter.scenarios import load_scenario
 

@@ -215,7 +215,7 @@ def test_a_replay_longer_than_a_chunk_states_the_metrics_of_its_results(tmp_path
     from pathlib import Path
 
     from tirefilter.cli import main
-    from tirefilter.cosim.results import read_results
+    from tirefilter.io.results import read_results
 
     rng = np.random.default_rng(0)
     t = np.arange(12001) * 0.01

@@ -19,7 +19,7 @@ import pytest
 
 from tirefilter.cli import main
 from tirefilter.cosim.fmu import VehicleFMU
-from tirefilter.cosim.results import ESTIMATE_COLUMNS, INPUT_TRUTH_COLUMNS, read_results, truth_column
+from tirefilter.io.results import ESTIMATE_COLUMNS, INPUT_TRUTH_COLUMNS, read_results, truth_column
 from tirefilter.cosim.run import run_scenario
 from tirefilter.errors import ConfigError, LogError, ReplayError
 from tirefilter.estimators import build_estimator, build_log_estimator, mpf_config_for_log

@@ -20,7 +20,7 @@ import pytest
 from scipy import stats
 
 from tirefilter.cli import main
-from tirefilter.cosim.results import read_results
+from tirefilter.io.results import read_results
 from tirefilter.cosim.run import run_scenario
 from tirefilter.errors import ConfigError
 from tirefilter.estimators.base import Estimate, FrictionCurve, Posterior

@@ -161,7 +161,7 @@ def _streamed(args) -> str:
 
 
 def _friction_name(results: Path) -> Path:
-    from tirefilter.cosim.friction import friction_csv_path
+    from tirefilter.io.friction import friction_csv_path
 
     return friction_csv_path(results)
 
@@ -201,7 +201,7 @@ def _estimator_record(estimator, config: dict, args) -> dict:
 def _check_sensors(estimator, results: Path) -> None:
     """A co-simulation's IMU model checked against the noise of the run's first seconds
     (`estimator.sensors` gets the figures and any warning)."""
-    from tirefilter.cosim.results import read_results
+    from tirefilter.io.results import read_results
     from tirefilter.estimators.sensors import CHANNELS, checked_against, first_seconds
 
     if getattr(estimator, "sensors", None) is None or not results.exists():
@@ -251,7 +251,7 @@ def _print_sensors(estimator) -> None:
 def _print_truth_summary(results: Path) -> None:
     import numpy as np
 
-    from tirefilter.cosim.results import iter_results
+    from tirefilter.io.results import iter_results
 
     rows = [("speed vx [m/s]", "true_vx"), ("lateral acc. ay [m/s^2]", "true_ay"), ("yaw rate [rad/s]", "true_yaw_rate"),
             ("slip angle front [rad]", "true_alpha_f"), ("wheel slip front [-]", "true_lambda_f"),

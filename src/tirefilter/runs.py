@@ -180,7 +180,7 @@ class RunOutputs:
     def __init__(self, columns: tuple[str, ...], *, results_csv: str | Path | None = None, rrd: str | Path | None = None,
                  estimator: str | None = None, keep_rows: bool = False, total: int = 0, progress: bool = False,
                  recording=None, context=None, schedule=None, metrics: bool = True):
-        from tirefilter.cosim.results import ResultWriter
+        from tirefilter.io.results import ResultWriter
         from tirefilter.viz.options import recording_options
 
         self.columns = tuple(columns)

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tirefilter.cosim.results import ESTIMATE_COLUMNS, estimate_values, read_results
+from tirefilter.io.results import ESTIMATE_COLUMNS, estimate_values, read_results
 from tirefilter.errors import ConfigError, TirefilterError
 from tirefilter.runs import RunOutputs, spawn_seeds
 
@@ -146,7 +146,7 @@ class LiveRun:
 
 def _open_scenario(s: Settings) -> LiveRun:
     from tirefilter.cosim.fmu import VehicleFMU
-    from tirefilter.cosim.results import result_columns
+    from tirefilter.io.results import result_columns
     from tirefilter.cosim.run import cosim_samples
     from tirefilter.estimators import build_estimator
     from tirefilter.scenarios import load_scenario
@@ -173,7 +173,7 @@ def _open_scenario(s: Settings) -> LiveRun:
 def _open_log(s: Settings) -> LiveRun:
     from tirefilter.estimators import build_log_estimator
     from tirefilter.replay import read_log
-    from tirefilter.replay.log import SIGNALS
+    from tirefilter.io.log import SIGNALS
     from tirefilter.replay.run import log_samples, replay_error, result_columns
     from tirefilter.vehicle.params import load_vehicle
 
@@ -195,7 +195,7 @@ def _open_log(s: Settings) -> LiveRun:
 
 def open_result(path: str | Path) -> dict[str, np.ndarray]:
     """The columns of a Result CSV (`tirefilter run --out` / `replay --out`), checked
-    for what the dashboard needs (the estimate columns of the Result CSV, docs/design.md, at least one row)."""
+    for what the dashboard needs (the estimate columns of the Result CSV, at least one row)."""
     path = Path(str(path).strip())
     if not path.is_file():
         raise ConfigError(path, "", "no such Result CSV")

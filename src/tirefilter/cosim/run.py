@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 
 from tirefilter.cosim.fmu import INPUT_NAMES, VehicleFMU
-from tirefilter.cosim.friction import FrictionWriter, friction_truth, is_friction_estimator
-from tirefilter.cosim.results import ESTIMATE_COLUMNS, estimate_values, result_columns
+from tirefilter.io.friction import FrictionWriter, friction_truth, is_friction_estimator
+from tirefilter.io.results import ESTIMATE_COLUMNS, estimate_values, result_columns
 from tirefilter.estimators.base import Estimator, Inputs, Measurement
 from tirefilter.runs import StepSummary, run_outputs, spawn_seeds, write_summary_json
 from tirefilter.scenarios import Scenario
@@ -63,7 +63,7 @@ def run_scenario(
     fails, every row before the failure is in the CSV and the recording, and the error is
     raised after the summary has been filled in (`summary.status = "failed"`).
     A friction estimator with `friction_csv` also writes its curve snapshots there
-    (`cosim.friction`); those written before a failure stay.
+    (`io.friction`); those written before a failure stay.
     `recording` (viz.options.RecordingOptions) streams the run to Rerun (file, viewer,
     decimation); `rrd` alone is a file-only recording. `metrics=False` leaves the run's
     metrics (`summary.metrics`) out, for a caller that scores the kept rows itself (a

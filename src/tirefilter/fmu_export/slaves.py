@@ -379,7 +379,7 @@ class _EstimatorLogic(_Slave):
         self._n = max(0, math.ceil(first / self.Ts - 1e-9))
         rrd = str(v["rrd"]).strip()
         if rrd:
-            from tirefilter.cosim.results import ESTIMATE_COLUMNS
+            from tirefilter.io.results import ESTIMATE_COLUMNS
             from tirefilter.viz.rerun_log import RerunRecorder
 
             self._recorder = RerunRecorder(rrd, ESTIMATE_COLUMNS, self.estimator_name)
@@ -429,7 +429,7 @@ class _EstimatorLogic(_Slave):
 
     def _publish_prior(self) -> None:
         """Outputs at the start time: the estimator's prior (no sample processed yet)."""
-        from tirefilter.cosim.results import ESTIMATE_COLUMNS, estimate_values
+        from tirefilter.io.results import ESTIMATE_COLUMNS, estimate_values
 
         est = _prior_estimate(self._est, self._values["u.vx"])
         v = self._values
@@ -440,7 +440,7 @@ class _EstimatorLogic(_Slave):
         v["vx_std"], v["vy_std"], v["yaw_rate_std"] = (float(x) for x in est.state_std)
 
     def _publish(self, s, est) -> None:
-        from tirefilter.cosim.results import ESTIMATE_COLUMNS, estimate_values
+        from tirefilter.io.results import ESTIMATE_COLUMNS, estimate_values
 
         row = estimate_values(s, est)
         v = self._values

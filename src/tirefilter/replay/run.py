@@ -19,11 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
-from tirefilter.cosim.friction import FrictionWriter, is_friction_estimator
-from tirefilter.cosim.results import ESTIMATE_COLUMNS, estimate_values
+from tirefilter.io.friction import FrictionWriter, is_friction_estimator
+from tirefilter.io.results import ESTIMATE_COLUMNS, estimate_values
 from tirefilter.errors import ReplayError
 from tirefilter.estimators.base import Estimator, Inputs, Measurement
-from tirefilter.replay.log import SIGNALS, Log
+from tirefilter.io.log import SIGNALS, Log
 from tirefilter.runs import StepSummary, run_outputs, spawn_seeds
 
 PROGRESS_EVERY = 256  # rows
@@ -82,7 +82,7 @@ def replay_log(
     failure is in the CSV and the recording, and a ReplayError naming the row and its time
     is raised after the summary has been filled in (`summary.status = "failed"`, also as
     `exc.summary`). A friction estimator with `friction_csv` also writes its curve
-    snapshots there (`cosim.friction`, no truth columns); those written before a failure stay.
+    snapshots there (`io.friction`, no truth columns); those written before a failure stay.
     `recording` (viz.options.RecordingOptions) streams the replay to Rerun; `rrd` alone is a
     file-only recording.
     """

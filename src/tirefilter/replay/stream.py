@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tirefilter.replay.log import CHUNK_ROWS, SIGNALS, Timed, iter_log_chunks, vehicle_arg
+from tirefilter.io.log import CHUNK_ROWS, SIGNALS, Timed, iter_log_chunks, vehicle_arg
 from tirefilter.replay.plausibility import IMU, Plausibility
 
 NOISE_CHANNELS = IMU + ("omega_f", "omega_r")  # kept whole for the white-noise estimates (IMU and wheel speeds)

@@ -225,7 +225,7 @@ def run_trial(spec: TrialSpec, index: int, seed: int, *, fmu) -> TrialResult:
     A failing estimator gives a trial with `status: failed`, its error and NaN metrics;
     the study goes on.
     """
-    from tirefilter.cosim.results import result_columns
+    from tirefilter.io.results import result_columns
     from tirefilter.cosim.run import run_scenario
     from tirefilter.estimators import build_estimator
 

@@ -1,4 +1,4 @@
-"""The friction CSV (docs/design.md): snapshots of a friction estimator's curves.
+"""The friction CSV (docs/usage.md, "Friction learning"): snapshots of a friction estimator's curves.
 
 `run` writes `DIR/friction.csv`, `replay` writes `RESULT.friction.csv` (the stem of
 RESULT + `.friction.csv`). Columns `t, alpha, mu_f, mu_f_std, mu_r, mu_r_std` (mu as
@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tirefilter.cosim.csv_format import format_rows
+from tirefilter.io.csv_format import format_rows
 
 FRICTION_COLUMNS = ("t", "alpha", "mu_f", "mu_f_std", "mu_r", "mu_r_std")
 TRUTH_COLUMNS = ("true_mu_f", "true_mu_r")
@@ -98,7 +98,7 @@ class FrictionWriter:
 
 def read_friction(path: str | Path) -> dict[str, np.ndarray]:
     """A friction CSV as columns of floats."""
-    from tirefilter.cosim.results import read_results
+    from tirefilter.io.results import read_results
 
     return read_results(path)
 
