@@ -345,7 +345,7 @@ def test_failed_replay_keeps_rows_and_says_failed(log_columns, tmp_path, monkeyp
 
     import tirefilter.estimators
 
-    monkeypatch.setattr(tirefilter.estimators, "build_log_estimator", lambda *a, **k: _FailsAt(120))
+    monkeypatch.setattr(tirefilter.estimators, "build", lambda *a, **k: _FailsAt(120))
     out = tmp_path / "cli" / "result.csv"
     assert main(["replay", str(path), "--vehicle", str(VEHICLE), "--out", str(out), "--quiet"]) == 1
     assert "the filter diverged" in capsys.readouterr().err

@@ -11,7 +11,7 @@ from tirefilter import __version__
 from tirefilter.config import read_toml
 from tirefilter.errors import ConfigError, TirefilterError
 
-from tirefilter.estimators import ESTIMATORS  # augpf, rls, ekf, gpssm, combined too (docs/design.md)
+from tirefilter.estimators import ESTIMATORS
 from tirefilter.viz.options import DEFAULT_LOG_EVERY
 
 SENSOR_CHECK_S = 10.0  # s: a co-simulation's sensor noise is checked against its first seconds
@@ -19,12 +19,13 @@ SENSOR_CHECK_S = 10.0  # s: a co-simulation's sensor noise is checked against it
 
 def cmd_run(args) -> int:
     from tirefilter.cosim.run import run_scenario, write_run_json
-    from tirefilter.estimators import build_estimator, resolve_model
+    from tirefilter.estimators import build, for_scenario, resolve_model
     from tirefilter.scenarios import load_scenario
 
     scenario = load_scenario(args.scenario)
     config = read_toml(args.config) if args.config else {}
-    estimator = build_estimator(args.estimator, scenario, model=args.model, particles=args.particles, config=config)
+    estimator = build(args.estimator, for_scenario(scenario), model=args.model, particles=args.particles,
+                      config=config)
     _init_state(args, estimator)
     out = Path(args.out) if args.out else Path("runs") / scenario.name
     out.mkdir(parents=True, exist_ok=True)
@@ -55,7 +56,7 @@ def cmd_run(args) -> int:
 
 
 def cmd_replay(args) -> int:
-    from tirefilter.estimators import build_log_estimator, resolve_model
+    from tirefilter.estimators import build, for_log, resolve_model
     from tirefilter.replay import replay_log
     from tirefilter.replay.stream import scan_log
     from tirefilter.runs import write_summary_json
@@ -71,8 +72,8 @@ def cmd_replay(args) -> int:
     for warning in log.plausibility.warnings():
         print(f"warning: {warning}", file=sys.stderr)
     config = read_toml(args.config) if args.config else {}
-    estimator = build_log_estimator(args.estimator, vehicle, log.t, log.signals,
-                                    model=args.model, particles=args.particles, config=config, source=log.path)
+    estimator = build(args.estimator, for_log(vehicle, log.t, log.signals, source=log.path), model=args.model,
+                      particles=args.particles, config=config)
     _init_state(args, estimator)
     model = getattr(getattr(estimator, "cfg", None), "model", None) or resolve_model(args.model, log.available)
     summary = _run_and_record(

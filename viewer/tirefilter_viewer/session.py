@@ -148,12 +148,13 @@ def _open_scenario(s: Settings) -> LiveRun:
     from tirefilter.cosim.fmu import VehicleFMU
     from tirefilter.io.results import result_columns
     from tirefilter.cosim.run import cosim_samples
-    from tirefilter.estimators import build_estimator
+    from tirefilter.estimators import build, for_scenario
     from tirefilter.scenarios import load_scenario
 
     scenario = load_scenario(s.scenario)
+    setting = for_scenario(scenario)
     estimator = build_with_forgetting(
-        lambda config: build_estimator(s.estimator, scenario, model=s.model, particles=int(s.particles), config=config),
+        lambda config: build(s.estimator, setting, model=s.model, particles=int(s.particles), config=config),
         s.estimator, s.forgetting)
     fmu = VehicleFMU("2")
     try:
@@ -171,7 +172,7 @@ def _open_scenario(s: Settings) -> LiveRun:
 
 
 def _open_log(s: Settings) -> LiveRun:
-    from tirefilter.estimators import build_log_estimator
+    from tirefilter.estimators import build, for_log
     from tirefilter.replay import read_log
     from tirefilter.io.log import SIGNALS
     from tirefilter.replay.run import log_samples, replay_error, result_columns
@@ -179,9 +180,9 @@ def _open_log(s: Settings) -> LiveRun:
 
     vehicle = load_vehicle(s.vehicle)
     log = read_log(s.log, vehicle, vehicle_name=s.vehicle)
+    setting = for_log(vehicle, log.t, {n: log.signals[n] for n in log.available}, source=log.path)
     estimator = build_with_forgetting(
-        lambda config: build_log_estimator(s.estimator, vehicle, log.t, {n: log.signals[n] for n in log.available},
-                                           model=s.model, particles=int(s.particles), config=config, source=log.path),
+        lambda config: build(s.estimator, setting, model=s.model, particles=int(s.particles), config=config),
         s.estimator, s.forgetting)
     _, rng = spawn_seeds(int(s.seed))  # as `tirefilter replay --seed`
     if estimator is not None:

@@ -7,7 +7,7 @@ enumerations and the slave base class come from `self._T` (`_API`). The FMU clas
 `EstimatorSlave3`, `FrictionEstimatorSlave3`, `DriverSlave3` (FMI 3.0, pythonfmu3) are
 made on first access (module `__getattr__`), so an FMU needs only its own pythonfmu.
 
-`EstimatorSlave` wraps any estimator that `tirefilter.estimators.build_log_estimator`
+`EstimatorSlave` wraps any estimator that `tirefilter.estimators.build` (with `for_log`)
 builds by name from a vehicle record plus options; the FMU class of one estimator only
 names it (`estimator_name`, see `build.ESTIMATOR_FMUS`). `DriverSlave` plays a scenario's
 input profile (steer, torques, surface, bank) with its speed-hold driver closed over the
@@ -312,7 +312,7 @@ class _EstimatorLogic(_Slave):
 
     def _initialize(self) -> None:
         from tirefilter.errors import ConfigError
-        from tirefilter.estimators import build_log_estimator
+        from tirefilter.estimators import build, for_log
         from tirefilter.runs import spawn_seeds
         from tirefilter.vehicle.params import vehicle_from_dict
 
@@ -364,12 +364,14 @@ class _EstimatorLogic(_Slave):
         table["sample_period"] = 1.0 / rate
         config[self.option_table] = table
         self.Ts = 1.0 / rate
+        # built as for a log whose every signal is present but has no sample yet: the IMU noise from the
+        # vehicle parameters (else the defaults), the MEMS bias model, the state's prior mean the defaults'
         nan2 = np.full(2, math.nan)
         signals = {"delta": nan2, "omega_f": nan2, "omega_r": nan2, "vx": nan2, "ax": nan2, "ay": nan2,
                    "yaw_rate": nan2}
         try:
-            est = build_log_estimator(self.estimator_name, vehicle, np.array([0.0, self.Ts]), signals,
-                                      model=MODELS[model], particles=int(particles), config=config, source="FMU")
+            est = build(self.estimator_name, for_log(vehicle, np.array([0.0, self.Ts]), signals, source="FMU"),
+                        model=MODELS[model], particles=int(particles), config=config)
         except ConfigError as exc:  # the FMU parameters are checked above: what is left is in `config`
             raise _param_error("config", str(exc)) from None
         _, rng = spawn_seeds(int(seed))
