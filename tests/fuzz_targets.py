@@ -167,7 +167,7 @@ def log_first_pass(raw: bytes) -> str | tuple:
     cell is parsed, in the reader's order: not UTF-8 / not CSV, an empty header, a column named
     twice, a row of another length, no data rows, a required column missing. (A fuzzed file
     is far below the reader's 8 KB read-ahead, so a bad byte anywhere fails the first read.)"""
-    from tirefilter.replay.log import CORNERS, REQUIRED, STEERING
+    from tirefilter.io.log import CORNERS, REQUIRED, STEERING
 
     try:  # (Python's text layer: a lone b"\xef", a BOM cut short, reads as nothing)
         text = io.TextIOWrapper(io.BytesIO(raw), encoding="utf-8-sig", newline="").read()
@@ -214,7 +214,7 @@ def _is_number(cell: str) -> bool:
 def _check_log_cells(log, header: tuple, rows: list) -> None:
     """A log that reads: every known and reference column holds its cells' numbers (NaN for an
     empty cell), time is finite and increases, no signal is infinite."""
-    from tirefilter.replay.log import reference_name
+    from tirefilter.io.log import reference_name
 
     assert log.header == header and list(log.lines) == [line for line, _ in rows]
     for j, name in enumerate(header):
@@ -234,7 +234,7 @@ def _check_log_cells(log, header: tuple, rows: list) -> None:
 def _check_log_cell_error(exc, header: tuple, rows: list, need_steering_ratio: bool) -> None:
     """An error of a log whose structure is sound: it names a column, data row, file line and
     value that have the problem it states."""
-    from tirefilter.replay.log import VX_REVERSE_TOL
+    from tirefilter.io.log import VX_REVERSE_TOL
 
     p, k = exc.problem, None if exc.row is None else exc.row - 1
     if k is not None:

@@ -68,7 +68,7 @@ def _cli(argv: list[str]) -> str:
 def _gap_log(directory: Path) -> tuple[Path, Path]:
     """A peer drive with the faults a logger makes: single dropped rows, blank cells, a 1 s gap."""
     from tirefilter.peer.drive import DriveSpec, simulate, vehicle_toml
-    from tirefilter.replay.log import write_log
+    from tirefilter.io.log import write_log
 
     drive = simulate(DriveSpec(model="std", maneuver="sine", duration=30.0, seed=3))
     columns = {name: np.array(values, dtype=float) for name, values in drive.columns.items()}

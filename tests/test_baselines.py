@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from tirefilter.cosim.fmu import VehicleFMU
-from tirefilter.cosim.results import ESTIMATE_COLUMNS, INPUT_TRUTH_COLUMNS, truth_column
+from tirefilter.io.results import ESTIMATE_COLUMNS, INPUT_TRUTH_COLUMNS, truth_column
 from tirefilter.cosim.run import run_scenario
 from tirefilter.estimators import build_estimator
 from tirefilter.estimators.augpf import conditional_deviation, inverse_gamma_step

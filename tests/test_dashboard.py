@@ -20,7 +20,7 @@ import pytest
 
 from tirefilter.cli import build_parser, import_viewer, main
 from tirefilter.cosim.fmu import VehicleFMU
-from tirefilter.cosim.results import ESTIMATE_COLUMNS, read_results, result_columns
+from tirefilter.io.results import ESTIMATE_COLUMNS, read_results, result_columns
 from tirefilter.cosim.run import cosim_samples, run_scenario
 from tirefilter.errors import ConfigError, ReplayError
 from tirefilter.estimators import build_estimator

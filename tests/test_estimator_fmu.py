@@ -21,7 +21,7 @@ import pytest
 
 pytest.importorskip("pythonfmu")
 
-from tirefilter.cosim.results import ESTIMATE_COLUMNS, INPUT_TRUTH_COLUMNS, truth_column  # noqa: E402
+from tirefilter.io.results import ESTIMATE_COLUMNS, INPUT_TRUTH_COLUMNS, truth_column  # noqa: E402
 from tirefilter.estimators import build_estimator  # noqa: E402
 from tirefilter.estimators.base import Inputs, Measurement  # noqa: E402
 from tirefilter.fmu_export.host import FMUHost  # noqa: E402

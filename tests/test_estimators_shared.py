@@ -12,7 +12,7 @@ import pytest
 
 from tirefilter.cli import main
 from tirefilter.cosim.fmu import VehicleFMU
-from tirefilter.cosim.results import ESTIMATE_COLUMNS, INPUT_TRUTH_COLUMNS, read_results, truth_column
+from tirefilter.io.results import ESTIMATE_COLUMNS, INPUT_TRUTH_COLUMNS, read_results, truth_column
 from tirefilter.cosim.run import run_scenario
 from tirefilter.estimators import ESTIMATORS, FRICTION_ESTIMATORS, build_estimator, build_log_estimator
 from tirefilter.replay import read_log, replay_log, result_columns, write_log

@@ -12,13 +12,13 @@ import re
 import numpy as np
 import pytest
 
-from tirefilter.cosim.results import read_results
+from tirefilter.io.results import read_results
 from tirefilter.errors import ConfigError
 from tirefilter.estimators import build_log_estimator
 from tirefilter.estimators.base import Measurement
 from tirefilter.estimators.guard import GuardConfig, MeasurementGuard, guard_from_config
 from tirefilter.replay import replay_log, result_columns
-from tirefilter.replay.log import Log
+from tirefilter.io.log import Log
 from tirefilter.scenarios import load_scenario
 from tirefilter.scenarios.faults import Fault, fault_log_columns, fault_sets, fault_windows, parse_faults
 

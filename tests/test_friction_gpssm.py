@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from tirefilter.cli import main
-from tirefilter.cosim.friction import FRICTION_COLUMNS, read_friction, snapshot_blocks
-from tirefilter.cosim.results import read_results
+from tirefilter.io.friction import FRICTION_COLUMNS, read_friction, snapshot_blocks
+from tirefilter.io.results import read_results
 from tirefilter.cosim.run import run_scenario
 from tirefilter.errors import ConfigError
 from tirefilter.estimators import build_estimator
@@ -93,7 +93,7 @@ def test_replay_writes_result_friction_csv(fmu_paths, tmp_path):
     """A co-simulation's signals as a Log CSV, replayed: RESULT.friction.csv, no truth."""
     summary, rows = run_scenario(replace(SCENARIO, duration=6.0), seed=0, keep_rows=True)
     from tirefilter.cosim.fmu import VehicleFMU
-    from tirefilter.cosim.results import result_columns
+    from tirefilter.io.results import result_columns
     from tirefilter.replay import write_log
 
     cols = dict(zip(result_columns(VehicleFMU().output_names), rows.T))

@@ -16,10 +16,10 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from tirefilter.cosim.results import ESTIMATE_COLUMNS, ResultWriter, iter_results, read_results
+from tirefilter.io.results import ESTIMATE_COLUMNS, ResultWriter, iter_results, read_results
 from tirefilter.estimators.base import Inputs, Measurement
 from tirefilter.estimators.linear_kf import KFConfig, LinearKF
-from tirefilter.replay.log import iter_log_chunks, read_log, write_log
+from tirefilter.io.log import iter_log_chunks, read_log, write_log
 from tirefilter.replay.run import replay_log
 from tirefilter.scenarios import load_scenario
 

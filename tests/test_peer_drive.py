@@ -23,7 +23,7 @@ from tirefilter.peer.drive import (K_SPEED, K_STEER, RATE, SETTLE, SUBSTEPS, Dri
 from tirefilter.peer.maneuvers import Profile
 from tirefilter.peer.model import load_model
 from tirefilter.peer.score import read_columns, score_replay
-from tirefilter.replay.log import read_log
+from tirefilter.io.log import read_log
 from tirefilter.vehicle.params import load_vehicle
 
 # one worker of make test runs this module, so that the drives (module fixture, ~20 s) are simulated once

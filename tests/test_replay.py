@@ -20,7 +20,7 @@ import pytest
 from conftest import skip_or_fail_in_ci
 from tirefilter.cli import main
 from tirefilter.cosim.fmu import VehicleFMU
-from tirefilter.cosim.results import ESTIMATE_COLUMNS, INPUT_TRUTH_COLUMNS, read_results, truth_column
+from tirefilter.io.results import ESTIMATE_COLUMNS, INPUT_TRUTH_COLUMNS, read_results, truth_column
 from tirefilter.cosim.run import run_scenario
 from tirefilter.errors import ConfigError, LogError, ReplayError
 from tirefilter.estimators import build_estimator, build_log_estimator, mpf_config_for_log
@@ -346,7 +346,7 @@ def test_failed_replay_keeps_rows_and_says_failed(log_columns, tmp_path, monkeyp
 
     import tirefilter.estimators
 
-    monkeypatch.setattr(tirefilter.estimators, "build_log_estimator", lambda *a, **k: _FailsAt(120))
+    monkeypatch.setattr(tirefilter.estimators, "build", lambda *a, **k: _FailsAt(120))
     out = tmp_path / "cli" / "result.csv"
     assert main(["replay", str(path), "--vehicle", str(VEHICLE), "--out", str(out), "--quiet"]) == 1
     assert "the filter diverged" in capsys.readouterr().err

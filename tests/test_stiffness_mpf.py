@@ -8,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from tirefilter.cosim.results import read_results
+from tirefilter.io.results import read_results
 from tirefilter.cosim.run import run_scenario
 from tirefilter.errors import ConfigError
 from tirefilter.estimators import build_estimator
@@ -103,7 +103,7 @@ def _synthetic_steps(n=300, seed=0):
     scenario = load_scenario("paper-sim")
     _, rows = run_scenario(replace(scenario, duration=n * 0.01), seed=seed, keep_rows=True)
     from tirefilter.cosim.fmu import VehicleFMU
-    from tirefilter.cosim.results import ESTIMATE_COLUMNS, INPUT_TRUTH_COLUMNS, truth_column
+    from tirefilter.io.results import ESTIMATE_COLUMNS, INPUT_TRUTH_COLUMNS, truth_column
 
     with VehicleFMU("2") as fmu:
         cols = ESTIMATE_COLUMNS + tuple(map(truth_column, fmu.output_names)) + INPUT_TRUTH_COLUMNS

@@ -9,7 +9,7 @@ import pytest
 
 from tirefilter.cli import main
 from tirefilter.cosim.fmu import VehicleFMU
-from tirefilter.cosim.results import read_results
+from tirefilter.io.results import read_results
 from tirefilter.cosim.run import run_scenario
 from tirefilter.errors import ConfigError
 from tirefilter.estimators import build_estimator

@@ -20,7 +20,7 @@ import pytest
 from scipy import stats
 
 from tirefilter.cli import main
-from tirefilter.cosim.results import read_results
+from tirefilter.io.results import read_results
 from tirefilter.cosim.run import run_scenario
 from tirefilter.errors import ConfigError
 from tirefilter.estimators.base import Estimate, FrictionCurve, Posterior
@@ -672,7 +672,7 @@ def test_stiffness_y_ranges_fit_the_data_after_the_start_up(tmp_path):
     truth = np.full(t.shape, 1.01e5)
     rec = RerunRecorder(tmp_path / "r.rrd", ("t", "Cx", "true_Cx_mean"), "mpf", chunk=300)
     for row in zip(t, est, truth):
-        rec.log_row(row)
+        rec.write(row)
     rec.flush()
     after = t >= STARTUP_S
     lo, hi = np.quantile(np.concatenate([est[after], truth[after]]), [0.005, 0.995])

@@ -23,7 +23,7 @@ from bench_faults import paper_sim_drive  # noqa: E402
 from tirefilter.config import read_toml  # noqa: E402
 from tirefilter.estimators import build_log_estimator  # noqa: E402
 from tirefilter.replay import replay_log, result_columns  # noqa: E402
-from tirefilter.replay.log import Log  # noqa: E402
+from tirefilter.io.log import Log  # noqa: E402
 
 DURATION, DRIVE_SEED, N, DIVERGED_DEG = 20.0, 2, 100, 0.5
 

@@ -7,7 +7,7 @@ enumerations and the slave base class come from `self._T` (`_API`). The FMU clas
 `EstimatorSlave3`, `FrictionEstimatorSlave3`, `DriverSlave3` (FMI 3.0, pythonfmu3) are
 made on first access (module `__getattr__`), so an FMU needs only its own pythonfmu.
 
-`EstimatorSlave` wraps any estimator that `tirefilter.estimators.build_log_estimator`
+`EstimatorSlave` wraps any estimator that `tirefilter.estimators.build` (with `for_log`)
 builds by name from a vehicle record plus options; the FMU class of one estimator only
 names it (`estimator_name`, see `build.ESTIMATOR_FMUS`). `DriverSlave` plays a scenario's
 input profile (steer, torques, surface, bank) with its speed-hold driver closed over the
@@ -277,7 +277,7 @@ class _EstimatorLogic(_Slave):
             self._output(P, name, math.nan, f"[{unit}] {desc}", unit)
         self._output(I, "samples", 0, "samples processed so far")
         self._est = None
-        self._recorder = None
+        self._run = None  # runs.Run: the estimator's steps and the recording
         self._start_time = 0.0
 
     def _default_config(self) -> str:
@@ -312,7 +312,8 @@ class _EstimatorLogic(_Slave):
 
     def _initialize(self) -> None:
         from tirefilter.errors import ConfigError
-        from tirefilter.estimators import build_log_estimator
+        from tirefilter.estimators import build, for_log
+        from tirefilter.io.results import ESTIMATE_COLUMNS
         from tirefilter.runs import spawn_seeds
         from tirefilter.vehicle.params import vehicle_from_dict
 
@@ -364,12 +365,14 @@ class _EstimatorLogic(_Slave):
         table["sample_period"] = 1.0 / rate
         config[self.option_table] = table
         self.Ts = 1.0 / rate
+        # built as for a log whose every signal is present but has no sample yet: the IMU noise from the
+        # vehicle parameters (else the defaults), the MEMS bias model, the state's prior mean the defaults'
         nan2 = np.full(2, math.nan)
         signals = {"delta": nan2, "omega_f": nan2, "omega_r": nan2, "vx": nan2, "ax": nan2, "ay": nan2,
                    "yaw_rate": nan2}
         try:
-            est = build_log_estimator(self.estimator_name, vehicle, np.array([0.0, self.Ts]), signals,
-                                      model=MODELS[model], particles=int(particles), config=config, source="FMU")
+            est = build(self.estimator_name, for_log(vehicle, np.array([0.0, self.Ts]), signals, source="FMU"),
+                        model=MODELS[model], particles=int(particles), config=config)
         except ConfigError as exc:  # the FMU parameters are checked above: what is left is in `config`
             raise _param_error("config", str(exc)) from None
         _, rng = spawn_seeds(int(seed))
@@ -378,15 +381,26 @@ class _EstimatorLogic(_Slave):
         first = max(self._start_time, float(v["t_first"]))
         self._n = max(0, math.ceil(first / self.Ts - 1e-9))
         rrd = str(v["rrd"]).strip()
-        if rrd:
-            from tirefilter.cosim.results import ESTIMATE_COLUMNS
+        sinks = []
+        if rrd:  # clouds and densities every `log_every` rows, as in `run`
             from tirefilter.viz.rerun_log import RerunRecorder
 
-            self._recorder = RerunRecorder(rrd, ESTIMATE_COLUMNS, self.estimator_name)
+            sinks.append(RerunRecorder(rrd, ESTIMATE_COLUMNS, self.estimator_name))
+        self._run = self._stepper(sinks)
+
+    def _stepper(self, sinks=()):
+        """The run loop's step (`runs.Run`) of this instance's estimator, into `sinks`. The
+        estimator steps on the inputs as the master sets them: no measurement guard (the
+        outputs equal an in-process estimator's steps on the same samples)."""
+        from tirefilter.io.results import ESTIMATE_COLUMNS
+        from tirefilter.runs import Run
+
+        return Run(self._est, ESTIMATE_COLUMNS, sinks, on_error=self._estimator_failed, guard=False)
 
     # ---- stepping -------------------------------------------------------------------
     def do_step(self, current_time, step_size):
         from tirefilter.estimators.base import Inputs, Measurement
+        from tirefilter.runs import Sample
 
         if self._est is None:
             self._fail(f"{self.instance_name}: doStep before initialisation")
@@ -401,13 +415,17 @@ class _EstimatorLogic(_Slave):
             self._check_inputs(s)
             u = Inputs(delta=v["u.delta"], omega_f=v["u.omega_f"], omega_r=v["u.omega_r"], vx=v["u.vx"])
             y = Measurement(ax=v["y.ax"], ay=v["y.ay"], yaw_rate=v["y.yaw_rate"])
-            try:
-                est = self._est.step(s, u, y)
-            except Exception as exc:  # logged with the sample time, then fatal for this instance
-                self._fail(f"{self.instance_name}: the estimator failed at t = {s:.6g} s: {type(exc).__name__}: {exc}")
-            self._publish(s, est)
+            self._run.step(Sample(self._n - 1, s, u, y))
+            self._publish(s, self._run.est)
         self._time = current_time + step_size
         return True
+
+    def _estimator_failed(self, sample, exc: Exception) -> RuntimeError:
+        """Logged with the sample time, then fatal for this instance."""
+        message = (f"{self.instance_name}: the estimator failed at t = {sample.t:.6g} s: "
+                   f"{type(exc).__name__}: {exc}")
+        self.log(message, self._T.status.error)
+        return RuntimeError(message)
 
     def _check_inputs(self, s: float) -> None:
         """Refuse physically impossible samples (NaN is a missing sample, allowed): an
@@ -429,7 +447,7 @@ class _EstimatorLogic(_Slave):
 
     def _publish_prior(self) -> None:
         """Outputs at the start time: the estimator's prior (no sample processed yet)."""
-        from tirefilter.cosim.results import ESTIMATE_COLUMNS, estimate_values
+        from tirefilter.io.results import ESTIMATE_COLUMNS, estimate_values
 
         est = _prior_estimate(self._est, self._values["u.vx"])
         v = self._values
@@ -440,24 +458,20 @@ class _EstimatorLogic(_Slave):
         v["vx_std"], v["vy_std"], v["yaw_rate_std"] = (float(x) for x in est.state_std)
 
     def _publish(self, s, est) -> None:
-        from tirefilter.cosim.results import ESTIMATE_COLUMNS, estimate_values
+        from tirefilter.io.results import ESTIMATE_COLUMNS, estimate_values
 
-        row = estimate_values(s, est)
         v = self._values
-        for name, value in zip(ESTIMATE_COLUMNS, row):
+        for name, value in zip(ESTIMATE_COLUMNS, estimate_values(s, est)):
             if name != "active":
                 v[name] = float(value)
         v["active"] = bool(est.active)
         v["vx_std"], v["vy_std"], v["yaw_rate_std"] = (float(x) for x in est.state_std)
         v["samples"] += 1
-        if self._recorder is not None:
-            self._recorder.note_step(self._est, est)  # clouds and densities every `log_every` rows, as in `run`
-            self._recorder.log_row(row)
 
     def terminate(self):
-        if self._recorder is not None:
-            self._recorder.close()
-            self._recorder = None
+        if self._run is not None:
+            self._run.close()  # the recording
+            self._run = None
 
     # ---- FMU state: the whole particle system ----------------------------------------
     def _get_fmu_state(self):
@@ -469,6 +483,9 @@ class _EstimatorLogic(_Slave):
 
     def _set_fmu_state(self, state):
         self._est = copy.deepcopy(state["estimator"])
+        if self._run is None:  # a fresh instance, never initialised
+            self._run = self._stepper()
+        self._run.estimator = self._est
         self._n = state["n"]
         self.Ts = state["Ts"]
         self._time = state["time"]

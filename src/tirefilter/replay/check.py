@@ -10,7 +10,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from tirefilter.errors import LogError
-from tirefilter.replay.log import CORNERS, Log, read_log, reference_name, vehicle_arg
+from tirefilter.io.log import CORNERS, Log, read_log, reference_name, vehicle_arg
 
 GAP_FACTOR = 2.0  # a time step longer than this times the median is a gap
 

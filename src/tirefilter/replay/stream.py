@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tirefilter.replay.log import CHUNK_ROWS, SIGNALS, Timed, iter_log_chunks, vehicle_arg
+from tirefilter.io.log import CHUNK_ROWS, SIGNALS, Timed, iter_log_chunks, vehicle_arg
 from tirefilter.replay.plausibility import IMU, Plausibility
 
 NOISE_CHANNELS = IMU + ("omega_f", "omega_r")  # kept whole for the white-noise estimates (IMU and wheel speeds)
@@ -46,7 +46,7 @@ class LogScan(Timed):
 
     @property
     def signals(self) -> dict[str, np.ndarray]:
-        """What `estimators.build_log_estimator` reads of the signals: the IMU channels and wheel speeds whole
+        """What `estimators.for_log` reads of the signals: the IMU channels and wheel speeds whole
         (their white noise is estimated from them, `estimators.sensors`), every other available
         signal as a one-sample array holding its first finite sample (its presence and first
         value are all that is used)."""

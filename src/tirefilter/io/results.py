@@ -1,4 +1,4 @@
-"""The Result CSV (docs/design.md, docs/usage.md), written incrementally so a failed run keeps its rows."""
+"""The Result CSV (docs/usage.md, "Results table"), written incrementally so a failed run keeps its rows."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from tirefilter.cosim import csv_format
-from tirefilter.cosim.csv_format import HEADER, format_rows
+from tirefilter.io import csv_format
+from tirefilter.io.csv_format import HEADER, format_rows
 from tirefilter.estimators.base import Estimate
 
 ESTIMATE_COLUMNS = (

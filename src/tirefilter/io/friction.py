@@ -1,4 +1,4 @@
-"""The friction CSV (docs/design.md): snapshots of a friction estimator's curves.
+"""The friction CSV (docs/usage.md, "Friction learning"): snapshots of a friction estimator's curves.
 
 `run` writes `DIR/friction.csv`, `replay` writes `RESULT.friction.csv` (the stem of
 RESULT + `.friction.csv`). Columns `t, alpha, mu_f, mu_f_std, mu_r, mu_r_std` (mu as
@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tirefilter.cosim.csv_format import format_rows
+from tirefilter.io.csv_format import format_rows
 
 FRICTION_COLUMNS = ("t", "alpha", "mu_f", "mu_f_std", "mu_r", "mu_r_std")
 TRUTH_COLUMNS = ("true_mu_f", "true_mu_r")
@@ -45,9 +45,13 @@ def friction_truth(scenario):
 
 
 class FrictionWriter:
-    """Writes snapshots of `estimator.friction()`; `truth(alpha, surface)` adds the truth."""
+    """Writes snapshots of `estimator.friction()`; `truth(alpha, surface)` adds the truth.
 
-    def __init__(self, path: str | Path, estimator, *, every: float | None = None, truth=None):
+    A sink of the run loop (`runs.Run`): `write(row)` takes a Result-CSV row with the header
+    `columns` (its time, and with a truth its `true_surface`), `finish()` writes the end
+    snapshot, `close()` the file."""
+
+    def __init__(self, path: str | Path, estimator, *, every: float | None = None, truth=None, columns=()):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.estimator, self.truth = estimator, truth
@@ -61,6 +65,13 @@ class FrictionWriter:
         self._next = None
         self.last_t = None
         self.blocks = 0
+        self._t_index = list(columns).index("t") if "t" in columns else 0
+        self._surface_index = list(columns).index("true_surface") if truth is not None and "true_surface" in columns \
+            else None
+
+    def write(self, row) -> None:
+        """After the estimator's step whose Result-CSV row this is."""
+        self.sample(float(row[self._t_index]), 1.0 if self._surface_index is None else float(row[self._surface_index]))
 
     def sample(self, t: float, surface: float = 1.0) -> None:
         """After the estimator's step at t: a snapshot when t has reached the next one."""
@@ -98,7 +109,7 @@ class FrictionWriter:
 
 def read_friction(path: str | Path) -> dict[str, np.ndarray]:
     """A friction CSV as columns of floats."""
-    from tirefilter.cosim.results import read_results
+    from tirefilter.io.results import read_results
 
     return read_results(path)
 
