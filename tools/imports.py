@@ -22,7 +22,7 @@ PACKAGES = {"tirefilter": ROOT / "src" / "tirefilter", "tirefilter_viewer": ROOT
 # Lowest first. A part may import parts of its own layer and of the layers before it.
 LAYERS = (
     ("__init__", "errors", "config"),  # the version, the errors, the TOML reader
-    ("vehicle", "stats"),  # the models and the probability machinery
+    ("vehicle", "stats", "vehicle_fmu"),  # the models, the probability machinery, the vehicle FMU's sources
     ("scenarios",),  # what a co-simulation plays (vehicle, tires, inputs, sensors)
     ("estimators",),  # the filters, and the registry that builds one by name
     ("io", "metrics", "viz"),  # what a run writes: the file formats, the scores, the Rerun recording
