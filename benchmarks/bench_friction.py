@@ -281,7 +281,7 @@ def time_steps(basis: str, stats: str, particles: int, inputs: dict, symmetry: s
     after 10 warm-up steps. On a shared, loaded machine the wall time includes waiting
     for a core; the CPU time does not."""
     from tirefilter.estimators.base import Inputs, Measurement
-    from tirefilter.estimators.friction_gpssm import FrictionGPSSM, GPSSMConfig
+    from tirefilter.estimators.gpssm.filter import FrictionGPSSM, GPSSMConfig
 
     sc = snow_scenario()
     p = sc.model.pacejka

@@ -72,7 +72,7 @@ def _warm_mpf(model: str, missing: bool = False, gap: bool = False) -> None:
 
 def _warm_gpssm(**config) -> None:
     from tirefilter.estimators.base import Inputs, Measurement
-    from tirefilter.estimators.friction_gpssm import FrictionGPSSM, GPSSMConfig
+    from tirefilter.estimators.gpssm.filter import FrictionGPSSM, GPSSMConfig
     from tirefilter.scenarios import load_scenario
 
     est = FrictionGPSSM(load_scenario("friction-snow").vehicle, GPSSMConfig(particles=8, **config))

@@ -39,7 +39,7 @@ def _run(name: str, scenario, seed: int = 0, particles=N):
 
 def _assert_finite(r: dict, est, where: str) -> None:
     # the friction estimators' stiffness is the slope of the learned curve, with a std only
-    # once the first snapshot has solved for the curve (friction_gpssm._curve_slope)
+    # once the first snapshot has solved for the curve (FrictionGPSSM._curve_slope)
     friction = getattr(est, "name", "") in FRICTION_ESTIMATORS
     for col in ALWAYS_FINITE:
         if friction and col.endswith("_std"):

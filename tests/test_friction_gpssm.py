@@ -18,7 +18,7 @@ from tirefilter.cosim.run import run_scenario
 from tirefilter.errors import ConfigError
 from tirefilter.estimators import build_estimator
 from tirefilter.estimators.base import FrictionCurve, Inputs, Measurement
-from tirefilter.estimators.friction_gpssm import DEG, FrictionGPSSM, GPSSMConfig
+from tirefilter.estimators.gpssm.filter import DEG, FrictionGPSSM, GPSSMConfig
 from tirefilter.scenarios import load_scenario
 from tirefilter.vehicle.tires import pure_lateral_friction
 

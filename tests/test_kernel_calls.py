@@ -14,7 +14,8 @@ from numba.core.registry import CPUDispatcher
 
 REPO = Path(__file__).resolve().parents[1]
 KERNEL_MODULES = ("tirefilter.estimators.mpf.kernels_weigh", "tirefilter.estimators.mpf.kernels_update",
-                  "tirefilter.estimators.gpssm_numba",
+                  "tirefilter.estimators.gpssm.kernels_particles", "tirefilter.estimators.gpssm.kernels_stats",
+                  "tirefilter.estimators.gpssm.kernels_resample",
                   "tirefilter.stats.mniw_numba", "tirefilter.stats.particles_numba",
                   "tirefilter.vehicle.single_track_numba")
 

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 from tirefilter.estimators.base import Inputs, Measurement
-from tirefilter.estimators.friction_gpssm import FrictionGPSSM, GPSSMConfig
+from tirefilter.estimators.gpssm.filter import FrictionGPSSM, GPSSMConfig
 from tirefilter.estimators.mpf import MPFConfig, StiffnessMPF
 from tirefilter.scenarios import load_scenario
 from tirefilter.stats.gp import GPBasis1D, make_basis
@@ -177,7 +177,7 @@ def test_friction_gpssm_backends_equal_state_noise_and_prior_measurement(measure
 def test_resampling_copies_equal_indexing(order):
     """The in-place resampling copies (`gather_rows`, `gather_lower`) equal a[idx], for sorted
     ancestors (systematic resampling: no copy of the arrays) and any other order."""
-    from tirefilter.estimators.gpssm_numba import gather_lower, gather_rows
+    from tirefilter.estimators.gpssm.kernels_resample import gather_lower, gather_rows
 
     rng, more = np.random.default_rng(3), np.random.default_rng(13)
     for _ in range(20):
@@ -204,7 +204,8 @@ def test_lanes_copies_equal_indexing(order, n):
     """K in lanes (`lanes_load`, `gather_lanes`, `lanes_store`; 2 batch elements per particle,
     8 lanes: the last block partly padding, whose lanes stay the identity): the lower triangles
     after the copies equal K[idx]'s, in place for sorted ancestors and through a copy otherwise."""
-    from tirefilter.estimators.gpssm_numba import gather_lanes, lanes_load, lanes_store
+    from tirefilter.estimators.gpssm.kernels_resample import gather_lanes
+    from tirefilter.estimators.gpssm.kernels_stats import lanes_load, lanes_store
 
     rng = np.random.default_rng(6)
     low = np.tril(np.ones((4, 4), bool))
@@ -231,7 +232,9 @@ def test_rows_pass_makes_the_resampling_copy_of_K(per):
     Psi, Phi, nu and the predictive, with and without a pending update and the forgetting;
     sorted ancestors (systematic resampling's) in `copy_order`, no K read after it was written.
     `resample` defers the copy for sorted ancestors only and otherwise makes it itself."""
-    from tirefilter.estimators.gpssm_numba import PHI, copy_order, exact_forget_predictive_rows, gather_lower
+    from tirefilter.estimators.gpssm.kernels_particles import PHI
+    from tirefilter.estimators.gpssm.kernels_resample import gather_lower
+    from tirefilter.estimators.gpssm.kernels_stats import copy_order, exact_forget_predictive_rows
 
     rng = np.random.default_rng(8)
     N, d, m = 23, 2 if per == 1 else 1, 6
@@ -259,7 +262,7 @@ def test_rows_pass_makes_the_resampling_copy_of_K(per):
         for x, y in zip(a[1:], b[1:]):
             assert np.array_equal(x, y), trial
     # resample: sorted ancestors leave K alone (deferred); with defer off it copies K itself
-    from tirefilter.estimators.gpssm_numba import resample
+    from tirefilter.estimators.gpssm.kernels_resample import resample
 
     logw = np.log(np.full(N, 1.0 / N))
     logw[:3] += 3.0
@@ -320,7 +323,7 @@ def test_friction_gpssm_statistics_replaced_while_the_copy_waits():
 def test_systematic_ancestors_equal_reference():
     """The compiled systematic resampling equals `stats.systematic_resample` from the same
     generator state, for peaked, flat and degenerate weights."""
-    from tirefilter.estimators.gpssm_numba import systematic_ancestors
+    from tirefilter.estimators.gpssm.kernels_resample import systematic_ancestors
     from tirefilter.stats import normalize_log_weights, systematic_resample
 
     rng = np.random.default_rng(4)
@@ -727,7 +730,7 @@ def test_friction_gpssm_backends_equal_with_differing_dof(kind):
     same dof (`common_dof`) and through `t_draws` otherwise: with the particles' nu made to
     differ mid-run (the same change in both backends' statistics), both backends still
     draw the same numbers and give the same estimates and statistics."""
-    from tirefilter.estimators.gpssm_numba import DOF, common_dof
+    from tirefilter.estimators.gpssm.kernels_particles import DOF, common_dof
 
     vehicle = load_scenario("friction-snow").vehicle
     runs = {}

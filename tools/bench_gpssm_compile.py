@@ -18,9 +18,9 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as bench_cost.py: one BLAS
 t0 = time.perf_counter()
 import numpy as np  # noqa: E402
 
-from tirefilter.estimators import gpssm_numba  # noqa: E402,F401  (imports numba and the kernels' modules)
+from tirefilter.estimators.gpssm import compiled  # noqa: E402,F401  (imports numba and the kernels' modules)
 from tirefilter.estimators.base import Inputs, Measurement  # noqa: E402
-from tirefilter.estimators.friction_gpssm import FrictionGPSSM, GPSSMConfig  # noqa: E402
+from tirefilter.estimators.gpssm.filter import FrictionGPSSM, GPSSMConfig  # noqa: E402
 from tirefilter.scenarios import load_scenario  # noqa: E402
 
 print(f"import: {(time.perf_counter() - t0) * 1e3:.0f} ms")

@@ -393,7 +393,7 @@ def _friction_model(model: str) -> str:
 def _gpssm(vehicle, config: dict, particles, *, sample_period, sigma, x0_mean, tire_shape, mpf, **kw):
     """The friction GP-SSM (combined with `mpf`): what the scenario or log sets, then the
     user's `[gpssm]` table; settings that cannot work are rejected here, before the run."""
-    from tirefilter.estimators.friction_gpssm import FrictionGPSSM, GPSSMConfig
+    from tirefilter.estimators.gpssm.filter import FrictionGPSSM, GPSSMConfig
 
     base = GPSSMConfig(particles=particles or GPSSMConfig.particles,
                        sample_period=sample_period or GPSSMConfig.sample_period, sigma=tuple(sigma),

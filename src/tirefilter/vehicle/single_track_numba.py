@@ -7,7 +7,7 @@ returned, not stored in scratch arrays and read back, so that LLVM keeps them in
 `slip_angles1`. The packed parameters vp are `single_track.model_params`': (m, I, lf, lr, Cf_y,
 Cr_y, C_nom_fx, C_nom_rx, R_w, undriven_share). Compiled on first use and cached beside this file.
 Numba keys a kernel's cache by its own file only: after editing a helper here, delete the cache of
-the kernels that inline it (`estimators/mpf/__pycache__/kernels_*`, `estimators/__pycache__/gpssm_numba.*`).
+the kernels that inline it (`estimators/mpf/__pycache__/kernels_*`, `estimators/gpssm/__pycache__/kernels_particles.*`).
 """
 
 from __future__ import annotations

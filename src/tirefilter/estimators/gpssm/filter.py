@@ -59,7 +59,7 @@ class GPSSMConfig:
     symmetry: str = "odd"  # "odd": only the basis functions odd in alpha (mu(-a) = -mu(a)) | "none" (the paper)
     s_f: float = 500.0  # SE kernel variance, relative to Q (A | Q ~ MN(0, Q, diag S)); the paper's 500
     stats: str = "exact"  # "exact" (eq. (27)-(29)) | "rank1" (forgetting applied to the prior too)
-    backend: str = "numba"  # "numba" (compiled step, estimators/gpssm_numba.py) | "numpy" (the reference)
+    backend: str = "numba"  # "numba" (compiled step, estimators/gpssm/compiled.py) | "numpy" (the reference)
     forgetting: float = 0.99  # lambda of eq. (29) (about 100 samples of memory: 4 s at 25 Hz)
     q0: float = 0.01  # prior guess of the std of w (friction units): Lambda_0 = q0^2 (nu_0 - d - 1) I
     nu0_margin: float = 2.0  # nu_0 = d + 1 + margin
@@ -249,7 +249,7 @@ class FrictionGPSSM:
         self._slope = (NAN, NAN, NAN, NAN)
         self._dphi0 = self._slope_features()
         if cfg.backend == "numba":
-            from tirefilter.estimators.gpssm_numba import CompiledStep
+            from tirefilter.estimators.gpssm.compiled import CompiledStep
 
             self._compiled = CompiledStep(self)
 
@@ -324,7 +324,7 @@ class FrictionGPSSM:
         if self.mpf is not None:
             self.mpf_estimate = self.mpf.step(t, u, y)
             self._combined_prior(t)
-        if self._compiled is not None:  # the same step, compiled (estimators/gpssm_numba.py)
+        if self._compiled is not None:  # the same step, compiled (estimators/gpssm/compiled.py)
             return self._compiled.step(t, uk, delta, vx, y)
         cfg, N, rng = self.cfg, self.cfg.particles, self.rng
 
