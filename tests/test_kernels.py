@@ -253,11 +253,11 @@ def test_rows_pass_makes_the_resampling_copy_of_K(per):
         pending, forget = trial % 3 != 0, trial % 2 == 0
         a = [K.copy(), Psi.copy(), Phi.copy(), nu.copy(), work.copy()]
         b = [K.copy(), Psi.copy(), Phi.copy(), nu.copy(), work.copy()]
-        exact_forget_predictive_rows(a[0], a[1], a[2], a[3], V, Lam0, a[4], per, forget, 0.99, 10.0, pending, zeta,
-                                     phi_p, idx, True)
+        exact_forget_predictive_rows(a[0], (a[1], a[2], a[3]), (V, Lam0), a[4], per, (forget, 0.99, 10.0),
+                                     (pending, zeta, phi_p), idx, True)
         gather_lower(b[0].reshape(N, per, m, m), idx)
-        exact_forget_predictive_rows(b[0], b[1], b[2], b[3], V, Lam0, b[4], per, forget, 0.99, 10.0, pending, zeta,
-                                     phi_p, np.arange(N), False)
+        exact_forget_predictive_rows(b[0], (b[1], b[2], b[3]), (V, Lam0), b[4], per, (forget, 0.99, 10.0),
+                                     (pending, zeta, phi_p), np.arange(N), False)
         assert np.array_equal(a[0][:, low], b[0][:, low]), trial
         for x, y in zip(a[1:], b[1:]):
             assert np.array_equal(x, y), trial

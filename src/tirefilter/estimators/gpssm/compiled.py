@@ -239,7 +239,7 @@ class CompiledStep:
     def step(self, t, uk, delta: float, vx: float, y):
         est = self.est
         N, rng = self.N, est.rng
-        work, Fz0, Fz1, mass, lf, lr, Iz = self.work, *self.veh
+        work, (Fz0, Fz1, mass) = self.work, self.veh[:3]
         _, _, (a1, a2, a3, nu), rows, kcopy, _ = self._arrays()
         # 1. propagate with the friction drawn at k-1 (eq. (1)), forget (eq. (29), fused into 2.)
         forget = False
@@ -256,8 +256,8 @@ class CompiledStep:
             u_prev = est.u_prev
             cd, vx_prev, propagate = math.cos(u_prev[0]), float(u_prev[1]), True
             if self.noise:
-                front(est.x, est.mu, work, True, n_sub, h, cd, vx_prev, Fz0, Fz1, mass, lf, lr, Iz, delta, vx,
-                      self.L, self.m1, self.keep, self.keep_r, self.tensor, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0)
+                front(est.x, est.mu, work, (True, n_sub, h, cd, vx_prev), self.veh, delta, vx,
+                      (self.L, self.m1, self.keep, self.keep_r, self.tensor), (1.0, 1.0, 1.0, 0.0, 0.0, 0.0))
                 est.x[:] = est.x + math.sqrt(dt) * self.sn * rng.standard_normal(est.x.shape)
                 propagate = False
             forget = est.active
@@ -267,8 +267,8 @@ class CompiledStep:
         if p is not self._front_prior:  # the prior's parameters as floats, again when the prior changes
             self._front_prior = p
             self._pargs = (float(p.B[0]), float(p.B[1]), float(p.C), float(p.D[0]), float(p.D[1]), float(p.E))
-        n_out = front(est.x, est.mu, work, propagate, n_sub, h, cd, vx_prev, Fz0, Fz1, mass, lf, lr, Iz, delta, vx,
-                      self.L, self.m1, self.keep, self.keep_r, self.tensor, *self._pargs)
+        n_out = front(est.x, est.mu, work, (propagate, n_sub, h, cd, vx_prev), self.veh, delta, vx,
+                      (self.L, self.m1, self.keep, self.keep_r, self.tensor), self._pargs)
         est.slip_evaluations += N
         if n_out:
             est.clipped += n_out
@@ -280,11 +280,11 @@ class CompiledStep:
                 if not self.kl_loaded:
                     lanes_load(a1, self.Kl)
                     self.kl_loaded = True
-                exact_forget_predictive(self.Kl, a2, a3, nu, V, Lam0, work, self.per, forget, self.lam, self.nu0,
-                                        self.pending, self.zeta, self.phi_p)
+                exact_forget_predictive(self.Kl, (a2, a3, nu), (V, Lam0), work, self.per,
+                                        (forget, self.lam, self.nu0), (self.pending, self.zeta, self.phi_p))
             else:
-                exact_forget_predictive_rows(a1, a2, a3, nu, V, Lam0, work, self.per, forget, self.lam, self.nu0,
-                                             self.pending, self.zeta, self.phi_p, self.anc, self.gather)
+                exact_forget_predictive_rows(a1, (a2, a3, nu), (V, Lam0), work, self.per, (forget, self.lam, self.nu0),
+                                             (self.pending, self.zeta, self.phi_p), self.anc, self.gather)
                 self.stale_upper = True
                 self.gather = False
             self.pending = False
@@ -297,8 +297,8 @@ class CompiledStep:
         learned = self.learned
         conditional = have_ay and learned
         add = 1.0 if conditional else 0.0
-        ess, pa, pr_, c = weigh(est.x, work, est.logw, Fz0 * math.cos(delta) / mass, Fz1 / mass, yay, yr, self.R0,
-                                self.R1, have_ay, math.isfinite(yr), learned, add)
+        ess, pa, pr_, c = weigh(est.x, work, est.logw, Fz0 * math.cos(delta) / mass, Fz1 / mass,
+                                (yay, yr, have_ay, math.isfinite(yr)), (self.R0, self.R1), learned, add)
         est.prediction = (pa, pr_)
         if ess < self.threshold:  # as stats.systematic_resample, its uniform first
             defer = self.exact and not self.lanes

@@ -40,17 +40,22 @@ def _phi_next(sf, cf, sf1, cf1, sr, cr, sr1, cr1, n):
 
 
 @njit(**_JIT)
-def front(x, mu, work, propagate, n_sub, h, cd, vx_prev, Fz0, Fz1, mass, lf, lr, Iz, delta, vx, L, m, keep,
-          keep_r, tensor, pB0, pB1, pC, pD0, pD1, pE):
-    """In place: x propagated (`propagate`: n_sub Euler steps of h, eq. (1a)-(1b), friction mu
-    held), then work[:, AF:PR + 1] = alpha_f, alpha_r (eq. (4), clipped to [-L, L]),
-    mu~_f, mu~_r and work[:, PHI:] the features (tensor: phi_keep; axle: front then rear
+def front(x, mu, work, prop, veh, delta, vx, basis, prior):
+    """In place: x propagated (prop = (propagate, n_sub, h, cd, vx_prev): with `propagate`
+    n_sub Euler steps of h, eq. (1a)-(1b), friction mu held, cos delta_{k-1} and v^X_{k-1}; veh =
+    (Fz0, Fz1, mass, lf, lr, Iz)), then work[:, AF:PR + 1] = alpha_f, alpha_r (eq. (4), clipped
+    to [-L, L]), mu~_f, mu~_r (prior = (B_f, B_r, C, D_f, D_r, E)) and work[:, PHI:] the
+    features (basis = (L, m, keep, keep_r, tensor); tensor: phi_keep; axle: front then rear
     row; tensor: keep = the front function's index j1, keep_r = the rear one's j2). Returns
     the number of particles with a slip angle outside [-L, L].
     Two loops over the particles: the libm calls (atan, sin, cos) per particle, then the
     basis's angle-addition recurrence (`_phi1`, the same operations in the same order) for
     all particles at once, one vector operation per function: per particle the recurrence is
     a chain of dependent multiply-adds, which in one loop body per particle nothing overlaps."""
+    propagate, n_sub, h, cd, vx_prev = prop
+    Fz0, Fz1, mass, lf, lr, Iz = veh
+    L, m, keep, keep_r, tensor = basis
+    pB0, pB1, pC, pD0, pD1, pE = prior
     n = x.shape[0]
     nk = keep.shape[0]
     vxc = max(vx, 1.0)
@@ -111,10 +116,13 @@ def front(x, mu, work, propagate, n_sub, h, cd, vx_prev, Fz0, Fz1, mass, lf, lr,
 
 # ---- 3. weights ---------------------------------------------------------------------------------
 @njit(**_JIT)
-def weigh(x, work, logw, c0, c1, ay, yr, R0, R1, have_ay, have_r, learned, add):
-    """Eq. (22) with zeta integrated out; returns (ESS, predicted a^Y, predicted yaw rate) and
+def weigh(x, work, logw, c0, c1, y, R, learned, add):
+    """Eq. (22) with zeta integrated out (y = (a^Y, yaw rate, whether each is available), R =
+    (R_aY, R_r) their noise variances, c0, c1 the coefficients of mu_f, mu_r in a^Y); returns (ESS, predicted a^Y, predicted yaw rate) and
     writes the normalised log-weights (as `normalize_log_weights`) and, for the learned
     measurement, work[:, SC:E + 1] = S c, the a^Y marginal's scale and the residual."""
+    ay, yr, have_ay, have_r = y
+    R0, R1 = R
     n = x.shape[0]
     lw = np.empty(n)
     pred_ay = 0.0

@@ -176,13 +176,19 @@ def _chol_lanes(A, m, W, inv):
 
 
 @njit(**_JIT)
-def _lane_heads(Psi, Phi, nu, b0, nw, per, pending, zeta, phi_p, forget, lam, nu_min, fv, gv, phl):
-    """The per-element start of a block's pass, lanes w < nw (batch elements b0 + w): with
+def _lane_heads(stats, b0, nw, per, learn, pend, heads):
+    """The per-element start of a block's pass, lanes w < nw (batch elements b0 + w), stats =
+    (Psi, Phi, nu), learn = (forget, lam, nu_min), pend = (pending, zeta, phi_p), heads = (fv, gv,
+    phl) (`exact_forget_predictive`): with
     `pending` the previous step's update of Phi, Psi and nu (eq. (27a)-(27b), (28f)) scaled by
     the forgetting factor f (`_pending_head`) and its features phl[:, w]; without, the
     forgetting of Phi and Psi (`_scale_psi_phi`); then nu *= f (as the reference, after
     nu += 1). fv[w] = f and gv[w] = 1 - f for the sweep over K; the padding lanes f = 1, 1 - f =
     0, zero features (their identity matrix stays the identity)."""
+    Psi, Phi, nu = stats
+    forget, lam, nu_min = learn
+    pending, zeta, phi_p = pend
+    fv, gv, phl = heads
     m = Psi.shape[2]
     W = fv.shape[0]
     for w in range(W):
@@ -205,12 +211,13 @@ def _lane_heads(Psi, Phi, nu, b0, nw, per, pending, zeta, phi_p, forget, lam, nu
 
 
 @njit(**_JIT)
-def exact_forget_predictive(Kl, Psi, Phi, nu, V, Lam0, work, per, forget, lam, nu_min, pending, zeta, phi_p):
+def exact_forget_predictive(Kl, stats, prior, work, per, learn, pend):
     """The exact statistics' pass below `LANES_BELOW` functions, with K = Sigma + V kept by the
     compiled step in lanes (`Kl` (blocks, m, m, LANES): Kl[b // LANES, i, j, b % LANES] = K[b, i,
     j], lower triangle; the padding lanes of the last block the identity; `lanes_load`,
-    `lanes_store`). Psi (B, d, m), Phi (B, d, d), nu (B,): the flat batch, per batch elements
-    per particle (axle 2). In one pass over each block of lanes: with `pending` the previous
+    `lanes_store`). stats = (Psi (B, d, m), Phi (B, d, d), nu (B,)): the flat batch, per batch
+    elements per particle (axle 2); prior = (V, Lam0); learn = (forget, lam, nu_min), the
+    forgetting (`_factor`); pend = (pending, zeta, phi_p). In one pass over each block of lanes: with `pending` the previous
     step's update (eq. (27), zeta (N, 2) at features phi_p), with `forget` eq. (29), written
     into Kl and into the factorisation's matrix A in one sweep, every operation a vector one
     over the lanes; then the factorisation with the forward substitution (`_chol_lanes`) and the
@@ -218,6 +225,10 @@ def exact_forget_predictive(Kl, Psi, Phi, nu, V, Lam0, work, per, forget, lam, n
     element the reference's operations in the reference's order ((K + phi phi^T) * f, then
     + (1 - f) V on the diagonal; without a pending update K * f, then + (1 - f) V): the lanes
     layout only changes which element an instruction works on, not what it computes."""
+    Psi, Phi, nu = stats
+    V, Lam0 = prior
+    forget = learn[0]
+    pending = pend[0]
     nb, d, m = Psi.shape
     W = Kl.shape[3]
     A = np.empty((m + d + 1, m, W))
@@ -227,12 +238,13 @@ def exact_forget_predictive(Kl, Psi, Phi, nu, V, Lam0, work, per, forget, lam, n
     fv = np.empty(W)
     gv = np.empty(W)
     phl = np.empty((m, W))
+    heads = (fv, gv, phl)
     for blk in range(Kl.shape[0]):
         b0 = blk * W
         nw = min(W, nb - b0)
         Kb = Kl[blk]
         if pending or forget:
-            _lane_heads(Psi, Phi, nu, b0, nw, per, pending, zeta, phi_p, forget, lam, nu_min, fv, gv, phl)
+            _lane_heads(stats, b0, nw, per, learn, pend, heads)
         for i in range(m):
             Ki = Kb[i]
             Ai = A[i]
@@ -307,8 +319,9 @@ def lanes_store(Kl, K):
 
 
 @njit(**_JIT_IN)
-def _update_forget_rows(K, Psi, Phi, nu, V, b, src, per, pending, zeta, phi_p, forget, lam, nu_min, A):
-    """Batch element b: the pending update (eq. (27a)-(27c), (28f)) then the forgetting
+def _update_forget_rows(K, stats, V, b, src, per, learn, pend, A):
+    """Batch element b (stats = (Psi, Phi, nu), learn = (forget, lam, nu_min), pend = (pending,
+    zeta, phi_p) as `exact_forget_predictive`): the pending update (eq. (27a)-(27c), (28f)) then the forgetting
     (eq. (29)), in one sweep over K with the reference's operations in the reference's order
     ((K + phi phi^T) * f, then + (1 - f) V on the diagonal; without a pending update K * f, then
     + (1 - f) V), each entry of K's lower triangle written to K and to A (>= m, m), A[i, j] =
@@ -319,6 +332,9 @@ def _update_forget_rows(K, Psi, Phi, nu, V, b, src, per, pending, zeta, phi_p, f
     overlap test at src == b and run scalar). K's lower triangle only: the upper one is
     restored by `mirror` before anything else reads K (the reference's K is exactly symmetric:
     p_i p_j = p_j p_i and the forgetting is elementwise)."""
+    Psi, Phi, nu = stats
+    forget, lam, nu_min = learn
+    pending, zeta, phi_p = pend
     m = Psi.shape[2]
     Kb = K[b]
     Ks = K[src]
@@ -489,15 +505,16 @@ def copy_order(idx):
 
 
 @njit(**_JIT)
-def exact_forget_predictive_rows(K, Psi, Phi, nu, V, Lam0, work, per, forget, lam, nu_min, pending, zeta, phi_p,
-                                 anc, gather):
+def exact_forget_predictive_rows(K, stats, prior, work, per, learn, pend, anc, gather):
     """`exact_forget_predictive` one matrix at a time (large bases): the pending update and
     the forgetting written into K and A in one sweep, the factorisation with the forward
     substitution by `_chol_rows`, then the predictive. With `gather`, the last resampling's
     copy of K's lower triangles (K[b] = K[anc-element of b], left to this pass by `resample`,
     which makes it itself unless the ancestors are sorted) is made by the sweep itself, which
     reads the ancestor's K and writes the element's: the elements in `copy_order` (sorted
-    ancestors: no K is read after it was written)."""
+    ancestors: no K is read after it was written). The arguments as `exact_forget_predictive`'s."""
+    Psi, Phi, nu = stats
+    V, Lam0 = prior
     nb, d, m = Psi.shape
     A = np.zeros((m + d + 1, m))
     inv = np.empty(m)
@@ -510,7 +527,7 @@ def exact_forget_predictive_rows(K, Psi, Phi, nu, V, Lam0, work, per, forget, la
         for a in range(per):
             b = n * per + a
             src = anc[n] * per + a if gather else b
-            _update_forget_rows(K, Psi, Phi, nu, V, b, src, per, pending, zeta, phi_p, forget, lam, nu_min, A)
+            _update_forget_rows(K, stats, V, b, src, per, learn, pend, A)
             for i in range(d):
                 Pi = Psi[b, i]
                 Ai = A[m + i]
