@@ -30,7 +30,7 @@ from tirefilter.io.results import result_columns
 from tirefilter.runs import KeptRows, Run, StepSummary, output_sinks, run, spawn_seeds
 from tirefilter.scenarios import Scenario
 
-__all__ = ["CosimSample", "RunSummary", "cosim_samples", "run_scenario", "spawn_seeds"]
+__all__ = ["CosimSample", "RunSummary", "ScenarioOutputs", "cosim_samples", "run_scenario", "spawn_seeds"]
 
 
 @dataclass(kw_only=True)
@@ -40,6 +40,19 @@ class RunSummary(StepSummary):
     communication_steps: int = 0
 
 
+@dataclass(frozen=True)
+class ScenarioOutputs:
+    """Where `run_scenario` writes the run besides its summary (its keywords of these names):
+    the Result CSV, a file-only recording `rrd` or a Rerun `recording`
+    (viz.options.RecordingOptions), the friction CSV, a progress bar."""
+
+    results_csv: str | Path | None = None
+    rrd: str | Path | None = None
+    recording: object = None
+    friction_csv: str | Path | None = None
+    progress: bool = False
+
+
 def run_scenario(
     scenario: Scenario,
     *,
@@ -47,16 +60,12 @@ def run_scenario(
     seed: int = 0,
     fmu: VehicleFMU | None = None,
     fmi_version: str = "2",
-    results_csv: str | Path | None = None,
-    rrd: str | Path | None = None,
-    progress: bool = False,
     keep_rows: bool = False,
     parameter_overrides: dict | None = None,
-    friction_csv: str | Path | None = None,
-    recording=None,
     coupling: str = "gauss-seidel",
     metrics: bool = True,
     sinks=(),
+    **outputs,
 ) -> tuple[RunSummary, np.ndarray | None]:
     """Co-simulate `scenario`; returns the summary and, with keep_rows, the result rows.
 
@@ -72,8 +81,12 @@ def run_scenario(
     `recording` (viz.options.RecordingOptions) streams the run to Rerun (file, viewer,
     decimation); `rrd` alone is a file-only recording. `metrics=False` leaves the run's
     metrics (`summary.metrics`) out, for a caller that scores the kept rows itself (a
-    study trial): their streaming costs some microseconds a sample.
+    study trial): their streaming costs some microseconds a sample. `outputs`: the keywords of
+    `ScenarioOutputs` (results_csv, rrd, recording, friction_csv, progress; another name raises
+    TypeError).
     """
+    out = ScenarioOutputs(**outputs)
+    results_csv = out.results_csv
     own_fmu = fmu is None
     fmu = fmu or VehicleFMU(fmi_version)
     try:
@@ -85,10 +98,11 @@ def run_scenario(
                              estimator=getattr(estimator, "name", None) or "none",
                              results=str(results_csv) if results_csv else None)
         kept = KeptRows() if keep_rows else None
-        outputs = output_sinks(columns, estimator, results_csv=results_csv, rrd=rrd, recording=recording,
-                               context=_recording_context(scenario), friction_csv=friction_csv,
-                               friction_truth=friction_truth(scenario), metrics=metrics, schedule=scenario,
-                               progress=progress, total=int(round(scenario.duration / scenario.sample_period)) + 1)
+        sinks_out = output_sinks(columns, estimator, results_csv=results_csv, rrd=out.rrd, recording=out.recording,
+                                 context=_recording_context(scenario), friction_csv=out.friction_csv,
+                                 friction_truth=friction_truth(scenario), metrics=metrics, schedule=scenario,
+                                 progress=out.progress,
+                                 total=int(round(scenario.duration / scenario.sample_period)) + 1)
 
         def on_step(k: int) -> None:
             summary.communication_steps = k + 1
@@ -98,7 +112,7 @@ def run_scenario(
             from tirefilter.scenarios.faults import fault_rng, faulty_samples
 
             samples = faulty_samples(samples, scenario.faults, fault_rng(seed))
-        run(samples, Run(estimator, columns, [*outputs, *([kept] if kept else []), *sinks]), summary, rng=rng)
+        run(samples, Run(estimator, columns, [*sinks_out, *([kept] if kept else []), *sinks]), summary, rng=rng)
     finally:
         if own_fmu:
             fmu.close()
