@@ -76,7 +76,7 @@ def scenario_run_parameters(scenario, *, seed: int, particles: int | None = None
     """(vehicle FMU parameters, estimator FMU parameters, driver FMU parameters, estimator
     options TOML) of one run of `scenario`, as `tirefilter run` sets them up."""
     from tirefilter.estimators import check_model_signals, mpf_config_for_scenario, resolve_model
-    from tirefilter.fmu_export.slaves import RW_AS_VARIANCE
+    from tirefilter.fmu_export.variables import RW_AS_VARIANCE
     from tirefilter.runs import spawn_seeds
 
     fmu_seed, _ = spawn_seeds(seed)
@@ -146,7 +146,7 @@ def build_ssp(scenario_name: str = "snow-sine", out: Path | None = None, *, seed
 
     from tirefilter.cosim.fmu import BUILD_DIR, vehicle_fmu_path
     from tirefilter.fmu_export.build import ESTIMATOR_FMUS, build_driver_fmu, build_estimator_fmu
-    from tirefilter.fmu_export.slaves import ESTIMATOR_OUTPUTS
+    from tirefilter.fmu_export.variables import ESTIMATOR_OUTPUTS
     from tirefilter.scenarios import DATA_DIR, load_scenario
 
     scenario = load_scenario(scenario_name)
