@@ -31,8 +31,8 @@ _T = {"depth": 0, "t0": 0.0, "total": 0.0, "n": 0, "per": {}}
 _TIMELINE = []
 MODULES = ("tirefilter.estimators.mpf.kernels_weigh", "tirefilter.estimators.mpf.kernels_update",
            "tirefilter.estimators.gpssm.kernels_particles", "tirefilter.estimators.gpssm.kernels_stats",
-           "tirefilter.estimators.gpssm.kernels_resample", "tirefilter.stats.mniw_numba", "tirefilter.stats.particles_numba",
-           "tirefilter.vehicle.single_track_numba")
+           "tirefilter.estimators.gpssm.kernels_resample", "tirefilter.stats.mniw_numba",
+           "tirefilter.stats.particles_numba", "tirefilter.vehicle.single_track_numba")
 
 
 class _Compiles(ev.Listener):

@@ -118,9 +118,10 @@ def front(x, mu, work, prop, veh, delta, vx, basis, prior):
 @njit(**_JIT)
 def weigh(x, work, logw, c0, c1, y, R, learned, add):
     """Eq. (22) with zeta integrated out (y = (a^Y, yaw rate, whether each is available), R =
-    (R_aY, R_r) their noise variances, c0, c1 the coefficients of mu_f, mu_r in a^Y); returns (ESS, predicted a^Y, predicted yaw rate) and
-    writes the normalised log-weights (as `normalize_log_weights`) and, for the learned
-    measurement, work[:, SC:E + 1] = S c, the a^Y marginal's scale and the residual."""
+    (R_aY, R_r) their noise variances, c0, c1 the coefficients of mu_f, mu_r in a^Y); returns
+    (ESS, predicted a^Y, predicted yaw rate) and writes the normalised log-weights (as
+    `normalize_log_weights`) and, for the learned measurement, work[:, SC:E + 1] = S c, the a^Y
+    marginal's scale and the residual."""
     ay, yr, have_ay, have_r = y
     R0, R1 = R
     n = x.shape[0]

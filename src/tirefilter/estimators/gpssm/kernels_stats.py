@@ -217,14 +217,15 @@ def exact_forget_predictive(Kl, stats, prior, work, per, learn, pend):
     j], lower triangle; the padding lanes of the last block the identity; `lanes_load`,
     `lanes_store`). stats = (Psi (B, d, m), Phi (B, d, d), nu (B,)): the flat batch, per batch
     elements per particle (axle 2); prior = (V, Lam0); learn = (forget, lam, nu_min), the
-    forgetting (`_factor`); pend = (pending, zeta, phi_p). In one pass over each block of lanes: with `pending` the previous
-    step's update (eq. (27), zeta (N, 2) at features phi_p), with `forget` eq. (29), written
-    into Kl and into the factorisation's matrix A in one sweep, every operation a vector one
-    over the lanes; then the factorisation with the forward substitution (`_chol_lanes`) and the
-    predictive St(M phi, c Lambda / (nu - d + 1), nu - d + 1) (eq. (31)-(32)) into work. Per
-    element the reference's operations in the reference's order ((K + phi phi^T) * f, then
-    + (1 - f) V on the diagonal; without a pending update K * f, then + (1 - f) V): the lanes
-    layout only changes which element an instruction works on, not what it computes."""
+    forgetting (`_factor`); pend = (pending, zeta, phi_p). In one pass over each block of lanes:
+    with `pending` the previous step's update (eq. (27), zeta (N, 2) at features phi_p), with
+    `forget` eq. (29), written into Kl and into the factorisation's matrix A in one sweep, every
+    operation a vector one over the lanes; then the factorisation with the forward substitution
+    (`_chol_lanes`) and the predictive St(M phi, c Lambda / (nu - d + 1), nu - d + 1)
+    (eq. (31)-(32)) into work. Per element the reference's operations in the reference's order
+    ((K + phi phi^T) * f, then + (1 - f) V on the diagonal; without a pending update K * f, then
+    + (1 - f) V): the lanes layout only changes which element an instruction works on, not what
+    it computes."""
     Psi, Phi, nu = stats
     V, Lam0 = prior
     forget = learn[0]
