@@ -87,3 +87,18 @@ def test_options_and_their_errors_reach_every_estimator_alike():
     no_vx = for_log(VEHICLE, *(lambda t, s: (t, {k: v for k, v in s.items() if k != "vx"}))(*_log()))
     with pytest.raises(ConfigError, match="the lateral model needs vx"):
         build("ekf", no_vx, model="lateral", particles=None, config={})
+
+
+def test_a_log_setting_keeps_nothing_of_the_logs_samples():
+    """`for_log` reads the samples once: overwritten afterwards (as a replay drops them), they
+    change nothing of what the setting builds, which equals `mpf_config_for_log` on them."""
+    from tirefilter.estimators import mpf_config_for_log
+
+    t, signals = _log()
+    expected = mpf_config_for_log(NO_NOISE_FIGURES, t, signals, model="full", particles=30, overrides={})
+    setting = for_log(NO_NOISE_FIGURES, t, signals)
+    t[:] = np.nan
+    for x in signals.values():
+        x[:] = np.nan
+    assert build("mpf", setting, model="full", particles=30, config={}).cfg == expected
+    assert expected.x0_mean[0] == 20.0 and expected.sample_period == pytest.approx(0.02, rel=1e-12)

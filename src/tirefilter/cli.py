@@ -76,8 +76,9 @@ def cmd_replay(args) -> int:
     for warning in log.plausibility.warnings():
         print(f"warning: {warning}", file=sys.stderr)
     config = read_toml(args.config) if args.config else {}
-    estimator = build(args.estimator, for_log(vehicle, log.t, log.signals, source=log.path), model=args.model,
-                      particles=args.particles, config=config)
+    setting = for_log(vehicle, log.t, log.signals, source=log.path)
+    log.release()  # the setting keeps nothing of the log's length: neither does the replay from here on
+    estimator = build(args.estimator, setting, model=args.model, particles=args.particles, config=config)
     _init_state(args, estimator)
     model = getattr(getattr(estimator, "cfg", None), "model", None) or resolve_model(args.model, log.available)
     summary = _run_and_report(

@@ -66,14 +66,32 @@ def mpf_config_for_log(vehicle, t, signals: dict, *, model: str, particles: int 
     `t` (n,) are the sample times, `signals` maps log signal names to (n,) arrays (NaN =
     missing sample).
     """
+    from tirefilter.estimators.sensors import sensors_for_log
+
+    sample_period, first = log_start(t, signals)
+    return _mpf_config_for_log_start(vehicle, sample_period, first, model=model, particles=particles,
+                                     overrides=overrides, sensors=sensors or sensors_for_log(vehicle, signals))
+
+
+def log_start(t, signals: dict) -> tuple[float | None, dict[str, float]]:
+    """What the estimators' options take from a log besides its noise: the median time step
+    (None for a single row) and each signal's first finite sample (NaN where it has none)."""
     import numpy as np
 
+    dt = np.diff(np.asarray(t, float))
+    first = {}
+    for name, x in signals.items():
+        finite = np.isfinite(x)
+        k = int(np.argmax(finite)) if finite.size else 0
+        first[name] = float(x[k]) if finite.size and finite[k] else math.nan
+    return (float(np.median(dt)) if dt.size else None), first
+
+
+def _mpf_config_for_log_start(vehicle, sample_period: float | None, first_sample: dict, *, model: str,
+                              particles: int | None, overrides: dict, sensors):
+    """`mpf_config_for_log` from the log's `log_start` and its IMU model `sensors`."""
     def first(name: str) -> float:
-        x = signals.get(name)
-        if x is None:
-            return math.nan
-        finite = np.flatnonzero(np.isfinite(x))
-        return float(x[finite[0]]) if finite.size else math.nan
+        return first_sample.get(name, math.nan)
 
     r0 = first("yaw_rate")
     r0 = r0 if math.isfinite(r0) else 0.0
@@ -84,14 +102,10 @@ def mpf_config_for_log(vehicle, t, signals: dict, *, model: str, particles: int 
         x0_mean = (vx0 if math.isfinite(vx0) else 20.0, 0.0, r0)
     else:
         x0_mean = (0.0, r0)
-    from tirefilter.estimators.sensors import sensors_for_log
-
-    dt = np.diff(np.asarray(t, float))
-    sensors = sensors or sensors_for_log(vehicle, signals)
     # a recorded car: the model's process noise is unknown, so it comes from the data, and the log starts
     # mid-drive with the state unknown, so the stiffness statistics are drawn again once the gate first opens
     # (derivations, "State noise from the data"; a co-simulated scenario keeps the paper's: no state noise, no redraw)
-    return _mpf_config(model, particles=particles, sample_period=float(np.median(dt)) if dt.size else None,
+    return _mpf_config(model, particles=particles, sample_period=sample_period,
                        sigma=sensors.sigma, bias0_std=sensors.bias0_std, bias_rw=sensors.bias_rw, x0_mean=x0_mean,
                        sigma_omega=sensors.sigma_omega, state_noise_from_data=True, warmup_redraw="gate",
                        overrides=overrides)
@@ -240,19 +254,18 @@ def for_log(vehicle, t, signals: dict, source="log") -> Setting:
     arrays at the times `t` (n,); the IMU model comes from the vehicle TOML or is estimated
     from them (`sensors.sensors_for_log`), the MPF's options from them (`mpf_config_for_log`),
     the GP-SSM's sample period is the median time step, its state starts at zero and its
-    tires have no known shape; `source` names the log in errors."""
-    import numpy as np
-
+    tires have no known shape; `source` names the log in errors. What is kept of the log is
+    its IMU model and `log_start`, nothing of its length: a replay may drop its samples once
+    this is made."""
     from tirefilter.estimators.sensors import sensors_for_log
 
     sensors = sensors_for_log(vehicle, signals)
-    dt = np.diff(np.asarray(t, float))
+    sample_period, first = log_start(t, signals)
     return Setting(
         vehicle=vehicle, signals=tuple(signals), sensors=sensors, source=source, key="columns",
-        mpf_config=lambda model, particles, overrides: mpf_config_for_log(vehicle, t, signals, model=model,
-                                                                          particles=particles, overrides=overrides,
-                                                                          sensors=sensors),
-        particles=None, sample_period=float(np.median(dt)) if dt.size else None,
+        mpf_config=lambda model, particles, overrides: _mpf_config_for_log_start(
+            vehicle, sample_period, first, model=model, particles=particles, overrides=overrides, sensors=sensors),
+        particles=None, sample_period=sample_period,
         gpssm={"sigma": sensors.sigma[1:], "x0_mean": (0.0, 0.0), "tire_shape": None},
         kf={"sigma_ay": sensors.sigma[1], "sigma_yaw_rate": sensors.sigma[2]})
 

@@ -17,7 +17,7 @@ ESTIMATOR_INPUTS = {
     "y.ay": ("m/s2", "measured lateral acceleration (IMU)"),
     "y.yaw_rate": ("rad/s", "measured yaw rate (IMU)"),
 }
-# Outputs (unit, description): the estimate columns of the Result CSV (docs/design.md), the state stds;
+# Outputs (unit, description): the estimate columns of the Result CSV (docs/usage.md), the state stds;
 # `active` (Boolean) and `samples` (Integer) are added in EstimatorSlave.__init__
 ESTIMATOR_OUTPUTS = {
     "t": ("s", "time of the sample the outputs belong to"),

@@ -127,6 +127,7 @@ def iter_log_chunks(path: str | Path, vehicle=None, *, chunk_rows: int | None = 
         if row0 == 0:
             _check_columns(path, header)
         log = _chunk_log(path, header, lines, cells, vehicle, vehicle_name, need_steering_ratio, t_prev, row0)
+        cells.clear()  # the chunk's text (most of its memory) goes now, not when the next chunk is read
         t_prev, row0 = float(log.t[-1]), row0 + log.rows
         yield log
 
