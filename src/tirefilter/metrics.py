@@ -349,8 +349,9 @@ def _finish(out: dict, warnings: list[str], restarts, resamples, gate_open_share
     if out["diverged"] is not None and out["diverged"]["samples"]:
         d = out["diverged"]
         spans = ", ".join(f"{a:g}-{b:g} s" for a, b in d["windows"][:3]) + (", ..." if len(d["windows"]) > 3 else "")
+        largest = "inf" if d["max_abs"] is None else f"{d['max_abs']:.3g}"  # (None: no finite error, all infinite)
         warnings.append(f"state diverged at {d['samples']} samples ({spans}): |{d['signal']} error| up to "
-                        f"{d['max_abs']:.3g} {d['unit']} (threshold {d['threshold']:g})")
+                        f"{largest} {d['unit']} (threshold {d['threshold']:g})")
     out["restarts"] = None if restarts is None else int(restarts)
     out["resamples"] = None if resamples is None else int(resamples)
     if restarts:
