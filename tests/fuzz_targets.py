@@ -11,7 +11,7 @@ gives a result or the error it deserves, never another exception (a traceback):
   read it; otherwise a key of the file's tables (or one it lacks, "missing");
 - a state file: a ConfigError naming the file, for the key whose value is wrong.
 
-Shared by tests/test_fuzz.py (a bounded CI run) and benchmarks/bench_fuzz.py (a long run).
+Shared by tests/test_fuzz.py (a bounded CI run) and tools/fuzz.py (a long run).
 Each target takes a `tmp` folder and hypothesis data and checks one input.
 """
 

@@ -1,4 +1,4 @@
-"""The Log CSV reader (replay/log.py) against exact answers on what the other tests leave
+"""The Log CSV reader (io/log.py) against exact answers on what the other tests leave
 out: a log read in chunks (sizes, offsets, the time check and the error locations across
 chunk boundaries), reference columns, blank lines, the edges of the reverse-driving
 tolerance and a log's duration. Found by mutation testing (benchmarks/mutation.py): each
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from tirefilter.errors import LogError
-from tirefilter.replay.log import iter_log_chunks, read_log, reference_name
+from tirefilter.io.log import iter_log_chunks, read_log, reference_name
 
 HEADER = "t,delta,ax,ay,yaw_rate,vx"
 

@@ -17,7 +17,7 @@ from scipy import stats as sps
 from scipy.special import logsumexp
 
 from tirefilter.estimators.base import Inputs, Measurement
-from tirefilter.estimators.stiffness_mpf import MPFConfig, StiffnessMPF
+from tirefilter.estimators.mpf import MPFConfig, StiffnessMPF
 from tirefilter.scenarios import load_scenario
 from tirefilter.stats.niw import NiW
 

@@ -163,7 +163,7 @@ def test_wheel_slip_at_standstill_and_crawling_speeds():
 def test_constants_are_the_c_models():
     """g and the brake torque's sign smoothing are the vehicle FMU's (the truth the numpy
     model is checked against)."""
-    src = (Path(__file__).resolve().parents[1] / "fmu" / "vehicle" / "src")
+    src = Path(__file__).resolve().parents[1] / "src" / "tirefilter" / "vehicle_fmu" / "c"
     h = (src / "vehicle_model.h").read_text()
     c = (src / "vehicle_model.c").read_text()
     assert GRAVITY == float(re.search(r"#define VM_GRAVITY ([0-9.eE+-]+)", h).group(1))

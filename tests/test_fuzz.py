@@ -1,5 +1,5 @@
 """Property-based fuzzing of the readers, bounded for CI (tests/fuzz_targets.py says what
-is fuzzed and the property: the result, or the error the input deserves; benchmarks/bench_fuzz.py
+is fuzzed and the property: the result, or the error the input deserves; tools/fuzz.py
 runs the same targets much longer). A few hundred examples in all, derandomised so that a CI
 run is reproducible; the explicit examples are inputs that once raised a traceback."""
 

@@ -3,7 +3,7 @@ bounded CI run of the same targets): the Log CSV reader (with check-log and the 
 first pass), the vehicle, scenario and configuration TOML readers, and the state-file
 reader, each with --examples inputs (default 2000), randomised unless --seed is given.
 
-    .venv/bin/python benchmarks/bench_fuzz.py [--examples 2000] [--seed S] [--targets log vehicle ...]
+    .venv/bin/python tools/fuzz.py [--examples 2000] [--seed S] [--targets log vehicle ...]
 
 Prints per target the examples run, the wall time and the first falsifying example (none
 when every input gave a result or the error it deserves: tests/fuzz_targets.py).
