@@ -9,7 +9,7 @@ does not grow either.
 
 `replay` writes a synthetic Log CSV of the given length at 100 Hz (a sine-steered drive,
 written chunk by chunk), then replays it with each estimator in a fresh process
-(`tirefilter replay`, as a user runs it) and prints the peak resident memory (ru_maxrss)
+(`tirefilter replay`, as a user runs it) and prints the peak resident memory (VmHWM)
 and the resident memory sampled every second: at 10 % of the wall time (after start-up
 and the first pass) and its maximum after that, i.e. the growth during the replay.
 `--peer`: the log is a peer drive instead (`tirefilter peer-drive --maneuver mixed`: the
@@ -48,10 +48,11 @@ REPO = Path(__file__).resolve().parents[1]
 VEHICLE = REPO / "src/tirefilter/scenarios/data/vehicles/midsize-suv.toml"
 
 
-def rss_mb() -> float:
+def rss_mb(field: str = "VmRSS") -> float:
+    """This process's resident memory (VmHWM: its peak) in MB."""
     with open("/proc/self/status") as f:
         for line in f:
-            if line.startswith("VmRSS:"):
+            if line.startswith(field + ":"):
                 return int(line.split()[1]) / 1024.0
     return math.nan
 
@@ -78,9 +79,9 @@ class RssSampler:
         t = np.array([s[0] for s in self.samples])
         m = np.array([s[1] for s in self.samples])
         k = int(np.searchsorted(t, 0.1 * t[-1]))
-        import resource
-
-        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+        # the peak of this process's memory since its exec (ru_maxrss would carry over the RSS
+        # of the parent it was forked from, large after it simulated a peer drive)
+        peak = rss_mb("VmHWM")
         return {"wall_s": float(t[-1]), "rss_at_10pct_mb": float(m[k]), "rss_max_after_mb": float(m[k:].max()),
                 "growth_mb": float(m[k:].max() - m[k]), "peak_rss_mb": peak}
 
