@@ -22,7 +22,7 @@ from dataclasses import replace
 import numpy as np
 
 from tirefilter.cosim.fmu import VehicleFMU
-from tirefilter.cosim.results import ESTIMATE_COLUMNS, INPUT_TRUTH_COLUMNS, truth_column
+from tirefilter.io.results import ESTIMATE_COLUMNS, INPUT_TRUTH_COLUMNS, truth_column
 from tirefilter.cosim.run import run_scenario
 from tirefilter.estimators import build_estimator
 from tirefilter.metrics import stiffness_errors

@@ -12,7 +12,7 @@ nothing. Cases:
 - `null, CSV`: the zero-cost estimator, the Result CSV written (`tirefilter run`).
 Per case, the median over repeats of the wall time per sample and of this process's CPU
 time per sample (`time.process_time`), and the CPU time of helper processes per sample
-(the CSV formatter, `cosim/csv_format.py`, where the code has one).
+(the CSV formatter, `io/csv_format.py`, where the code has one).
 
 With `--mpf N` it runs the real MPF (N particles) instead, rows kept (a study trial) and
 with the CSV (`tirefilter run`), and splits the main thread's CPU time

@@ -34,7 +34,7 @@ import numpy as np
 from tirefilter.config import read_toml
 from tirefilter.estimators import build_log_estimator
 from tirefilter.replay import replay_log, result_columns
-from tirefilter.replay.log import SIGNALS, Log, read_log
+from tirefilter.io.log import SIGNALS, Log, read_log
 from tirefilter.scenarios.faults import fault_log_columns, fault_rng, fault_sets, fault_windows
 
 ESTIMATORS = ("mpf", "augpf", "rls", "ekf", "kf")
@@ -43,7 +43,7 @@ RECOVERED_DEG = 0.1  # recovered: sideslip RMS error at most this above the clea
 
 def paper_sim_drive(seed: int = 0) -> tuple[Log, object]:
     """paper-sim co-simulated once without an estimator, as a Log with its references."""
-    from tirefilter.cosim.results import result_columns as cosim_columns
+    from tirefilter.io.results import result_columns as cosim_columns
     from tirefilter.cosim.run import run_scenario
     from tirefilter.scenarios import load_scenario
 

@@ -27,7 +27,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 
-from tirefilter.cosim.results import ESTIMATE_COLUMNS  # noqa: E402
+from tirefilter.io.results import ESTIMATE_COLUMNS  # noqa: E402
 from tirefilter.cosim.run import run_scenario  # noqa: E402
 from tirefilter.estimators import build_estimator  # noqa: E402
 from tirefilter.fmu_export.ssp import build_ssp, run_ssp  # noqa: E402

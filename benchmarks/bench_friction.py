@@ -68,8 +68,8 @@ def truth_curve(sc, alpha):
 def run_trial(job: dict) -> dict:
     """One co-simulation with friction snapshots every 2 s; returns the metrics per snapshot."""
     from tirefilter.cosim.fmu import VehicleFMU
-    from tirefilter.cosim.friction import read_friction, snapshot_blocks
-    from tirefilter.cosim.results import result_columns
+    from tirefilter.io.friction import read_friction, snapshot_blocks
+    from tirefilter.io.results import result_columns
     from tirefilter.cosim.run import run_scenario
     from tirefilter.estimators import build_estimator
 
@@ -266,7 +266,7 @@ def combined(args):
 def record_inputs(duration: float = 20.0) -> dict:
     """The estimator's inputs and measurements of a friction-snow co-simulation (seed 0)."""
     from tirefilter.cosim.fmu import VehicleFMU
-    from tirefilter.cosim.results import result_columns
+    from tirefilter.io.results import result_columns
     from tirefilter.cosim.run import run_scenario
 
     sc = replace(snow_scenario(), duration=duration)
@@ -281,7 +281,7 @@ def time_steps(basis: str, stats: str, particles: int, inputs: dict, symmetry: s
     after 10 warm-up steps. On a shared, loaded machine the wall time includes waiting
     for a core; the CPU time does not."""
     from tirefilter.estimators.base import Inputs, Measurement
-    from tirefilter.estimators.friction_gpssm import FrictionGPSSM, GPSSMConfig
+    from tirefilter.estimators.gpssm.filter import FrictionGPSSM, GPSSMConfig
 
     sc = snow_scenario()
     p = sc.model.pacejka

@@ -3,15 +3,20 @@ its peak memory does not grow with the drive's length; a long co-simulation with
 does not grow either.
 
     .venv/bin/python benchmarks/bench_memory.py replay [--minutes 120] [--estimators none kf mpf ...]
-                                                       [--backend numba|numpy]
+                                                       [--backend numba|numpy] [--peer] [--particles N]
     .venv/bin/python benchmarks/bench_memory.py soak [--minutes 60] [--particles 500] [--backend numba|numpy]
     .venv/bin/python benchmarks/bench_memory.py numba
 
 `replay` writes a synthetic Log CSV of the given length at 100 Hz (a sine-steered drive,
 written chunk by chunk), then replays it with each estimator in a fresh process
-(`tirefilter replay`, as a user runs it) and prints the peak resident memory (ru_maxrss)
+(`tirefilter replay`, as a user runs it) and prints the peak resident memory (VmHWM)
 and the resident memory sampled every second: at 10 % of the wall time (after start-up
 and the first pass) and its maximum after that, i.e. the growth during the replay.
+`--peer`: the log is a peer drive instead (`tirefilter peer-drive --maneuver mixed`: the
+CommonRoad single-track model, 27 columns with the `*_true` references), 10 minutes of it
+simulated and repeated, time-shifted, to the length asked for (a 2-hour peer drive takes
+the generator an hour and several GB); its vehicle TOML goes with it. `--particles`: the
+particle filters' N.
 `soak` co-simulates paper-sim stretched to the given length (its square-wave inputs
 repeat) with the MPF, samples the resident memory every second, and prints its value at
 10 % of the wall time, its maximum after that, the difference and the MPF's restarts.
@@ -43,10 +48,11 @@ REPO = Path(__file__).resolve().parents[1]
 VEHICLE = REPO / "src/tirefilter/scenarios/data/vehicles/midsize-suv.toml"
 
 
-def rss_mb() -> float:
+def rss_mb(field: str = "VmRSS") -> float:
+    """This process's resident memory (VmHWM: its peak) in MB."""
     with open("/proc/self/status") as f:
         for line in f:
-            if line.startswith("VmRSS:"):
+            if line.startswith(field + ":"):
                 return int(line.split()[1]) / 1024.0
     return math.nan
 
@@ -73,9 +79,9 @@ class RssSampler:
         t = np.array([s[0] for s in self.samples])
         m = np.array([s[1] for s in self.samples])
         k = int(np.searchsorted(t, 0.1 * t[-1]))
-        import resource
-
-        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+        # the peak of this process's memory since its exec (ru_maxrss would carry over the RSS
+        # of the parent it was forked from, large after it simulated a peer drive)
+        peak = rss_mb("VmHWM")
         return {"wall_s": float(t[-1]), "rss_at_10pct_mb": float(m[k]), "rss_max_after_mb": float(m[k:].max()),
                 "growth_mb": float(m[k:].max() - m[k]), "peak_rss_mb": peak}
 
@@ -100,6 +106,30 @@ def write_drive(path: Path, minutes: float, rate: float = 100.0) -> Path:
     return path
 
 
+def write_peer_drive(path: Path, minutes: float, piece_s: float = 600.0) -> tuple[Path, Path]:
+    """A mixed-maneuver peer drive (10 minutes simulated, repeated with its time shifted) of
+    `minutes`, and its vehicle TOML."""
+    from tirefilter.peer.drive import DriveSpec, simulate, vehicle_toml
+
+    drive = simulate(DriveSpec(model="std", maneuver="mixed", duration=min(piece_s, 60.0 * minutes), seed=0))
+    vehicle = path.with_suffix(".toml")
+    vehicle.write_text(vehicle_toml(drive))
+    names = list(drive.columns)
+    piece = np.column_stack([np.asarray(drive.columns[n], float) for n in names])
+    span = piece[-1, 0] - piece[0, 0]
+    n_total = int(round(minutes * 60 / span * (len(piece) - 1))) + 1
+    with open(path, "w") as f:
+        f.write(",".join(names) + "\n")
+        done, shift = 0, 0.0
+        while done < n_total:
+            rows = piece if done == 0 else piece[1:]  # the next piece starts where this one ends
+            rows = rows[:n_total - done].copy()
+            rows[:, 0] += shift
+            f.write("\n".join(",".join("" if x != x else repr(x) for x in r) for r in rows.tolist()) + "\n")
+            done, shift = done + len(rows), shift + span
+    return path, vehicle
+
+
 def backend_config(path: Path, backend: str | None) -> list[str]:
     """`--config FILE` setting the backend of the particle filters ([] for their defaults)."""
     if backend is None:
@@ -108,12 +138,12 @@ def backend_config(path: Path, backend: str | None) -> list[str]:
     return ["--config", str(path)]
 
 
-def one_replay(log: str, estimator: str, out: str, *config: str) -> dict:
+def one_replay(log: str, vehicle: str, estimator: str, out: str, *options: str) -> dict:
     """`tirefilter replay` in this process, with the memory sampled."""
     from tirefilter.cli import main
 
     sampler = RssSampler()
-    rc = main(["replay", log, "--vehicle", str(VEHICLE), "--estimator", estimator, "--out", out, "--quiet", *config])
+    rc = main(["replay", log, "--vehicle", vehicle, "--estimator", estimator, "--out", out, "--quiet", *options])
     memory = sampler.stop()
     summary_path = Path(out).with_suffix(".json")
     summary = json.loads(summary_path.read_text()) if summary_path.is_file() else {}  # a failed replay may write none
@@ -122,16 +152,22 @@ def one_replay(log: str, estimator: str, out: str, *config: str) -> dict:
 
 def cmd_replay(args) -> None:
     with tempfile.TemporaryDirectory() as tmp:
-        log = write_drive(Path(tmp) / "drive.csv", args.minutes)
+        if args.peer:
+            log, vehicle = write_peer_drive(Path(tmp) / "drive.csv", args.minutes)
+        else:
+            log, vehicle = write_drive(Path(tmp) / "drive.csv", args.minutes), VEHICLE
         size = log.stat().st_size / 1e6
         config = backend_config(Path(tmp) / "backend.toml", args.backend)
-        print(f"log: {args.minutes:g} min at 100 Hz ({int(args.minutes * 6000) + 1} rows, {size:.0f} MB), "
-              f"backend {args.backend or 'default'}", flush=True)
+        if args.particles:
+            config += ["--particles", str(args.particles)]
+        print(f"log: {'peer drive, ' if args.peer else ''}{args.minutes:g} min at 100 Hz "
+              f"({int(args.minutes * 6000) + 1} rows, {size:.0f} MB), backend {args.backend or 'default'}"
+              + (f", N = {args.particles}" if args.particles else ""), flush=True)
         print("| estimator | log min | wall s | peak RSS MB | RSS at 10 % MB | max after MB | growth MB | restarts |\n"
               "|---|---|---|---|---|---|---|---|", flush=True)
         for est in args.estimators:
-            res = subprocess.run([sys.executable, __file__, "_one", str(log), est, str(Path(tmp) / f"{est}.csv"),
-                                  *config], capture_output=True, text=True)
+            res = subprocess.run([sys.executable, __file__, "_one", str(log), str(vehicle), est,
+                                  str(Path(tmp) / f"{est}.csv"), *config], capture_output=True, text=True)
             if res.returncode != 0:
                 print(f"| {est} | failed: {res.stderr.strip().splitlines()[-1:]} |", flush=True)
                 continue
@@ -205,6 +241,8 @@ def main(argv=None) -> int:
     rp.add_argument("--minutes", type=float, default=120.0)
     rp.add_argument("--estimators", nargs="+", default=["none", "kf", "mpf"])
     rp.add_argument("--backend", choices=["numba", "numpy"], help="backend of mpf and augpf (default: theirs)")
+    rp.add_argument("--peer", action="store_true", help="a mixed-maneuver peer drive (repeated 10 minutes)")
+    rp.add_argument("--particles", type=int, help="N of the particle filters (default: theirs)")
     sk = sub.add_parser("soak")
     sk.add_argument("--minutes", type=float, default=60.0)
     sk.add_argument("--particles", type=int)

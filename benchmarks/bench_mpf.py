@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tirefilter.cosim.results import read_results
+from tirefilter.io.results import read_results
 from tirefilter.cosim.run import run_scenario
 from tirefilter.estimators import build_estimator
 from tirefilter.metrics import settling_time, stiffness_errors

@@ -4,7 +4,7 @@ with data-sheet vehicle TOMLs (guessed nominal stiffness, no noise or bias keys)
 
     .venv/bin/python benchmarks/bench_peer.py [--models std mb] [--vehicles 1 2 3] [--seeds 0 1]
         [--estimators mpf ekf kf augpf] [--maneuver mixed] [--duration 60] [--speed 20] [--last 30]
-        [--config FILE.toml] [--workers 1] [--readme]
+        [--config FILE.toml] [--workers 1]
 
 Per drive and estimator: the lateral stiffness error (mean of the estimate over the last
 `--last` seconds against the mean of `Cf_y_true`, `Cr_y_true` there, in %), the sideslip
@@ -13,17 +13,14 @@ longitudinal stiffness error of the estimators that have a Cx (the full-model MP
 mean against `Cx_true`, the driven axle's slip stiffness), the
 restarts of the particle filters, and the wall time of the replay; per drive also its
 largest |a^Y| and the IMU's a^Y gain 1 + g k from body roll (k the roll gradient; 1 for
-STD). Then the mean absolute errors per model and estimator. `--readme` writes the
-tables into the section "Peer drives" at the end of benchmarks/README.md, under a
-subsection named by the settings and estimators (replacing that subsection only). The
-default run is modest (12 drives of 60 s, one worker): the machine is shared.
+STD). Then the mean absolute errors per model and estimator, as markdown tables on stdout
+(docs/results.md, "Peer drives"). The default run is modest (12 drives of 60 s, one worker).
 """
 
 from __future__ import annotations
 
 import argparse
 import math
-import re
 import sys
 import tempfile
 import time
@@ -31,10 +28,6 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
-
-README = Path(__file__).resolve().parent / "README.md"
-HEADING = "## Peer drives (`benchmarks/bench_peer.py`, issue 13 point 6)"
-
 
 def replay_drive(drive, name: str, config: dict, seed: int, last: float):
     """Replay the peer drive `drive` through its CSV log and vehicle TOML, as a user would,
@@ -126,46 +119,6 @@ def tables(rows: list[dict], args) -> str:
     return "\n".join(lines)
 
 
-INTRO = """Drives from the CommonRoad vehicle models (`tirefilter peer-drive`, an independent published
-vehicle model: single-track drift STD, multi-body MB with body roll and the IMU on the rolling
-body), IMU biases and noise, data-sheet vehicle TOMLs (nominal stiffness guessed at 0.25 per
-degree of the axle load: 35 % below the peer's tires; no noise or bias keys). The issue-13
-targets: lateral stiffness within 10 %, sideslip RMSE at most 0.1 deg. The MB drives leave
-the roll gradient out of the vehicle TOML, so their IMU a^Y reads 1.12-1.16 x a^Y unmodelled
-(docs/derivations.md, "Peer drives"). The tables below were measured on the branch
-issue13-peer, based on main at 754569e, before the issue-13 defaults. With those defaults no
-estimator meets the targets on any of the 12 drives: the MPF ends 55-75 % low (one drive
-+96 %) with about 4 deg of sideslip error and 1-5 restarts per drive, the KF keeps the guess
-(-35 %), and only the AUGPF, on 2 drives, beats a zero-sideslip guess (0.08-0.12 deg). With
-bias estimation on and the drives' noise (`--config benchmarks/peer_bias.toml`) the MPF
-meets both targets on all 12 (worst stiffness error 8.3 %, on MB, whose roll it does not
-model; mean sideslip RMSE 0.018 deg). So the drives are sound, and the defaults are what fails."""
-
-
-def write_readme(subheading: str, text: str) -> None:
-    """Write `text` under `subheading` in the section HEADING at the end of
-    benchmarks/README.md: replace that subsection if it is there, else add it at the end
-    of the section (the section is created, with INTRO, when missing)."""
-    readme = README.read_text()
-    start = readme.find(HEADING)
-    if start < 0:
-        readme = readme.rstrip("\n") + f"\n\n{HEADING}\n\n{INTRO}\n"
-        start = readme.find(HEADING)
-    nxt = re.search(r"^## ", readme[start + len(HEADING):], flags=re.M)
-    end = start + len(HEADING) + nxt.start() if nxt else len(readme)
-    section = readme[start:end].rstrip("\n")
-    block = f"{subheading}\n\n{text}"
-    sub = section.find(subheading + "\n")
-    if sub >= 0:
-        after = re.search(r"^### ", section[sub + len(subheading):], flags=re.M)
-        stop = sub + len(subheading) + after.start() if after else len(section)
-        section = section[:sub] + block + ("\n\n" + section[stop:] if after else "")
-    else:
-        section = section + "\n\n" + block
-    readme = readme[:start] + section.rstrip("\n") + "\n" + ("\n" + readme[end:] if nxt else "")
-    README.write_text(readme)
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--models", nargs="+", default=["std", "mb"], choices=("std", "mb"))
@@ -178,7 +131,6 @@ def main() -> None:
     ap.add_argument("--last", type=float, default=30.0, help="window of the stiffness mean (s)")
     ap.add_argument("--config", help="estimator configuration TOML for every replay (default: none, the defaults)")
     ap.add_argument("--workers", type=int, default=1)
-    ap.add_argument("--readme", action="store_true", help="write the tables into benchmarks/README.md")
     args = ap.parse_args()
     jobs = [(m, v, s, tuple(args.estimators), args.maneuver, args.duration, args.speed, args.last,
              args.config)
@@ -197,16 +149,12 @@ def main() -> None:
             print(f"  {job[0]} vehicle {job[1]} seed {job[2]} done ({out[0]['gen_s']:.0f} s to generate)",
                   file=sys.stderr)
     table = tables(rows, args)
-    command = "    .venv/bin/python benchmarks/bench_peer.py " + " ".join(sys.argv[1:])
     header = (f"{len(jobs)} drives ({', '.join(args.models)}; vehicles {', '.join(map(str, args.vehicles))}; seeds "
               f"{', '.join(map(str, args.seeds))}), maneuver `{args.maneuver}`, {args.duration:g} s at 100 Hz, "
               f"set speed {args.speed:g} m/s; "
               f"settings: {'`--config ' + args.config + '`' if args.config else 'the defaults (no --config)'}; "
               f"stiffness error over the last {args.last:g} s; run time {time.perf_counter() - t0:.0f} s.")
     print(header + "\n\n" + table)
-    if args.readme:
-        settings = f"`--config {args.config}`" if args.config else "default settings"
-        write_readme(f"### {settings}, {', '.join(args.estimators)}", f"{command}\n\n{header}\n\n{table}")
 
 
 if __name__ == "__main__":

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from tirefilter.cosim.run import run_scenario
-from tirefilter.cosim.results import ESTIMATE_COLUMNS, INPUT_TRUTH_COLUMNS, truth_column
+from tirefilter.io.results import ESTIMATE_COLUMNS, INPUT_TRUTH_COLUMNS, truth_column
 from tirefilter.cosim.fmu import VehicleFMU
 from tirefilter.scenarios import load_scenario
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from tirefilter.cosim.fmu import VehicleFMU
-from tirefilter.cosim.results import ESTIMATE_COLUMNS, INPUT_TRUTH_COLUMNS, truth_column
+from tirefilter.io.results import ESTIMATE_COLUMNS, INPUT_TRUTH_COLUMNS, truth_column
 from tirefilter.cosim.run import run_scenario
 from tirefilter.estimators import build_estimator
 from tirefilter.estimators.augpf import conditional_deviation, inverse_gamma_step
@@ -185,17 +185,26 @@ def test_conditional_deviation_is_gaussian_conditioning():
 
 
 # ---- convergence on paper-sim ---------------------------------------------------------------
-@pytest.mark.parametrize("name, particles, config, tol", [
-    ("ekf", None, {}, 3.0),
-    ("augpf", 300, {}, 4.0),
-    ("augpf", 300, {"augpf": {"proposal": "bootstrap"}}, 6.0),
+# Measured at seed 1 (Cf_y / Cr_y signed mean %, mean abs %, v^Y RMSE m/s) and at seeds 0, 2, 3 for the spread:
+#   ekf               -1.67 / -2.43, 2.12 / 2.58, 0.0170  (seeds 0, 2, 3: mean down to -2.76, mean abs up to 2.79)
+#   augpf             +0.27 / +0.87, 2.90 / 3.33, 0.0138  (seeds 0, 2: diverged, -54 / -59 % and +17 / +54 %)
+#   augpf bootstrap   +0.27 / +0.00, 3.41 / 4.06, 0.0167  (seeds 0, 2, 3: -3.7 / -3.7, +52 / +128, +35 / +80 %)
+#   rls (nominal KF)  +0.34 / -0.77, 0.50 / 0.83, 0.0226  (seeds 0, 2, 3: mean -0.77 to +0.34, mean abs up to 0.83)
+# Bounds about 3x the seed-1 figures (the EKF's mean 1.2x of its own -2.4 % bias, 1.1x of the seeds' largest);
+# the AUGPF's seed 1 is one of its runs that converge (55 of 100 paper-sim trials in an earlier study,
+# benchmarks/README.md; the bootstrap proposal fewer).
+@pytest.mark.parametrize("name, particles, config, mean_tol, mean_abs_tol", [
+    ("ekf", None, {}, 3.0, 6.0),
+    ("augpf", 300, {}, 2.6, 8.0),
+    ("augpf", 300, {"augpf": {"proposal": "bootstrap"}}, 1.0, 12.0),
     # the KF of the cascade on the nominal (= true, before 30 s) stiffness: with its own
     # estimate (the default) the cascade stays near its start (README, Baselines)
-    ("rls", None, {"rls": {"kf_stiffness": "nominal"}}, 2.0),
+    ("rls", None, {"rls": {"kf_stiffness": "nominal"}}, 2.0, 2.5),
 ])
-def test_converges_on_paper_sim(fmu_paths, name, particles, config, tol):
+def test_converges_on_paper_sim(fmu_paths, name, particles, config, mean_tol, mean_abs_tol):
     """paper-sim up to the surface change (29.5 s), initial stiffness 70% +- 30% of truth,
-    seed 1: the mean steady-state error of Cf_y and Cr_y below `tol` percent."""
+    seed 1: the mean steady-state error of Cf_y and Cr_y below `mean_tol` percent, the mean
+    absolute error below `mean_abs_tol`, the v^Y RMSE after 5 s below 0.05 m/s."""
     scenario = _short(29.5)
     est = build_estimator(name, scenario, model="auto", particles=particles, config=config)
     _, rows = run_scenario(scenario, estimator=est, seed=1, keep_rows=True)
@@ -204,8 +213,9 @@ def test_converges_on_paper_sim(fmu_paths, name, particles, config, tol):
     r = {c: rows[:, j] for j, c in enumerate(names)}
     for param in ("Cf_y", "Cr_y"):
         e = stiffness_errors(r, scenario, param)
-        assert abs(e["mean"]) < tol and e["mean_abs"] < 2 * tol, (name, param, e)
-    assert np.sqrt(np.mean((r["vy"] - r["true_vy"])[r["t"] > 5] ** 2)) < 0.1
+        assert abs(e["mean"]) < mean_tol and e["mean_abs"] < mean_abs_tol, (name, param, e)
+    # measured 0.0138-0.0226 m/s (table above); bound 2.2-3.6x
+    assert np.sqrt(np.mean((r["vy"] - r["true_vy"])[r["t"] > 5] ** 2)) < 0.05
 
 
 def test_augpf_borrows_the_numpy_model_by_default_and_numba_gives_the_same(fmu_paths):
@@ -244,7 +254,7 @@ def test_a_missing_ay_sample_does_not_open_a_baselines_gate(name):
     from test_stiffness_mpf import _steady_turn  # tests/, on the path as the other test helpers
 
     from tirefilter.estimators import _baseline
-    from tirefilter.estimators.stiffness_mpf import MPFConfig
+    from tirefilter.estimators.mpf import MPFConfig
 
     vehicle = load_scenario("paper-sim").vehicle
     cfg = MPFConfig(model="lateral", particles=100, bias0_std=(0.0, 0.0, 0.0), bias_rw=(0.0, 0.0, 0.0),

@@ -9,7 +9,7 @@ import pytest
 
 from make_reference import COLUMNS, REFERENCE, reference_rows
 from tirefilter.cli import main
-from tirefilter.cosim.results import read_results
+from tirefilter.io.results import read_results
 from tirefilter.errors import FMUError
 from tirefilter.cosim.run import run_scenario
 from tirefilter.scenarios import load_scenario

@@ -12,10 +12,11 @@ import numpy as np
 import pytest
 
 from tirefilter import runs
-from tirefilter.cosim import results
-from tirefilter.cosim.csv_format import format_rows
+from tirefilter.io import results
+from tirefilter.io.csv_format import format_rows
 from tirefilter.cosim.fmu import VehicleFMU
-from tirefilter.cosim.results import ResultWriter, iter_results, read_results
+from tirefilter.estimators.base import Inputs, Measurement
+from tirefilter.io.results import ESTIMATE_COLUMNS, ResultWriter, iter_results, read_results
 from tirefilter.cosim.run import cosim_samples
 from tirefilter.scenarios import load_scenario
 
@@ -94,10 +95,10 @@ def test_rows_kept_across_blocks(monkeypatch):
     monkeypatch.setattr(runs, "KEEP_BLOCK", 4)
     rows = table(10, 3, seed=3)
     for n in (0, 3, 4, 5, 10):
-        out = runs.RunOutputs(("a", "b", "c"), keep_rows=True)
+        out = runs.KeptRows()
         for row in rows[:n]:
-            out.write(row.tolist())
-        kept = out.kept_rows()
+            out.write(row.copy())
+        kept = out.rows()
         if n == 0:
             assert kept is None
         else:
@@ -171,7 +172,7 @@ def test_result_writer_keeps_every_row_when_its_helper_start_is_interrupted(tmp_
 
 
 @pytest.mark.parametrize("body_error", [None, "interrupt", "failure", "keyboard"])
-def test_run_outputs_fill_the_summary_when_the_csv_fails_to_close(tmp_path, monkeypatch, body_error):
+def test_the_run_fills_the_summary_when_the_csv_fails_to_close(tmp_path, monkeypatch, body_error):
     """A Result CSV that fails to close (a full disk) still leaves a filled summary: it fails a
     run that had not failed; after a failure or an interruption the first exception goes on
     and the summary names both."""
@@ -180,19 +181,22 @@ def test_run_outputs_fill_the_summary_when_the_csv_fails_to_close(tmp_path, monk
 
     monkeypatch.setattr(ResultWriter, "close", full_disk)
     summary = runs.StepSummary(seed=0, estimator="none")
-    columns = ("t", "x")
+    columns = ESTIMATE_COLUMNS + ("x",)
     expected = {None: OSError, "interrupt": runs.Interrupted, "failure": ValueError,
                 "keyboard": KeyboardInterrupt}[body_error]
+
+    def samples():
+        for k in range(3):
+            yield runs.Sample(k, 0.01 * k, Inputs(0.0, 0.0, 0.0, 20.0), Measurement(0.0, 0.0, 0.0), (np.ones(1),))
+        if body_error == "interrupt":
+            raise runs.Interrupted(signal.SIGTERM)
+        if body_error == "failure":
+            raise ValueError("the estimator failed")
+        if body_error == "keyboard":  # outside `interruptible`: no signal handler turned it into Interrupted
+            raise KeyboardInterrupt
+
     with pytest.raises(expected) as info:
-        with runs.run_outputs(summary, columns, results_csv=tmp_path / "r.csv") as out:
-            for k in range(3):
-                out.write(np.array([0.01 * k, 1.0]))
-            if body_error == "interrupt":
-                raise runs.Interrupted(signal.SIGTERM)
-            if body_error == "failure":
-                raise ValueError("the estimator failed")
-            if body_error == "keyboard":  # outside `interruptible`: no signal handler turned it into Interrupted
-                raise KeyboardInterrupt
+        runs.run(samples(), runs.Run(None, columns, [ResultWriter(tmp_path / "r.csv", columns)]), summary)
     assert summary.steps == 3 and summary.wall_time_s > 0.0
     if body_error == "keyboard":  # goes on as it is; the summary keeps its status
         assert summary.status == "ok"

@@ -20,7 +20,7 @@ import pytest
 
 from tirefilter.cli import build_parser, import_viewer, main
 from tirefilter.cosim.fmu import VehicleFMU
-from tirefilter.cosim.results import ESTIMATE_COLUMNS, read_results, result_columns
+from tirefilter.io.results import ESTIMATE_COLUMNS, read_results, result_columns
 from tirefilter.cosim.run import cosim_samples, run_scenario
 from tirefilter.errors import ConfigError, ReplayError
 from tirefilter.estimators import build_estimator
@@ -55,7 +55,7 @@ def compiled_kernels(fmu_paths):
     through a small default MPF, full and lateral model, and 0.2 s of friction-snow through
     a small GP-SSM."""
     from tirefilter.estimators.base import Inputs, Measurement
-    from tirefilter.estimators.stiffness_mpf import MPFConfig, StiffnessMPF
+    from tirefilter.estimators.mpf import MPFConfig, StiffnessMPF
 
     vehicle = load_scenario("paper-sim").vehicle
     omega = 20.0 / vehicle.wheel_radius
@@ -657,9 +657,7 @@ def _check_layout(page, tmp_path) -> None:
 
 
 @pytest.mark.xdist_group("browser")  # one browser at a time (make test runs two workers)
-@pytest.mark.skipif(not CHROMIUM.is_file(), reason="/usr/bin/chromium is absent (Debian package `chromium`; "
-                    ".ci/run installs it)")
-def test_the_page_in_a_real_browser(fmu_paths, tmp_path):
+def test_the_page_in_a_real_browser(fmu_paths, tmp_path, chromium):
     from playwright import sync_api  # the test extra (pip); its browser download is never used
     bad = tmp_path / "bad_log.csv"
     bad.write_text("t,ax,ay,yaw_rate,vx\n0.0,0.1,0.2,0.0,20.0\n")  # no steering column

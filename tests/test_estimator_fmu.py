@@ -21,7 +21,7 @@ import pytest
 
 pytest.importorskip("pythonfmu")
 
-from tirefilter.cosim.results import ESTIMATE_COLUMNS, INPUT_TRUTH_COLUMNS, truth_column  # noqa: E402
+from tirefilter.io.results import ESTIMATE_COLUMNS, INPUT_TRUTH_COLUMNS, truth_column  # noqa: E402
 from tirefilter.estimators import build_estimator  # noqa: E402
 from tirefilter.estimators.base import Inputs, Measurement  # noqa: E402
 from tirefilter.fmu_export.host import FMUHost  # noqa: E402
@@ -408,7 +408,7 @@ def test_friction_fmu_validates_and_equals_python_estimator(friction_fmu, fricti
     outputs (refreshed every friction_period) equal the Python estimator's on the same
     samples; a NaN a^Y sample behaves as in Python."""
     from fmpy.validation import validate_fmu
-    from tirefilter.fmu_export.slaves import FRICTION_ALPHA_DEG, friction_output
+    from tirefilter.fmu_export.variables import FRICTION_ALPHA_DEG, friction_output
 
     assert validate_fmu(str(friction_fmu)) == []
     sc, params, stream = friction_snow

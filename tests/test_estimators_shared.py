@@ -1,4 +1,4 @@
-"""Tests every estimator of the registry inherits (STYLE.md 12): finite outputs on every
+"""Tests every estimator of the registry inherits (the same tests for every variant): finite outputs on every
 scenario, determinism for a seed, missing samples in a replayed log, --particles accepted
 and ignored by the estimators without particles."""
 
@@ -12,7 +12,7 @@ import pytest
 
 from tirefilter.cli import main
 from tirefilter.cosim.fmu import VehicleFMU
-from tirefilter.cosim.results import ESTIMATE_COLUMNS, INPUT_TRUTH_COLUMNS, read_results, truth_column
+from tirefilter.io.results import ESTIMATE_COLUMNS, INPUT_TRUTH_COLUMNS, read_results, truth_column
 from tirefilter.cosim.run import run_scenario
 from tirefilter.estimators import ESTIMATORS, FRICTION_ESTIMATORS, build_estimator, build_log_estimator
 from tirefilter.replay import read_log, replay_log, result_columns, write_log
@@ -39,7 +39,7 @@ def _run(name: str, scenario, seed: int = 0, particles=N):
 
 def _assert_finite(r: dict, est, where: str) -> None:
     # the friction estimators' stiffness is the slope of the learned curve, with a std only
-    # once the first snapshot has solved for the curve (friction_gpssm._curve_slope)
+    # once the first snapshot has solved for the curve (FrictionGPSSM._curve_slope)
     friction = getattr(est, "name", "") in FRICTION_ESTIMATORS
     for col in ALWAYS_FINITE:
         if friction and col.endswith("_std"):

@@ -12,20 +12,20 @@ import re
 import numpy as np
 import pytest
 
-from tirefilter.cosim.results import read_results
+from tirefilter.io.results import read_results
 from tirefilter.errors import ConfigError
 from tirefilter.estimators import build_log_estimator
 from tirefilter.estimators.base import Measurement
 from tirefilter.estimators.guard import GuardConfig, MeasurementGuard, guard_from_config
 from tirefilter.replay import replay_log, result_columns
-from tirefilter.replay.log import Log
+from tirefilter.io.log import Log
 from tirefilter.scenarios import load_scenario
 from tirefilter.scenarios.faults import Fault, fault_log_columns, fault_sets, fault_windows, parse_faults
 
 DURATION, SEED, N = 20.0, 2, 100
 # the MPF at its default N: at N = 100 this replay diverges and restarts on about a third of the estimator
 # seeds (17 of 48 with main's defaults, 18 of 48 with the interval wheel slip), at N = 500 on none of 24
-# (benchmarks/bench_short_replay.py), so a test at N = 100 passes or fails by its seed
+# (tools/bench_short_replay.py), so a test at N = 100 passes or fails by its seed
 MPF_N = 500
 RECOVERED_DEG = 0.1  # sideslip RMS error over [end + 5 s, end + 10 s) at most this above the clean replay's
 

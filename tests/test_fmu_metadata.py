@@ -73,7 +73,7 @@ def test_dependencies_are_what_perturbing_the_inputs_moves(fmu_paths, version):
             for o in outs:
                 moved[o].add(name)
     assert moved == declared
-    # the example: the steer moves these at once, and not vx or the yaw rate
+    # an importing tool's example: the steer moves these at once, and not vx or the yaw rate
     assert {"alpha_f", "ax", "ay", "Fy_f", "yaw_acc", "delta_meas"} <= {o for o, d in declared.items() if "delta" in d}
     assert not declared["vx"] and not declared["yaw_rate"]
     assert not any(declared[o] & {"drive_torque", "brake_torque"} for o in declared)  # through the wheel spin only

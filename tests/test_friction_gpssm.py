@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 
 from tirefilter.cli import main
-from tirefilter.cosim.friction import FRICTION_COLUMNS, read_friction, snapshot_blocks
-from tirefilter.cosim.results import read_results
+from tirefilter.io.friction import FRICTION_COLUMNS, read_friction, snapshot_blocks
+from tirefilter.io.results import read_results
 from tirefilter.cosim.run import run_scenario
 from tirefilter.errors import ConfigError
 from tirefilter.estimators import build_estimator
 from tirefilter.estimators.base import FrictionCurve, Inputs, Measurement
-from tirefilter.estimators.friction_gpssm import DEG, FrictionGPSSM, GPSSMConfig
+from tirefilter.estimators.gpssm.filter import DEG, FrictionGPSSM, GPSSMConfig
 from tirefilter.scenarios import load_scenario
 from tirefilter.vehicle.tires import pure_lateral_friction
 
@@ -37,17 +37,19 @@ def _visited_rmse(fc: FrictionCurve):
     return out
 
 
-@pytest.mark.parametrize("basis,particles", [("axle", 100), ("tensor", 100)])
-def test_learns_the_snow_curve_over_the_visited_range(fmu_paths, basis, particles):
+# RMSE over the visited range in % of the peak friction, mu_f / mu_r: measured (seed 3) axle 0.41 / 0.40, tensor
+# 1.34 / 1.12; seeds 0-2: axle up to 0.60 / 0.64, tensor 0.55-1.27 / 0.49-1.00. Bounds 3x the seed-3 figure.
+@pytest.mark.parametrize("basis,particles,tol_pct", [("axle", 100, 1.25), ("tensor", 100, 4.0)])
+def test_learns_the_snow_curve_over_the_visited_range(fmu_paths, basis, particles, tol_pct):
     """20 s of friction-snow (steering amplitude 0.02 rad, slip up to ~1.5 deg), seed 3: the
-    learned mu_f, mu_r within 5% of the peak friction (RMSE over the visited range, at least
-    1 deg each side), starting from the 0.05-peak prior that is 80% off there."""
+    learned mu_f, mu_r within `tol_pct` % of the peak friction (RMSE over the visited range, at
+    least 1 deg each side), starting from the 0.05-peak prior that is 80% off there."""
     est = build_estimator("gpssm", SCENARIO, model="auto", particles=particles, config={"gpssm": {"basis": basis}})
     run_scenario(replace(SCENARIO, duration=20.0), estimator=est, seed=3)
     fc = est.friction()
     assert fc.visited[0] < -1 * DEG and fc.visited[1] > 1 * DEG
     for rmse, _, n in _visited_rmse(fc):
-        assert n >= 8 and rmse < 0.05 * PEAK, (rmse, PEAK)
+        assert n >= 8 and rmse < tol_pct / 100 * PEAK, (rmse, PEAK)
     # the prior alone is far off there: learning, not the prior, did it
     i = np.argmin(np.abs(fc.alpha - 1 * DEG))
     assert est.prior(fc.alpha[i], fc.alpha[i])[0] < 0.5 * pure_lateral_friction(SCENARIO.model.pacejka, fc.alpha[i])
@@ -91,7 +93,7 @@ def test_replay_writes_result_friction_csv(fmu_paths, tmp_path):
     """A co-simulation's signals as a Log CSV, replayed: RESULT.friction.csv, no truth."""
     summary, rows = run_scenario(replace(SCENARIO, duration=6.0), seed=0, keep_rows=True)
     from tirefilter.cosim.fmu import VehicleFMU
-    from tirefilter.cosim.results import result_columns
+    from tirefilter.io.results import result_columns
     from tirefilter.replay import write_log
 
     cols = dict(zip(result_columns(VehicleFMU().output_names), rows.T))
@@ -196,5 +198,6 @@ def test_combined_hands_over_the_mpf_slope(fmu_paths):
     p = SCENARIO.model.pacejka
     true_slope = p.B_y * p.C_y * p.mu_y
     sf, sr = est.prior.slope()
+    # measured +4.7 / +5.4 % (seed 0); seeds 1-3: +1.8 to +6.1 %; bound 2.8x
     assert sf == pytest.approx(true_slope, rel=0.15) and sr == pytest.approx(true_slope, rel=0.15)
     assert est.prior0.slope()[0] < 0.2 * true_slope  # the paper's prior (peak 0.05) is far below

@@ -1,13 +1,14 @@
 """Property-based fuzzing of the readers, bounded for CI (tests/fuzz_targets.py says what
-is fuzzed and the property; benchmarks/bench_fuzz.py runs the same targets much longer).
-A few hundred examples in all, derandomised so that a CI run is reproducible."""
+is fuzzed and the property: the result, or the error the input deserves; tools/fuzz.py
+runs the same targets much longer). A few hundred examples in all, derandomised so that a CI
+run is reproducible; the explicit examples are inputs that once raised a traceback."""
 
 from __future__ import annotations
 
 import tempfile
 from pathlib import Path
 
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 import fuzz_targets as ft
@@ -48,8 +49,10 @@ def test_config_toml(data):
         ft.fuzz_toml_data(Path(tmp), data, "config")
 
 
-@settings(CI, max_examples=20)
-@given(text=st.text(max_size=80), reader=st.sampled_from(["vehicle", "scenario", "config"]))
+@settings(CI, max_examples=30)
+@given(text=st.one_of(st.text(max_size=80), st.binary(max_size=40)),
+       reader=st.sampled_from(["vehicle", "scenario", "config"]))
+@example(text=b'mass = 1\nname = "\xe9"\n', reader="vehicle")  # latin-1, not UTF-8
 def test_toml_text(text, reader):
     with _tmp() as tmp:
         ft.fuzz_toml_text(Path(tmp), text, reader)
@@ -57,6 +60,10 @@ def test_toml_text(text, reader):
 
 @settings(CI, max_examples=50)
 @given(content=st.one_of(ft.mutated(ft.base_state()), st.binary(max_size=40), ft.values))
+@example(content=ft.base_state() | {"vehicle": 0})
+@example(content=ft.base_state() | {"vehicle": []})
+@example(content=ft.base_state() | {"log_weights": 0})
+@example(content=ft.base_state() | {"log_weights": [float("nan"), 0.0, 0.0]})
 def test_state_file(content):
     with _tmp() as tmp:
         ft.fuzz_state(Path(tmp), content)

@@ -4,6 +4,9 @@ with the GP-SSM, and the default replay over a log with dropped rows, blank cell
 
 from __future__ import annotations
 
+import re
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -25,3 +28,37 @@ def test_comparison_notices_a_relative_change_of_1e_8():
     problems = golden.compare("paper-sim", {"results": run})
     assert len(problems) == 1 and "1 values differ" in problems[0] and "Cr_y" in problems[0]
     assert golden.compare("paper-sim", {"results": run[:-1]})[0].endswith(f"the master's run had {total}")
+
+
+README = Path(__file__).resolve().parents[1] / "README.md"
+TIMING = re.compile(r"wall time \d+\.\d\d s \(\d+x real time\), median step \d+\.\d us")
+
+
+def readme_output_block() -> list[str]:
+    """The lines of the README's first `text` block: the example output of `make run`."""
+    text = README.read_text()
+    start = text.index("```text\n") + len("```text\n")
+    return text[start:text.index("```", start)].splitlines()
+
+
+def test_readme_example_output_is_what_make_run_prints(tmp_path):
+    """The README's example output is `tirefilter run --scenario paper-sim --seed 0` (what
+    `make run` runs): every line it shows is printed, in that order, character for character;
+    the timing line in the printed format with this machine's figures; "..." stands for lines
+    left out."""
+    printed: list[str] = []
+    golden.run_case("paper-sim", tmp_path, printed)
+    lines = printed[0].splitlines()
+    at = 0
+    for shown in readme_output_block():
+        if shown == "...":
+            continue
+        if shown.startswith("wall time"):
+            assert TIMING.fullmatch(shown), f"README's timing line is not in the printed format: {shown!r}"
+            match = lambda line: TIMING.fullmatch(line) is not None  # noqa: E731
+        else:
+            match = shown.__eq__
+        found = next((k for k in range(at, len(lines)) if match(lines[k])), None)
+        assert found is not None, f"README shows a line `tirefilter run` does not print (after line {at}):\n{shown}\n" \
+                                  f"printed:\n{printed[0]}\n(regenerate the README's block from this run)"
+        at = found + 1

@@ -13,8 +13,11 @@ from pathlib import Path
 from numba.core.registry import CPUDispatcher
 
 REPO = Path(__file__).resolve().parents[1]
-KERNEL_MODULES = ("tirefilter.estimators.mpf_numba", "tirefilter.estimators.gpssm_numba",
-                  "tirefilter.stats.mniw_numba", "tirefilter.stats.particles_numba")
+KERNEL_MODULES = ("tirefilter.estimators.mpf.kernels_weigh", "tirefilter.estimators.mpf.kernels_update",
+                  "tirefilter.estimators.gpssm.kernels_particles", "tirefilter.estimators.gpssm.kernels_stats",
+                  "tirefilter.estimators.gpssm.kernels_resample",
+                  "tirefilter.stats.mniw_numba", "tirefilter.stats.particles_numba",
+                  "tirefilter.vehicle.single_track_numba")
 
 
 def internal_helpers() -> dict[str, set[str]]:
@@ -73,10 +76,10 @@ def python_references(source: str, own_module: str | None, helpers: dict[str, se
 
 def test_every_helper_without_a_python_wrapper_is_called_only_from_compiled_code():
     helpers = internal_helpers()
-    assert helpers["tirefilter.estimators.mpf_numba"] >= {"_model_t", "_xdot_t"}  # the finder finds them
+    assert helpers["tirefilter.vehicle.single_track_numba"] >= {"_model_t", "_xdot_t"}  # the finder finds them
     module_of = {str(REPO / "src" / (m.replace(".", "/") + ".py")): m for m in KERNEL_MODULES}
     calls = {}
-    for folder in ("src", "tests", "benchmarks", "fmu"):
+    for folder in ("src", "tests", "benchmarks", "tools", "fmu"):
         for path in sorted((REPO / folder).rglob("*.py")):
             if ".venv" in path.parts or "build" in path.parts:
                 continue
@@ -87,11 +90,11 @@ def test_every_helper_without_a_python_wrapper_is_called_only_from_compiled_code
 
 
 def test_the_check_finds_a_call_from_python():
-    helpers = {"tirefilter.estimators.mpf_numba": {"_model_t"}}
+    helpers = {"tirefilter.vehicle.single_track_numba": {"_model_t"}}
     source = '''
 from numba import njit
-from tirefilter.estimators import mpf_numba as nb
-from tirefilter.estimators.mpf_numba import _model_t
+from tirefilter.vehicle import single_track_numba as nb
+from tirefilter.vehicle.single_track_numba import _model_t
 
 @njit
 def fine(x):
@@ -104,4 +107,4 @@ y = _model_t(1.0)
 '''
     assert python_references(source, None, helpers) == [(11, "nb._model_t"), (13, "_model_t")]
     own = "@njit\ndef _model_t(x):\n    return x\n\ndef py(x):\n    return _model_t(x)\n"
-    assert python_references(own, "tirefilter.estimators.mpf_numba", helpers) == [(6, "_model_t")]
+    assert python_references(own, "tirefilter.vehicle.single_track_numba", helpers) == [(6, "_model_t")]

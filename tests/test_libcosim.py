@@ -111,4 +111,10 @@ def test_libcosim_and_fmpy_give_the_same_run(fmus, tmp_path):
 
 
 if __name__ == "__main__":  # the libcosim run, in the child process of the test
-    np.save(sys.argv[3], _run_libcosim(Path(sys.argv[1]), Path(sys.argv[2])))
+    from tirefilter.fmu_export.release import python_fmus_released
+
+    # the estimator FMU's binary stays loaded after libcosim unloads it (the first pythonfmu
+    # binary of the process): released here, its destructor has nothing to do at exit (release.py)
+    with python_fmus_released():
+        rows = _run_libcosim(Path(sys.argv[1]), Path(sys.argv[2]))
+    np.save(sys.argv[3], rows)

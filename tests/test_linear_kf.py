@@ -197,8 +197,11 @@ def test_nees_and_nis_are_chi_square_consistent():
     assert np.mean((per_time > lo) & (per_time < hi)) > 0.95
     assert chi2.ppf(0.005, n_meas) < nis_sum < chi2.ppf(0.995, n_meas)
     rmse = math.sqrt(np.mean(np.square(err_vy)))
-    assert rmse < 0.05  # m/s
-    assert abs(rmse / math.sqrt(np.mean(var_vy)) - 1.0) < 0.05  # the filter knows how good it is
+    # measured 0.0318 m/s (seed 2024; seeds 1-3: 0.0320-0.0332): the optimal filter's own error, so the bound is
+    # 1.1x (a filter that loses 10 % of that efficiency fails), not 3x
+    assert rmse < 0.035  # m/s
+    # the filter knows how good it is: measured +0.5 % (seed 2024; seeds 1-3: -1.5 to +0.5 %); bound 3.3x the spread
+    assert abs(rmse / math.sqrt(np.mean(var_vy)) - 1.0) < 0.05
 
 
 def test_step_equals_predict_then_update():

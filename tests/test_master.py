@@ -8,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 
 from tirefilter.cosim.fmu import VehicleFMU
-from tirefilter.cosim.results import read_results
+from tirefilter.io.results import read_results
 from tirefilter.cosim.run import run_scenario
 from tirefilter.estimators.base import Estimate, Estimator, Inputs, Measurement, Posterior
 from tirefilter.scenarios import load_scenario

@@ -112,7 +112,7 @@ def test_no_reference_no_figures():
     assert format_metrics(m) == ["learning gate open 100 % of the time"]
 
 
-# -- the streamed metrics (metrics.RunMetrics, what a run's summary uses) against run_metrics ------
+# -- the streamed metrics (metrics.RunMetrics): the same however the rows are cut into chunks ---------
 def _same(a, b, path="m"):
     """Equal dicts, lists and numbers, floats to a relative 1e-12 (the order of summation)."""
     if isinstance(a, dict):
@@ -209,13 +209,13 @@ def test_streamed_metrics_need_the_time_column():
 
 
 def test_a_replay_longer_than_a_chunk_states_the_metrics_of_its_results(tmp_path):
-    """A replay's summary (`runs._ScoredStream`, 8192 rows a chunk) on 12 001 rows: the
+    """A replay's summary (`runs.Metrics`, 8192 rows a chunk) on 12 001 rows: the
     metrics of `run_metrics` on the Result CSV written, to 1e-12."""
     import json
     from pathlib import Path
 
     from tirefilter.cli import main
-    from tirefilter.cosim.results import read_results
+    from tirefilter.io.results import read_results
 
     rng = np.random.default_rng(0)
     t = np.arange(12001) * 0.01

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tirefilter.cosim.results import ESTIMATE_COLUMNS
+from tirefilter.io.results import ESTIMATE_COLUMNS
 from tirefilter.errors import ReplayError
 from tirefilter.estimators import build_log_estimator
 from tirefilter.replay import read_log, replay_log

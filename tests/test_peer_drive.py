@@ -23,7 +23,7 @@ from tirefilter.peer.drive import (K_SPEED, K_STEER, RATE, SETTLE, SUBSTEPS, Dri
 from tirefilter.peer.maneuvers import Profile
 from tirefilter.peer.model import load_model
 from tirefilter.peer.score import read_columns, score_replay
-from tirefilter.replay.log import read_log
+from tirefilter.io.log import read_log
 from tirefilter.vehicle.params import load_vehicle
 
 # one worker of make test runs this module, so that the drives (module fixture, ~20 s) are simulated once
@@ -33,6 +33,8 @@ DURATION = 40.0  # s, the CI drives: 4 s straight, then a 0.5 Hz steer sine (|a^
 LAST = 20.0  # s, window of the stiffness mean
 STIFFNESS_TOL = 10.0  # %, the peer drives' target (docs/peer_drives.md)
 BETA_RMSE_TOL = 0.1  # deg, the peer drives' target (docs/peer_drives.md)
+# The replays' own bounds: about 3x the figures they measure (`tirefilter replay`'s seed 0), capped at the targets
+# above; the figures are in the tests' comments.
 # Bias estimation on, with the sensor noise the drive has given: the settings of the peer drives' target
 # to show that the drives themselves are sound.
 BIAS_CONFIG = """[mpf]
@@ -69,34 +71,44 @@ def _replay(tmp_path, log, vehicle, config: str | None = None) -> dict:
     return score_replay(log, out, last=LAST)
 
 
-def _assert_targets(score: dict) -> None:
-    assert abs(score["Cf_y_err"]) <= STIFFNESS_TOL, score
-    assert abs(score["Cr_y_err"]) <= STIFFNESS_TOL, score
-    assert score["beta_rmse_deg"] <= BETA_RMSE_TOL, score
+def _assert_targets(score: dict, stiffness_tol: float = STIFFNESS_TOL, beta_tol: float = BETA_RMSE_TOL) -> None:
+    assert stiffness_tol <= STIFFNESS_TOL and beta_tol <= BETA_RMSE_TOL  # never looser than the targets
+    assert abs(score["Cf_y_err"]) <= stiffness_tol, score
+    assert abs(score["Cr_y_err"]) <= stiffness_tol, score
+    assert score["beta_rmse_deg"] <= beta_tol, score
 
 
 # --- the estimator on the peer's drives ------------------------------------------------------
 
-@pytest.mark.parametrize("kind", ["std", "mb-roll", "mb"])
-def test_default_replay_meets_the_issue_13_targets(drives, tmp_path, kind):
+# measured (Cf_y / Cr_y error %, beta RMSE deg; replay seeds 1-3 in brackets):
+#   std      +2.63 / +3.42, 0.0230  (+1.9 to +2.5 / +2.8 to +3.4, 0.020-0.021)
+#   mb-roll  -1.99 / -1.65, 0.0166  (-1.1 to -1.9 / -0.6 to -1.5, 0.012-0.019)
+#   mb       +6.95 / +5.26, 0.0268  (+19.9 / +19.3, +44.9 / +62.7, +15.5 / +14.8; 0.049-0.154: beyond the targets)
+@pytest.mark.parametrize("kind,stiffness_tol,beta_tol", [("std", 10.0, 0.07), ("mb-roll", 6.0, 0.05),
+                                                         ("mb", 10.0, 0.08)])
+def test_default_replay_meets_the_peer_drive_targets(drives, tmp_path, kind, stiffness_tol, beta_tol):
     """`tirefilter replay LOG.csv --vehicle V.toml`, nothing else: lateral stiffness within
-    10 % of the truth (mean over the last 20 s), sideslip RMSE at most 0.1 deg. The
-    single-track drive with a data-sheet vehicle file; the multi-body drive (IMU on the
-    rolling body) with its roll gradient added to that file, and without it: that one ended
-    85-86 % high while the MPF took the noisy wheel speeds as exact (a known failure until the
-    wheel-speed filter, derivations, "Wheel-speed pre-filter": +5.6 / +3.2 % with it)."""
+    10 % of the truth (mean over the last 20 s), sideslip RMSE at most 0.1 deg, and within
+    about 3x this replay's figures. The single-track drive with a data-sheet vehicle file; the
+    multi-body drive (IMU on the rolling body) with its roll gradient added to that file, and
+    without it: that one ended 85-86 % high while the MPF took the noisy wheel speeds as exact
+    (a known failure until the wheel-speed filter, derivations, "Wheel-speed pre-filter": +7.0 / +5.3 % with it
+    at seed 0, but 15-63 % at replay seeds 1-3: without its roll gradient this drive meets the
+    targets at seed 0 only)."""
     _, log, vehicle, with_roll = drives[kind.split("-")[0]]
-    _assert_targets(_replay(tmp_path, log, with_roll if kind == "mb-roll" else vehicle))
+    _assert_targets(_replay(tmp_path, log, with_roll if kind == "mb-roll" else vehicle), stiffness_tol, beta_tol)
 
 
-@pytest.mark.parametrize("kind", ["std", "mb"])
-def test_drive_is_sound_with_bias_estimation(drives, tmp_path, kind):
+@pytest.mark.parametrize("kind,stiffness_tol,beta_tol", [("std", 7.5, 0.055), ("mb", 2.5, 0.04)])
+def test_drive_is_sound_with_bias_estimation(drives, tmp_path, kind, stiffness_tol, beta_tol):
     """With bias estimation on and the drive's noise (and, for the rolling body, the roll
     gradient) the same replay meets the targets: what is missing is defaults, not physics.
-    Measured on seeds 1, 2, 3: STD within 0.9 %, 0.01-0.04 deg; MB (roll gradient given)
-    -3.2 to -3.8 %, 0.02-0.03 deg."""
+    Measured (replay seed 0; seeds 1-3): STD +1.65 / +2.42 %, 0.018 deg (up to +4.7 / +5.7 %,
+    0.038 deg); MB (roll gradient given) -0.57 / -0.15 %, 0.014 deg (down to -1.6 / -1.3 %,
+    0.025 deg). Bounds 3x (STD), and for MB 1.6x the seeds' largest (4.4x the seed-0 figure)."""
     _, log, vehicle, with_roll = drives[kind]
-    _assert_targets(_replay(tmp_path, log, with_roll if kind == "mb" else vehicle, BIAS_CONFIG))
+    _assert_targets(_replay(tmp_path, log, with_roll if kind == "mb" else vehicle, BIAS_CONFIG), stiffness_tol,
+                    beta_tol)
 
 
 # --- the generator -------------------------------------------------------------------------
@@ -200,15 +212,15 @@ def test_integrate_is_the_numpy_form_bit_for_bit(kind):
     assert np.array_equal(X_out, X)
 
 
-@pytest.mark.parametrize("kind,vehicle,r_tol,beta_tol", [("std", 1, 0.01, 0.06), ("std", 2, 0.01, 0.06),
-                                                          ("mb", 2, 0.01, 0.03)])
+@pytest.mark.parametrize("kind,vehicle,r_tol,beta_tol", [("std", 1, 0.01, 0.06), ("std", 2, 0.006, 0.06),
+                                                          ("mb", 2, 0.003, 0.03)])
 def test_steady_state_matches_linear_single_track(kind, vehicle, r_tol, beta_tol):
     """A steady turn at 20 m/s and a^Y = 1 m/s^2: the peer's yaw rate and sideslip against
     the linear single-track steady state with the derived stiffness at the actual loads,
     r = v delta / (L + K_us v^2), beta = r (l_r / v - m l_f v / (L C_r)). Tolerances: the tire
     curvature and the kappa-induced side force at the rolling slip offset move the rear
     slip angle by ~1 %, which is ~4 % of the small sideslip (derivations: "Peer drives");
-    measured: STD r -0.7 / -0.2 %, beta +3.6 / +3.8 %; MB r -0.1 %, beta +1.2 %. 6 s (the steer
+    measured: STD r -0.7 / -0.2 %, beta +3.6 / +3.8 %; MB r -0.1 %, beta +1.2 % (bounds 1.4-3x). 6 s (the steer
     ramp 2 s, then held): at 10 s these errors were the same to 0.001 percentage points, a^Y and
     v^X to 1e-4 (docs/development.md, "How long `make test` takes")."""
     model = load_model(kind, vehicle)
@@ -237,8 +249,9 @@ def test_reference_accelerations_match_the_states(drives, kind):
     ax = np.gradient(c["vx_true"], dt) - c["yaw_rate_true"] * c["vy_true"]
     ay = np.gradient(c["vy_true"], dt) + c["yaw_rate_true"] * c["vx_true"]
     inner = slice(1, -1)
-    assert np.sqrt(np.mean((ax - c["ax_true"])[inner] ** 2)) < 0.01
-    assert np.sqrt(np.mean((ay - c["ay_true"])[inner] ** 2)) < 0.01
+    # measured 6.8e-6 / 5.6e-5 (STD), 6.6e-6 / 4.7e-5 (MB) m/s^2: the central differences' error; bound 3x
+    assert np.sqrt(np.mean((ax - c["ax_true"])[inner] ** 2)) < 2e-5
+    assert np.sqrt(np.mean((ay - c["ay_true"])[inner] ** 2)) < 1.7e-4
     assert np.max(np.abs(c["ay_true"])) < 4.0  # the linear tire region
     assert np.max(np.abs(c["ay_true"])) > 2.0
 
@@ -251,7 +264,8 @@ def test_imu_on_the_rolling_body_reads_g_sin_roll(drives):
         c = drive.columns
         assert drive.roll_gradient == pytest.approx(0.5 * (k_lo + k_hi), abs=0.5 * (k_hi - k_lo) + 1e-12)
         slope = np.polyfit(c["ay_true"], c["ay"] - c["b_ay_true"], 1)[0]
-        assert slope == pytest.approx(1.0 + 9.81 * drive.roll_gradient, abs=0.01)
+        # measured +0.0012 (STD) / +0.0003 (MB) (drive seed 1; seeds 2, 3: up to 0.0026); bound 3x
+        assert slope == pytest.approx(1.0 + 9.81 * drive.roll_gradient, abs=0.004)
     roll, ay = drives["mb"][0].columns["roll_true"], drives["mb"][0].columns["ay_true"]
     turning = np.abs(ay) > 1.0
     assert np.all(np.sign(roll[turning]) == -np.sign(ay[turning]))  # outwards (the peer's x[6] < 0 in a left turn)
@@ -264,7 +278,9 @@ def test_sensor_noise_and_biases(drives):
     c, spec = drive.columns, drive.spec.sensors
     for i, name in enumerate(("ax", "ay", "yaw_rate")):
         e = c[name] - c[f"b_{name}_true"] - c[f"{name}_true"]
-        assert np.std(e) == pytest.approx(spec.sigma[i], rel=0.1)
+        # measured -0.8, +1.1, -1.0 % (drive seed 1; seeds 2, 3: within 1.5 %; the std of a 4001-sample estimate:
+        # 1.1 %); bound 3.6 of those stds
+        assert np.std(e) == pytest.approx(spec.sigma[i], rel=0.04)
         assert abs(np.mean(e)) < 4 * spec.sigma[i] / math.sqrt(e.size)
         b = c[f"b_{name}_true"]
         assert abs(b[0]) <= spec.bias_max[i] * 1.01
@@ -327,19 +343,22 @@ def test_bad_drive_specs_get_clear_errors(kwargs, message):
 def test_default_replay_learns_cx_through_noisy_wheel_speeds(tmp_path):
     """A new user's drive (STD, vehicle 3, mixed maneuver, 18 m/s, seed 21, 60 s;
     wheel speeds with the peer sensors' 0.03 rad/s of white noise), replayed with the defaults:
-    the bias of taking the noisy wheel speeds as exact is gone. Taken as exact, Cx (mean over the
-    last 30 s) ended -44.9 to -54.8 % over replay seeds 0-4; filtered (the default), -17.4 to
-    +46.3 %, -4.5 % with `tirefilter replay`'s seed 0 (derivations, "Wheel-speed pre-filter"; docs/results.md,
-    "Peer drives"). The bound is one-sided because
-    the filtered estimate's spread is wide on this drive; the lateral targets hold as well."""
+    the bias of taking the noisy wheel speeds as exact is gone. Taken as exact
+    (`[mpf] sigma_omega = 0`), Cx (mean over the last 30 s) ends -50.2 % with `tirefilter
+    replay`'s seed 0 (-39.6, -27.5 % with seeds 1, 2; -44.9 to -54.8 % over seeds 0-4 in
+    docs/results.md, "Peer drives"); filtered
+    (the default), -13.1 % with seed 0 and +16.3, +7.1, +2.2, +46.0 % with seeds 1-4: one
+    drive's Cx spreads widely (derivations, "Wheel-speed pre-filter"). The bound, 1.9x the seed-0 figure, keeps
+    the wheel speeds taken as exact out; the lateral targets hold as well."""
     drive = simulate(DriveSpec(model="std", vehicle=3, maneuver="mixed", duration=60.0, seed=21, speed=18.0))
     log, vehicle = write_drive(drive, tmp_path / "drive.csv", tmp_path / "vehicle.toml")
     out = tmp_path / "result.csv"
     assert main(["replay", str(log), "--vehicle", str(vehicle), "--out", str(out), "--quiet"]) == 0
     score = score_replay(log, out, last=30.0)
-    assert score["Cx_err"] > -25.0, score
-    assert score["Cx_err"] < 60.0, score  # (seeds 0-4 of this replay: -17.4 to +46.3%)
-    _assert_targets(score)
+    assert abs(score["Cx_err"]) < 25.0, score
+    # measured -4.3 / -2.5 %, 0.0121 deg (seed 0; seeds 1-4: within 4.5 %, 0.011-0.018 deg): the stiffness's
+    # bound is the target (2.3x), the sideslip's 3x
+    _assert_targets(score, beta_tol=0.036)
 
 
 def test_score_has_the_cx_error_where_the_estimate_has_cx():

@@ -10,7 +10,7 @@ import pytest
 
 from tirefilter.cli import main
 from tirefilter.replay import check_log, write_log
-from tirefilter.replay.log import read_log
+from tirefilter.io.log import read_log
 from tirefilter.replay.plausibility import Plausibility
 
 VEHICLE = Path(__file__).resolve().parents[1] / "src/tirefilter/scenarios/data/vehicles/midsize-suv.toml"
@@ -57,7 +57,7 @@ def test_a_plausible_drive_gets_none_and_chunks_add_up(tmp_path):
     held = write_log(tmp_path / "held.csv", _drive(ay=lambda x: _held(x, 0.12)))
     whole = Plausibility()
     whole.add(read_log(held))
-    from tirefilter.replay.log import iter_log_chunks
+    from tirefilter.io.log import iter_log_chunks
 
     chunked = Plausibility()
     for chunk in iter_log_chunks(held, chunk_rows=7):

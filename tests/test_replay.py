@@ -17,9 +17,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import skip_or_fail_in_ci
 from tirefilter.cli import main
 from tirefilter.cosim.fmu import VehicleFMU
-from tirefilter.cosim.results import ESTIMATE_COLUMNS, INPUT_TRUTH_COLUMNS, read_results, truth_column
+from tirefilter.io.results import ESTIMATE_COLUMNS, INPUT_TRUTH_COLUMNS, read_results, truth_column
 from tirefilter.cosim.run import run_scenario
 from tirefilter.errors import ConfigError, LogError, ReplayError
 from tirefilter.estimators import build_estimator, build_log_estimator, mpf_config_for_log
@@ -345,7 +346,7 @@ def test_failed_replay_keeps_rows_and_says_failed(log_columns, tmp_path, monkeyp
 
     import tirefilter.estimators
 
-    monkeypatch.setattr(tirefilter.estimators, "build_log_estimator", lambda *a, **k: _FailsAt(120))
+    monkeypatch.setattr(tirefilter.estimators, "build", lambda *a, **k: _FailsAt(120))
     out = tmp_path / "cli" / "result.csv"
     assert main(["replay", str(path), "--vehicle", str(VEHICLE), "--out", str(out), "--quiet"]) == 1
     assert "the filter diverged" in capsys.readouterr().err
@@ -406,7 +407,7 @@ def test_help_starts_without_numpy():
 @pytest.fixture(scope="module")
 def mbds_log(tmp_path_factory):
     if not MBDS.is_dir():
-        pytest.skip(f"the MBDS recording is not at {MBDS} (shared data beside the repository)")
+        skip_or_fail_in_ci(f"the MBDS recording is not at {MBDS} (shared data beside the repository)")
     spec = importlib.util.spec_from_file_location("mbds_convert", EXAMPLE / "convert.py")
     convert = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(convert)
@@ -424,20 +425,25 @@ def test_real_recording_checks_and_replays(mbds_log, tmp_path):
 
     log = read_log(mbds_log)
     assert set(log.references) == {"true_beta", "true_vy"}
-    window = (log.t >= 300.0) & (log.t < 320.0)
+    window = (log.t >= 280.0) & (log.t < 320.0)
     stretch = write_log(tmp_path / "stretch.csv", {**{name: x[window] for name, x in log.columns.items()},
                                                    "beta_true": log.references["true_beta"][window]})
     out = tmp_path / "result.csv"
     assert main(["replay", str(stretch), "--vehicle", str(EXAMPLE / "vehicle.toml"), "--model", "lateral",
                  "--particles", "50", "--out", str(out), "--quiet"]) == 0
     r = read_results(out)
-    assert len(r["t"]) == 2000
+    assert len(r["t"]) == 4000
     for col in ("vy", "yaw_rate", "beta", "Cf_y", "Cr_y", "Cf_y_std", "ess"):
         assert np.isfinite(r[col]).all(), col
     beta_true = read_results(mbds_log)["beta_true"][window]
     np.testing.assert_array_equal(r["true_beta"], beta_true)  # the reference is carried into the results
     rmse = np.sqrt(np.mean((r["beta"] - beta_true) ** 2))
-    assert math.degrees(rmse) < 3.0  # a sanity bound, not a benchmark
+    # measured 0.66 deg (seed 0, N = 50; seeds 1-7: 0.48-0.95 deg; the whole recording, N = 500: about 0.55 deg,
+    # README); bound 1.5x. The estimate beta = 0 scores 1.37 deg on this stretch: the bound must be below that.
+    # (300-320 s alone, the stretch before, scored 0.93 deg with beta = 0 at 1.20: its large sideslip comes in its
+    # last 5 s, before the stiffness is learned, so no bound there told the filter from beta = 0.)
+    assert math.degrees(rmse) < 1.0
+    assert math.degrees(np.sqrt(np.mean(beta_true**2))) > 1.3
     metrics = json.loads(out.with_suffix(".json").read_text())["metrics"]
     assert metrics["state"]["beta"]["reference"] == "true_beta"
     assert metrics["state"]["beta"]["rmse"] == pytest.approx(rmse, rel=1e-9)  # scored in the summary
@@ -454,8 +460,10 @@ def test_save_state_then_init_state_on_the_next_drive(log_columns, tmp_path, cap
     assert json.loads(state.read_text())["params"] == ["Cf_y", "Cr_y"]
     assert main(base + ["--particles", "80", "--out", str(tmp_path / "d2.csv"), "--init-state", str(state)]) == 0
     first, second = read_results(tmp_path / "d1.csv"), read_results(tmp_path / "d2.csv")
-    for p in ("Cf_y", "Cr_y"):  # drive 2 starts where drive 1 ended (within the resampling spread)
-        assert abs(second[p][0] / first[p][-1] - 1) < 0.03, p
+    # drive 2 starts where drive 1 ended (within the resampling spread): measured 0.0000 / 0.0003 (seed 0; seeds
+    # 1-3 up to 0.0009, against drive 1's posterior std of 1.7-2.8 %); bound 3x the seeds' largest
+    for p in ("Cf_y", "Cr_y"):
+        assert abs(second[p][0] / first[p][-1] - 1) < 0.003, p
     assert json.loads((tmp_path / "d2.json").read_text())["estimator_config"]["init_state"] == str(state)
     capsys.readouterr()
     other = tmp_path / "other.toml"

@@ -70,9 +70,7 @@ def test_the_recording_is_served_under_its_own_name_and_nothing_else(tmp_path):
 
 
 @pytest.mark.xdist_group("browser")  # one browser at a time (make test runs two workers)
-@pytest.mark.skipif(not CHROMIUM.is_file(), reason="/usr/bin/chromium is absent (Debian package `chromium`; "
-                    ".ci/run installs it)")
-def test_every_tab_of_the_layout_renders_without_errors_or_empty_views(fmu_paths, tmp_path):
+def test_every_tab_of_the_layout_renders_without_errors_or_empty_views(fmu_paths, tmp_path, chromium):
     import rerun as rr
 
     rrd = tmp_path / "short.rrd"

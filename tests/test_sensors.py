@@ -18,7 +18,7 @@ from tirefilter.estimators import build_log_estimator
 from tirefilter.estimators.sensors import (
     DISTURBANCE_RW, FALLBACK_SIGMA, MEMS_BIAS0_STD, MEMS_BIAS_RW, checked_against, sensors_for_log,
 )
-from tirefilter.estimators.stiffness_mpf import MPFConfig, StiffnessMPF
+from tirefilter.estimators.mpf import MPFConfig, StiffnessMPF
 from tirefilter.stats.noise import held_share, white_noise_std
 from tirefilter.vehicle.params import VehicleParams, load_vehicle
 

@@ -13,7 +13,7 @@ from tirefilter.cosim.run import run_scenario
 from tirefilter.errors import ConfigError
 from tirefilter.estimators import build_estimator
 from tirefilter.estimators.state_file import load_state, save_state
-from tirefilter.estimators.stiffness_mpf import MPFConfig, StiffnessMPF
+from tirefilter.estimators.mpf import MPFConfig, StiffnessMPF
 from tirefilter.scenarios import load_scenario
 
 

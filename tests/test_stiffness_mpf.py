@@ -8,12 +8,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from tirefilter.cosim.results import read_results
+from tirefilter.io.results import read_results
 from tirefilter.cosim.run import run_scenario
 from tirefilter.errors import ConfigError
 from tirefilter.estimators import build_estimator
 from tirefilter.estimators.base import Inputs, Measurement
-from tirefilter.estimators.stiffness_mpf import MPFConfig, StiffnessMPF
+from tirefilter.estimators.mpf import MPFConfig, StiffnessMPF
 from tirefilter.metrics import settling_time, stiffness_errors
 from tirefilter.scenarios import load_scenario
 
@@ -21,7 +21,7 @@ from tirefilter.scenarios import load_scenario
 def _run(tmp_path, scenario, model, seed, particles=300, duration=None, mpf=None):
     """A run from a known initial state: the truth starts at x0 exactly and the filter
     knows it to 0.05 m/s. (From the paper's P0 = diag([1, 1, pi/180]^2) start-up, the
-    filter still locks onto a wrong state in some runs; see the issue-3 note.)"""
+    filter still locks onto a wrong state in some runs; derivations, "Start-up, plausibility and restart".)"""
     if duration:
         scenario = replace(scenario, duration=duration, surface_changes=tuple(t for t in scenario.surface_changes
                                                                                if t < duration))
@@ -34,46 +34,76 @@ def _run(tmp_path, scenario, model, seed, particles=300, duration=None, mpf=None
     return read_results(path), summary, scenario
 
 
+# Bounds of `test_paper_sim_lateral_stiffness_converges`, per model: (|mean error| %, mean |error| % of Cf_y and
+# Cr_y, the range of the late sigma %). Measured at its seed 1 and, for the spread, seeds 0, 2, 3 (same run):
+#   full:    mean -0.03 / +0.16 % (seeds 0-3 up to 0.23), mean abs 0.30 / 0.35 % (up to 0.53),
+#            sigma 5.92 / 5.45 % (4.94-6.07);
+#   lateral: mean -0.016 / +0.007 % (up to 0.13), mean abs 1.51 / 0.64 % (up to 1.66 / 0.66),
+#            sigma 7.26 / 5.85 % (5.08-7.26).
+# Bounds about 3x the seed-1 figure, or about 3x the seeds' largest where the seed-1 figure is near zero by
+# chance (the signed means); a steady 2.9 % stiffness bias fails them.
+CONVERGED = {
+    "full": {"Cf_y": (0.5, 1.0, (4.0, 7.0)), "Cr_y": (0.5, 1.0, (4.0, 7.0))},
+    "lateral": {"Cf_y": (0.4, 4.0, (4.0, 8.0)), "Cr_y": (0.4, 2.0, (4.0, 8.0))},
+}
+
+
 @pytest.mark.parametrize("model", ["full", "lateral"])
 def test_paper_sim_lateral_stiffness_converges(fmu_paths, tmp_path, model):
     """paper-sim up to the surface change (30 s), N = 300, seed 1: steady-state lateral
-    stiffness within 3% on average and the deviation spread near the true 5% once the
-    start-up transient (which inflates Lambda; it decays with the forgetting) is over."""
+    stiffness error (mean and mean absolute) within the measured figures' bounds (`CONVERGED`)
+    and the deviation spread near the true 5% once the start-up transient (which inflates
+    Lambda; it decays with the forgetting) is over."""
     r, summary, scenario = _run(tmp_path, load_scenario("paper-sim"), model, seed=1, duration=29.5)
     assert np.all(np.isfinite(r["Cf_y"])) and np.all(np.isfinite(r["vy"]))
     for param in ("Cf_y", "Cr_y"):
+        mean_tol, mean_abs_tol, (sigma_lo, sigma_hi) = CONVERGED[model][param]
         e = stiffness_errors(r, scenario, param)
-        assert abs(e["mean"]) < 3.0, (param, e)
-        assert e["mean_abs"] < 4.0, (param, e)
+        assert abs(e["mean"]) < mean_tol, (param, e)
+        assert e["mean_abs"] < mean_abs_tol, (param, e)
         late = r["t"] >= 20.0
         sigma_pct = np.mean(100 * r[f"{param}_sigma"][late] / r[f"true_{param}_mean"][late])
-        assert 3.0 < sigma_pct < 8.0, (param, sigma_pct)
+        assert sigma_lo < sigma_pct < sigma_hi, (param, sigma_pct)
     vy_rmse = np.sqrt(np.mean((r["vy"] - r["true_vy"])[r["t"] > 5] ** 2))
-    assert vy_rmse < 0.05
+    # measured 0.0042 (full) / 0.0047 (lateral) m/s (seed 1; seeds 0-3: 0.0037-0.0063); bound 3x
+    assert vy_rmse < 0.013, vy_rmse
     if model == "full":
         assert np.isfinite(r["Cx"]).all()
-        assert abs(stiffness_errors(r, scenario, "Cx")["mean"]) < 15.0  # weakly observable (docs/design.md)
+        # weakly observable (docs/design.md): measured -0.24 % (seed 1), +0.83 / +1.14 / +0.51 % (seeds 0, 2, 3);
+        # bound 1.3x the seeds' largest (6x the seed-1 figure: Cx spreads more than the lateral stiffness)
+        assert abs(stiffness_errors(r, scenario, "Cx")["mean"]) < 1.5
     else:
         assert np.isnan(r["Cx"]).all()
 
 
 def test_paper_sim_tracks_the_surface_change(fmu_paths, tmp_path):
-    # The numpy reference: this run's outcome after the change hangs on rounding. The numba
-    # backend equals it to 1e-12 up to 15 s and 1e-9 up to 31.6 s; from 33 s the resampling
-    # draws part and that run does not settle within 8 s (issue-14 note for the lead).
-    r, _, scenario = _run(tmp_path, load_scenario("paper-sim"), "full", seed=3, duration=40.0,
-                          mpf={"backend": "numpy"})
-    for param in ("Cf_y", "Cr_y"):
-        # a regression bound; the 4 s settling target is not met yet (benchmarks/bench_mpf.py)
-        assert settling_time(r, param, 30.0) < 8.0
-    assert stiffness_errors(r, scenario, "Cf_y")["mean_abs"] < 4.0
+    """paper-sim as `tirefilter run --scenario paper-sim --seed 3` runs it (the default numba
+    backend, N = 500, the paper's start-up from P0), 60 s with the 50% cut of every stiffness
+    at 30 s: Cf_y, Cr_y and Cx each settle within 5% of the new surface mean in at most 4 s
+    (the settling target of docs/results.md; `metrics.settling_time`: the estimate stays inside the band to the
+    end of the run), and the steady-state errors before and after the cut stay small."""
+    scenario = load_scenario("paper-sim")
+    est = build_estimator("mpf", scenario, model="auto", particles=None, config={})
+    assert (est.cfg.backend, est.cfg.particles, est.cfg.model) == ("numba", 500, "full")
+    run_scenario(scenario, estimator=est, seed=3, results_csv=tmp_path / "r.csv")
+    r = read_results(tmp_path / "r.csv")
+    # measured 1.29 / 1.30 / 1.69 s (seed 3); seeds 0-7: Cf_y 1.00-4.03, Cr_y 1.04-4.50, Cx 1.25-2.64 s (Cr_y over
+    # 4 s in 2 of the 8, and in 16 of the 100 trials of the paper-sim study, docs/results.md): the bound is the 4 s target,
+    # 3x this seed's figure
+    for param in ("Cf_y", "Cr_y", "Cx"):
+        assert settling_time(r, param, 30.0) <= 4.0, (param, settling_time(r, param, 30.0))
+    # mean abs error over 5-30 s and 35-60 s: measured 0.34 / 0.51 / 0.80 % (seed 3; seeds 0-7 up to
+    # 0.49 / 0.51 / 1.61 %); bound about 3x (lateral 2-3x, Cx 3x)
+    for param, tol in (("Cf_y", 1.0), ("Cr_y", 1.0), ("Cx", 2.4)):
+        e = stiffness_errors(r, scenario, param)
+        assert e["mean_abs"] < tol, (param, e)
 
 
 def _synthetic_steps(n=300, seed=0):
     scenario = load_scenario("paper-sim")
     _, rows = run_scenario(replace(scenario, duration=n * 0.01), seed=seed, keep_rows=True)
     from tirefilter.cosim.fmu import VehicleFMU
-    from tirefilter.cosim.results import ESTIMATE_COLUMNS, INPUT_TRUTH_COLUMNS, truth_column
+    from tirefilter.io.results import ESTIMATE_COLUMNS, INPUT_TRUTH_COLUMNS, truth_column
 
     with VehicleFMU("2") as fmu:
         cols = ESTIMATE_COLUMNS + tuple(map(truth_column, fmu.output_names)) + INPUT_TRUTH_COLUMNS
@@ -81,18 +111,51 @@ def _synthetic_steps(n=300, seed=0):
 
 
 def test_missing_measurements_are_skipped_not_propagated(fmu_paths):
+    """Missing samples (NaN) on the paper-sim drive, checked sample by sample against a copy of
+    the filter stepped otherwise:
+    - skipped: where every measurement is missing there is no likelihood, the weights stay
+      exactly as they were; where one channel is missing the step is not the one given that
+      channel's last sample (a measurement is skipped, not held);
+    - a missing input holds the last one: the step equals the step given that value;
+    - not propagated: every estimate and every log-weight stays finite, to the end and through a
+      final sample with nothing measured."""
+    import copy
+
     scenario, r = _synthetic_steps()
     est = build_estimator("mpf", scenario, model="full", particles=200, config={})
     est.reset(np.random.default_rng(0))
+    last_ay = math.nan
+    checked = {"none": 0, "ay": 0, "input": 0}
     for k in range(len(r["t"])):
-        y = Measurement(np.nan if k % 3 == 0 else r["meas_ax"][k], np.nan if k % 5 == 0 else r["meas_ay"][k],
-                        np.nan if 100 <= k < 120 else r["meas_yaw_rate"][k])
+        gone = 200 <= k < 204  # every measurement missing
+        y = Measurement(np.nan if k % 3 == 0 or gone else r["meas_ax"][k],
+                        np.nan if k % 5 == 0 or gone else r["meas_ay"][k],
+                        np.nan if 100 <= k < 120 or gone else r["meas_yaw_rate"][k])
         u = Inputs(r["meas_delta"][k], r["meas_omega_f"][k], np.nan if k == 50 else r["meas_omega_r"][k])
+        before = est.posterior().log_weights
+        twin = copy.deepcopy(est) if (k == 50 or gone or (k % 5 == 0 and k % 10 == 5)) else None
         e = est.step(r["t"][k], u, y)
         values = [e.vx, e.vy, e.yaw_rate, e.Cf_y, e.Cr_y, e.Cx, e.Cf_y_std, e.Cf_y_sigma, e.ess]
         assert all(math.isfinite(v) for v in values), (k, e)
+        assert np.isfinite(est.posterior().log_weights).all(), k
+        if k == 50:  # omega_r missing: the one held is the last sample's
+            held = twin.step(r["t"][k], Inputs(u.delta, u.omega_f, float(twin.u_prev[2])), y)
+            assert repr(held) == repr(e) and np.array_equal(twin.posterior().particles, est.posterior().particles)
+            checked["input"] += 1
+        elif gone:
+            np.testing.assert_array_equal(est.posterior().log_weights, before)
+            checked["none"] += 1
+        elif twin is not None and math.isfinite(last_ay):  # a^Y missing: not held at its last sample
+            with_last = twin.step(r["t"][k], u, replace(y, ay=last_ay))
+            assert with_last.vy != e.vy
+            checked["ay"] += 1
+        if math.isfinite(y.ay):
+            last_ay = y.ay
+    assert checked == {"none": 4, "ay": 30, "input": 1}
+    before = est.posterior().log_weights
     e_all_nan = est.step(r["t"][-1] + 0.01, Inputs(0.01, r["meas_omega_f"][-1], r["meas_omega_r"][-1]), Measurement())
     assert math.isfinite(e_all_nan.Cf_y) and math.isfinite(e_all_nan.vy)
+    np.testing.assert_array_equal(est.posterior().log_weights, before)
 
 
 def test_same_seed_same_estimates(fmu_paths):
@@ -130,15 +193,17 @@ def test_config_file_overrides_and_unknown_keys(fmu_paths):
 
 def test_imu_bias_is_estimated_on_snow_sine(tmp_path):
     """snow-sine has IMU biases (random walk from an initial offset): over the last 10 s
-    the bias estimates are within 10% of the true accelerometer biases (about 0.14 and
-    0.15 m/s^2 with this seed) and within 0.001 rad/s of the yaw-rate bias."""
+    the bias estimates are within 0.012 m/s^2 RMS of the true accelerometer biases (about
+    0.14 and 0.15 m/s^2 with this seed) and within 0.001 rad/s of the yaw-rate bias.
+    Measured (seed 2): 0.0044 / 0.0037 m/s^2 (3.2 / 2.4 % of the biases), 0.00033 rad/s;
+    seeds 0, 1, 3: up to 0.0059 / 0.0071 m/s^2, 0.00067 rad/s. Bounds about 3x."""
     scenario = load_scenario("snow-sine")
     est = build_estimator("mpf", scenario, model="auto", particles=200, config={})
     run_scenario(scenario, estimator=est, seed=2, results_csv=tmp_path / "r.csv")
     r = read_results(tmp_path / "r.csv")
     last = r["t"] > 30.0
-    for channel, tol in (("ax", 0.1 * abs(r["true_b_ax"][-1])), ("ay", 0.1 * abs(r["true_b_ay"][-1])),
-                         ("yaw_rate", 1e-3)):
+    assert min(abs(r["true_b_ax"][-1]), abs(r["true_b_ay"][-1])) > 0.1  # biases worth estimating
+    for channel, tol in (("ax", 0.012), ("ay", 0.012), ("yaw_rate", 1e-3)):
         err = r[f"b_{channel}"][last] - r[f"true_b_{channel}"][last]
         assert np.sqrt(np.mean(err**2)) < tol, channel
 
@@ -161,10 +226,13 @@ def test_a_gap_draws_vx_again_from_the_undriven_wheels(backend):
         e = est.step(t_after, Inputs(0.0, 64.0, omega_after), Measurement(0.0, 0.0, 0.0))
         return e.vx, est.gap_redraws
 
+    # the two speeds are 1.44 m/s apart; measured (seed 3, both backends) 0.0006 m/s from R_w 64 rad/s after the
+    # redraw, 0.0052 / 0.00002 / 0.00001 m/s from R_w 60 rad/s without it (seeds 0, 1: at most 0.0006 / 0.0046);
+    # bounds about 3x
     vx, n = run(2.0)
-    assert n == 1 and abs(vx - 64.0 * R) < 0.1  # x0_vx_wheel_std = 0.1 m/s
+    assert n == 1 and abs(vx - 64.0 * R) < 0.002, vx
     for vx, n in (run(1.4), run(2.0, gap_after=0.0), run(2.0, omega_after=math.nan)):
-        assert n == 0 and abs(vx - 60.0 * R) < 0.3, (vx, n)
+        assert n == 0 and abs(vx - 60.0 * R) < 0.015, (vx, n)
     with pytest.raises(ConfigError, match="gap_after"):
         StiffnessMPF(vehicle, MPFConfig(gap_after=-1.0))
 
@@ -211,7 +279,7 @@ def test_cx_excitation_weight_is_the_contraction_of_the_linear_gaussian_posterio
     """rho = I P_0 / (1 + I P_0) equals 1 - P_N / P_0 of the scalar Kalman filter of
     y_k = b_k w + e_k (prior variance P_0, noise variance R) after the same regressors, and
     the exact values at its ends (derivations, "The undriven axle")."""
-    from tirefilter.estimators.stiffness_mpf import cx_excitation_weight
+    from tirefilter.estimators.mpf import cx_excitation_weight
 
     rng = np.random.default_rng(2)
     b, R, P0 = rng.normal(0.0, 5e-6, 300), 0.05**2, (0.3 * 2.632e5) ** 2
@@ -426,9 +494,12 @@ def test_state_noise_is_reported_only_where_it_is_estimated():
 def test_state_noise_from_data_recovers_a_known_process_noise():
     """Covariance matching of the weights' corrections (derivations, "State noise from the data") against a known
     yaw-rate process noise (seeded): 0.1 rad/s per sqrt(s) is recovered within 10% (0.095), 0.03,
-    near the gyro's noise floor (0.0035 rad/s per sample), within 30% (0.022: low); without process
-    noise the estimate stays below 0.005. v^Y, which has none, stays below 0.01 m/s per sqrt(s) throughout."""
-    for q_true, lo, hi in ((0.1, 0.09, 0.11), (0.03, 0.021, 0.039), (0.0, 0.0, 0.005)):
+    near the gyro's noise floor (0.0035 rad/s per sample), within 30% (0.023: low); without process
+    noise the estimate stays below 0.0035. v^Y, which has none, stays below 0.01 m/s per sqrt(s) throughout.
+    Measured (seed 3): 0.0954, 0.0230, 0.00115 rad/s; v^Y 0.0042, 0.0048, 0.0038 m/s (seeds 4, 5: 0.0955-0.0975,
+    0.0239-0.0247, 0.0025-0.0029; v^Y up to 0.0072). The bounds of the two noises: 2.2x and 1.3x the errors
+    (4.6 %, -23 %), the statistic's bias at the noise floor; without noise 3x, v^Y 2.1x."""
+    for q_true, lo, hi in ((0.1, 0.09, 0.11), (0.03, 0.021, 0.039), (0.0, 0.0, 0.0035)):
         q = _lateral_drive_with_process_noise(q_true)
         assert lo <= q[1] <= hi, (q_true, q)
         assert q[0] < 0.01, (q_true, q)

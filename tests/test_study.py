@@ -9,7 +9,7 @@ import pytest
 
 from tirefilter.cli import main
 from tirefilter.cosim.fmu import VehicleFMU
-from tirefilter.cosim.results import read_results
+from tirefilter.io.results import read_results
 from tirefilter.cosim.run import run_scenario
 from tirefilter.errors import ConfigError
 from tirefilter.estimators import build_estimator
@@ -64,7 +64,7 @@ def test_finished_trials_are_kept_and_not_run_again(tmp_path):
 
 
 def test_a_failing_trial_is_recorded_and_the_study_goes_on(tmp_path, monkeypatch):
-    import tirefilter.estimators.stiffness_mpf as mpf
+    import tirefilter.estimators.mpf as mpf
 
     real = mpf.StiffnessMPF.step
 

@@ -11,7 +11,7 @@ import pytest
 from conftest import NOISE_OFF
 from tirefilter.cosim.fmu import VehicleFMU
 from tirefilter.cosim.run import run_scenario
-from tirefilter.cosim.results import ESTIMATE_COLUMNS, truth_column
+from tirefilter.io.results import ESTIMATE_COLUMNS, truth_column
 from tirefilter.scenarios import load_scenario
 from tirefilter.vehicle.single_track import GRAVITY, STATE_NAMES, WHEEL_OMEGA_EPS, rk4_step, steady_state_cornering
 

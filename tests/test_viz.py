@@ -20,7 +20,7 @@ import pytest
 from scipy import stats
 
 from tirefilter.cli import main
-from tirefilter.cosim.results import read_results
+from tirefilter.io.results import read_results
 from tirefilter.cosim.run import run_scenario
 from tirefilter.errors import ConfigError
 from tirefilter.estimators.base import Estimate, FrictionCurve, Posterior
@@ -778,7 +778,7 @@ def test_y_ranges_fit_the_data_after_the_start_up(tmp_path):
     vy = np.where(t < 1.0, -4.0, 0.5 * np.sin(3 * t))  # a start-up spike to -4 m/s, then +-0.5
     rec = RerunRecorder(tmp_path / "r.rrd", ("t", "Cx", "true_Cx_mean", "vy", "true_vy"), "mpf", chunk=300)
     for row in zip(t, est, truth, vy, vy * 0.9):
-        rec.log_row(row)
+        rec.write(row)
     rec.flush()
     after = t >= STARTUP_S
     lo, hi = np.quantile(np.concatenate([est[after], truth[after]]) * 1e-3, [0.005, 0.995])  # kN
@@ -801,7 +801,7 @@ def test_the_blueprint_comes_before_the_data(tmp_path):
     the run; the final blueprint (y ranges, notes) follows at the end."""
     from types import SimpleNamespace
 
-    from tirefilter.cosim.results import ESTIMATE_COLUMNS, estimate_values
+    from tirefilter.io.results import ESTIMATE_COLUMNS, estimate_values
     from tirefilter.viz.rerun_log import RerunRecorder
 
     path = tmp_path / "live.rrd"
@@ -809,8 +809,8 @@ def test_the_blueprint_comes_before_the_data(tmp_path):
     est = FakeFriction()
     est.reset(None)
     e = est.step(0.0, SimpleNamespace(vx=20.0), SimpleNamespace(yaw_rate=0.1))
-    rec.note_step(est, e)
-    rec.log_row(estimate_values(0.0, e))
+    rec.stepped(est, e)
+    rec.write(estimate_values(0.0, e))
     rec.rec.flush()
     early = read_blueprints(path)  # the file as it stands during the run
     assert len(early) == 1 and {"Cf_y [kN/rad]", "Cr_y [kN/rad]", "vy [m/s]", "ESS [particles]"} <= set(early[0])

@@ -11,7 +11,7 @@ import pytest
 from tirefilter.errors import ConfigError
 from tirefilter.estimators.base import Inputs, Measurement
 from tirefilter.estimators.sensors import sensors_for_log, wheel_noise_from_data
-from tirefilter.estimators.stiffness_mpf import MPFConfig, StiffnessMPF
+from tirefilter.estimators.mpf import MPFConfig, StiffnessMPF
 from tirefilter.estimators.wheel_filter import WheelSpeedFilter, steady_state_gain
 from tirefilter.scenarios import load_scenario
 

@@ -11,32 +11,37 @@ from tirefilter import __version__
 from tirefilter.config import read_toml
 from tirefilter.errors import ConfigError, TirefilterError
 
-from tirefilter.estimators import ESTIMATORS  # augpf, rls, ekf, gpssm, combined too (docs/design.md)
+from tirefilter.estimators import ESTIMATORS
 from tirefilter.viz.options import DEFAULT_LOG_EVERY
 
 SENSOR_CHECK_S = 10.0  # s: a co-simulation's sensor noise is checked against its first seconds
 
 
 def cmd_run(args) -> int:
-    from tirefilter.cosim.run import run_scenario, write_run_json
-    from tirefilter.estimators import build_estimator, resolve_model
+    from tirefilter.cosim.run import run_scenario
+    from tirefilter.estimators import build, for_scenario, resolve_model
+    from tirefilter.runs import SummaryJson
     from tirefilter.scenarios import load_scenario
 
     scenario = load_scenario(args.scenario)
     config = read_toml(args.config) if args.config else {}
-    estimator = build_estimator(args.estimator, scenario, model=args.model, particles=args.particles, config=config)
+    estimator = build(args.estimator, for_scenario(scenario), model=args.model, particles=args.particles,
+                      config=config)
     _init_state(args, estimator)
     out = Path(args.out) if args.out else Path("runs") / scenario.name
     out.mkdir(parents=True, exist_ok=True)
     results = out / "results.csv"
     model = getattr(getattr(estimator, "cfg", None), "model", None) or resolve_model(args.model, scenario.sensors)
-    summary = _run_and_record(
+
+    def record() -> dict:  # run.json's fields besides the summary's, once the run is over
+        _check_sensors(estimator, results)
+        return dict(command=sys.argv, model=model, fmi_version=args.fmi, **_estimator_record(estimator, config, args))
+
+    summary = _run_and_report(
         lambda: run_scenario(scenario, estimator=estimator, seed=args.seed, fmi_version=args.fmi, results_csv=results,
                              recording=_recording(args), progress=_progress(args), coupling=args.coupling,
-                             friction_csv=_friction_csv(estimator, out / "friction.csv")),
-        lambda s: (_check_sensors(estimator, results),
-                   write_run_json(out / "run.json", s, command=sys.argv, model=model, fmi_version=args.fmi,
-                                  **_estimator_record(estimator, config, args))),
+                             friction_csv=_friction_csv(estimator, out / "friction.csv"),
+                             sinks=[SummaryJson(out / "run.json", record)]),
         results)
     if summary is None:
         return 1
@@ -55,10 +60,10 @@ def cmd_run(args) -> int:
 
 
 def cmd_replay(args) -> int:
-    from tirefilter.estimators import build_log_estimator, resolve_model
+    from tirefilter.estimators import build, for_log, resolve_model
     from tirefilter.replay import replay_log
     from tirefilter.replay.stream import scan_log
-    from tirefilter.runs import write_summary_json
+    from tirefilter.runs import SummaryJson
     from tirefilter.vehicle.params import load_vehicle
 
     results = Path(args.out)
@@ -71,16 +76,18 @@ def cmd_replay(args) -> int:
     for warning in log.plausibility.warnings():
         print(f"warning: {warning}", file=sys.stderr)
     config = read_toml(args.config) if args.config else {}
-    estimator = build_log_estimator(args.estimator, vehicle, log.t, log.signals,
-                                    model=args.model, particles=args.particles, config=config, source=log.path)
+    setting = for_log(vehicle, log.t, log.signals, source=log.path)
+    log.release()  # the setting keeps nothing of the log's length: neither does the replay from here on
+    estimator = build(args.estimator, setting, model=args.model, particles=args.particles, config=config)
     _init_state(args, estimator)
     model = getattr(getattr(estimator, "cfg", None), "model", None) or resolve_model(args.model, log.available)
-    summary = _run_and_record(
+    summary = _run_and_report(
         lambda: replay_log(log, estimator=estimator, seed=args.seed, results_csv=results, recording=_recording(args),
                            progress=_progress(args), vehicle_file=args.vehicle,
-                           friction_csv=_friction_csv(estimator, _friction_name(results))),
-        lambda s: write_summary_json(summary_json, s, command=sys.argv, model=model,
-                                     **_estimator_record(estimator, config, args)),
+                           friction_csv=_friction_csv(estimator, _friction_name(results)),
+                           sinks=[SummaryJson(summary_json, lambda: dict(command=sys.argv, model=model,
+                                                                         **_estimator_record(estimator, config,
+                                                                                             args)))]),
         results)
     if summary is None:
         return 1
@@ -161,7 +168,7 @@ def _streamed(args) -> str:
 
 
 def _friction_name(results: Path) -> Path:
-    from tirefilter.cosim.friction import friction_csv_path
+    from tirefilter.io.friction import friction_csv_path
 
     return friction_csv_path(results)
 
@@ -201,7 +208,7 @@ def _estimator_record(estimator, config: dict, args) -> dict:
 def _check_sensors(estimator, results: Path) -> None:
     """A co-simulation's IMU model checked against the noise of the run's first seconds
     (`estimator.sensors` gets the figures and any warning)."""
-    from tirefilter.cosim.results import read_results
+    from tirefilter.io.results import read_results
     from tirefilter.estimators.sensors import CHANNELS, checked_against, first_seconds
 
     if getattr(estimator, "sensors", None) is None or not results.exists():
@@ -214,12 +221,12 @@ def _check_sensors(estimator, results: Path) -> None:
     estimator.sensors = checked_against(estimator.sensors, signals, f"the first {SENSOR_CHECK_S:g} s")
 
 
-def _run_and_record(run, write_summary, results: Path):
-    """`run()` -> (summary, rows); the summary is written by `write_summary` whether the run
-    succeeds or fails (then with status "failed"). Returns the summary, None on failure."""
+def _run_and_report(run, results: Path):
+    """`run()` -> (summary, rows), whose sinks write the run summary JSON whether the run
+    succeeds, fails (status "failed") or is interrupted. Returns the summary, None on a
+    failure (said on stderr)."""
     from tirefilter.runs import Interrupted
 
-    summary = None
     try:
         summary, _ = run()
     except Interrupted as exc:
@@ -229,12 +236,8 @@ def _run_and_record(run, write_summary, results: Path):
               f"{results}, run summary with status \"interrupted\"", file=sys.stderr)
         raise
     except TirefilterError as exc:
-        summary = getattr(exc, "summary", None)
         print(f"error: {exc}\n(rows up to the failure are in {results})", file=sys.stderr)
         return None
-    finally:
-        if summary is not None:
-            write_summary(summary)
     return summary
 
 
@@ -251,7 +254,7 @@ def _print_sensors(estimator) -> None:
 def _print_truth_summary(results: Path) -> None:
     import numpy as np
 
-    from tirefilter.cosim.results import iter_results
+    from tirefilter.io.results import iter_results
 
     rows = [("speed vx [m/s]", "true_vx"), ("lateral acc. ay [m/s^2]", "true_ay"), ("yaw rate [rad/s]", "true_yaw_rate"),
             ("slip angle front [rad]", "true_alpha_f"), ("wheel slip front [-]", "true_lambda_f"),

@@ -21,6 +21,8 @@ def read_toml(path: str | Path) -> dict[str, Any]:
             return tomllib.load(f)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(path, "", f"not valid TOML ({exc})") from None
+    except UnicodeDecodeError as exc:  # (TOML is UTF-8; tomllib lets the decoding error through)
+        raise ConfigError(path, "", f"not valid TOML (not UTF-8: {exc})") from None
 
 
 def _missing(file, name: str, default: Any, expected: str) -> Any:

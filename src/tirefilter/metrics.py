@@ -59,37 +59,6 @@ DIVERGED_VY = 1.0  # m/s: |v^Y - reference| beyond this is a diverged state ...
 DIVERGED_BETA = 0.1  # rad: ... or |beta - reference| beyond this, where v^Y has no reference
 
 
-def reference(r: dict, name: str) -> tuple[str | None, np.ndarray | None]:
-    """The reference (truth) column of `name` in a Result CSV: `true_<name>` (co-simulation,
-    or a log's reference carried into a replay's results) or `<name>_true`; (None, None)
-    when there is none or it is all NaN."""
-    for col in (f"true_{name}", f"{name}_true"):
-        x = r.get(col)
-        if x is not None and np.isfinite(x).any():
-            return col, np.asarray(x, float)
-    return None, None
-
-
-def _stiffness_reference(r: dict, param: str) -> tuple[str | None, np.ndarray | None]:
-    """The surface mean (`true_<p>_mean`, the reference of the stiffness error) where it exists,
-    else the effective stiffness `true_<p>` / `<p>_true` of a log."""
-    col, x = reference(r, f"{param}_mean")
-    return (col, x) if col else reference(r, param)
-
-
-def _windows(mask: np.ndarray, t: np.ndarray) -> list[list[float]]:
-    """[t_first, t_last] of each run of True in `mask`."""
-    if not mask.any():
-        return []
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(np.int8), [0]])))
-    return [[float(t[a]), float(t[b - 1])] for a, b in zip(edges[::2], edges[1::2])]
-
-
-def _finite_mean(x: np.ndarray) -> float | None:
-    x = x[np.isfinite(x)]
-    return float(np.mean(x)) if x.size else None
-
-
 def run_metrics(r: dict, schedule=None, *, restarts: int | None = None, resamples: int | None = None,
                 cx_excitation: float | None = None) -> dict:
     """The accuracy and health figures of one run (docs/usage.md, "Run summary"), from
@@ -112,77 +81,15 @@ def run_metrics(r: dict, schedule=None, *, restarts: int | None = None, resample
     - `warnings`: one line per restart, divergence, NaN estimate or coverage below 50%, and
       one when Cx was never excited (`cx_excitation` below CX_EXCITED).
 
-    The reference of `RunMetrics`, which computes the same chunk by chunk (a run's summary).
+    `RunMetrics` (below) fed the whole table as one chunk: a run's summary feeds it chunk by
+    chunk as the rows are written (`runs.Metrics`), a study or the dashboard the rows they keep.
     """
-    t = np.asarray(r["t"], float)
-    n = t.size
-    settled = steady_state_mask(t, schedule) if schedule is not None else None
-    out: dict = {"samples": int(n), "settled_windows": _windows(settled, t) if settled is not None else None,
-                 "stiffness": {}, "state": {}}
-    warnings: list[str] = []
-    for p in PARAMS:
-        est = r.get(p)
-        if est is None or not np.isfinite(est).any():
-            continue
-        col, truth = _stiffness_reference(r, p)
-        if col is None:
-            continue
-        est = np.asarray(est, float)
-        err = 100.0 * (est - truth) / truth
-        have = np.isfinite(err)
-        std = r.get(f"{p}_std")
-        inside = np.abs(est - truth) <= Z90 * np.asarray(std, float) if std is not None else None
-        m = {"reference": col, "mean_abs_pct": _finite_mean(np.abs(err)),
-             "final_pct": float(err[have][-1]) if have.any() else None,
-             "coverage90": float(np.mean(inside[have])) if inside is not None and have.any() else None}
-        if settled is not None:
-            w = settled & np.isfinite(truth)
-            missing = int(np.count_nonzero(w & ~have))
-            m.update(settled_mean_abs_pct=_finite_mean(np.abs(err[w])),
-                     settled_coverage90=(float(np.mean(inside[w & have])) if inside is not None and (w & have).any()
-                                         else None),
-                     settled_missing=missing)
-            if missing:
-                warnings.append(f"{p}: no estimate at {missing} samples of the settled window")
-            if f"true_{p}_mean" in r:
-                m["settling_s"] = [settling_time(r, p, tc) for tc in schedule.surface_changes if tc < t[-1]]
-        cov = m.get("settled_coverage90", m["coverage90"])
-        if cov is not None and cov < 0.5:
-            warnings.append(_cov_warning(p, cov))
-        out["stiffness"][p] = m
-    for s, unit in STATES:
-        est = r.get(s)
-        col, truth = reference(r, s)
-        if est is None or col is None:
-            continue
-        e = np.asarray(est, float) - truth
-        ok = np.isfinite(e)
-        if ok.any():
-            out["state"][s] = {"reference": col, "rmse": float(np.sqrt(np.mean(e[ok] ** 2))),
-                               "max_abs": float(np.max(np.abs(e[ok]))), "unit": unit}
-    out["diverged"] = _divergence(r, t)
-    active = r.get("active")
-    _finish(out, warnings, restarts, resamples, _finite_mean(np.asarray(active, float)) if active is not None else None,
-            cx_excitation)
-    return out
+    m = RunMetrics(list(r), schedule)
+    m.update(r)
+    return m.finalize(restarts=restarts, resamples=resamples, cx_excitation=cx_excitation)
 
 
-def _divergence(r: dict, t: np.ndarray) -> dict | None:
-    """Samples whose v^Y (else beta) error exceeds its threshold; None without a reference."""
-    for s, limit, unit in (("vy", DIVERGED_VY, "m/s"), ("beta", DIVERGED_BETA, "rad")):
-        col, truth = reference(r, s)
-        if col is None or s not in r:
-            continue
-        e = np.abs(np.asarray(r[s], float) - truth)
-        bad = np.nan_to_num(e, nan=0.0) > limit
-        return {"signal": s, "reference": col, "threshold": limit, "unit": unit, "samples": int(bad.sum()),
-                "share": float(bad.mean()) if bad.size else 0.0,
-                "max_abs": float(np.nanmax(e)) if np.isfinite(e).any() else None, "windows": _windows(bad, t)}
-    return None
-
-
-
-# ---- the same metrics streamed: constant memory over a run of any length ------------------------
+# ---- the metrics streamed: constant memory over a run of any length --------------------------------
 
 def _cov_warning(p: str, cov: float) -> str:
     return (f"{p}: the 90% band (+-1.645 {p}_std) holds the reference in only {100 * cov:.0f}% "
@@ -190,7 +97,7 @@ def _cov_warning(p: str, cov: float) -> str:
 
 
 class _Sum:
-    """Sum and count of the finite values seen (chunk by chunk): `_finite_mean` of them all."""
+    """Sum and count of the finite values seen (chunk by chunk): their mean, None without one."""
 
     __slots__ = ("s", "n")
 
@@ -208,8 +115,7 @@ class _Sum:
 
 
 class _Runs:
-    """[t_first, t_last] of each run of True in a mask that arrives chunk by chunk
-    (`_windows` of the whole mask)."""
+    """[t_first, t_last] of each run of True in a mask that arrives chunk by chunk."""
 
     def __init__(self):
         self.windows: list[list[float]] = []
@@ -328,13 +234,13 @@ class _StateAgainst:
 
 
 class RunMetrics:
-    """`run_metrics` streamed: `update` with each chunk of rows (the Result-CSV columns as
-    name -> (k,) arrays, the same names in every chunk), `finalize` for the dict that
-    `run_metrics` gives on all the rows at once (equal up to the order of summation: a
-    relative 1e-12). What it keeps does not grow with the run: sums and counts, the last
-    error, the windows of the settled mask and of divergence, and per surface change the
-    state of its settling time (the time of the first sample after the last one outside the
-    5 % band, `settling_time`)."""
+    """The metrics of `run_metrics`, streamed: `update` with each chunk of rows (the
+    Result-CSV columns as name -> (k,) arrays, the same names in every chunk), `finalize`
+    for the figures of all the rows so far (the same however the rows were cut into chunks,
+    up to the order of summation: a relative 1e-12). What it keeps does not grow with the
+    run: sums and counts, the last error, the windows of the settled mask and of divergence,
+    and per surface change the state of its settling time (the time of the first sample after
+    the last one outside the 5 % band, `settling_time`)."""
 
     def __init__(self, columns, schedule=None):
         cols = set(columns)
@@ -443,8 +349,9 @@ def _finish(out: dict, warnings: list[str], restarts, resamples, gate_open_share
     if out["diverged"] is not None and out["diverged"]["samples"]:
         d = out["diverged"]
         spans = ", ".join(f"{a:g}-{b:g} s" for a, b in d["windows"][:3]) + (", ..." if len(d["windows"]) > 3 else "")
+        largest = "inf" if d["max_abs"] is None else f"{d['max_abs']:.3g}"  # (None: no finite error, all infinite)
         warnings.append(f"state diverged at {d['samples']} samples ({spans}): |{d['signal']} error| up to "
-                        f"{d['max_abs']:.3g} {d['unit']} (threshold {d['threshold']:g})")
+                        f"{largest} {d['unit']} (threshold {d['threshold']:g})")
     out["restarts"] = None if restarts is None else int(restarts)
     out["resamples"] = None if resamples is None else int(resamples)
     if restarts:

@@ -46,7 +46,7 @@ CHART_HEIGHT = {"stiffness": 240, "state, bias": 170, "densities": 235, "particl
 def friction_files(results_csv) -> list[Path]:
     """Where the friction CSV of a Result CSV is: RESULT.friction.csv (`replay`), or
     friction.csv next to results.csv (`run --out DIR`)."""
-    from tirefilter.cosim.friction import friction_csv_path
+    from tirefilter.io.friction import friction_csv_path
 
     path = Path(str(results_csv).strip())
     return [friction_csv_path(path)] + ([path.with_name("friction.csv")] if path.name == "results.csv" else [])

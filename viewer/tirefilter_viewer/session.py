@@ -1,7 +1,8 @@
 """A run the dashboard steps one sample at a time: a scenario co-simulated against the
-vehicle FMU (`cosim.run.cosim_samples`) or a Log CSV replayed (`replay.run.log_samples`),
-each feeding an estimator built as `tirefilter run` / `tirefilter replay` build it.
-Every step gives one Result-CSV row, as the command line would write it.
+vehicle FMU (`cosim.run.cosim_samples`) or a Log CSV replayed (`replay.run.LogSource`),
+each feeding an estimator built as `tirefilter run` / `tirefilter replay` build it
+(`estimators.build`) through the run loop's step (`runs.Run.step`, without sinks: the page
+keeps the rows). Every step gives one Result-CSV row, as the command line would write it.
 """
 
 from __future__ import annotations
@@ -13,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from tirefilter.cosim.results import ESTIMATE_COLUMNS, estimate_values, read_results
 from tirefilter.errors import ConfigError, TirefilterError
-from tirefilter.runs import RunOutputs, spawn_seeds
+from tirefilter.io.results import ESTIMATE_COLUMNS, read_results
+from tirefilter.runs import Run, spawn_seeds
 
 SOURCES = ("scenario", "log")
 
@@ -80,7 +81,7 @@ class LiveRun:
     (None for "none"), `scenario` (None for a log), `label` (what the page calls it).
     """
 
-    def __init__(self, *, columns, duration: float, estimator, samples, make_row, label: str, scenario=None,
+    def __init__(self, *, columns, duration: float, estimator, samples, label: str, scenario=None,
                  close=None, on_error=None):
         self.columns = tuple(columns)
         self.duration = float(duration)
@@ -88,11 +89,9 @@ class LiveRun:
         self.scenario = scenario
         self.label = label
         self.finished = False
-        self._samples = samples
-        self._make_row = make_row
+        self._samples = iter(samples)
         self._close = close
-        self._on_error = on_error
-        self._out = RunOutputs(self.columns)  # the step clock (median step time), no sinks
+        self._run = Run(estimator, self.columns, on_error=on_error or self._failure)
         self.t = math.nan
 
     @classmethod
@@ -117,25 +116,23 @@ class LiveRun:
         except Exception:
             self.finished = True
             raise
-        k, t, u, y = sample[:4]
-        est = None
-        if self.estimator is not None:
-            try:
-                est = self._out.step(self.estimator, t, u, y)
-            except Exception as exc:
-                self.finished = True
-                if self._on_error is not None:
-                    raise self._on_error(k, t, exc) from exc
-                raise EstimatorFailure(f"{self.name} failed at t = {t:g} s: {type(exc).__name__}: {exc}") from exc
-        self.t = t
-        return np.concatenate([estimate_values(t, est), self._make_row(sample)])
+        try:
+            row = self._run.step(sample)
+        except Exception:
+            self.finished = True
+            raise
+        self.t = sample.t
+        return row
+
+    def _failure(self, sample, exc: Exception) -> EstimatorFailure:
+        return EstimatorFailure(f"{self.name} failed at t = {sample.t:g} s: {type(exc).__name__}: {exc}")
 
     def median_step_us(self) -> float | None:
         """Median wall time of Estimator.step [us]: after warm-up, over the last 2000 steps."""
-        times = self._out.step_times
+        times = self._run.step_times
         if len(times) > 2000:
             return float(np.median(times[-2000:]) * 1e6)
-        return self._out.median_step_us()
+        return self._run.median_step_us()
 
     def close(self) -> None:
         self.finished = True
@@ -146,56 +143,53 @@ class LiveRun:
 
 def _open_scenario(s: Settings) -> LiveRun:
     from tirefilter.cosim.fmu import VehicleFMU
-    from tirefilter.cosim.results import result_columns
+    from tirefilter.io.results import result_columns
     from tirefilter.cosim.run import cosim_samples
-    from tirefilter.estimators import build_estimator
+    from tirefilter.estimators import build, for_scenario
     from tirefilter.scenarios import load_scenario
 
     scenario = load_scenario(s.scenario)
+    setting = for_scenario(scenario)
     estimator = build_with_forgetting(
-        lambda config: build_estimator(s.estimator, scenario, model=s.model, particles=int(s.particles), config=config),
+        lambda config: build(s.estimator, setting, model=s.model, particles=int(s.particles), config=config),
         s.estimator, s.forgetting)
     fmu = VehicleFMU("2")
     try:
         fmu_seed, rng = spawn_seeds(int(s.seed))  # as `tirefilter run --seed`
         if estimator is not None:
             estimator.reset(rng)
-        samples = ((c.k, c.t, c.inputs, c.meas, c.y, c.u)
-                   for c in cosim_samples(scenario, fmu, scenario.fmu_parameters(fmu_seed)))
+        samples = cosim_samples(scenario, fmu, scenario.fmu_parameters(fmu_seed))
         return LiveRun(columns=result_columns(fmu.output_names), duration=scenario.duration, estimator=estimator,
-                       samples=samples, make_row=lambda c: np.concatenate([c[4], c[5]]), scenario=scenario,
-                       label=f"scenario {scenario.name}", close=fmu.close)
+                       samples=samples, scenario=scenario, label=f"scenario {scenario.name}", close=fmu.close)
     except BaseException:
         fmu.close()
         raise
 
 
 def _open_log(s: Settings) -> LiveRun:
-    from tirefilter.estimators import build_log_estimator
+    from tirefilter.estimators import build, for_log
     from tirefilter.replay import read_log
-    from tirefilter.replay.log import SIGNALS
-    from tirefilter.replay.run import log_samples, replay_error, result_columns
+    from tirefilter.replay.run import LogSource, result_columns
     from tirefilter.vehicle.params import load_vehicle
 
     vehicle = load_vehicle(s.vehicle)
     log = read_log(s.log, vehicle, vehicle_name=s.vehicle)
+    setting = for_log(vehicle, log.t, {n: log.signals[n] for n in log.available}, source=log.path)
     estimator = build_with_forgetting(
-        lambda config: build_log_estimator(s.estimator, vehicle, log.t, {n: log.signals[n] for n in log.available},
-                                           model=s.model, particles=int(s.particles), config=config, source=log.path),
+        lambda config: build(s.estimator, setting, model=s.model, particles=int(s.particles), config=config),
         s.estimator, s.forgetting)
     _, rng = spawn_seeds(int(s.seed))  # as `tirefilter replay --seed`
     if estimator is not None:
         estimator.reset(rng)
-    data = np.column_stack([log.signals[n] for n in SIGNALS if n in log.signals])
     name = getattr(estimator, "name", None)
-    return LiveRun(columns=result_columns(log), duration=log.duration, estimator=estimator, samples=log_samples(log),
-                   make_row=lambda sample: data[sample[0]], label=f"log {Path(s.log).name}",
-                   on_error=lambda k, t, exc: replay_error(log, k, t, name, exc))
+    source = LogSource(log)
+    return LiveRun(columns=result_columns(log), duration=log.duration, estimator=estimator, samples=source,
+                   label=f"log {Path(s.log).name}", on_error=lambda sample, exc: source.error(sample, name, exc))
 
 
 def open_result(path: str | Path) -> dict[str, np.ndarray]:
     """The columns of a Result CSV (`tirefilter run --out` / `replay --out`), checked
-    for what the dashboard needs (the estimate columns of the Result CSV, docs/design.md, at least one row)."""
+    for what the dashboard needs (the estimate columns of the Result CSV, at least one row)."""
     path = Path(str(path).strip())
     if not path.is_file():
         raise ConfigError(path, "", "no such Result CSV")

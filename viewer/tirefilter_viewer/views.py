@@ -325,18 +325,18 @@ def truth_position(history: History, nominal: dict[str, float]) -> np.ndarray | 
 # -- friction ---------------------------------------------------------------------------------
 def friction_truth(scenario, alpha: np.ndarray, surface: float) -> tuple[np.ndarray, np.ndarray]:
     """The true mu(alpha) of both axles at a surface scale, as the friction CSV has it
-    (`cosim.friction.friction_truth`: the pure-lateral Pacejka curve times the surface
+    (`io.friction.friction_truth`: the pure-lateral Pacejka curve times the surface
     scale; for linear tires C_y alpha / F_z at static axle load times the surface)."""
-    from tirefilter.cosim.friction import friction_truth as truth_of
+    from tirefilter.io.friction import friction_truth as truth_of
 
     mu_f, mu_r = truth_of(scenario)(np.asarray(alpha, float), surface)
     return np.asarray(mu_f, float), np.asarray(mu_r, float)
 
 
 def friction_from_csv(path) -> tuple[FrictionCurve, tuple[np.ndarray, np.ndarray] | None] | None:
-    """The newest snapshot of a friction CSV (`cosim.friction`) as a FrictionCurve, with
+    """The newest snapshot of a friction CSV (`io.friction`) as a FrictionCurve, with
     its truth columns when it has them; None when the file holds no snapshot."""
-    from tirefilter.cosim.friction import read_friction, snapshot_blocks
+    from tirefilter.io.friction import read_friction, snapshot_blocks
 
     blocks = snapshot_blocks(read_friction(path))
     if not blocks:

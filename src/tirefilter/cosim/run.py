@@ -1,8 +1,9 @@
 """The co-simulation master: scenario inputs -> vehicle FMU -> sensors -> estimator -> results.
 
 One run: reset the FMU with the scenario's parameters and a seed, then for every
-communication step set the inputs, read the outputs at estimator sample instants, call
-the estimator, write a Result-CSV row (and a Rerun row), and step the FMU.
+communication step set the inputs, read the outputs at the estimator's sample instants
+and step the FMU (`cosim_samples`, the source of the run loop `runs.run`, which steps the
+estimator and writes each sample's row to the Result CSV, the recording, ...).
 
 Coupling (`coupling=`): "gauss-seidel" (the default) sets the inputs of t_k before it reads
 the outputs of t_k, so sensors with direct feedthrough (a^X, a^Y, delta) and the speed-hold
@@ -23,13 +24,13 @@ from pathlib import Path
 import numpy as np
 
 from tirefilter.cosim.fmu import INPUT_NAMES, VehicleFMU
-from tirefilter.cosim.friction import FrictionWriter, friction_truth, is_friction_estimator
-from tirefilter.cosim.results import ESTIMATE_COLUMNS, estimate_values, result_columns
 from tirefilter.estimators.base import Estimator, Inputs, Measurement
-from tirefilter.runs import StepSummary, run_outputs, spawn_seeds, write_summary_json
+from tirefilter.io.friction import friction_truth
+from tirefilter.io.results import result_columns
+from tirefilter.runs import KeptRows, Run, StepSummary, output_sinks, run, spawn_seeds
 from tirefilter.scenarios import Scenario
 
-__all__ = ["CosimSample", "RunSummary", "cosim_samples", "run_scenario", "spawn_seeds", "write_run_json"]
+__all__ = ["CosimSample", "RunSummary", "ScenarioOutputs", "cosim_samples", "run_scenario", "spawn_seeds"]
 
 
 @dataclass(kw_only=True)
@@ -39,6 +40,19 @@ class RunSummary(StepSummary):
     communication_steps: int = 0
 
 
+@dataclass(frozen=True)
+class ScenarioOutputs:
+    """Where `run_scenario` writes the run besides its summary (its keywords of these names):
+    the Result CSV, a file-only recording `rrd` or a Rerun `recording`
+    (viz.options.RecordingOptions), the friction CSV, a progress bar."""
+
+    results_csv: str | Path | None = None
+    rrd: str | Path | None = None
+    recording: object = None
+    friction_csv: str | Path | None = None
+    progress: bool = False
+
+
 def run_scenario(
     scenario: Scenario,
     *,
@@ -46,86 +60,69 @@ def run_scenario(
     seed: int = 0,
     fmu: VehicleFMU | None = None,
     fmi_version: str = "2",
-    results_csv: str | Path | None = None,
-    rrd: str | Path | None = None,
-    progress: bool = False,
     keep_rows: bool = False,
     parameter_overrides: dict | None = None,
-    friction_csv: str | Path | None = None,
-    recording=None,
     coupling: str = "gauss-seidel",
     metrics: bool = True,
+    sinks=(),
+    **outputs,
 ) -> tuple[RunSummary, np.ndarray | None]:
     """Co-simulate `scenario`; returns the summary and, with keep_rows, the result rows.
 
+    The samples of `cosim_samples` (with the scenario's sensor faults) run through
+    `runs.run` into the sinks of `runs.output_sinks` (Result CSV, recording, friction CSV,
+    metrics, progress bar), then `sinks` (more of them, e.g. the command line's run.json).
     The FMU is created (and closed) here unless one is passed in, so Monte-Carlo callers
     reuse one instance. Rows are written incrementally: when the FMU or the estimator
     fails, every row before the failure is in the CSV and the recording, and the error is
     raised after the summary has been filled in (`summary.status = "failed"`).
     A friction estimator with `friction_csv` also writes its curve snapshots there
-    (`cosim.friction`); those written before a failure stay.
+    (`io.friction`, with the scenario's true curves); those written before a failure stay.
     `recording` (viz.options.RecordingOptions) streams the run to Rerun (file, viewer,
     decimation); `rrd` alone is a file-only recording. `metrics=False` leaves the run's
     metrics (`summary.metrics`) out, for a caller that scores the kept rows itself (a
-    study trial): their streaming costs some microseconds a sample.
+    study trial): their streaming costs some microseconds a sample. `outputs`: the keywords of
+    `ScenarioOutputs` (results_csv, rrd, recording, friction_csv, progress; another name raises
+    TypeError).
     """
+    out = ScenarioOutputs(**outputs)
+    results_csv = out.results_csv
     own_fmu = fmu is None
     fmu = fmu or VehicleFMU(fmi_version)
-    fmu_seed, rng = spawn_seeds(seed)
-    params = scenario.fmu_parameters(fmu_seed)
-    params.update(parameter_overrides or {})
-
-    est_name = getattr(estimator, "name", None) if estimator is not None else None
-    columns = result_columns(fmu.output_names)
-    summary = RunSummary(scenario=scenario.name, seed=seed, fmu_seed=fmu_seed, estimator=est_name or "none",
-                         results=str(results_csv) if results_csv else None)
-    n = int(round(scenario.duration / scenario.communication_step))
-    friction = None
-    if friction_csv and is_friction_estimator(estimator):
-        friction = FrictionWriter(friction_csv, estimator, truth=friction_truth(scenario))
-    surface = INPUT_NAMES.index("surface")
-
-    def on_step(k: int) -> None:
-        summary.communication_steps = k + 1
-        if k % 256 == 0:
-            out.progress(k)
-
     try:
-        with run_outputs(summary, columns, results_csv=results_csv, rrd=rrd, estimator=est_name, keep_rows=keep_rows,
-                         total=n, progress=progress, recording=recording, context=_recording_context(scenario),
-                         schedule=scenario, metrics=metrics) as out:
-            if estimator is not None:
-                estimator.reset(rng)
-            samples = cosim_samples(scenario, fmu, params, on_step=on_step, coupling=coupling)
-            if scenario.faults:  # sensor faults (scenarios.faults): what the estimator sees, not the truth
-                from tirefilter.scenarios.faults import fault_rng, faulty_samples
+        fmu_seed, rng = spawn_seeds(seed)
+        params = scenario.fmu_parameters(fmu_seed)
+        params.update(parameter_overrides or {})
+        columns = result_columns(fmu.output_names)
+        summary = RunSummary(scenario=scenario.name, seed=seed, fmu_seed=fmu_seed,
+                             estimator=getattr(estimator, "name", None) or "none",
+                             results=str(results_csv) if results_csv else None)
+        kept = KeptRows() if keep_rows else None
+        sinks_out = output_sinks(columns, estimator, results_csv=results_csv, rrd=out.rrd, recording=out.recording,
+                                 context=_recording_context(scenario), friction_csv=out.friction_csv,
+                                 friction_truth=friction_truth(scenario), metrics=metrics, schedule=scenario,
+                                 progress=out.progress,
+                                 total=int(round(scenario.duration / scenario.sample_period)) + 1)
 
-                samples = faulty_samples(samples, scenario.faults, fault_rng(seed))
-            ne, ny = len(ESTIMATE_COLUMNS), len(fmu.output_names)
-            for s in samples:
-                est = None
-                if estimator is not None:
-                    est = out.step(estimator, s.t, s.inputs, s.meas)
-                    if friction is not None:
-                        friction.sample(s.t, float(s.u[surface]))
-                row = np.empty(len(columns))  # a new array per row: the sinks may keep it (the recording does)
-                row[:ne] = estimate_values(s.t, est)
-                row[ne:ne + ny] = s.y
-                row[ne + ny:] = s.u
-                out.write(row)
-            if friction is not None:
-                friction.finish()
+        def on_step(k: int) -> None:
+            summary.communication_steps = k + 1
+
+        samples = cosim_samples(scenario, fmu, params, on_step=on_step, coupling=coupling)
+        if scenario.faults:  # sensor faults (scenarios.faults): what the estimator sees, not the truth
+            from tirefilter.scenarios.faults import fault_rng, faulty_samples
+
+            samples = faulty_samples(samples, scenario.faults, fault_rng(seed))
+        run(samples, Run(estimator, columns, [*sinks_out, *([kept] if kept else []), *sinks]), summary, rng=rng)
     finally:
-        if friction is not None:
-            friction.close()
         if own_fmu:
             fmu.close()
-    return summary, out.kept_rows()
+    return summary, kept.rows() if kept else None
 
 
 @dataclass(frozen=True)
 class CosimSample:
-    """The co-simulation at one estimator sample instant (see `cosim_samples`)."""
+    """The co-simulation at one estimator sample instant (see `cosim_samples`); a
+    `runs.Sample` whose row values are the FMU's outputs, then its inputs."""
 
     k: int  # communication step index (t = k h)
     t: float  # s
@@ -133,6 +130,10 @@ class CosimSample:
     meas: Measurement
     y: np.ndarray  # FMU outputs, ordered as fmu.output_names (a view: valid until the next sample)
     u: np.ndarray  # FMU inputs held over the coming step, ordered as INPUT_NAMES (a view, idem)
+
+    @property
+    def values(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.y, self.u
 
 
 COUPLINGS = ("gauss-seidel", "jacobi")
@@ -268,10 +269,3 @@ def _recording_context(scenario: Scenario):
     from tirefilter.viz.options import RecordingContext
 
     return RecordingContext(vehicle=scenario.vehicle, friction_truth=friction_truth(scenario))
-
-
-def write_run_json(path: str | Path, summary: RunSummary, *, command: list[str], model: str, particles: int | None,
-                   estimator_config: dict, fmi_version: str, sensors: dict | None = None) -> None:
-    """The run summary JSON (`run.json`, docs/usage.md)."""
-    write_summary_json(path, summary, command=command, model=model, particles=particles,
-                       estimator_config=estimator_config, fmi_version=fmi_version, sensors=sensors)

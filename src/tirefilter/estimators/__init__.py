@@ -1,17 +1,16 @@
-"""Estimators following the protocol of `base.py`, and how a run builds one: from a
-scenario (co-simulation) or from a vehicle and a recorded log (replay)."""
+"""Estimators following the protocol of `base.py`, and the registry that builds one by
+name (`build`) for a `Setting`: a co-simulated scenario (`for_scenario`) or a vehicle and a
+recorded log (`for_log`)."""
 
 from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
+from dataclasses import dataclass
 
 from tirefilter.errors import ConfigError
 
-ESTIMATORS = ("none", "mpf", "kf", "augpf", "rls", "ekf", "gpssm", "combined")
-# kf: linear single-track Kalman filter, fixed stiffness (baseline)
-# augpf, rls, ekf: the stiffness paper's baselines (Sec. VI-A, VII), `_baseline` below
-# gpssm: friction GP-SSM (friction paper); combined: gpssm with its prior slope from the MPF
 BASELINES = ("augpf", "rls", "ekf")
 FRICTION_ESTIMATORS = ("gpssm", "combined")
 
@@ -67,14 +66,32 @@ def mpf_config_for_log(vehicle, t, signals: dict, *, model: str, particles: int 
     `t` (n,) are the sample times, `signals` maps log signal names to (n,) arrays (NaN =
     missing sample).
     """
+    from tirefilter.estimators.sensors import sensors_for_log
+
+    sample_period, first = log_start(t, signals)
+    return _mpf_config_for_log_start(vehicle, sample_period, first, model=model, particles=particles,
+                                     overrides=overrides, sensors=sensors or sensors_for_log(vehicle, signals))
+
+
+def log_start(t, signals: dict) -> tuple[float | None, dict[str, float]]:
+    """What the estimators' options take from a log besides its noise: the median time step
+    (None for a single row) and each signal's first finite sample (NaN where it has none)."""
     import numpy as np
 
+    dt = np.diff(np.asarray(t, float))
+    first = {}
+    for name, x in signals.items():
+        finite = np.isfinite(x)
+        k = int(np.argmax(finite)) if finite.size else 0
+        first[name] = float(x[k]) if finite.size and finite[k] else math.nan
+    return (float(np.median(dt)) if dt.size else None), first
+
+
+def _mpf_config_for_log_start(vehicle, sample_period: float | None, first_sample: dict, *, model: str,
+                              particles: int | None, overrides: dict, sensors):
+    """`mpf_config_for_log` from the log's `log_start` and its IMU model `sensors`."""
     def first(name: str) -> float:
-        x = signals.get(name)
-        if x is None:
-            return math.nan
-        finite = np.flatnonzero(np.isfinite(x))
-        return float(x[finite[0]]) if finite.size else math.nan
+        return first_sample.get(name, math.nan)
 
     r0 = first("yaw_rate")
     r0 = r0 if math.isfinite(r0) else 0.0
@@ -85,14 +102,10 @@ def mpf_config_for_log(vehicle, t, signals: dict, *, model: str, particles: int 
         x0_mean = (vx0 if math.isfinite(vx0) else 20.0, 0.0, r0)
     else:
         x0_mean = (0.0, r0)
-    from tirefilter.estimators.sensors import sensors_for_log
-
-    dt = np.diff(np.asarray(t, float))
-    sensors = sensors or sensors_for_log(vehicle, signals)
     # a recorded car: the model's process noise is unknown, so it comes from the data, and the log starts
     # mid-drive with the state unknown, so the stiffness statistics are drawn again once the gate first opens
     # (derivations, "State noise from the data"; a co-simulated scenario keeps the paper's: no state noise, no redraw)
-    return _mpf_config(model, particles=particles, sample_period=float(np.median(dt)) if dt.size else None,
+    return _mpf_config(model, particles=particles, sample_period=sample_period,
                        sigma=sensors.sigma, bias0_std=sensors.bias0_std, bias_rw=sensors.bias_rw, x0_mean=x0_mean,
                        sigma_omega=sensors.sigma_omega, state_noise_from_data=True, warmup_redraw="gate",
                        overrides=overrides)
@@ -101,7 +114,7 @@ def mpf_config_for_log(vehicle, t, signals: dict, *, model: str, particles: int 
 def _mpf_config(model: str, *, particles: int | None, sample_period: float | None, sigma, x0_mean, overrides: dict,
                 **kw):
     """What a scenario and a log both set, then the user's overrides."""
-    from tirefilter.estimators.stiffness_mpf import MPFConfig
+    from tirefilter.estimators.mpf import MPFConfig
 
     defaults = MPFConfig()
     config = MPFConfig(model=model, particles=particles or defaults.particles,
@@ -196,68 +209,87 @@ def with_guard(estimator, config: dict):
     return estimator
 
 
-def build_estimator(name: str, scenario, *, model: str, particles: int | None, config: dict):
-    """The estimator `name` for a co-simulation of `scenario` (None for "none"), with the
-    IMU model it assumes as `.sensors` (a `sensors.SensorModel`) and its measurement guard
-    (`with_guard`)."""
+@dataclass(frozen=True)
+class Setting:
+    """What an estimator is built for: a co-simulated scenario (`for_scenario`) or a recorded
+    log (`for_log`). The defaults in which the two differ are these fields, set in those two
+    functions and nowhere else; `build` makes any estimator of REGISTRY from one."""
+
+    vehicle: object  # vehicle.params.VehicleParams
+    signals: tuple[str, ...]  # the sensors (scenario) or the log's signals with samples: `auto`, a model's needs
+    sensors: object  # sensors.SensorModel: the IMU model the estimator assumes (its `.sensors`)
+    source: object  # what an error names: the scenario's file, the log's path
+    key: str  # ... and where in it: "sensors" or "columns"
+    mpf_config: Callable  # (model, particles, overrides) -> MPFConfig of the MPF and the baselines
+    particles: int | None  # the GP-SSM's N when none is asked for (None: GPSSMConfig's)
+    sample_period: float | None  # s, the GP-SSM's (None: GPSSMConfig's)
+    gpssm: dict  # the GP-SSM's other defaults: sigma (a^Y, yaw rate), x0_mean, tire_shape[, prior_peak]
+    kf: dict  # the kf's: sigma_ay, sigma_yaw_rate
+
+
+def for_scenario(scenario) -> Setting:
+    """A co-simulation: the scenario's sensors, its initialisation and rates
+    (`mpf_config_for_scenario`), its sensor noise, its true initial state and tire shape."""
     from tirefilter.estimators.sensors import sensors_for_scenario
 
+    s = scenario.sensor_spec
+    p = scenario.model.pacejka
+    gpssm = {"sigma": (s.sigma_ay, s.sigma_yaw_rate),
+             "x0_mean": (scenario.truth.get("vy0", 0.0), scenario.truth.get("yaw_rate0", 0.0)),
+             "tire_shape": None if p is None else (p.B_y, p.C_y, p.E_y)}
+    if "prior_peak_friction" in scenario.estimator:
+        gpssm["prior_peak"] = scenario.estimator["prior_peak_friction"]
+    return Setting(
+        vehicle=scenario.vehicle, signals=tuple(scenario.sensors), sensors=sensors_for_scenario(s),
+        source=scenario.file, key="sensors",
+        mpf_config=lambda model, particles, overrides: mpf_config_for_scenario(scenario, model=model,
+                                                                               particles=particles,
+                                                                               overrides=overrides),
+        particles=scenario.estimator.get("particles"), sample_period=scenario.sample_period, gpssm=gpssm,
+        kf={"sigma_ay": s.sigma_ay, "sigma_yaw_rate": s.sigma_yaw_rate})
+
+
+def for_log(vehicle, t, signals: dict, source="log") -> Setting:
+    """A recorded log: `signals` maps the log's signal names that have samples to (n,)
+    arrays at the times `t` (n,); the IMU model comes from the vehicle TOML or is estimated
+    from them (`sensors.sensors_for_log`), the MPF's options from them (`mpf_config_for_log`),
+    the GP-SSM's sample period is the median time step, its state starts at zero and its
+    tires have no known shape; `source` names the log in errors. What is kept of the log is
+    its IMU model and `log_start`, nothing of its length: a replay may drop its samples once
+    this is made."""
+    from tirefilter.estimators.sensors import sensors_for_log
+
+    sensors = sensors_for_log(vehicle, signals)
+    sample_period, first = log_start(t, signals)
+    return Setting(
+        vehicle=vehicle, signals=tuple(signals), sensors=sensors, source=source, key="columns",
+        mpf_config=lambda model, particles, overrides: _mpf_config_for_log_start(
+            vehicle, sample_period, first, model=model, particles=particles, overrides=overrides, sensors=sensors),
+        particles=None, sample_period=sample_period,
+        gpssm={"sigma": sensors.sigma[1:], "x0_mean": (0.0, 0.0), "tire_shape": None},
+        kf={"sigma_ay": sensors.sigma[1], "sigma_yaw_rate": sensors.sigma[2]})
+
+
+def build(name: str, setting: Setting, *, model: str, particles: int | None, config: dict):
+    """The estimator `name` (None for "none") for `setting`, from the options of `config`
+    (a `--config` TOML's tables: `[mpf]`, `[kf]`, ..., `[guard]`), with the IMU model it
+    assumes as `.sensors` (a `sensors.SensorModel`) and its measurement guard (`with_guard`).
+    The one place where an estimator is made by name: `tirefilter run` and `replay`, the
+    studies, the dashboard and the estimator FMUs all come here."""
     check_tables(config)
-    return with_guard(_with_sensors(_build_estimator(name, scenario, model=model, particles=particles, config=config),
-                                    sensors_for_scenario(scenario.sensor_spec)), config)
+    estimator = REGISTRY[_known(name)](setting, model=model, particles=particles, config=config)
+    return with_guard(_with_sensors(estimator, setting.sensors), config)
 
 
-def _build_estimator(name: str, scenario, *, model: str, particles: int | None, config: dict):
-    if _known(name) == "mpf":
-        from tirefilter.estimators.stiffness_mpf import StiffnessMPF
-
-        model = resolve_model(model, scenario.sensors)
-        check_model_signals(model, scenario.sensors, scenario.file, "sensors")
-        cfg = mpf_config_for_scenario(scenario, model=model, particles=particles, overrides=config.get("mpf", {}))
-        return StiffnessMPF(scenario.vehicle, cfg)
-    if name in BASELINES:
-        model = _baseline_model(name, model, scenario.sensors)
-        check_model_signals(model, scenario.sensors, scenario.file, "sensors")
-        cfg = mpf_config_for_scenario(scenario, model=model, particles=particles, overrides={})
-        return _baseline(name, scenario.vehicle, cfg, config)
-    if name in FRICTION_ESTIMATORS:
-        check_model_signals(_friction_model(model), scenario.sensors, scenario.file, "sensors")
-        s = scenario.sensor_spec
-        x0 = (scenario.truth.get("vy0", 0.0), scenario.truth.get("yaw_rate0", 0.0))
-        p = scenario.model.pacejka
-        mpf = None
-        if name == "combined":
-            from tirefilter.estimators.stiffness_mpf import StiffnessMPF
-
-            mpf = StiffnessMPF(scenario.vehicle, mpf_config_for_scenario(scenario, model="lateral", particles=None,
-                                                                         overrides=config.get("mpf", {})))
-        extra = {}
-        if "prior_peak_friction" in scenario.estimator:
-            extra["prior_peak"] = scenario.estimator["prior_peak_friction"]
-        return _gpssm(scenario.vehicle, config, particles or scenario.estimator.get("particles"),
-                      sample_period=scenario.sample_period, sigma=(s.sigma_ay, s.sigma_yaw_rate), x0_mean=x0,
-                      tire_shape=None if p is None else (p.B_y, p.C_y, p.E_y), mpf=mpf, **extra)
-    if name == "kf":
-        check_model_signals(_kf_model(model), scenario.sensors, scenario.file, "sensors")
-        s = scenario.sensor_spec
-        return _kf(scenario.vehicle, config, sigma_ay=s.sigma_ay, sigma_yaw_rate=s.sigma_yaw_rate)
-    return None
+def build_estimator(name: str, scenario, *, model: str, particles: int | None, config: dict):
+    """`build(name, for_scenario(scenario), ...)`: the estimator of a co-simulation."""
+    return build(name, for_scenario(scenario), model=model, particles=particles, config=config)
 
 
 def build_log_estimator(name: str, vehicle, t, signals: dict, *, model: str, particles: int | None, config: dict,
                         source="log"):
-    """The estimator `name` for replaying a log (None for "none"): `signals` maps the
-    log's signal names that have samples to (n,) arrays, `source` names the log in errors.
-    The IMU model it assumes (noise from the vehicle TOML or estimated from `signals`, bias
-    model) is its `.sensors` (a `sensors.SensorModel`); with its measurement guard
-    (`with_guard`)."""
-    from tirefilter.estimators.sensors import sensors_for_log
-
-    check_tables(config)
-    sensors = sensors_for_log(vehicle, signals)
-    return with_guard(_with_sensors(_build_log_estimator(name, vehicle, t, signals, model=model, particles=particles,
-                                                         config=config, source=source, sensors=sensors), sensors),
-                      config)
+    """`build(name, for_log(vehicle, t, signals, source), ...)`: the estimator of a replay."""
+    return build(name, for_log(vehicle, t, signals, source), model=model, particles=particles, config=config)
 
 
 def _with_sensors(estimator, sensors):
@@ -283,39 +315,61 @@ def _with_sensors(estimator, sensors):
     return estimator
 
 
-def _build_log_estimator(name: str, vehicle, t, signals: dict, *, model: str, particles: int | None, config: dict,
-                         source, sensors):
-    if _known(name) == "mpf":
-        from tirefilter.estimators.stiffness_mpf import StiffnessMPF
+# ---- the registry: name -> (setting, model, particles, config) -> estimator ------------------------
 
-        model = resolve_model(model, signals)
-        check_model_signals(model, tuple(signals), source, "columns")
-        cfg = mpf_config_for_log(vehicle, t, signals, model=model, particles=particles,
-                                 overrides=config.get("mpf", {}), sensors=sensors)
-        return StiffnessMPF(vehicle, cfg)
-    if name in BASELINES:
-        model = _baseline_model(name, model, signals)
-        check_model_signals(model, tuple(signals), source, "columns")
-        cfg = mpf_config_for_log(vehicle, t, signals, model=model, particles=particles, overrides={},
-                                 sensors=sensors)
-        return _baseline(name, vehicle, cfg, config)
-    if name in FRICTION_ESTIMATORS:
-        import numpy as np
-
-        check_model_signals(_friction_model(model), tuple(signals), source, "columns")
-        mpf = None
-        if name == "combined":
-            from tirefilter.estimators.stiffness_mpf import StiffnessMPF
-
-            mpf = StiffnessMPF(vehicle, mpf_config_for_log(vehicle, t, signals, model="lateral", particles=None,
-                                                           overrides=config.get("mpf", {}), sensors=sensors))
-        dt = np.diff(np.asarray(t, float))
-        return _gpssm(vehicle, config, particles, sample_period=float(np.median(dt)) if dt.size else None,
-                      sigma=sensors.sigma[1:], x0_mean=(0.0, 0.0), tire_shape=None, mpf=mpf)
-    if name == "kf":
-        check_model_signals(_kf_model(model), tuple(signals), source, "columns")
-        return _kf(vehicle, config, sigma_ay=sensors.sigma[1], sigma_yaw_rate=sensors.sigma[2])
+def _none(setting: Setting, *, model: str, particles: int | None, config: dict):
     return None
+
+
+def _mpf(setting: Setting, *, model: str, particles: int | None, config: dict):
+    from tirefilter.estimators.mpf import StiffnessMPF
+
+    model = resolve_model(model, setting.signals)
+    check_model_signals(model, setting.signals, setting.source, setting.key)
+    return StiffnessMPF(setting.vehicle, setting.mpf_config(model, particles, config.get("mpf", {})))
+
+
+def _kf_estimator(setting: Setting, *, model: str, particles: int | None, config: dict):
+    check_model_signals(_kf_model(model), setting.signals, setting.source, setting.key)
+    return _kf(setting.vehicle, config, **setting.kf)
+
+
+def _baseline_estimator(name: str):
+    """A baseline of the stiffness paper (augpf, rls, ekf): the MPF's options for its model
+    (the user's `[mpf]` table left out), its own `[<name>]` table on top (`_baseline`)."""
+    def make(setting: Setting, *, model: str, particles: int | None, config: dict):
+        model = _baseline_model(name, model, setting.signals)
+        check_model_signals(model, setting.signals, setting.source, setting.key)
+        return _baseline(name, setting.vehicle, setting.mpf_config(model, particles, {}), config)
+
+    return make
+
+
+def _friction_estimator(combined: bool):
+    """The friction GP-SSM; `combined`: with its prior slope from a lateral MPF (the user's
+    `[mpf]` table, the MPF's default N)."""
+    def make(setting: Setting, *, model: str, particles: int | None, config: dict):
+        check_model_signals(_friction_model(model), setting.signals, setting.source, setting.key)
+        mpf = None
+        if combined:
+            from tirefilter.estimators.mpf import StiffnessMPF
+
+            mpf = StiffnessMPF(setting.vehicle, setting.mpf_config("lateral", None, config.get("mpf", {})))
+        return _gpssm(setting.vehicle, config, particles or setting.particles, sample_period=setting.sample_period,
+                      mpf=mpf, **setting.gpssm)
+
+    return make
+
+
+REGISTRY = {
+    "none": _none,
+    "mpf": _mpf,  # the stiffness MPF (stiffness paper)
+    "kf": _kf_estimator,  # linear single-track Kalman filter, fixed stiffness (baseline)
+    **{name: _baseline_estimator(name) for name in BASELINES},  # the stiffness paper's baselines (Sec. VI-A, VII)
+    "gpssm": _friction_estimator(combined=False),  # friction GP-SSM (friction paper)
+    "combined": _friction_estimator(combined=True),  # gpssm with its prior slope from the MPF
+}
+ESTIMATORS = tuple(REGISTRY)  # --estimator's choices
 
 
 def _baseline_model(name: str, model: str, sensors) -> str:
@@ -352,7 +406,7 @@ def _friction_model(model: str) -> str:
 def _gpssm(vehicle, config: dict, particles, *, sample_period, sigma, x0_mean, tire_shape, mpf, **kw):
     """The friction GP-SSM (combined with `mpf`): what the scenario or log sets, then the
     user's `[gpssm]` table; settings that cannot work are rejected here, before the run."""
-    from tirefilter.estimators.friction_gpssm import FrictionGPSSM, GPSSMConfig
+    from tirefilter.estimators.gpssm.filter import FrictionGPSSM, GPSSMConfig
 
     base = GPSSMConfig(particles=particles or GPSSMConfig.particles,
                        sample_period=sample_period or GPSSMConfig.sample_period, sigma=tuple(sigma),

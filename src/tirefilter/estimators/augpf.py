@@ -39,8 +39,8 @@ to k+1 (eq. (9), the MPF's Euler or Heun step). One step at sample k:
 
 While the MPF's learning gate is closed (`baseline_common.gate_open`) m and s2 are frozen
 (no artificial dynamics); weighting and resampling go on. The vehicle model is the MPF's own
-(`StiffnessMPF._model`, `_propagate`, `_measurement`), so the two filters differ in the
-inference only. Kept from the MPF (not in the paper): the plausibility check and restart.
+(`vehicle.single_track`: `accelerations`, `propagate` with the wheel slip of the step's start,
+`measurement`), so the two filters differ in the inference only. Kept from the MPF (not in the paper): the plausibility check and restart.
 Left out: the MPF's informed start and its outlier gate. IMU bias: as in the MPF, a Gaussian per particle.
 """
 
@@ -56,7 +56,9 @@ from tirefilter.estimators.base import Estimate, Inputs, Measurement, Posterior,
 from tirefilter.estimators.baseline_common import GateOptions, check_common, gate_open, held_ay, stiffness_prior
 from tirefilter.stats import effective_sample_size, normalize_log_weights, systematic_resample
 from tirefilter.stats.linalg import chol, chol_solve, logdet_chol, solve_lower
+from tirefilter.vehicle import single_track
 from tirefilter.vehicle.params import VehicleParams
+from tirefilter.vehicle.single_track import GRAVITY
 
 NAN = math.nan
 LOG_2PI = math.log(2.0 * math.pi)
@@ -97,8 +99,8 @@ class AUGPFConfig(GateOptions):
     bias0_std: tuple[float, float, float] = (0.0, 0.0, 0.0)
     sample_period: float = 0.01  # s: the period the random-walk std refers to
     max_step: float = 0.02  # s, longest propagation step (longer gaps are sub-stepped)
-    # the MPF's model maths it borrows: "numpy" (default: the per-particle work here is numpy anyway, and
-    # importing numba and LLVM alone costs ~130 MB of resident memory) | "numba" (its compiled kernels)
+    # the model maths (`vehicle.single_track`): "numpy" (default: the per-particle work here is numpy anyway, and
+    # importing numba and LLVM alone costs ~130 MB of resident memory) | "numba" (its compiled twin)
     backend: str = "numpy"
 
     def validated(self) -> "AUGPFConfig":
@@ -161,19 +163,20 @@ class AugmentedPF:
     name = "augpf"
 
     def __init__(self, vehicle: VehicleParams, config: AUGPFConfig = AUGPFConfig()):
-        from tirefilter.estimators.stiffness_mpf import MPFConfig, StiffnessMPF
-
-        self.vehicle = vehicle
+        self.vehicle = v = vehicle
         self.cfg = cfg = config.validated()
-        # the MPF's model maths (accelerations, propagation, measurement map); the AUGPF calls
-        # `_propagate` directly, with the wheel slip of the step's start (the paper's model)
-        self._mdl = StiffnessMPF(vehicle, MPFConfig(particles=1, model=cfg.model, integrator=cfg.integrator,
-                                                    max_step=cfg.max_step, backend=cfg.backend, slip_hold="start"))
         self.full = cfg.model == "full"
-        self.params = self._mdl.params
-        self.C_nom = self._mdl.C_nom
+        self.rear_drive = v.drive == "rear"
+        self.params = ("Cx", "Cf_y", "Cr_y") if self.full else ("Cf_y", "Cr_y")
+        self.C_nom = np.array([v.Cx, v.Cf_y, v.Cr_y] if self.full else [v.Cf_y, v.Cr_y])
         self.n_w = len(self.params)
-        self.channels = self._mdl.channels
+        self.channels = (0, 1, 2) if self.full else (1, 2)  # ax, ay, yaw rate
+        self.roll_gain = 1.0 + v.roll_gradient * GRAVITY  # measured a^Y ~ (1 + k g) a^Y
+        # the model's parameters: the undriven axle at its nominal stiffness (the paper's model)
+        self._vp = single_track.model_params(v)
+        self._st = None
+        if cfg.backend == "numba":
+            self._load_kernels()
         sig = np.asarray(cfg.sigma)[list(self.channels)]
         self.R = np.diag(sig**2)
         self.bias_on = bool(np.any(np.asarray(cfg.bias_rw) > 0) or np.any(np.asarray(cfg.bias0_std) > 0))
@@ -184,10 +187,41 @@ class AugmentedPF:
         self.lo = cfg.bound_low * self.C_ref - self.C_nom  # projection bounds on the deviation means
         self.hi = cfg.bound_high * self.C_ref - self.C_nom
 
+    def _load_kernels(self) -> None:
+        from tirefilter.vehicle import single_track_numba
+
+        self._st = single_track_numba
+
+    def __getstate__(self):  # (copies and FMU states: the kernel module is not state)
+        return {**self.__dict__, "_st": None}
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        if self.cfg.backend == "numba":
+            self._load_kernels()
+
     def config_dict(self) -> dict:
         d = asdict(self.cfg)
         d.update(params=list(self.params), C_nominal=self.C_nom.tolist())
         return d
+
+    # ---- model: `vehicle.single_track` (numpy) or its compiled twin ---------------------
+    def _model(self, x, u):
+        """`single_track.accelerations`: a, B, af, ar, the wheel slip (None in the lateral model)."""
+        if self._st is not None:
+            a, B, af, ar, slip = self._st.accelerations(x, u, self._vp, self.full, self.rear_drive, self.n_w)
+            return a, B, af, ar, slip if self.full else None
+        return single_track.accelerations(x, u, self._vp, self.full, self.rear_drive)
+
+    def _propagate(self, x, u, w, dt, first):
+        """`single_track.propagate` (eq. (9)), the wheel slip of the step's start held (`first`)."""
+        heun = self.cfg.integrator == "heun"
+        if self._st is not None:
+            a, B, _, _, slip = first
+            return self._st.propagate(x, u, w, (a, B, np.zeros((2, len(x))) if slip is None else slip), dt,
+                                      self.cfg.max_step, heun, self._vp, self.full, self.rear_drive, self.n_w)
+        return single_track.propagate(x, u, w, dt, first, self._vp, self.full, self.rear_drive, self.cfg.max_step,
+                                      heun)
 
     # ---- initialisation ---------------------------------------------------------------
     def reset(self, rng: np.random.Generator) -> None:
@@ -231,7 +265,7 @@ class AugmentedPF:
         if not self.full and not math.isfinite(uk[3]):
             raise ConfigError("inputs", "vx", f"the lateral model needs vx; none given up to t = {t} s")
         if self.u_prev is None and self.full and cfg.x0_vx_from_wheels:
-            vx = self._mdl._vx_from_wheels(uk)
+            vx = single_track.vx_from_wheels(uk, self._vp, self.rear_drive)
             if math.isfinite(vx):
                 self.x[:, 0] = vx + cfg.x0_vx_wheel_std * rng.standard_normal(len(self.x))
         if not math.isfinite(uk[0]):
@@ -242,7 +276,7 @@ class AugmentedPF:
             dt = t - self.t_prev
             if not dt > 0:
                 raise ConfigError("inputs", "t", f"time must increase: {t} after {self.t_prev}")
-            self.x = self._mdl._propagate(self.x, self.u_prev, self.w_prev, dt, self._at_x)
+            self.x = self._propagate(self.x, self.u_prev, self.w_prev, dt, self._at_x)
             if self.state_noise is not None:
                 self.x = self.x + math.sqrt(dt) * self.state_noise * rng.standard_normal(self.x.shape)
             if self.bias_on:
@@ -258,8 +292,8 @@ class AugmentedPF:
         # 2.-3. the per-step deviation w_k (process noise of the augmented model) and the weights
         yk = np.array([y.ax, y.ay, y.yaw_rate], float)[list(self.channels)]
         a = np.flatnonzero(np.isfinite(yk))
-        model_k = self._mdl._model(self.x, uk)
-        h, D = self._mdl._measurement(model_k[0], model_k[1], self.x)
+        model_k = self._model(self.x, uk)
+        h, D = single_track.measurement(model_k[0], model_k[1], self.x, self.roll_gain, self.full)
         if cfg.proposal == "bootstrap":
             w = self.mu + np.sqrt(self.s2) * rng.standard_normal(self.mu.shape)  # w_k ~ N(m_k, s2_k)
             pred = h + np.einsum("nij,nj->ni", D, w)
@@ -296,7 +330,7 @@ class AugmentedPF:
                 w_cond = (w_cond[0][idx], w_cond[1][idx])
             a_k, B_k, af, ar, slip_k = model_k
             # (slip (2, N) copied in C order, as the kernel's model gives it: indexing its columns gives
-            # Fortran order, for which mpf_numba.propagate would compile a second signature)
+            # Fortran order, for which single_track_numba.propagate would compile a second signature)
             model_k = (a_k[idx], B_k[idx], af[idx], ar[idx],
                        None if slip_k is None else np.ascontiguousarray(slip_k[:, idx]))
             self.logw = np.full(cfg.particles, -math.log(cfg.particles))
@@ -347,13 +381,13 @@ class AugmentedPF:
         from the prior again around the current speed (undriven wheel) and the measured yaw
         rate, as the MPF does; the next propagation uses the prior means."""
         if self.full:
-            vx = self._mdl._vx_from_wheels(uk)
+            vx = single_track.vx_from_wheels(uk, self._vp, self.rear_drive)
             vx = vx if math.isfinite(vx) else float(np.median(self.x[:, 0]))
         r0 = y.yaw_rate if math.isfinite(y.yaw_rate) else 0.0
         self._draw_prior((vx, 0.0, r0) if self.full else (0.0, r0))
         self.restarts += 1
         self.t_start, self.t_prev, self.u_prev, self.active = t, t, uk, False
-        self._at_x = self._mdl._model(self.x, uk)
+        self._at_x = self._model(self.x, uk)
         self.w_prev = self.mu.copy()
         return self._estimate(float(self.cfg.particles))
 

@@ -55,6 +55,7 @@ from tirefilter.errors import ConfigError
 from tirefilter.estimators.base import Estimate, Inputs, Measurement, Posterior
 from tirefilter.estimators.baseline_common import (GateOptions, check_common, discretize_zoh, gate_open, held_ay,
                                                     small_solve, stiffness_prior)
+from tirefilter.vehicle import single_track
 from tirefilter.vehicle.params import VehicleParams
 from tirefilter.vehicle.single_track import GRAVITY
 
@@ -108,10 +109,8 @@ class SingleTrackEKFModel:
     def __init__(self, vehicle: VehicleParams, full: bool, vx_min: float = 1.0, C_scale=None):
         v = vehicle
         self.v, self.full, self.vx_min = v, full, vx_min
-        other = v.Cx if v.Cx_undriven is None else v.Cx_undriven
         self.rear_drive = v.drive == "rear"
-        self.C_nom_fx = other if self.rear_drive else v.Cx
-        self.C_nom_rx = v.Cx if self.rear_drive else other
+        self.C_nom_fx, self.C_nom_rx = single_track.longitudinal_stiffness(v)
         self.nx = 3 if full else 2
         self.params = ("Cx", "Cf_y", "Cr_y") if full else ("Cf_y", "Cr_y")
         self.n_w = len(self.params)
@@ -144,8 +143,7 @@ class SingleTrackEKFModel:
 
         s = max(vx, self.vx_min)
         ds = 1.0 if vx > self.vx_min else 0.0  # d s / d vx
-        af = delta - (vy + v.lf * r) / s
-        ar = (v.lr * r - vy) / s
+        af, ar = single_track.small_slip_angles(vx, vy, r, delta, v.lf, v.lr, self.vx_min)
         g_af = grad(vx=ds * (vy + v.lf * r) / (s * s), vy=-1.0 / s, r=-v.lf / s)
         g_ar = grad(vx=-ds * (v.lr * r - vy) / (s * s), vy=-1.0 / s, r=v.lr / s)
         cs = self.C_scale
@@ -164,7 +162,7 @@ class SingleTrackEKFModel:
                     continue
                 wr = v.wheel_radius * omega
                 den = max(abs(vx), abs(wr), 1.0)
-                lam.append((wr - vx) / den)
+                lam.append(single_track.floored_wheel_slip(vx, wr))
                 if den == abs(vx) and abs(vx) > 1.0 and abs(vx) >= abs(wr):
                     d = -wr / (vx * abs(vx))  # d/dvx of (wr - vx)/|vx|
                 else:

@@ -8,7 +8,7 @@ is linear in it. A +20 m/s^2 spike in a^Y therefore shifts the stiffness and the
 can empty the plausible region (a restart). The guard removes such samples *before* the
 update by marking the component missing (NaN), which every estimator already handles as a
 missing sample (docs/design.md, `Measurement`). It needs nothing from the estimator, so one
-implementation serves them all; the run loop (`runs.RunOutputs.step`) applies the guard an
+implementation serves them all; the run loop (`runs.Run.step`) applies the guard an
 estimator carries as `estimator.guard` (set by `estimators.build_estimator` /
 `build_log_estimator` from the `[guard]` table of `--config`).
 

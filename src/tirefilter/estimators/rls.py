@@ -48,6 +48,7 @@ from tirefilter.estimators.base import Estimate, Inputs, Measurement, Posterior
 from tirefilter.estimators.baseline_common import (GateOptions, check_common, discretize_zoh, gate_open, held_ay,
                                                     small_solve, stiffness_prior)
 from tirefilter.estimators.linear_kf import KFConfig, LinearKF
+from tirefilter.vehicle import single_track
 from tirefilter.vehicle.params import VehicleParams
 from tirefilter.vehicle.single_track import GRAVITY
 
@@ -163,9 +164,7 @@ class RLSEstimator:
     def _phi2(self, vx, delta, vy, r):
         """The regressors of the two equations at (vx, delta, vy, r): (2,) each."""
         v = self.vehicle
-        s = max(vx, self.cfg.vx_min)
-        af = delta - (vy + v.lf * r) / s
-        ar = (v.lr * r - vy) / s
+        af, ar = single_track.small_slip_angles(vx, vy, r, delta, v.lf, v.lr, self.cfg.vx_min)
         cf = math.cos(delta) * af
         return np.array([cf, ar]) / v.mass, np.array([v.lf * cf, -v.lr * ar]) / v.yaw_inertia, af, ar
 

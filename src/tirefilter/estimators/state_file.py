@@ -55,6 +55,8 @@ def load_state(estimator, path: str | Path) -> None:
                           f"(by tirefilter {record.get('tirefilter')}); this is tirefilter {__version__}, which "
                           f"reads version {FORMAT_VERSION}")
     saved, current = record.get("vehicle", {}), _vehicle_record(estimator.vehicle)
+    if not isinstance(saved, dict):
+        raise ConfigError(path, "vehicle", f"expected a table of the vehicle's parameters, got {saved!r}")
     differ = sorted(k for k in set(saved) | set(current) if saved.get(k) != current.get(k))
     if differ:
         detail = ", ".join(f"{k}: saved {saved.get(k)!r}, now {current.get(k)!r}" for k in differ[:6])

@@ -6,7 +6,9 @@ vehicle FMU -> estimator FMU. docs/using-the-fmus.md is the user's guide.
 - `state.py`: the serialised FMU state (restricted unpickling);
 - `build.py`: building the FMUs into the build folder (`fmu/build/` in a checkout;
   `tirefilter fmu build estimator`);
-- `ssp.py`: the SSP of a scenario and running it with `fmpy.ssp.simulation.simulate_ssp`.
+- `ssp.py`: the SSP of a scenario and running it with `fmpy.ssp.simulation.simulate_ssp`;
+- `host.py`: a small FMI host for the Python FMUs (tests, benchmarks);
+- `release.py`: unloading a Python FMU from a Python process without corrupting the heap at exit.
 
 The Python FMUs need Python and packages on the target machine: `REQUIREMENTS` says
 which, and the FMUs print it when they cannot load.

@@ -9,7 +9,7 @@ prints those requirements when its imports fail, which is what a tool shows on a
 load.
 
 Adding an estimator FMU: an entry in `ESTIMATOR_FMUS`; the estimator must be buildable by
-name with `tirefilter.estimators.build_log_estimator` from a vehicle plus options.
+name with `tirefilter.estimators.build` from a vehicle plus options (`for_log`).
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ PACKAGE_DIR = Path(__file__).resolve().parents[1]  # src/tirefilter
 class EstimatorFMU:
     """One estimator exported as an FMU."""
 
-    estimator: str  # name for build_log_estimator (and --estimator)
+    estimator: str  # the estimator's name in `tirefilter.estimators.REGISTRY` (and --estimator)
     model_identifier: str  # FMU model name and file stem
     option_table: str  # the --config table the FMU parameters forgetting/estimator_rate go to
     description: str

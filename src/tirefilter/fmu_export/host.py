@@ -46,7 +46,7 @@ class FMUHost:
         try:
             self.slave.instantiate(callbacks=callbacks, loggingOn=True)
         except Exception:
-            shutil.rmtree(self.unzip_dir, ignore_errors=True)
+            self._unload()
             raise FMUError(f"{self.path.name}: instantiation failed: " + "; ".join(m for _, m in self.messages)) from None
         self.time = 0.0
         self.failed = False  # after fmi2Error/fmi2Fatal the instance gets no further calls
@@ -60,7 +60,7 @@ class FMUHost:
             self.slave.instantiate(loggingOn=True, logMessage=lambda env, status, cat, msg: self._log(
                 env, None, status, cat, msg))
         except Exception:
-            shutil.rmtree(self.unzip_dir, ignore_errors=True)
+            self._unload()
             raise FMUError(f"{self.path.name}: instantiation failed: " + "; ".join(m for _, m in self.messages)) from None
 
     def _log(self, env, name, status, category, message):
@@ -144,15 +144,34 @@ class FMUHost:
         return [m for s, m in self.messages if s >= 3]
 
     def close(self, terminate: bool = True) -> None:
+        """Terminate and free the instance, then unload the FMU (`_unload`)."""
         if self.slave is None:
             return
+        freed = False
         try:
             if not self.failed:  # FMI: no calls after fmi2Fatal (pythonfmu 0.7 has freed it already)
                 if terminate:
                     self.slave.terminate()
-                self.slave.freeInstance()
+                free = self.slave.fmi2FreeInstance if self.fmi == "2" else self.slave.fmi3FreeInstance
+                free(self.slave.component)
+                freed = True
         except Exception:
             pass
+        finally:
+            self._unload(unload_library=freed)
+
+    def _unload(self, unload_library: bool = True) -> None:
+        """After the instance is freed (or was never made): release a Python FMU's embedded
+        interpreter state while the binary's statics are alive (`release.py`: otherwise its
+        library destructor corrupts the heap at process exit), unload the binary (fmpy's
+        `freeLibrary`; only when no instance is left: not after fmi2Fatal or a failed
+        terminate) and remove the unpacked FMU."""
+        from tirefilter.fmu_export.release import release_embedded_python
+
+        try:
+            release_embedded_python(self.slave.dll)
+            if unload_library:
+                self.slave.freeLibrary()
         finally:
             self.slave = None
             shutil.rmtree(self.unzip_dir, ignore_errors=True)

@@ -7,7 +7,7 @@ enumerations and the slave base class come from `self._T` (`_API`). The FMU clas
 `EstimatorSlave3`, `FrictionEstimatorSlave3`, `DriverSlave3` (FMI 3.0, pythonfmu3) are
 made on first access (module `__getattr__`), so an FMU needs only its own pythonfmu.
 
-`EstimatorSlave` wraps any estimator that `tirefilter.estimators.build_log_estimator`
+`EstimatorSlave` wraps any estimator that `tirefilter.estimators.build` (with `for_log`)
 builds by name from a vehicle record plus options; the FMU class of one estimator only
 names it (`estimator_name`, see `build.ESTIMATOR_FMUS`). `DriverSlave` plays a scenario's
 input profile (steer, torques, surface, bank) with its speed-hold driver closed over the
@@ -21,7 +21,8 @@ builds the estimator; `do_step(t, h)` processes the samples due in [t, t + h);
 
 An exception here is fatal for the FMU instance (pythonfmu turns it into fmi2Fatal); it
 is logged first through the FMI logger with a message naming the parameter or input.
-Every Real variable has a unit (`UNITS`; `to_xml` writes them, pythonfmu 0.7 cannot).
+Every Real variable has a unit (`UNITS`, variables.py, with the other variable tables; `to_xml`
+writes them, pythonfmu 0.7 cannot).
 After initialisation the outputs hold the prior (t = start time, samples = 0).
 """
 
@@ -32,7 +33,7 @@ import inspect
 import math
 import sys
 import tomllib
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 from xml.etree.ElementTree import Element, SubElement
@@ -42,89 +43,9 @@ import scipy.special  # noqa: F401  the estimators need it: a missing scipy fail
 
 from tirefilter.errors import TirefilterError
 from tirefilter.fmu_export import state as fmu_state
-
-# FMI inputs of the estimator FMU (u.: Inputs, y.: Measurement of the Estimator protocol) -> (unit, description)
-ESTIMATOR_INPUTS = {
-    "u.delta": ("rad", "road-wheel steer angle"),
-    "u.omega_f": ("rad/s", "front wheel rotation rate (axle mean)"),
-    "u.omega_r": ("rad/s", "rear wheel rotation rate (axle mean)"),
-    "u.vx": ("m/s", "longitudinal speed from other logic (lateral model)"),
-    "y.ax": ("m/s2", "measured longitudinal acceleration (IMU)"),
-    "y.ay": ("m/s2", "measured lateral acceleration (IMU)"),
-    "y.yaw_rate": ("rad/s", "measured yaw rate (IMU)"),
-}
-# Outputs (unit, description): the estimate columns of the Result CSV (docs/design.md), the state stds;
-# `active` (Boolean) and `samples` (Integer) are added in EstimatorSlave.__init__
-ESTIMATOR_OUTPUTS = {
-    "t": ("s", "time of the sample the outputs belong to"),
-    "vx": ("m/s", "longitudinal velocity estimate"),
-    "vy": ("m/s", "lateral velocity estimate"),
-    "yaw_rate": ("rad/s", "yaw rate estimate"),
-    "beta": ("rad", "sideslip estimate atan2(vy, vx)"),
-    "Cf_y": ("N/rad", "front cornering stiffness: posterior mean of the mean (eq. (27a) plus nominal)"),
-    "Cr_y": ("N/rad", "rear cornering stiffness: posterior mean of the mean"),
-    "Cx": ("N", "driven axle longitudinal stiffness (NaN when not estimated)"),
-    "Cf_y_std": ("N/rad", "posterior std of the front stiffness mean"),
-    "Cr_y_std": ("N/rad", "posterior std of the rear stiffness mean"),
-    "Cx_std": ("N", "posterior std of the longitudinal stiffness mean"),
-    "Cf_y_sigma": ("N/rad", "estimated spread of the front stiffness deviations (eq. (27b))"),
-    "Cr_y_sigma": ("N/rad", "estimated spread of the rear stiffness deviations"),
-    "Cx_sigma": ("N", "estimated spread of the longitudinal stiffness deviations"),
-    "b_ax": ("m/s2", "accelerometer x bias estimate (measured - true)"),
-    "b_ay": ("m/s2", "accelerometer y bias estimate"),
-    "b_yaw_rate": ("rad/s", "gyro bias estimate"),
-    "ess": ("1", "effective sample size"),
-    "vx_std": ("m/s", "posterior std of vx"),
-    "vy_std": ("m/s", "posterior std of vy"),
-    "yaw_rate_std": ("rad/s", "posterior std of the yaw rate"),
-}
-MODELS = {1: "full", 2: "lateral"}
-DRIVES = {0: "front", 1: "rear", 2: "all"}
-# units of the vehicle record's keys (`vehicle.<key>` parameters); Integer keys have none
-VEHICLE_UNITS = {
-    "mass": "kg", "yaw_inertia": "kg.m2", "lf": "m", "lr": "m", "wheel_radius": "m", "cg_height": "m",
-    "Cf_y": "N/rad", "Cr_y": "N/rad", "Cx": "N", "steering_ratio": "1", "roll_gradient": "rad.s2/m", "imu_x": "m",
-    "imu_y": "m", "sigma_ax": "m/s2", "sigma_ay": "m/s2", "sigma_yaw_rate": "rad/s", "Cx_undriven": "N",
-    "wheel_inertia_f": "kg.m2", "wheel_inertia_r": "kg.m2", "brake_front_share": "1", "awd_front_share": "1",
-    "rolling_resistance": "1", "drag_coefficient": "N.s2/m2", "bias0_std_ax": "m/s2", "bias0_std_ay": "m/s2",
-    "bias0_std_yaw_rate": "rad/s", "bias_q_ax": "m2/s5", "bias_q_ay": "m2/s5", "bias_q_yaw_rate": "rad2/s3",
-}
-# The TOML's bias random walks (per sqrt(s)) have no unit with integer exponents: the FMU
-# takes their variance per second, bias_q = bias_rw^2 (as the vehicle FMU does)
-RW_AS_VARIANCE = {"bias_rw_ax": "bias_q_ax", "bias_rw_ay": "bias_q_ay", "bias_rw_yaw_rate": "bias_q_yaw_rate"}
-# every unit the Python FMUs use, as SI base-unit exponents (UnitDefinitions)
-UNITS = {
-    "1": {}, "s": {"s": 1}, "Hz": {"s": -1}, "m": {"m": 1}, "kg": {"kg": 1}, "kg.m2": {"kg": 1, "m": 2},
-    "m/s": {"m": 1, "s": -1}, "m/s2": {"m": 1, "s": -2}, "rad": {"rad": 1}, "rad/s": {"rad": 1, "s": -1},
-    "N": {"kg": 1, "m": 1, "s": -2}, "N/rad": {"kg": 1, "m": 1, "s": -2, "rad": -1},
-    "N.m": {"kg": 1, "m": 2, "s": -2}, "N.s2/m2": {"kg": 1, "m": -1}, "rad.s2/m": {"rad": 1, "s": 2, "m": -1},
-    "m2/s5": {"m": 2, "s": -5}, "rad2/s3": {"rad": 2, "s": -3},
-}
-
-
-def _vehicle_parameters():
-    """(name, default, unit) of the vehicle TOML keys exposed as `vehicle.<key>`; optional
-    keys without a default (steering_ratio, Cx_undriven) use 0 for "not given"; the IMU bias
-    keys default to the automotive MEMS figures (bias estimation on, as in a replay)."""
-    from tirefilter.estimators.sensors import CHANNELS, MEMS_BIAS0_STD, MEMS_BIAS_RW
-    from tirefilter.scenarios import DATA_DIR
-    from tirefilter.vehicle.params import VehicleParams, load_vehicle
-
-    reference = load_vehicle(DATA_DIR / "vehicles" / "midsize-suv.toml")
-    mems = {f"bias0_std_{c}": b for c, b in zip(CHANNELS, MEMS_BIAS0_STD)}
-    mems |= {f"bias_rw_{c}": q for c, q in zip(CHANNELS, MEMS_BIAS_RW)}
-    out = []
-    for f in fields(VehicleParams):
-        value = getattr(reference, f.name)
-        if value is None and f.name in mems:  # bias estimation on, with the MEMS defaults
-            value = mems[f.name]
-        if f.name == "drive":
-            out.append((f.name, {v: k for k, v in DRIVES.items()}[value]))
-        elif f.name in RW_AS_VARIANCE:
-            out.append((RW_AS_VARIANCE[f.name], float(value) ** 2))
-        else:
-            out.append((f.name, 0.0 if value is None else float(value)))
-    return out
+from tirefilter.fmu_export.variables import (DRIVES, ESTIMATOR_INPUTS, ESTIMATOR_OUTPUTS, FRICTION_ALPHA_DEG,
+                                             FRICTION_VISITED, MODELS, UNITS, VEHICLE_UNITS,
+                                             _vehicle_parameters, friction_output)
 
 
 # pythonfmu 0.7's loader (findClass in its C++ layer) releases one reference to the entry
@@ -277,7 +198,7 @@ class _EstimatorLogic(_Slave):
             self._output(P, name, math.nan, f"[{unit}] {desc}", unit)
         self._output(I, "samples", 0, "samples processed so far")
         self._est = None
-        self._recorder = None
+        self._run = None  # runs.Run: the estimator's steps and the recording
         self._start_time = 0.0
 
     def _default_config(self) -> str:
@@ -312,7 +233,8 @@ class _EstimatorLogic(_Slave):
 
     def _initialize(self) -> None:
         from tirefilter.errors import ConfigError
-        from tirefilter.estimators import build_log_estimator
+        from tirefilter.estimators import build, for_log
+        from tirefilter.io.results import ESTIMATE_COLUMNS
         from tirefilter.runs import spawn_seeds
         from tirefilter.vehicle.params import vehicle_from_dict
 
@@ -364,12 +286,14 @@ class _EstimatorLogic(_Slave):
         table["sample_period"] = 1.0 / rate
         config[self.option_table] = table
         self.Ts = 1.0 / rate
+        # built as for a log whose every signal is present but has no sample yet: the IMU noise from the
+        # vehicle parameters (else the defaults), the MEMS bias model, the state's prior mean the defaults'
         nan2 = np.full(2, math.nan)
         signals = {"delta": nan2, "omega_f": nan2, "omega_r": nan2, "vx": nan2, "ax": nan2, "ay": nan2,
                    "yaw_rate": nan2}
         try:
-            est = build_log_estimator(self.estimator_name, vehicle, np.array([0.0, self.Ts]), signals,
-                                      model=MODELS[model], particles=int(particles), config=config, source="FMU")
+            est = build(self.estimator_name, for_log(vehicle, np.array([0.0, self.Ts]), signals, source="FMU"),
+                        model=MODELS[model], particles=int(particles), config=config)
         except ConfigError as exc:  # the FMU parameters are checked above: what is left is in `config`
             raise _param_error("config", str(exc)) from None
         _, rng = spawn_seeds(int(seed))
@@ -378,15 +302,26 @@ class _EstimatorLogic(_Slave):
         first = max(self._start_time, float(v["t_first"]))
         self._n = max(0, math.ceil(first / self.Ts - 1e-9))
         rrd = str(v["rrd"]).strip()
-        if rrd:
-            from tirefilter.cosim.results import ESTIMATE_COLUMNS
+        sinks = []
+        if rrd:  # clouds and densities every `log_every` rows, as in `run`
             from tirefilter.viz.rerun_log import RerunRecorder
 
-            self._recorder = RerunRecorder(rrd, ESTIMATE_COLUMNS, self.estimator_name)
+            sinks.append(RerunRecorder(rrd, ESTIMATE_COLUMNS, self.estimator_name))
+        self._run = self._stepper(sinks)
+
+    def _stepper(self, sinks=()):
+        """The run loop's step (`runs.Run`) of this instance's estimator, into `sinks`. The
+        estimator steps on the inputs as the master sets them: no measurement guard (the
+        outputs equal an in-process estimator's steps on the same samples)."""
+        from tirefilter.io.results import ESTIMATE_COLUMNS
+        from tirefilter.runs import Run
+
+        return Run(self._est, ESTIMATE_COLUMNS, sinks, on_error=self._estimator_failed, guard=False)
 
     # ---- stepping -------------------------------------------------------------------
     def do_step(self, current_time, step_size):
         from tirefilter.estimators.base import Inputs, Measurement
+        from tirefilter.runs import Sample
 
         if self._est is None:
             self._fail(f"{self.instance_name}: doStep before initialisation")
@@ -401,13 +336,17 @@ class _EstimatorLogic(_Slave):
             self._check_inputs(s)
             u = Inputs(delta=v["u.delta"], omega_f=v["u.omega_f"], omega_r=v["u.omega_r"], vx=v["u.vx"])
             y = Measurement(ax=v["y.ax"], ay=v["y.ay"], yaw_rate=v["y.yaw_rate"])
-            try:
-                est = self._est.step(s, u, y)
-            except Exception as exc:  # logged with the sample time, then fatal for this instance
-                self._fail(f"{self.instance_name}: the estimator failed at t = {s:.6g} s: {type(exc).__name__}: {exc}")
-            self._publish(s, est)
+            self._run.step(Sample(self._n - 1, s, u, y))
+            self._publish(s, self._run.est)
         self._time = current_time + step_size
         return True
+
+    def _estimator_failed(self, sample, exc: Exception) -> RuntimeError:
+        """Logged with the sample time, then fatal for this instance."""
+        message = (f"{self.instance_name}: the estimator failed at t = {sample.t:.6g} s: "
+                   f"{type(exc).__name__}: {exc}")
+        self.log(message, self._T.status.error)
+        return RuntimeError(message)
 
     def _check_inputs(self, s: float) -> None:
         """Refuse physically impossible samples (NaN is a missing sample, allowed): an
@@ -429,7 +368,7 @@ class _EstimatorLogic(_Slave):
 
     def _publish_prior(self) -> None:
         """Outputs at the start time: the estimator's prior (no sample processed yet)."""
-        from tirefilter.cosim.results import ESTIMATE_COLUMNS, estimate_values
+        from tirefilter.io.results import ESTIMATE_COLUMNS, estimate_values
 
         est = _prior_estimate(self._est, self._values["u.vx"])
         v = self._values
@@ -440,24 +379,20 @@ class _EstimatorLogic(_Slave):
         v["vx_std"], v["vy_std"], v["yaw_rate_std"] = (float(x) for x in est.state_std)
 
     def _publish(self, s, est) -> None:
-        from tirefilter.cosim.results import ESTIMATE_COLUMNS, estimate_values
+        from tirefilter.io.results import ESTIMATE_COLUMNS, estimate_values
 
-        row = estimate_values(s, est)
         v = self._values
-        for name, value in zip(ESTIMATE_COLUMNS, row):
+        for name, value in zip(ESTIMATE_COLUMNS, estimate_values(s, est)):
             if name != "active":
                 v[name] = float(value)
         v["active"] = bool(est.active)
         v["vx_std"], v["vy_std"], v["yaw_rate_std"] = (float(x) for x in est.state_std)
         v["samples"] += 1
-        if self._recorder is not None:
-            self._recorder.note_step(self._est, est)  # clouds and densities every `log_every` rows, as in `run`
-            self._recorder.log_row(row)
 
     def terminate(self):
-        if self._recorder is not None:
-            self._recorder.close()
-            self._recorder = None
+        if self._run is not None:
+            self._run.close()  # the recording
+            self._run = None
 
     # ---- FMU state: the whole particle system ----------------------------------------
     def _get_fmu_state(self):
@@ -469,6 +404,9 @@ class _EstimatorLogic(_Slave):
 
     def _set_fmu_state(self, state):
         self._est = copy.deepcopy(state["estimator"])
+        if self._run is None:  # a fresh instance, never initialised
+            self._run = self._stepper()
+        self._run.estimator = self._est
         self._n = state["n"]
         self.Ts = state["Ts"]
         self._time = state["time"]
@@ -482,18 +420,6 @@ class _EstimatorLogic(_Slave):
     @staticmethod
     def _fmu_state_from_bytes(data):
         return fmu_state.state_from_bytes(data)
-
-
-FRICTION_ALPHA_DEG = tuple(range(-20, 21))  # deg: the slip angles of the friction outputs
-
-
-def friction_output(field: str, k: int) -> str:
-    """The FMU variable of `field` (mu_f, mu_f_std, mu_r, mu_r_std) at alpha = k deg: an
-    array element, 1-based over FRICTION_ALPHA_DEG (structured naming: mu_f[1] is -20 deg)."""
-    return f"{field}[{FRICTION_ALPHA_DEG.index(k) + 1}]"
-
-
-FRICTION_VISITED = ("alpha_f_min", "alpha_f_max", "alpha_r_min", "alpha_r_max")
 
 
 class _FrictionLogic(_EstimatorLogic):

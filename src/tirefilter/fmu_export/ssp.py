@@ -76,7 +76,7 @@ def scenario_run_parameters(scenario, *, seed: int, particles: int | None = None
     """(vehicle FMU parameters, estimator FMU parameters, driver FMU parameters, estimator
     options TOML) of one run of `scenario`, as `tirefilter run` sets them up."""
     from tirefilter.estimators import check_model_signals, mpf_config_for_scenario, resolve_model
-    from tirefilter.fmu_export.slaves import RW_AS_VARIANCE
+    from tirefilter.fmu_export.variables import RW_AS_VARIANCE
     from tirefilter.runs import spawn_seeds
 
     fmu_seed, _ = spawn_seeds(seed)
@@ -146,7 +146,7 @@ def build_ssp(scenario_name: str = "snow-sine", out: Path | None = None, *, seed
 
     from tirefilter.cosim.fmu import BUILD_DIR, vehicle_fmu_path
     from tirefilter.fmu_export.build import ESTIMATOR_FMUS, build_driver_fmu, build_estimator_fmu
-    from tirefilter.fmu_export.slaves import ESTIMATOR_OUTPUTS
+    from tirefilter.fmu_export.variables import ESTIMATOR_OUTPUTS
     from tirefilter.scenarios import DATA_DIR, load_scenario
 
     scenario = load_scenario(scenario_name)
@@ -227,9 +227,13 @@ def ssp_step_size(path: str | Path) -> float:
 def run_ssp(path: str | Path, *, stop_time: float | None = None, step_size: float | None = None) -> np.ndarray:
     """Simulate the SSP with fmpy.ssp.simulation.simulate_ssp and its parameter set;
     returns fmpy's structured array (column `time`, then `component.connector`; each row
-    holds the values after the step that starts at `time`)."""
+    holds the values after the step that starts at `time`). simulate_ssp loads and frees
+    the FMUs itself; the Python FMUs' binaries it leaves loaded are released after it
+    (`release.python_fmus_released`: their destructor would corrupt the heap at exit)."""
     from fmpy.ssp.simulation import simulate_ssp
     from fmpy.ssp.ssd import read_ssd
+
+    from tirefilter.fmu_export.release import python_fmus_released
 
     path = Path(path)
     ssd = read_ssd(str(path))
@@ -241,5 +245,6 @@ def run_ssp(path: str | Path, *, stop_time: float | None = None, step_size: floa
         stop_time = float(exp.get("stopTime"))
     h = step_size or ssp_step_size(path)
     # fmpy accumulates time += h; stop half a step early so round-off adds no extra step
-    return simulate_ssp(str(path), start_time=0.0, stop_time=stop_time - 0.5 * h, step_size=h,
-                        parameter_set=parameters)
+    with python_fmus_released():
+        return simulate_ssp(str(path), start_time=0.0, stop_time=stop_time - 0.5 * h, step_size=h,
+                            parameter_set=parameters)

@@ -18,8 +18,10 @@ MAGIC = b"TIREFILTER-FMU-STATE\x00"
 # gains, loses or renames an attribute, so that an older state is refused by this check
 # instead of failing inside the object. 2: the MPF's float sandwich (BatchMeansSandwichPair),
 # the GP-SSM's K in lanes and its deferred resampling copy of K. 3: the MPF's work arrays name
-# the kernels' sizes (`sizes_all`, `sizes_any`), not entry points.
-FORMAT = 3
+# the kernels' sizes (`sizes_all`, `sizes_any`), not entry points. 4: the MPF's classes in the
+# package `estimators.mpf`, its model parameters and kernel modules (`_vp`, `_st`), its work arrays'
+# workspace tuples (`own`, `scratch`); the AUGPF's model without a borrowed MPF.
+FORMAT = 4
 
 _NUMPY_ALLOWED = {
     ("numpy", "ndarray"), ("numpy", "dtype"),

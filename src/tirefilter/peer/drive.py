@@ -224,7 +224,7 @@ def vehicle_toml(drive: PeerDrive) -> str:
 def write_drive(drive: PeerDrive, log_path: str | Path,
                 vehicle_path: str | Path | None = None) -> tuple[Path, Path | None]:
     """Write the Log CSV (and the vehicle TOML when `vehicle_path` is given)."""
-    from tirefilter.replay.log import write_log
+    from tirefilter.io.log import write_log
 
     log_path = write_log(log_path, drive.columns)
     if vehicle_path is not None:

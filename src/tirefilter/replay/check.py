@@ -10,7 +10,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from tirefilter.errors import LogError
-from tirefilter.replay.log import CORNERS, Log, read_log, reference_name, vehicle_arg
+from tirefilter.io.log import CORNERS, Log, read_log, reference_name, vehicle_arg
 
 GAP_FACTOR = 2.0  # a time step longer than this times the median is a gap
 
@@ -85,7 +85,7 @@ def check_log(path, vehicle=None) -> LogSummary:
     summarise it. `vehicle` (VehicleParams or a vehicle TOML path) converts a steering-wheel
     angle and gives the wheel radius for a speed from wheel speeds."""
     from tirefilter.estimators.sensors import sensors_for_log
-    from tirefilter.estimators.stiffness_mpf import MPFConfig
+    from tirefilter.estimators.mpf import MPFConfig
 
     vehicle, name = vehicle_arg(vehicle)
     log = read_log(path, vehicle, need_steering_ratio=vehicle is not None, vehicle_name=name)

@@ -37,7 +37,7 @@ def _delta_cause(value: float) -> str:
 
 
 class Plausibility:
-    """`add(chunk)` for each chunk of a log (replay.log.Log), then `warnings()`."""
+    """`add(chunk)` for each chunk of a log (io.log.Log), then `warnings()`."""
 
     def __init__(self):
         self.extreme: dict[str, tuple[float, float, int]] = {}  # signal -> (value, t, data row) of the first beyond

@@ -196,7 +196,7 @@ def faulty_samples(samples, faults, rng: np.random.Generator):
 
 def fault_sets(duration: float) -> dict[str, tuple[Fault, ...]]:
     """The sensor faults (tests and the fault benchmark), placed on a drive of
-    `duration` s: each alone, and `combined`, the set of the issue (20 % dropouts per IMU
+    `duration` s: each alone, and `combined`, the set of the fault benchmark (20 % dropouts per IMU
     channel, the yaw rate stuck for 2 s, five a^Y spikes of +20 m/s^2, an a^Y bias step of
     +0.3 m/s^2, 1 ms time jitter)."""
     d = float(duration)

@@ -1,5 +1,5 @@
 """Compiled (numba, nopython, cached) systematic resampling, shared by the compiled steps of
-the MPF (`estimators.mpf_numba`) and the GP-SSM (`estimators.gpssm_numba`); the reference is
+the MPF (`estimators.mpf.kernels`) and the GP-SSM (`estimators.gpssm.kernels_resample`); the reference is
 `tirefilter.stats.particles.systematic_resample`, tested equal in tests/test_kernels.py."""
 from __future__ import annotations
 

@@ -225,13 +225,13 @@ def run_trial(spec: TrialSpec, index: int, seed: int, *, fmu) -> TrialResult:
     A failing estimator gives a trial with `status: failed`, its error and NaN metrics;
     the study goes on.
     """
-    from tirefilter.cosim.results import result_columns
+    from tirefilter.io.results import result_columns
     from tirefilter.cosim.run import run_scenario
-    from tirefilter.estimators import build_estimator
+    from tirefilter.estimators import build, for_scenario
 
     scenario = study_scenario(spec)
-    estimator = build_estimator(spec.estimator, scenario, model=spec.model, particles=spec.particles,
-                                config=spec.config)
+    estimator = build(spec.estimator, for_scenario(scenario), model=spec.model, particles=spec.particles,
+                      config=spec.config)
     metrics = {"trial": index, "seed": seed, "status": "ok", "error": None}
     t0 = time.perf_counter()
     try:

@@ -1,14 +1,24 @@
-"""Single-track (bicycle) dynamics with wheel spin and load transfer, batch-first.
+"""The single-track (bicycle) model, batch-first: the truth's and the estimators'.
 
-The same equations as the vehicle FMU (vehicle_fmu/c/vehicle_model.c), written
-independently in numpy; tests integrate both and compare. State (..., 9):
-[vx, vy, yaw_rate, omega_f, omega_r, x, y, psi, a_lt] (a_lt: the lagged longitudinal
-acceleration that sets the load transfer).
+The truth (`derivatives`, `rk4_step`): the same equations as the vehicle FMU
+(vehicle_fmu/c/vehicle_model.c) with wheel spin and load transfer, written independently in
+numpy; tests integrate both and compare. State (..., 9): [vx, vy, yaw_rate, omega_f, omega_r, x,
+y, psi, a_lt] (a_lt: the lagged longitudinal acceleration that sets the load transfer).
+
+The estimators' model (`accelerations`, `state_derivative`, `propagate`, `slip_over_step`,
+`measurement`): eq. (1)-(4), (7), (9) and (12) of the stiffness paper with linear tires whose
+stiffness is nominal plus the deviations w, the accelerations split as a(x, u) + B(x, u) w.
+State x (N, 3) = [vx, vy, r] (full model) or (N, 2) = [vy, r] (lateral model, vx an input);
+inputs u (4,) = [delta, omega_f, omega_r, vx]; w (N, n_w) = [dC_x, dCf_y, dCr_y] (full) or
+[dCf_y, dCr_y] (lateral); params p (10,) packed by `model_params` (the compiled twin,
+`single_track_numba`, reads the same array). Particles lie on the leading axis.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+
+import math
 
 import numpy as np
 
@@ -34,10 +44,15 @@ class TruthModel:
         """Linear-model axle stiffness (Cf_y, Cr_y, Cf_x, Cr_x) at surface 1: the vehicle's
         Cx on the driven axle (front for all-wheel drive), Cx_undriven on the other."""
         v = self.vehicle
-        other = v.Cx if v.Cx_undriven is None else v.Cx_undriven
-        if v.drive == "rear":
-            return v.Cf_y, v.Cr_y, other, v.Cx
-        return v.Cf_y, v.Cr_y, v.Cx, other
+        return (v.Cf_y, v.Cr_y) + longitudinal_stiffness(v)
+
+
+def longitudinal_stiffness(vehicle: VehicleParams) -> tuple[float, float]:
+    """Nominal longitudinal axle stiffness (front, rear), N: the vehicle's Cx on the driven axle
+    (front for all-wheel drive), Cx_undriven (default Cx) on the other."""
+    v = vehicle
+    other = v.Cx if v.Cx_undriven is None else v.Cx_undriven
+    return (other, v.Cx) if v.drive == "rear" else (v.Cx, other)
 
 
 def slip_angles(vx, vy, r, delta, lf, lr):
@@ -124,3 +139,168 @@ def steady_state_cornering(vehicle: VehicleParams, vx: float, delta: float):
     r = vx * delta / (L + K * vx**2)
     beta = r * (lr / vx - m * vx * lf / (L * Cr))
     return r, beta
+
+
+# ---- the estimators' model -------------------------------------------------------------------
+# the packed parameters p of the estimators' model (`model_params`; the compiled twin reads the same)
+P_MASS, P_YAW_INERTIA, P_LF, P_LR, P_CF_Y, P_CR_Y, P_CX_F, P_CX_R, P_WHEEL_RADIUS, P_UNDRIVEN_SHARE = range(10)
+
+
+def model_params(vehicle: VehicleParams, undriven_share: float = 0.0) -> np.ndarray:
+    """The packed parameters p (10,) of the estimators' model: mass (kg), yaw inertia (kg m^2),
+    lf, lr (m), nominal Cf_y, Cr_y (N/rad), nominal longitudinal stiffness front, rear (N,
+    `longitudinal_stiffness`), wheel radius (m), and the undriven axle's share of the driven
+    axle's deviation dC_x (d F_undriven / d w_x per unit slip, relative to the driven axle's:
+    0 keeps the undriven axle at its nominal stiffness). An array, not a dataclass, so that a
+    filter can update the share in place and the compiled kernels read it as it is."""
+    v = vehicle
+    c_fx, c_rx = longitudinal_stiffness(v)
+    return np.array([v.mass, v.yaw_inertia, v.lf, v.lr, v.Cf_y, v.Cr_y, c_fx, c_rx, v.wheel_radius, undriven_share],
+                    float)
+
+
+def small_slip_angles(vx, vy, r, delta, lf, lr, vx_min: float = 1.0):
+    """Front and rear slip angles in the small-angle form of eq. (4) of the stiffness paper,
+    alpha_f = delta - (vy + lf r) / v, alpha_r = (lr r - vy) / v with the speed floor
+    v = max(vx, vx_min), computed as products with 1 / v. Arrays or floats."""
+    inv_vx = 1.0 / (np.maximum(vx, vx_min) if isinstance(vx, np.ndarray) else max(vx, vx_min))
+    return delta - (vy + lf * r) * inv_vx, (lr * r - vy) * inv_vx
+
+
+def floored_wheel_slip(vx, rw_omega):
+    """Wheel slip of eq. (3) of the stiffness paper (traction positive) with a floor of 1 m/s
+    on the denominator: (R_w omega - vx) / max(|vx|, |R_w omega|, 1). Arrays (broadcast) or floats."""
+    if isinstance(vx, np.ndarray) or isinstance(rw_omega, np.ndarray):
+        return (rw_omega - vx) / np.maximum(np.maximum(np.abs(vx), np.abs(rw_omega)), 1.0)
+    return (rw_omega - vx) / max(abs(vx), abs(rw_omega), 1.0)
+
+
+def vx_from_wheels(u, p: np.ndarray, rear_drive: bool):
+    """R_w omega of the undriven axle (it hardly slips): the speed the wheels measure; NaN
+    without that wheel speed. u = [delta, omega_f, omega_r, vx]."""
+    omega = u[1] if rear_drive else u[2]
+    return p[P_WHEEL_RADIUS] * omega
+
+
+def accelerations(x, u, p: np.ndarray, full: bool, rear_drive: bool, slip=None):
+    """The accelerations of eq. (1) with F = (C_n + w) slip (eq. (2), (7)), split as
+    a(x, u) + B(x, u) w: returns a (N, 3) = (a^X, a^Y, r') at w = 0, B = d a / d w
+    (N, 3, n_w), the slip angles af, ar (N,) and the wheel slip (2, N) of eq. (3)-(4)
+    (small-angle form of the paper; None in the lateral model; `slip` given: held from an
+    earlier evaluation). x (N, 3) full or (N, 2) lateral; u (4,); p from `model_params`."""
+    if full:
+        vx, vy, r = x[:, 0], x[:, 1], x[:, 2]
+    else:
+        vx, vy, r = u[3], x[:, 0], x[:, 1]
+    m, I, lf, lr = p[P_MASS], p[P_YAW_INERTIA], p[P_LF], p[P_LR]
+    af, ar = small_slip_angles(vx, vy, r, u[0], lf, lr)
+    cd, sd = math.cos(u[0]), math.sin(u[0])
+    Ffy, Fry = p[P_CF_Y] * af, p[P_CR_Y] * ar
+    n_w = 3 if full else 2
+    B = np.zeros((len(x), 3, n_w))
+    j = 0
+    if full:
+        if slip is None:
+            slip = floored_wheel_slip(vx, p[P_WHEEL_RADIUS] * u[1:3, None])  # (2, 1) against vx (N,)
+        lam_f, lam_r = slip
+        Ffx, Frx = p[P_CX_F] * lam_f, p[P_CX_R] * lam_r
+        s = p[P_UNDRIVEN_SHARE]  # d F_undriven / d w_x per unit slip ("surface"; 0: "nominal")
+        if rear_drive:
+            B[:, 0, 0] = lam_r * (1.0 / m) + (s * lam_f) * (cd / m)
+            B[:, 1, 0] = (s * lam_f) * (sd / m)
+            B[:, 2, 0] = (s * lam_f) * (lf * sd / I)
+        else:
+            B[:, 0, 0] = lam_f * (cd / m) + (s * lam_r) * (1.0 / m)
+            B[:, 1, 0] = lam_f * (sd / m)
+            B[:, 2, 0] = lam_f * (lf * sd / I)
+        j = 1
+        Fy_f = Ffy * cd + Ffx * sd
+        aX = (Ffx * cd - Ffy * sd + Frx) * (1.0 / m)
+    else:
+        Fy_f = Ffy * cd
+        aX = np.zeros_like(af)
+    B[:, 0, j] = af * (-sd / m)
+    B[:, 1, j] = af * (cd / m)
+    B[:, 2, j] = af * (lf * cd / I)
+    B[:, 1, j + 1] = ar * (1.0 / m)
+    B[:, 2, j + 1] = ar * (-lr / I)
+    a = np.array([aX, (Fy_f + Fry) * (1.0 / m), (lf * Fy_f - lr * Fry) * (1.0 / I)]).T
+    return a, B, af, ar, slip
+
+
+def state_derivative(x, u, a, B, w, full: bool):
+    """x' of eq. (1) from the accelerations a + B w (`accelerations`), w (N, n_w)."""
+    acc = a + np.einsum("nij,nj->ni", B, w)
+    if full:
+        vy, r = x[:, 1], x[:, 2]
+        return np.array([vy * r + acc[:, 0], acc[:, 1] - x[:, 0] * r, acc[:, 2]]).T
+    return np.array([acc[:, 1] - u[3] * x[:, 1], acc[:, 2]]).T
+
+
+def propagate(x, u, w, dt: float, first, p: np.ndarray, full: bool, rear_drive: bool, max_step: float,
+              heun: bool):
+    """x_{k+1} = f(x_k) + g(x_k) w_k (eq. (9)): Euler, or Heun (`heun`) with the same w and the
+    wheel slip held over the step. `first` = (a, B, af, ar, slip) of `accelerations` at x_k
+    (from the measurement step). A step longer than `max_step` (a gap in a log) is split into
+    equal sub-steps with u and w held."""
+    n_sub = max(1, math.ceil(dt / max_step - 1e-9))
+    h = dt / n_sub
+    for i in range(n_sub):
+        a, B, _, _, slip = first if i == 0 else accelerations(x, u, p, full, rear_drive)
+        k1 = state_derivative(x, u, a, B, w, full)
+        if not heun:
+            x = x + h * k1
+            continue
+        x1 = x + h * k1
+        a2, B2, *_ = accelerations(x1, u, p, full, rear_drive, slip)
+        x = x + (0.5 * h) * (k1 + state_derivative(x1, u, a2, B2, w, full))
+    return x
+
+
+def slip_over_step(x, u0, u1, w, first, dt: float, p: np.ndarray, jw: np.ndarray, c_floor: np.ndarray,
+                   rear_drive: bool):
+    """The first stage of the propagation from t_k to t_k+1 = t_k + dt with the wheel slip
+    averaged over the interval (full model; derivations, "Wheel slip").
+
+    x (N, 3) at t_k, u0 / u1 the inputs at t_k / t_k+1, w (N, n_w) the deviations held over
+    the step, first = (a, B, af, ar, slip) of `accelerations(x, u0)`; jw (2,) the front and
+    rear spin inertia over R_w^2, c_floor (2,) the lowest axle stiffness in the time constant.
+    The wheel settles from the slip at t_k, slip_0, towards the one at t_k+1,
+    slip_1 = (R_w omega_k+1 - v^X_k+1) / max(...), with v^X_k+1 = v^X_k + dt (v^Y r + a^X + B_0 w)
+    (its error O(dt^2)), as slip(t) = slip_1 + (slip_0 - slip_1) exp(-(t - t_k) / tau),
+    tau = J D / (R_w^2 C) per axle (J its spin inertia, D = max(|v^X|, |R_w omega_k|, 1), C its
+    stiffness: nominal plus the particle's w where it is estimated, floored at c_floor); the
+    mean over the interval is slip_1 + (slip_0 - slip_1) (tau / dt) (1 - exp(-dt / tau)).
+    Returns (a, B, af, ar, slip) at x_k with that slip, which `propagate` then holds."""
+    a, B, _, _, slip0 = first
+    Rw = p[P_WHEEL_RADIUS]
+    vx = x[:, 0]
+    acc0 = a[:, 0] + np.einsum("nj,nj->n", B[:, 0], w)
+    vx1 = vx + dt * (x[:, 1] * x[:, 2] + acc0)  # eq. (1a), first stage
+    slip1 = floored_wheel_slip(vx1, Rw * u1[1:3, None])
+    wx, s = w[:, 0], p[P_UNDRIVEN_SHARE]
+    C = np.array([p[P_CX_F] + (s * wx if rear_drive else wx), p[P_CX_R] + (wx if rear_drive else s * wx)])
+    C = np.maximum(C, c_floor[:, None])
+    D = np.maximum(np.maximum(np.abs(vx), np.abs(Rw * u0[1:3, None])), 1.0)
+    tau = np.maximum(jw[:, None] * D / C, 1e-12)
+    share = (tau / dt) * -np.expm1(-dt / tau)  # (1 / dt) int_0^dt exp(-t / tau) dt
+    slip = slip1 + (slip0 - slip1) * share
+    return accelerations(x, u0, p, True, rear_drive, slip)
+
+
+def measurement(a, B, x, roll_gain: float, full: bool):
+    """h(x, u) (N, m) and d(x, u) (N, m, n_w) of eq. (12) for the model's IMU channels (full:
+    a^X, a^Y, yaw rate; lateral: a^Y, yaw rate), from the accelerations of `accelerations`: the
+    IMU sees the accelerations (a^Y times the roll gain 1 + k g) and the yaw rate;
+    d = d a / d w (no Ts: eq. (12), docs/derivations.md, "Model")."""
+    r = x[:, -1]
+    if full:
+        h = np.array([a[:, 0], roll_gain * a[:, 1], r]).T
+        D = B.copy()
+        D[:, 1] *= roll_gain
+        D[:, 2] = 0.0
+    else:
+        h = np.array([roll_gain * a[:, 1], r]).T
+        D = np.zeros((len(x), 2, B.shape[2]))
+        D[:, 0] = roll_gain * B[:, 1]
+    return h, D

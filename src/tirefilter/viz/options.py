@@ -61,7 +61,7 @@ class RecordingContext:
 
     vehicle: VehicleParams (lf, lr for the drawing of the car; None: the estimator's
     vehicle or a 4.5 m car); friction_truth: (alpha (G,), surface) -> (true mu_f, true
-    mu_r), the true friction curves of the friction CSV (`cosim.friction.friction_truth`;
+    mu_r), the true friction curves of the friction CSV (`io.friction.friction_truth`;
     co-simulation only).
     """
 

@@ -118,7 +118,8 @@ def _view_columns(columns) -> dict[str, tuple[str, ...]]:
 
 
 class RerunRecorder:
-    """Records one run. `target` is a RecordingOptions, or the path of an .rrd file."""
+    """Records one run. `target` is a RecordingOptions, or the path of an .rrd file. A sink of
+    the run loop (`runs.Run`): `stepped(estimator, est)`, then `write(row)`, per sample; `close()`."""
 
     def __init__(self, target, columns: tuple[str, ...], estimator: str | None, *,
                  application_id: str = "tirefilter", recording_id: str | None = None, chunk: int | None = None,
@@ -257,11 +258,12 @@ class RerunRecorder:
                       bias_estimated=bool(getattr(estimator, "bias_on", True)), ess_lines=particles)
 
     # ---- per step -------------------------------------------------------------------------
-    def note_step(self, estimator, est) -> None:
-        """The estimator has just stepped; its row follows (`log_row`)."""
+    def stepped(self, estimator, est) -> None:
+        """The estimator has just stepped; its row follows (`write`)."""
         self._pending = (estimator, est)
 
-    def log_row(self, values) -> None:
+    def write(self, values) -> None:
+        """A Result-CSV row (as a sink of the run loop, `runs.Run`)."""
         row = np.asarray(values, dtype=float)
         self._rows.append(row)
         if self._t0 is None:

@@ -1,0 +1,534 @@
+"""Online tire-friction learning by a reduced-rank GP state-space model in a particle
+filter: Algorithm 1 of Berntorp, "Online Bayesian tire-friction learning by Gaussian-process
+state-space models" (IFAC 2020), with the corrections of docs/derivations.md and the
+combined pipeline the paper proposes but does not build (docs/derivations.md, "Combined pipeline").
+
+Per particle: the lateral state x = [v^Y, r] (inputs u = [delta, v^X]), MNIW statistics of
+the friction deviation Delta mu(alpha) = A phi(alpha) (eq. (14), (24)-(29)), the friction
+realised over the current step. Friction mu = mu~(alpha) + Delta mu (Sec. 4): mu~ is a
+Pacejka prior (peak 0.05 by default); `combined` sets its slope from the stiffness MPF.
+
+One step at sample k (the order of docs/derivations.md, "The filter step": weight with the current predictive, resample,
+then update the statistics with the same sample that drives the state):
+  1. propagate x_k = x_{k-1} + T_s f(x_{k-1}, u_{k-1}, mu_{k-1}) (eq. (1), Euler with the
+     friction held, sub-steps of at most `max_step`), forget the statistics (eq. (29));
+  2. slip angles alpha_k (eq. (4)), clipped to [-L, L] (counted), features phi(alpha_k);
+  3. predictive of zeta_k = A phi + w integrating A and Q (eq. (31)-(32), multivariate t);
+     measurement y = [a^Y, r] (eq. (8)): a^Y = (F^z_f mu_f cos delta + F^z_r mu_r) / m with
+     mu = mu~ + zeta ("learned", default) or mu = mu~ ("prior", the paper's Sec. 2.3);
+  4. weight: Student-t likelihood of a^Y (zeta integrated out) times the Gaussian yaw-rate
+     likelihood (eq. (22)); normalise, resample when ESS < threshold (Algorithm 1, 6-10);
+  5. draw zeta_k from its t conditional given the a^Y residual (the locally optimal
+     proposal for the a^Y part; "prior": from the predictive), update the statistics with
+     (zeta_k, phi(alpha_k)) while learning (eq. (27)/(28)); mu_k = mu~(alpha_k) + zeta_k.
+"""
+
+from __future__ import annotations
+
+import math
+from bisect import bisect_left
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from scipy.special import gammaln
+
+from tirefilter.errors import ConfigError
+from tirefilter.estimators.base import Estimate, FrictionCurve, Inputs, Measurement, Posterior
+from tirefilter.stats import effective_sample_size, normalize_log_weights, systematic_resample
+from tirefilter.stats.gp import GPBasis1D, make_basis
+from tirefilter.stats.mniw import make_mniw
+from tirefilter.stats.student_t import t_sample
+from tirefilter.vehicle.params import VehicleParams
+from tirefilter.vehicle.single_track import GRAVITY, slip_angles
+from tirefilter.vehicle.tires import magic_formula
+
+NAN = math.nan
+DEG = math.pi / 180.0
+
+
+@dataclass(frozen=True)
+class GPSSMConfig:
+    """Options of the friction GP-SSM (the `[gpssm]` table of --config). Angles in rad,
+    friction as lateral force over normal load."""
+
+    particles: int = 200
+    basis: str = "tensor"  # "tensor" (the paper's 2-D basis, m^2 functions) | "axle" (m per axle)
+    basis_functions: int | None = None  # m per slip dimension; None: 10 (tensor, the paper), 20 (axle)
+    L: float = 30.0 * DEG  # half-width of the basis domain [-L, L] (the paper: 30 deg)
+    lengthscale: float = 2.0 * DEG  # SE kernel length-scale (the paper: 2 deg)
+    symmetry: str = "odd"  # "odd": only the basis functions odd in alpha (mu(-a) = -mu(a)) | "none" (the paper)
+    s_f: float = 500.0  # SE kernel variance, relative to Q (A | Q ~ MN(0, Q, diag S)); the paper's 500
+    stats: str = "exact"  # "exact" (eq. (27)-(29)) | "rank1" (forgetting applied to the prior too)
+    backend: str = "numba"  # "numba" (compiled step, estimators/gpssm/compiled.py) | "numpy" (the reference)
+    forgetting: float = 0.99  # lambda of eq. (29) (about 100 samples of memory: 4 s at 25 Hz)
+    q0: float = 0.01  # prior guess of the std of w (friction units): Lambda_0 = q0^2 (nu_0 - d - 1) I
+    nu0_margin: float = 2.0  # nu_0 = d + 1 + margin
+    prior_peak: float = 0.05  # D of the Pacejka prior (Sec. 4)
+    prior_B: float | None = None  # Magic-Formula shape of the prior; None: the scenario's tire set
+    prior_C: float | None = None  # (else B = 10, C = 1.3, E = 0)
+    prior_E: float | None = None
+    measurement_friction: str = "learned"  # "learned" (mu~ + zeta) | "prior" (mu~ alone, the paper)
+    # combined pipeline: the MPF's stiffness sets the prior's slope
+    saturation_slip: float = 0.07  # rad: the combined prior's peak is slope x this (brush-model scaling)
+    handover_std: float = 0.05  # relative posterior std of the MPF's Cf_y, Cr_y below which ...
+    handover_after: float = 2.0  # s of MPF learning, after which the prior is fixed and learning starts
+    # filter
+    resample_threshold: float = 0.5
+    sigma: tuple[float, float] = (0.05, 0.0035)  # a^Y [m/s^2], yaw rate [rad/s] white noise
+    x0_mean: tuple[float, float] = (0.0, 0.0)  # vy, r (r from the first yaw-rate sample when there is one)
+    x0_std: tuple[float, float] = (0.3, 0.0175)
+    state_noise: tuple[float, float] = (0.0, 0.0)  # vy, r per sqrt(s): optional regularisation
+    gate_speed: float = 5.0  # m/s: below this nothing is learned (as the stiffness MPF)
+    sample_period: float = 0.04  # s
+    max_step: float = 0.01  # s, longest Euler sub-step
+    # output
+    grid_step: float = 0.25 * DEG  # spacing of the friction() grid (0.25 deg or finer)
+    slip_range: float | None = None  # half-width of the friction() grid (default L; at most L)
+    snapshot_every: float = 10.0  # s between friction.csv snapshots
+
+    def validated(self) -> "GPSSMConfig":
+        def bad(key, problem):
+            raise ConfigError("gpssm configuration", key, problem)
+
+        if isinstance(self.particles, bool) or int(self.particles) != self.particles or self.particles < 1:
+            bad("particles", f"N must be an integer >= 1, got {self.particles!r}")
+        if self.basis not in ("tensor", "axle"):
+            bad("basis", f"expected tensor or axle, got {self.basis!r}")
+        if self.symmetry not in ("none", "odd"):
+            bad("symmetry", f"expected none or odd, got {self.symmetry!r}")
+        if self.stats not in ("exact", "rank1"):
+            bad("stats", f"expected exact or rank1, got {self.stats!r}")
+        if self.backend not in ("numba", "numpy"):
+            bad("backend", f"expected numba or numpy, got {self.backend!r}")
+        if self.measurement_friction not in ("learned", "prior"):
+            bad("measurement_friction", f"expected learned or prior, got {self.measurement_friction!r}")
+        GPBasis1D(self.L, self.m, self.lengthscale, self.s_f)  # L, l, m, s_f checks
+        if not 0.0 < self.forgetting <= 1.0:
+            bad("forgetting", f"lambda must be in (0, 1], got {self.forgetting!r}")
+        for key in ("q0", "prior_peak", "saturation_slip", "sample_period", "max_step", "grid_step",
+                    "snapshot_every", "handover_std"):
+            v = getattr(self, key)
+            if not (isinstance(v, (int, float)) and v > 0 and math.isfinite(v)):
+                bad(key, f"must be a finite number > 0, got {v!r}")
+        for key in ("nu0_margin", "gate_speed", "handover_after"):
+            if not getattr(self, key) >= 0:
+                bad(key, f"must be >= 0, got {getattr(self, key)!r}")
+        for key in ("prior_B", "prior_C"):
+            if getattr(self, key) is not None and not getattr(self, key) > 0:
+                bad(key, f"must be > 0, got {getattr(self, key)!r}")
+        if self.grid_step > 0.25 * DEG + 1e-15:
+            bad("grid_step", f"the friction grid needs 0.25 deg (0.004363 rad) or finer, got {self.grid_step!r}")
+        if self.slip_range is not None:
+            if not self.slip_range > 0:
+                bad("slip_range", f"must be > 0, got {self.slip_range!r}")
+            if self.slip_range > self.L * (1 + 1e-12):
+                bad("slip_range", f"{self.slip_range!r} rad is wider than the basis domain L = {self.L!r} rad "
+                    "(the basis is zero at +-L: widen L)")
+        if not 0.0 <= self.resample_threshold <= 1.0:
+            bad("resample_threshold", f"must be in [0, 1], got {self.resample_threshold!r}")
+        if len(self.sigma) != 2 or min(self.sigma) <= 0:
+            bad("sigma", f"two sensor noise values > 0 (a^Y, yaw rate), got {self.sigma!r}")
+        for key in ("x0_mean", "x0_std", "state_noise"):
+            if len(getattr(self, key)) != 2:
+                bad(key, f"needs two values (vy, r), got {getattr(self, key)!r}")
+        if min(self.x0_std) < 0 or min(self.state_noise) < 0:
+            bad("x0_std", "standard deviations must be >= 0")
+        return self
+
+    @property
+    def model(self) -> str:
+        return "lateral"  # state [v^Y, r], v^X given (Sec. 2.1)
+
+    @property
+    def m(self):
+        if self.basis_functions is None:
+            return 10 if self.basis == "tensor" else 20
+        return self.basis_functions
+
+
+@dataclass(frozen=True)
+class PacejkaPrior:
+    """mu~(alpha) = D sin(C atan(B alpha - E (B alpha - atan(B alpha)))) per axle (Sec. 4)."""
+
+    D: tuple[float, float]
+    B: tuple[float, float]
+    C: float
+    E: float
+
+    def __call__(self, alpha_f, alpha_r):
+        return (magic_formula(self.B[0], self.C, self.D[0], self.E, alpha_f),
+                magic_formula(self.B[1], self.C, self.D[1], self.E, alpha_r))
+
+    def slope(self) -> tuple[float, float]:
+        return self.B[0] * self.C * self.D[0], self.B[1] * self.C * self.D[1]
+
+
+class FrictionGPSSM:
+    """Algorithm 1 of the friction paper, vectorised over particles; `mpf` given: the
+    combined pipeline (name "combined")."""
+
+    def __init__(self, vehicle: VehicleParams, config: GPSSMConfig = GPSSMConfig(), *, tire_shape=None, mpf=None):
+        self.vehicle = vehicle
+        self.cfg = cfg = config.validated()
+        self.mpf = mpf
+        self.name = "combined" if mpf is not None else "gpssm"
+        self.Fz = np.array(vehicle.static_axle_loads(GRAVITY))  # eq. (2)
+        self.b1 = GPBasis1D(cfg.L, cfg.m, cfg.lengthscale, cfg.s_f)
+        self.basis = make_basis(cfg.basis, self.b1, cfg.symmetry == "odd")
+        self.d = 2 if cfg.basis == "tensor" else 1
+        self.nu0 = self.d + 1.0 + cfg.nu0_margin
+        shape = tire_shape or (10.0, 1.3, 0.0)
+        B = cfg.prior_B if cfg.prior_B is not None else shape[0]
+        C = cfg.prior_C if cfg.prior_C is not None else shape[1]
+        E = cfg.prior_E if cfg.prior_E is not None else shape[2]
+        self.prior0 = PacejkaPrior((cfg.prior_peak, cfg.prior_peak), (B, B), C, E)
+        self.R = np.array(cfg.sigma, float) ** 2
+        half = cfg.slip_range if cfg.slip_range is not None else cfg.L
+        n = int(math.floor(half / cfg.grid_step + 1e-9))
+        self.grid = np.arange(-n, n + 1) * cfg.grid_step
+        if self.grid[-1] < half - 1e-12:
+            self.grid = np.concatenate([[-half], self.grid, [half]])
+        self._grid_list = self.grid.tolist()  # for `_bin`
+
+    def config_dict(self) -> dict:
+        d = asdict(self.cfg)
+        d.update(estimator=self.name, prior_initial=asdict(self.prior0), basis_size=self.basis.size,
+                 static_axle_loads=self.Fz.tolist())
+        if hasattr(self, "prior"):
+            d["prior_final"] = asdict(self.prior)
+            d["diagnostics"] = self.diagnostics()
+        if self.mpf is not None:
+            d["mpf"] = self.mpf.config_dict()
+        return d
+
+    def diagnostics(self) -> dict:
+        """Counts a user should see: slip clipping at +-L, resampling, the handover."""
+        return {"slip_clipped_samples": int(self.clipped), "slip_clipped_steps": int(self.clipped_steps),
+                "particle_slip_evaluations": int(self.slip_evaluations), "resamples": int(self.resamples),
+                "handover_time": self.handover_time}
+
+    @property
+    def stats(self):
+        """The MNIW statistics (`stats.mniw`); the compiled step's pending update applied."""
+        if getattr(self, "_compiled", None) is not None:
+            self._compiled.flush()
+        return self._stats
+
+    @stats.setter
+    def stats(self, value) -> None:
+        compiled = getattr(self, "_compiled", None)
+        if compiled is not None and value is not getattr(self, "_stats", None):
+            compiled.flush()  # the compiled step's pending work belongs to the statistics replaced
+        self._stats = value
+
+    # ---- initialisation ---------------------------------------------------------------
+    def reset(self, rng: np.random.Generator) -> None:
+        cfg, N = self.cfg, self.cfg.particles
+        self.rng = rng
+        if self.mpf is not None:
+            self.mpf.reset(rng)
+        batch = (N,) if self.d == 2 else (N, 2)
+        Lam0 = np.eye(self.d) * cfg.q0**2 * (self.nu0 - self.d - 1.0)  # E[Q] = q0^2 I
+        self._compiled = None  # before the statistics change: an old compiled step must not flush into them
+        self.stats = make_mniw(cfg.stats, batch, self.d, self.basis.S, Lam0, self.nu0, cfg.backend)
+        self.x = np.asarray(cfg.x0_mean, float) + rng.standard_normal((N, 2)) * np.asarray(cfg.x0_std, float)
+        self.logw = np.full(N, -math.log(N))
+        self.mu = np.zeros((N, 2))  # friction realised over the current step
+        self.prior = self.prior0
+        self.t_prev = self.u_prev = None
+        self.active = False
+        self.learning_started = self.mpf is None
+        self.handover_time = None
+        self.mpf_active_time = 0.0
+        self.mpf_estimate = None
+        self.clipped = self.clipped_steps = self.slip_evaluations = self.resamples = 0
+        self.visited = [math.inf, -math.inf, math.inf, -math.inf]
+        self.last_t = NAN
+        self.prediction = (NAN, NAN)  # one-step-ahead (a^Y, r) before the last measurement
+        self._path = np.zeros((2, len(self.grid), 2))  # (axle, grid bin, [count, sum of the other slip])
+        self._slope = (NAN, NAN, NAN, NAN)
+        self._dphi0 = self._slope_features()
+        if cfg.backend == "numba":
+            from tirefilter.estimators.gpssm.compiled import CompiledStep
+
+            self._compiled = CompiledStep(self)
+
+    def _slope_features(self):
+        """d phi / d alpha at alpha = 0 for each axle's curve: (2, size) (tensor: d/d alpha_f of
+        phi(alpha_f, alpha_r) at (0, 0) for the front row, d/d alpha_r for the rear)."""
+        b, j = self.b1, self.b1.j
+        k = math.pi / (2 * b.L)
+        d1 = k * j * np.cos(k * b.L * j) / math.sqrt(b.L)  # phi_j'(0)
+        p0 = b.phi(0.0)
+        keep = self.basis.keep
+        if self.d == 2:
+            return np.stack([(d1[:, None] * p0[None, :]).ravel()[keep], (p0[:, None] * d1[None, :]).ravel()[keep]])
+        return np.stack([d1[keep], d1[keep]])
+
+    # ---- model ------------------------------------------------------------------------
+    def _slip(self, x, delta, vx):
+        """Slip angles of eq. (4) (single track): alpha_f = delta - atan((vy + lf r) / vx),
+        alpha_r = -atan((vy - lr r) / vx)."""
+        v = self.vehicle
+        return slip_angles(max(vx, 1.0), x[:, 0], x[:, 1], delta, v.lf, v.lr)
+
+    def _propagate(self, x, u, dt):
+        """Eq. (1a)-(1b) with mu^x = 0 and the friction mu_k drawn at this sample held over
+        the step (zero-order hold of the tire forces, as eq. (7)), Euler sub-steps of at most
+        `max_step` for the kinematic term v^X r."""
+        v = self.vehicle
+        delta, vx = u
+        cd = math.cos(delta)
+        n = max(1, math.ceil(dt / self.cfg.max_step - 1e-9))
+        h = dt / n
+        x = x.copy()
+        Ff = self.Fz[0] * self.mu[:, 0] * cd
+        Fr = self.Fz[1] * self.mu[:, 1]
+        ay, rdot = (Ff + Fr) / v.mass, (v.lf * Ff - v.lr * Fr) / v.yaw_inertia
+        for _ in range(n):
+            x[:, 0] += h * (ay - vx * x[:, 1])
+            x[:, 1] += h * rdot
+        return x
+
+    def _features(self, af, ar):
+        """phi(alpha): tensor (N, size); axle (N, 2, size)."""
+        if self.cfg.backend == "numba":
+            from tirefilter.stats.mniw_numba import basis_features
+
+            return basis_features(self.basis, af, ar)
+        return self.basis.features(af, ar)
+
+    def _predictive(self, phi):
+        """Joint predictive of zeta = (zeta_f, zeta_r): loc (N, 2), scale (N, 2, 2), dof (N,).
+        Per-axle basis: the two scalar t's (equal dof: both axles are updated and forgotten
+        together) as one bivariate t with diagonal scale."""
+        loc, scale, dof = self.stats.predictive(phi)
+        if self.d == 2:
+            return loc, scale, dof
+        S = np.zeros((len(loc), 2, 2))
+        S[:, 0, 0], S[:, 1, 1] = scale[:, 0, 0, 0], scale[:, 1, 0, 0]
+        return loc[:, :, 0], S, dof[:, 0]
+
+    # ---- the filter -------------------------------------------------------------------
+    def step(self, t: float, u: Inputs, y: Measurement) -> Estimate:
+        delta, vx = float(u.delta), float(u.vx)  # a missing input: the previous one (scalars: a few us a step)
+        if self.u_prev is not None:
+            delta = delta if math.isfinite(delta) else float(self.u_prev[0])
+            vx = vx if math.isfinite(vx) else float(self.u_prev[1])
+        if not math.isfinite(vx):
+            raise ConfigError("inputs", "vx",
+                              f"the friction GP-SSM (lateral model) needs vx; none given up to t = {t} s")
+        if not math.isfinite(delta):
+            delta = 0.0
+        uk = np.array([delta, vx])
+        if self.mpf is not None:
+            self.mpf_estimate = self.mpf.step(t, u, y)
+            self._combined_prior(t)
+        if self._compiled is not None:  # the same step, compiled (estimators/gpssm/compiled.py)
+            return self._compiled.step(t, uk, delta, vx, y)
+        cfg, N, rng = self.cfg, self.cfg.particles, self.rng
+
+        # 1. propagate with the friction drawn at k-1, forget (eq. (29))
+        if self.t_prev is None:
+            if math.isfinite(y.yaw_rate):  # start the yaw rate at the first sample
+                self.x[:, 1] = y.yaw_rate + math.sqrt(self.R[1]) * rng.standard_normal(N)
+        else:
+            dt = t - self.t_prev
+            if dt <= 0:
+                raise ConfigError("inputs", "t", f"time must increase: {t} after {self.t_prev}")
+            self.x = self._propagate(self.x, self.u_prev, dt)
+            sn = np.asarray(cfg.state_noise, float)
+            if np.any(sn > 0):
+                self.x = self.x + math.sqrt(dt) * sn * rng.standard_normal(self.x.shape)
+            if self.active:
+                self.stats.forget(cfg.forgetting, nu_min=self.nu0)
+        self.active = bool(vx > cfg.gate_speed and self.learning_started)
+
+        # 2. slip angles, clipped to the basis domain (counted), features
+        af, ar = self._slip(self.x, delta, vx)
+        L = cfg.L
+        out = (np.abs(af) > L) | (np.abs(ar) > L)
+        n_out = int(np.count_nonzero(out))
+        self.slip_evaluations += N
+        if n_out:
+            self.clipped += n_out
+            self.clipped_steps += 1
+            af, ar = np.clip(af, -L, L), np.clip(ar, -L, L)
+        phi = self._features(af, ar)
+        pf, pr = self.prior(af, ar)
+
+        # 3.-4. predictive of zeta, weights (eq. (22) with zeta integrated out)
+        loc, S, dof = self._predictive(phi)
+        c = np.array([self.Fz[0] * math.cos(delta), self.Fz[1]]) / self.vehicle.mass  # a^Y = c . mu
+        h0 = c[0] * pf + c[1] * pr
+        logl = np.zeros(N)
+        have_ay = math.isfinite(y.ay)
+        if have_ay:
+            if cfg.measurement_friction == "learned":
+                Sc = S @ c  # (N, 2)
+                s_y = Sc @ c + self.R[0] * (dof - 2.0) / dof  # scale of the a^Y marginal (consistent joint t)
+                e = y.ay - h0 - loc @ c
+                logl += _t1_logpdf(e, s_y, dof)
+            else:
+                e = y.ay - h0
+                logl += -0.5 * (e * e / self.R[0] + math.log(2 * math.pi * self.R[0]))
+        if math.isfinite(y.yaw_rate):
+            e_r = y.yaw_rate - self.x[:, 1]
+            logl += -0.5 * (e_r * e_r / self.R[1] + math.log(2 * math.pi * self.R[1]))
+        q_prev = np.exp(self.logw)  # one-step-ahead prediction of y_k (before y_k is used)
+        ay_pred = h0 + loc @ c if cfg.measurement_friction == "learned" else h0
+        self.prediction = (float(q_prev @ ay_pred), float(q_prev @ self.x[:, 1]))
+        self.logw = normalize_log_weights(self.logw + logl)
+        ess = float(effective_sample_size(self.logw))
+        if ess < cfg.resample_threshold * N:
+            idx = systematic_resample(self.logw, rng)
+            self.x, self.stats = self.x[idx], self.stats.take(idx)
+            af, ar, phi, pf, pr, loc, S, dof = (a[idx] for a in (af, ar, phi, pf, pr, loc, S, dof))
+            if have_ay and cfg.measurement_friction == "learned":
+                Sc, s_y, e = Sc[idx], s_y[idx], e[idx]
+            self.logw = np.full(N, -math.log(N))
+            self.resamples += 1
+
+        # 5. draw zeta_k (t conditional given the a^Y residual), learn, store mu_k
+        if have_ay and cfg.measurement_friction == "learned":
+            g = Sc / s_y[:, None]
+            loc_c = loc + g * e[:, None]
+            scale_c = ((dof + e * e / s_y) / (dof + 1.0))[:, None, None] * (S - Sc[:, :, None] * g[:, None, :])
+            zeta = t_sample(loc_c, 0.5 * (scale_c + np.swapaxes(scale_c, 1, 2)), dof + 1.0, rng)
+        else:
+            zeta = t_sample(loc, S, dof, rng)
+        if self.active:
+            self.stats.update(zeta if self.d == 2 else zeta[:, :, None], phi)
+            q = np.exp(self.logw)
+            mf, mr = float(q @ af), float(q @ ar)
+            self.visited = [min(self.visited[0], mf), max(self.visited[1], mf),
+                            min(self.visited[2], mr), max(self.visited[3], mr)]
+            if self.d == 2:  # the visited path: mean alpha_r per alpha_f bin and vice versa
+                jf, jr = self._bin(mf), self._bin(mr)
+                self._path[0, jf] += (1.0, mr)
+                self._path[1, jr] += (1.0, mf)
+        self.mu = np.stack([pf, pr], axis=1) + zeta
+        self.t_prev, self.u_prev, self.last_t = t, uk, t
+        return self._estimate(ess, vx)
+
+    def _combined_prior(self, t: float) -> None:
+        """Combined pipeline: until the handover the prior's slope follows the MPF's current
+        cornering stiffness (C_y / F^z per axle) with peak slope x saturation_slip; the GP
+        statistics stay at their prior meanwhile. Handover (the prior is fixed and learning
+        starts) once the MPF has learned for `handover_after` s and the posterior std of both
+        stiffness means is below `handover_std` of the mean."""
+        est, cfg = self.mpf_estimate, self.cfg
+        if self.learning_started or est is None:
+            return
+        if self.t_prev is not None and est.active:
+            self.mpf_active_time += t - self.t_prev
+        sf, sr = est.Cf_y / self.Fz[0], est.Cr_y / self.Fz[1]
+        if not (math.isfinite(sf) and math.isfinite(sr) and sf > 0 and sr > 0):
+            return
+        C = self.prior0.C
+        a = cfg.saturation_slip
+        self.prior = PacejkaPrior((sf * a, sr * a), (1.0 / (C * a), 1.0 / (C * a)), C, 0.0)
+        settled = max(est.Cf_y_std / est.Cf_y, est.Cr_y_std / est.Cr_y) < cfg.handover_std
+        if self.mpf_active_time >= cfg.handover_after and settled:
+            self.learning_started = True
+            self.handover_time = t
+
+    def _estimate(self, ess: float, vx: float, moments=None) -> Estimate:
+        """`moments`: (mean vy, mean r, std vy, std r) when the caller has them (compiled step)."""
+        q = np.exp(self.logw) if moments is None or self.cfg.stats == "rank1" else None
+        if moments is None:
+            xm = q @ self.x
+            xs = np.sqrt(np.maximum(q @ (self.x - xm) ** 2, 0.0))
+        else:
+            xm, xs = moments[:2], moments[2:]
+        m = self.mpf_estimate
+        if m is not None:  # combined: the MPF's stiffness
+            stiff = dict(Cf_y=m.Cf_y, Cr_y=m.Cr_y, Cf_y_std=m.Cf_y_std, Cr_y_std=m.Cr_y_std, Cf_y_sigma=m.Cf_y_sigma,
+                         Cr_y_sigma=m.Cr_y_sigma)
+        else:  # the learned curve's slope at zero slip times the static axle load
+            M, _ = self.stats.posterior() if self.cfg.stats == "rank1" else (None, None)
+            stiff = self._curve_slope(q, M)
+        return Estimate(active=self.active, vx=vx, vy=float(xm[0]), yaw_rate=float(xm[1]), ess=ess,
+                        state_std=(0.0, float(xs[0]), float(xs[1])), **{k: float(v) for k, v in stiff.items()})
+
+    def _curve_slope(self, q, M) -> dict:
+        """Cornering stiffness of the learned curve, F^z (mu~'(0) + E[A] phi'(0)); the
+        particle spread of E[A] phi'(0) as its std. With the exact statistics M needs a
+        solve: it is refreshed only at snapshots (`friction()`), the prior slope otherwise."""
+        if M is None:
+            f, sf, r, sr = self._slope
+            if not math.isfinite(f):
+                s0 = self.prior.slope()
+                return dict(Cf_y=self.Fz[0] * s0[0], Cr_y=self.Fz[1] * s0[1])
+            return dict(Cf_y=f, Cf_y_std=sf, Cr_y=r, Cr_y_std=sr)
+        s0 = np.array(self.prior.slope())
+        if self.d == 2:
+            sl = np.stack([M[:, 0] @ self._dphi0[0], M[:, 1] @ self._dphi0[1]], axis=1)
+        else:
+            sl = np.stack([M[:, 0, 0] @ self._dphi0[0], M[:, 1, 0] @ self._dphi0[1]], axis=1)
+        mean = q @ sl
+        std = np.sqrt(np.maximum(q @ (sl - mean) ** 2, 0.0))
+        C = self.Fz * (s0 + mean)
+        self._slope = (C[0], self.Fz[0] * std[0], C[1], self.Fz[1] * std[1])
+        return dict(Cf_y=C[0], Cf_y_std=self.Fz[0] * std[0], Cr_y=C[1], Cr_y_std=self.Fz[1] * std[1])
+
+    def _bin(self, a: float) -> int:
+        """The grid bin of slip angle a: np.searchsorted(grid, a) (side "left"; NaN sorts last) clipped
+        to the last bin, by bisection on the grid as a list (np.searchsorted on a scalar costs 2-15 us
+        a call, twice per step; np.clip another 10)."""
+        g = self._grid_list
+        return min(bisect_left(g, a) if a == a else len(g), len(g) - 1)
+
+    def path(self) -> tuple[np.ndarray, np.ndarray]:
+        """Tensor basis: the other axle's slip along which each axle's curve is evaluated,
+        on the grid: the mean alpha_r seen with alpha_f in each grid bin (front curve) and the
+        mean alpha_f seen with alpha_r (rear curve), while learning; alpha itself where a
+        bin has no data (steady cornering with equal tires: alpha_f = alpha_r)."""
+        out = []
+        for axle in range(2):
+            n, total = self._path[axle, :, 0], self._path[axle, :, 1]
+            out.append(np.where(n > 0, total / np.maximum(n, 1.0), self.grid))
+        return out[0], out[1]
+
+    # ---- the friction estimate ---------------------------------------------------------
+    def friction(self) -> FrictionCurve:
+        """mu(alpha) = mu~(alpha) + sum_i q^i M^i phi(alpha) on the fixed grid with its posterior
+        std (Algorithm 1, line 12, and eq. (30): the mixture over particles of the MNIW
+        posterior of A phi, E[Q] phi^T Sigma* phi within each particle plus the spread of the
+        particle means). Tensor basis: mu_f(alpha_f, alpha_r) is a function of both slips;
+        each axle's curve is taken along the visited path (`path()`), and along
+        alpha_f = alpha_r = alpha where nothing was visited."""
+        q = np.exp(self.logw)
+        g = self.grid
+        if self.d == 2:  # front row along (alpha, path_f(alpha)), rear row along (path_r(alpha), alpha)
+            other_f, other_r = self.path()
+            phi = np.concatenate([self.basis.features(g, other_f), self.basis.features(other_r, g)])  # (2G, size)
+            mean2, cov2 = self.stats.function_moments(phi[None])  # (N, 2G, 2), (N, 2G, 2, 2)
+            G = len(g)
+            mean = np.stack([mean2[:, :G, 0], mean2[:, G:, 1]], axis=-1)
+            var = np.stack([cov2[:, :G, 0, 0], cov2[:, G:, 1, 1]], axis=-1)
+        else:
+            phi = self.basis.phi(g)[None, None]  # (1, 1, G, m)
+            mean, cov = self.stats.function_moments(phi)  # (N, 2, G, 1), (N, 2, G, 1, 1)
+            mean, var = np.moveaxis(mean[..., 0], 1, 2), np.moveaxis(cov[..., 0, 0], 1, 2)
+        mbar = np.einsum("n,ngk->gk", q, mean)
+        vbar = np.einsum("n,ngk->gk", q, var + mean**2) - mbar**2
+        std = np.sqrt(np.maximum(vbar, 0.0))
+        pf, pr = self.prior(g, g)
+        M, _ = self.stats.posterior()
+        self._curve_slope(q, M)
+        vis = tuple(float(v) if math.isfinite(v) else NAN for v in self.visited)
+        return FrictionCurve(t=float(self.last_t), alpha=g.copy(), mu_f=pf + mbar[:, 0], mu_f_std=std[:, 0],
+                             mu_r=pr + mbar[:, 1], mu_r_std=std[:, 1], visited=vis)
+
+    def posterior(self) -> Posterior:
+        M, Lam = self.stats.posterior()
+        return Posterior(self.x.copy(), self.logw.copy(),
+                         {"M": M, "Lam": Lam, "nu": np.asarray(self.stats.nu).copy(), "mu": self.mu.copy(),
+                          "basis": self.cfg.basis})
+
+
+def _t1_logpdf(e, s, nu):
+    """log of the univariate Student-t St(e; 0, s, nu) (scale s, variance nu s / (nu - 2))."""
+    return (gammaln(0.5 * (nu + 1.0)) - gammaln(0.5 * nu) - 0.5 * np.log(nu * math.pi * s)
+            - 0.5 * (nu + 1.0) * np.log1p(e * e / (nu * s)))

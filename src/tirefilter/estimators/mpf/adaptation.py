@@ -1,0 +1,250 @@
+"""The stiffness MPF's adaptive parts (a mixin of `StiffnessMPF`, on its attributes): the
+adaptive forgetting and its surprise statistics (derivations, "Adaptive forgetting"), the
+surprise inflation of the draw of w, the state noise from the data, the calibration of the std
+of the lateral stiffness (batch-means sandwich), and the undriven axle's share of the learned
+Cx (derivations, "The undriven axle")."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from tirefilter.estimators.base import Estimate
+from tirefilter.stats.linalg import chol, solve_lower
+from tirefilter.vehicle import single_track
+
+NAN = math.nan
+
+
+class Adaptation:
+    """Forgetting, inflation, state noise, calibration and the undriven axle's Cx share of
+    `StiffnessMPF`."""
+
+    # ---- adaptive forgetting and surprise inflation ----------------------------------------
+    def _predict_ay(self, yk: np.ndarray, a: np.ndarray, e: np.ndarray, logw: np.ndarray | None = None) -> None:
+        """`ay_pred`, the one-step prediction of the a^Y sample that the linear-region test reads
+        with `gate_ay = "predicted"` (derivations, "Linear-region test"): the sample less the residuals e
+        (N, |a|) of the weighting, averaged with the predictive weights (`logw`, default the
+        particles' before this sample's likelihood), i.e. sum_i w_{k-1}^i (h + b + d mu)^i_ay.
+        NaN when the sample is missing."""
+        if self.cfg.gate_ay != "predicted" and self._calib is None:
+            return
+        q = [j for j in range(len(a)) if self.channels[a[j]] == 1]
+        if q:
+            lw = self.logw if logw is None else logw
+            self._e_ay = float(np.exp(lw) @ e[:, q[0]])  # (the residual of `_calibrate`, "Batch-means sandwich")
+            if self.cfg.gate_ay == "predicted":
+                self.ay_pred = float(yk[a[q[0]]] - self._e_ay)
+
+    def _adapt_forgetting(self, v: np.ndarray, nu: np.ndarray, dt: float) -> None:
+        """The forgetting factor of the next propagation from how well the accelerometers
+        fit the predictive (derivations, "Adaptive forgetting"). `v` (N, nc) are the whitened residuals of
+        the weighting, Student-t with nu (N,) dof: E[v^T v] = nc nu / (nu - 2). Their
+        normalised square, averaged with the predictive weights (before this sample's
+        likelihood), is smoothed over `surprise_time` into z_k; lambda_k = 1 - (1 - lambda) z_k,
+        clipped: z = 1 gives the configured lambda, a surface change (z >> 1) forgets fast,
+        a drive that fits better than its noise figures (z < 1) forgets slowly."""
+        cfg = self.cfg
+        if cfg.forgetting_mode == "fixed":
+            return
+        nis = np.sum(v * v, axis=1) * (nu - 2.0) / (nu * v.shape[1])
+        s_k = float(np.exp(self.logw) @ nis)
+        if math.isfinite(s_k):
+            self._smooth_surprise(s_k, dt)
+
+    def _smooth_surprise(self, s_k: float, dt: float) -> None:
+        """z_k: s_k smoothed over `surprise_time`; lambda_k = 1 - (1 - lambda) z_k, clipped."""
+        cfg = self.cfg
+        self.surprise += -math.expm1(-dt / cfg.surprise_time) * (s_k - self.surprise)
+        if cfg.inflation_baseline_time > 0:
+            self.surprise_level += -math.expm1(-dt / cfg.inflation_baseline_time) * (s_k - self.surprise_level)
+        self.lam = min(max(1.0 - (1.0 - cfg.forgetting) * self.surprise, cfg.forgetting_min), cfg.forgetting_max)
+
+    def _cap_forgetting(self, z: float) -> None:
+        """lambda_k no larger than 1 - (1 - lambda) z (the drift statistic z, `_track_drift`)."""
+        cfg = self.cfg
+        self.lam = min(self.lam, max(1.0 - (1.0 - cfg.forgetting) * z, cfg.forgetting_min))
+
+    def _track_drift(self, dw: np.ndarray, L11: np.ndarray, dt: float) -> None:
+        """The second surprise statistic of the adaptive forgetting (derivations, "Adaptive forgetting"):
+        w_k - mu_{k|k-1} (N, n_w), whitened by the predictive scale L11 (N, n_w, n_w), has
+        mean zero while the statistics' mean is right, whatever the deviation spread; a
+        stale mean makes it lean one way sample after sample. Its weighted mean over the
+        particles is smoothed into `drift` (n_w,), whose square, scaled by (2 - a) / a for
+        the smoothing a = 1 - exp(-dt / drift_time), is about 1 per component under the
+        model (the per-sample whitened values have unit variance up to nu / (nu - 2))."""
+        cfg = self.cfg
+        if cfg.forgetting_mode == "fixed":
+            return
+        u = solve_lower(chol(L11), dw)
+        ubar = np.exp(self.logw) @ u
+        if not np.all(np.isfinite(ubar)):
+            return
+        a = -math.expm1(-dt / cfg.drift_time)
+        self.drift = self.drift + a * (ubar - self.drift)
+        self._cap_forgetting(float(self.drift @ self.drift) * (2.0 - a) / (a * len(ubar)))
+
+    def _draw_inflation(self) -> float:
+        """c of the surprise inflation (derivations, "Surprise inflation"): the factor on the conditional scale of
+        the draw of w_k, max(1, 1 + surprise_inflation (z - 1)) with z the smoothed innovation
+        statistic of this sample (`_smooth_surprise`; over its own level with `inflation_baseline_time`),
+        bounded by the prior (`inflation_prior_bound`); 1 when
+        off, with fixed forgetting, or before the learning gate has been open `inflation_after` s since the
+        start or the last restart."""
+        cfg = self.cfg
+        if cfg.surprise_inflation <= 0 or cfg.forgetting_mode != "adaptive" or self.learned_time < cfg.inflation_after:
+            return 1.0
+        z = self.surprise / max(1.0, self.surprise_level) if cfg.inflation_baseline_time > 0 else self.surprise
+        c = 1.0 + cfg.surprise_inflation * (z - 1.0)
+        # at most the prior's uncertainty of the stiffness, s^2 + init_sigma^2 (relative), over the
+        # deviation spread of the last estimate (eq. (27b))
+        s = cfg.init_std if cfg.init_distribution == "normal" else cfg.init_half_width / math.sqrt(3.0)
+        spread = self._sigma2_rel
+        if spread > 0 and cfg.inflation_prior_bound:
+            c = min(c, (s * s + cfg.init_sigma**2) / spread)
+        return max(1.0, c)
+
+    def _draw_factors(self, ones: np.ndarray | None = None) -> np.ndarray:
+        """The compiled draw's std factors (2,): sqrt(c) for the draw that drives the state, and for
+        the one the statistics learn from sqrt(c) or 1 (`inflation_in_statistics`); `ones` (the
+        array [1, 1], returned as it is when c = 1) saves the allocation in the usual case."""
+        c = self._draw_inflation()
+        if c == 1.0 and ones is not None:
+            return ones
+        root = math.sqrt(c)
+        return np.array([root, root if self.cfg.inflation_in_statistics else 1.0])
+
+    # ---- state noise from the data ---------------------------------------------------------
+    def state_noise_estimated(self) -> dict | None:
+        """The state's process noise as estimated from the data so far (`state_noise_from_data`,
+        derivations, "State noise from the data"), std per sqrt(s) by state component; None when it is not estimated."""
+        if not self.cfg.state_noise_from_data or not hasattr(self, "q_state"):
+            return None
+        names = ("vx", "vy", "yaw_rate") if self.full else ("vy", "yaw_rate")
+        return {n: math.sqrt(float(q)) for n, q in zip(names, self.q_state)}
+
+    def _match_state_noise(self, logw_pred: np.ndarray, dt: float) -> None:
+        """`state_noise_from_data` (derivations, "State noise from the data"): with the predictive weights logw_pred and
+        the weights after this sample's likelihood, both over the propagated particles x, the
+        correction of the state's mean d = m+ - m- and the spreads P-, P+ per component give
+        g = (d^2 - (P- - P+)) / dt + q, q the intensity applied in this propagation: the intensity
+        under which the corrections have the size the removed spread says (E[d^2] = P- - P+ for a
+        consistent filter). g is smoothed over `state_noise_time` into q_state (>= 0)."""
+        x = self.x
+        q0, q1 = np.exp(logw_pred), np.exp(self.logw)
+        q0, q1 = q0 / q0.sum(), q1 / q1.sum()
+        m0, m1 = q0 @ x, q1 @ x
+        p0, p1 = q0 @ (x - m0) ** 2, q1 @ (x - m1) ** 2
+        applied = np.square(self._state_noise_scale(dt)) / dt
+        g = ((m1 - m0) ** 2 - (p0 - p1)) / dt + applied
+        if np.all(np.isfinite(g)):
+            a = -math.expm1(-dt / self.cfg.state_noise_time)
+            self.q_state = np.maximum(self.q_state + a * (g - self.q_state), 0.0)
+
+    def _state_noise_scale(self, dt: float) -> np.ndarray:
+        """Std of the additive state noise over a step dt (nx,): `state_noise` sqrt(dt), and on
+        v^Y also vy_jitter sqrt(z - z_on) sqrt(dt) while the adaptive forgetting's smoothed
+        innovation statistic z of the previous sample exceeds z_on, the z that puts lambda at its
+        floor `forgetting_min` (a change: docs/results.md, "Options of the MPF")."""
+        cfg, q = self.cfg, self.state_noise
+        if cfg.state_noise_from_data:
+            q = np.sqrt(np.maximum(q * q, self.q_state))
+        # z at which the forgetting reaches its floor, 1 - (1 - lambda) z = lambda_min: the change statistic fires
+        z_on = (1.0 - cfg.forgetting_min) / max(1.0 - cfg.forgetting, 1e-12)
+        if cfg.vy_jitter > 0 and cfg.forgetting_mode == "adaptive" and self.surprise > z_on:
+            q = q.copy()
+            iy = 1 if self.full else 0
+            q[iy] = math.sqrt(q[iy] ** 2 + cfg.vy_jitter**2 * (self.surprise - z_on))
+        return math.sqrt(dt) * q
+
+    # ---- calibration of the std of the lateral stiffness (batch-means sandwich) ------------
+    def _calibrate(self, est: Estimate, dt: float) -> Estimate:
+        """`*_std` of the lateral stiffnesses times the batch-means sandwich factor (derivations
+        "Batch-means sandwich", `stats.sandwich`): while learning, the score of this sample's a^Y residual e (the
+        predictive-weighted mean of the weighting's residuals) for the two lateral deviations is
+        d e with d = (alpha_f cos delta, alpha_r), the slips at the posterior-mean state (the
+        columns of eq. (12)'s d up to the factor (1 + k g) / m, which cancels in the ratio)."""
+        cal = self._calib
+        if self.active and math.isfinite(self._e_ay) and dt > 0:
+            v = self.vehicle
+            delta = float(self.u_prev[0])
+            af, ar = single_track.small_slip_angles(est.vx, est.vy, est.yaw_rate, delta, v.lf, v.lr)
+            d = np.array([af * math.cos(delta), ar])
+            # forgotten with the statistics' factor (eq. (20)), over calibration_memory times their memory
+            cal.update(d * self._e_ay, d, dt, self._lam_step ** self._calib_power)
+        f = cal.factor
+        if f[0] == 1.0 and f[1] == 1.0:
+            return est
+        return replace(est, Cf_y_std=est.Cf_y_std * float(f[0]), Cr_y_std=est.Cr_y_std * float(f[1]))
+
+    def _calibrate_moments(self, vx: float, vy: float, r: float, dt: float) -> tuple[float, float]:
+        """`_calibrate` for the fused step, on the posterior-mean state (floats) before the Estimate
+        is built: the same arithmetic on floats (`BatchMeansSandwichPair.update_pair`, no arrays, no copy of
+        the Estimate); returns the factors of Cf_y_std and Cr_y_std."""
+        cal = self._calib
+        self._calib_in_step = True
+        if self.active and math.isfinite(self._e_ay):  # (dt > 0 in the fused step)
+            delta = float(self.u_prev[0])
+            af, ar = single_track.small_slip_angles(vx, vy, r, delta, self._lf, self._lr)
+            d0, e = af * math.cos(delta), self._e_ay
+            cal.update_pair(d0 * e, ar * e, d0, ar, dt, self._lam_step ** self._calib_power)
+        return cal.factor_pair
+
+    # ---- the undriven axle's share of the learned Cx (undriven_stiffness = "learned") ------
+    def _reset_cx_excitation(self) -> None:
+        """No excitation of Cx yet: information 0, weight 0 (with "learned" the undriven axle at
+        its nominal stiffness), the slip level unknown."""
+        self.cx_info = 0.0  # I_k, information on dC_x from the changes of the driven axle's slip, 1/N^2
+        self.cx_weight = 0.0  # rho_k = cx_excitation_weight(I_k, prior variance)
+        self._slip_level = NAN  # the slip smoothed over cx_excitation_time
+        self._set_undriven_share()
+
+    def _cx_prior_var(self) -> float:
+        """Prior variance of the mean of dC_x, (s C_ref,x)^2 ("Initialisation": the particles' spread plus
+        the within-particle share), s = init_std or init_half_width / sqrt(3)."""
+        cfg = self.cfg
+        s = cfg.init_std if cfg.init_distribution == "normal" else cfg.init_half_width / math.sqrt(3.0)
+        return float((s * self.C_ref[0]) ** 2)
+
+    def _set_undriven_share(self) -> None:
+        if self.cfg.undriven_stiffness == "learned":
+            self.undriven_share = self.full_share * self.cx_weight
+            self._vp[single_track.P_UNDRIVEN_SHARE] = self.undriven_share
+
+    def _excite_cx(self, vx: float, uk: np.ndarray, dt: float) -> None:
+        """The excitation weight of Cx after sample k (derivations, "The undriven axle"), full model.
+
+        The driven axle's slip at the posterior-mean v^X, lambda_k, minus its level smoothed over
+        `cx_excitation_time` T (a level held longer is confounded with the a^X bias and v^X
+        errors) is the regressor of dC_x in a^X, b_k = (lambda_k - level_k) / m. While the gate is
+        open its information accumulates with the statistics' forgetting factor lambda_k (eq. (20)),
+        I_k = lambda_k I_{k-1} + b_k^2 / sigma_ax^2, frozen while the gate is closed, and
+        rho_k = I_k P_0 / (1 + I_k P_0) = 1 - P_k / P_0 is the contraction of the linear-Gaussian
+        posterior variance of dC_x from its prior variance P_0. With undriven_stiffness =
+        "learned" the undriven axle takes the share rho_k of the driven axle's relative deviation
+        from the next propagation on."""
+        omega = uk[2] if self.rear_drive else uk[1]
+        slip = single_track.floored_wheel_slip(vx, self.vehicle.wheel_radius * omega)
+        if not math.isfinite(slip):
+            return
+        if not math.isfinite(self._slip_level):
+            self._slip_level = slip
+        self._slip_level += -math.expm1(-dt / self.cfg.cx_excitation_time) * (slip - self._slip_level)
+        if self.active:
+            b = (slip - self._slip_level) / self.vehicle.mass
+            self.cx_info = self._lam_step * self.cx_info + b * b / self.R[0, 0]
+        self.cx_weight = cx_excitation_weight(self.cx_info, self._cx_p0)
+        self.cx_weight_max = max(self.cx_weight_max, self.cx_weight)
+        self._set_undriven_share()
+
+
+def cx_excitation_weight(info: float, prior_var: float) -> float:
+    """rho = 1 - P / P_0 for the posterior variance P = 1 / (1 / P_0 + info) of a scalar
+    linear-Gaussian parameter with prior variance P_0 and data information `info` (derivations
+    "The undriven axle"), written I P_0 / (1 + I P_0): 0 without information or with a certain prior."""
+    if not (info >= 0 and prior_var >= 0):
+        raise ValueError(f"information and prior variance must be >= 0, got {info!r}, {prior_var!r}")
+    ip = info * prior_var
+    return ip / (1.0 + ip) if math.isfinite(ip) else 1.0

@@ -1,0 +1,394 @@
+"""The second and third of the stiffness MPF's three compiled passes (`kernels` tells the whole
+story): `resample_gate` (systematic resampling and the gate's moments) and `sample_update`
+(the conditional draw of w, the bias update, the drift of the adaptive forgetting, the NiW
+update with the projection, the moments of the estimate), with their helpers."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from tirefilter.stats.particles_numba import systematic_into
+
+_JIT = dict(cache=True, nogil=True, no_cfunc_wrapper=True)  # (no C callback is taken of a kernel)
+# a helper only kernels call: no wrapper for Python calls either (each wrapper, which unboxes every
+# argument, was compiled and never called: docs/development.md, "How long `make test` takes");
+# called from Python such a helper crashes the interpreter instead of raising (tests/test_kernel_calls.py)
+_JIT_IN = dict(_JIT, no_cpython_wrapper=True)
+
+
+# ---- small dense helpers ---------------------------------------------------------------------
+@njit(inline="always", **_JIT)
+def _chol(S, L, n):
+    """`stats.linalg.chol` of the leading n x n block of S into L (same pivot floor)."""
+    for j in range(n):
+        Sjj = S[j, j]
+        d = Sjj
+        for k in range(j):
+            d = d - L[j, k] * L[j, k]
+        Ljj = math.sqrt(max(d, abs(Sjj) * 1e-14 + 1e-300))
+        L[j, j] = Ljj
+        for i in range(j + 1, n):
+            acc = S[i, j]
+            for k in range(j):
+                acc = acc - L[i, k] * L[j, k]
+            L[i, j] = acc * (1.0 / Ljj)
+        for i in range(j):
+            L[i, j] = 0.0
+
+
+# ---- the second and third passes ------------------------------------------------------------
+@njit(**_JIT_IN)
+def _take_rows(src, dst, idx):
+    """dst[i] = src[idx[i]] for C-contiguous (N, k) arrays (`resample_gate` passes the others as
+    such views)."""
+    n, k = src.shape
+    for i in range(n):
+        r = idx[i]
+        for c in range(k):
+            dst[i, c] = src[r, c]
+
+
+@njit(**_JIT)
+def resample_gate(logw, u0, resample, idx, own, spares, af, ar, full, pin_lo, pin_hi, qw):
+    """Resampling and the gate's moments. `resample`: systematic resampling
+    (`systematic_resample` with the caller's uniform u0) into idx, the particles' arrays
+    own = (x, b, P, gamma, mu, Lam, nu, a, B, slip) (the statistics, the model's first stage a,
+    B, slip) copied by idx into their spares (the same tuple; the caller swaps), logw uniform;
+    else idx = 0..N-1. The arrays of the weighting (h, D, L11, ...) are not copied:
+    `sample_update` reads them through idx.
+    Returns the gate's moments over the (resampled) particles, E[vx] (full model), the std
+    of vy and max(|E[af]|, |E[ar]|), and whether the posterior mean of mu lies at or beyond
+    pin_lo or pin_hi (n_w,) in some component (the bound restart, `_pinned`). The weights
+    exp(logw) after resampling go into qw (N,), for `sample_update`."""
+    x, b, P, gamma, mu, Lam, nu, a, B, slip = own
+    x2, b2, P2, gamma2, mu2, Lam2, nu2, a2, B2, slip2 = spares
+    n = logw.shape[0]
+    if resample:
+        systematic_into(logw, u0, idx)
+        # (each array as (N, k) rows: `_take_rows` compiles once, not once per number of dimensions)
+        _take_rows(x, x2, idx)
+        _take_rows(b, b2, idx)
+        _take_rows(P.reshape((n, P.size // n)), P2.reshape((n, P2.size // n)), idx)
+        _take_rows(gamma.reshape((n, 1)), gamma2.reshape((n, 1)), idx)
+        _take_rows(mu, mu2, idx)
+        _take_rows(Lam.reshape((n, Lam.size // n)), Lam2.reshape((n, Lam2.size // n)), idx)
+        _take_rows(nu.reshape((n, 1)), nu2.reshape((n, 1)), idx)
+        _take_rows(a, a2, idx)
+        _take_rows(B.reshape((n, B.size // n)), B2.reshape((n, B2.size // n)), idx)
+        for k in range(n):
+            slip2[0, k] = slip[0, idx[k]]
+            slip2[1, k] = slip[1, idx[k]]
+        logw[:] = -math.log(n)
+        xs = x2
+    else:
+        for k in range(n):
+            idx[k] = k
+        xs = x
+    iv = 1 if full else 0
+    mvx = mvy = maf = mar = 0.0
+    for i in range(n):
+        q = math.exp(logw[i])
+        qw[i] = q
+        mvx += q * xs[i, 0]
+        mvy += q * xs[i, iv]
+        maf += q * af[idx[i]]
+        mar += q * ar[idx[i]]
+    n_w = mu.shape[1]
+    ms = mu2 if resample else mu
+    mbar = np.zeros(n_w)
+    s = 0.0
+    for i in range(n):
+        q = qw[i]
+        d = xs[i, iv] - mvy
+        s += q * (d * d)
+        for j in range(n_w):
+            mbar[j] += q * ms[i, j]
+    pinned = False
+    for j in range(n_w):
+        if mbar[j] <= pin_lo[j] or mbar[j] >= pin_hi[j]:
+            pinned = True
+    return mvx, math.sqrt(max(s, 0.0)), max(abs(maf), abs(mar)), pinned
+
+
+@njit(inline="always", **_JIT)
+def _sample(idx, own, scratch, draws, w, learning, flags, qw, ub, n_w, nc):
+    """Steps 3 and 5 of `sample_update` (its arguments, n_w and nc the sizes; ub (n_w,) the weighted
+    lean of the drift, accumulated; infl (2,) of `draws` the std factors of the draw about mu_c,
+    sqrt(c) of the surprise inflation (1 when off), of the draw that drives the state (into w) and
+    of the one the drift and the statistics learn from (the same draw when they are equal))."""
+    x, b, P, gamma, mu, Lam, nu, a, B, slip = own
+    af, ar, h, D, L11, nu_w, L12, Lc, e, v, ll, ok = scratch
+    z, chi, nu_draw, infl = draws
+    bound, drift_a, lo, hi = learning
+    use_mask, do_bias, active, drift = flags
+    n = mu.shape[0]
+    M = np.empty((max(nc, 1), n_w))
+    ui = np.empty(n_w)
+    Lw = np.empty((n, n_w, n_w))  # the conditional scale Lam_c, factorised in place
+    learn = np.ones(n, np.bool_)
+    for i in range(n):
+        s = idx[i]
+        # 3. the conditional Student-t and its draw: Lam_c and mu_c (into w), then each of
+        # chol(Lam_c) and the draw in a short loop of its own over the particles (the CPU
+        # overlaps the square roots and divisions of successive particles)
+        for k in range(n_w):  # M = solve_lower(Lc, L21): column k of L21 is row k of L12
+            for q in range(nc):
+                acc = L12[s, k, q]
+                for j in range(q):
+                    acc = acc - Lc[s, q, j] * M[j, k]
+                M[q, k] = acc / Lc[s, q, q]
+        vv = 0.0
+        for q in range(nc):
+            vv += v[s, q] * v[s, q]
+        for k in range(n_w):
+            t = 0.0
+            for q in range(nc):
+                t += M[q, k] * v[s, q]
+            w[i, k] = mu[i, k] + t
+        sc = (nu_w[s] + vv) / (nu_w[s] + nc)
+        for j in range(n_w):
+            for k in range(j + 1):
+                g = 0.0
+                for q in range(nc):
+                    g += M[q, j] * M[q, k]
+                Lw[i, j, k] = sc * (L11[s, j, k] - g)
+        if use_mask:  # the outlier mask: learn while |v_acc|^2 < bound
+            learn[i] = vv < bound
+    for i in range(n):  # chol(Lam_c) in place (`_chol`)
+        for j in range(n_w):
+            Sjj = Lw[i, j, j]
+            d = Sjj
+            for k in range(j):
+                d = d - Lw[i, j, k] * Lw[i, j, k]
+            Ljj = math.sqrt(max(d, abs(Sjj) * 1e-14 + 1e-300))
+            Lw[i, j, j] = Ljj
+            for r in range(j + 1, n_w):
+                acc = Lw[i, r, j]
+                for k in range(j):
+                    acc = acc - Lw[i, r, k] * Lw[i, j, k]
+                Lw[i, r, j] = acc * (1.0 / Ljj)
+    same = infl[0] == infl[1]
+    wl = w if same else np.empty_like(w)  # the draw the statistics learn from (surprise inflation)
+    for i in range(n):  # the draw mu_c + chol(Lam_c) z sqrt(nu_draw / chi), times infl (surprise inflation)
+        f0 = math.sqrt(nu_draw[i] / chi[i])
+        f, fl = f0 * infl[0], f0 * infl[1]
+        for j in range(n_w):
+            t = 0.0
+            for k in range(j + 1):
+                t += Lw[i, j, k] * z[i, k]
+            if not same:
+                wl[i, j] = w[i, j] + t * fl
+            w[i, j] = w[i, j] + t * f
+    # 5. the drift of the adaptive forgetting (u = chol(L11)^-1 (w - mu), before the update: chol(L11) in
+    # place of Lam_c's factor, then the solve), then the NiW update and the projection, each in a loop of its own
+    for i in range(n if active and drift else 0):
+        s = idx[i]
+        for j in range(n_w):
+            Sjj = L11[s, j, j]
+            d = Sjj
+            for k in range(j):
+                d = d - Lw[i, j, k] * Lw[i, j, k]
+            Ljj = math.sqrt(max(d, abs(Sjj) * 1e-14 + 1e-300))
+            Lw[i, j, j] = Ljj
+            for r in range(j + 1, n_w):
+                acc = L11[s, r, j]
+                for k in range(j):
+                    acc = acc - Lw[i, r, k] * Lw[i, j, k]
+                Lw[i, r, j] = acc * (1.0 / Ljj)
+    for i in range(n if active and drift else 0):
+        for j in range(n_w):
+            acc = wl[i, j] - mu[i, j]
+            for k in range(j):
+                acc = acc - Lw[i, j, k] * ui[k]
+            ui[j] = acc / Lw[i, j, j]
+        q_i = qw[i]
+        for j in range(n_w):
+            ub[j] += q_i * ui[j]
+    for i in range(n if active else 0):
+        if not learn[i]:
+            for j in range(n_w):
+                mu[i, j] = min(max(mu[i, j], lo[j]), hi[j])
+            continue
+        g0 = gamma[i]
+        g_new = g0 / (1.0 + g0)
+        inv = 1.0 + g0
+        for j in range(n_w):
+            zj = wl[i, j] - mu[i, j]
+            for k in range(n_w):
+                Lam[i, j, k] = Lam[i, j, k] + zj * (wl[i, k] - mu[i, k]) / inv
+        for j in range(n_w):
+            m = mu[i, j] + g_new * (wl[i, j] - mu[i, j])
+            mu[i, j] = min(max(m, lo[j]), hi[j])
+        gamma[i] = g_new
+        nu[i] = nu[i] + 1.0
+
+
+@njit(**_JIT)
+def sample_update(idx, own, scratch, draws, w, obs, learning, flags, nc_, out, sizes):
+    """Steps 3-5 of `StiffnessMPF.step`, in place, on the workspace of `compiled._MPFWork`:
+      own = (x, b, P, gamma, mu, Lam, nu, a, B, slip) as `resample_gate` left them (read and written);
+      scratch = (af, ar, h, D, L11, nu_w, L12, Lc, e, v, ll, ok) of `predict_weigh` (read, by idx);
+      draws = (z, chi, nu_draw, infl), the caller's random numbers and the draw's std factors;
+      w (N, n_w) written; obs = (R, avail, y); learning = (bound, drift_a, lo, hi);
+      flags = (use_mask, do_bias, active, drift); nc_ the accelerometer channels;
+      out = (drift_state, mom, qw): the drift statistic (updated), the moments (written), the weights (read).
+    Per particle i (its weighting arrays h, D, L11, nu_w, L12, Lc, v at row idx[i], the ancestor
+    when resampled):
+    - w_i (into w) from the conditional of w given the first nc (accelerometer) residuals,
+      eq. (39)-(41) (`t_conditional` with `L22_chol`, `x2_white`): M = Lc^-1 L21,
+      mu_c = mu + M^T v, Lam_c = (nu~ + v^T v) / (nu~ + nc) (L11 - M^T M), and `t_sample`'s
+      draw mu_c + chol(Lam_c) z sqrt(nu_draw / chi) with the caller's z (N, n_w), chi (N,), its
+      spread about mu_c times infl[0] (sqrt(c) of the surprise inflation, derivations, "Surprise inflation"; 1: off),
+      and the statistics' update and the drift from the same draw with infl[1] in its place;
+    - the outlier mask (`use_mask`): learn while |v_acc|^2 < bound;
+    - the bias update (`_bias_update`, eq. (30), `do_bias`): S = P_aa + R_aa + D_a E[Sigma] D_a^T,
+      K^T = S^-1 P_{a,:}, b += K (y_a - h_a - D_a mu - b_a), P -= P_{:,a} K^T, symmetrised;
+    - gate open (`active`): the whitened lean chol(L11)^-1 (w_i - mu_i) of `_track_drift`
+      (`drift`), then `NiW.update` (eq. (19)) and the projection of mu onto [lo, hi] (Sec. V).
+    Then `_track_drift`'s smoothing of the weighted mean lean into drift_state (n_w,) with
+    the factor drift_a, and `_estimate`'s moments after the update into the rows of mom
+    (6, >= max(nx, n_w, m)): x mean, x std, mean of mu, posterior variance of the mean,
+    sigma^2 of eq. (27b), bias mean. Returns the drift statistic z' of `_track_drift`, NaN
+    when not computed (or when the lean is not finite: the reference then keeps its state).
+    The weights exp(logw) are read from qw (N,), as `resample_gate` left them.
+    `sizes` as in `predict_weigh`: 3 dimensions the full model with both accelerometers (n_w = 3,
+    nc = 2), 2 the lateral one (n_w = 2, nc = 1), 1 any (n_w = mu.shape[1], the given nc)."""
+    x, b, P, gamma, mu, Lam, nu, a, B, slip = own
+    af, ar, h, D, L11, nu_w, L12, Lc, e, v, ll, ok = scratch
+    R, avail, y = obs
+    use_mask, do_bias, active, drift = flags
+    bound, drift_a, lo, hi = learning
+    drift_state, mom, qw = out
+    if sizes.ndim == 3:
+        if mu.shape[1] != 3 or nc_ != 2:
+            raise ValueError("sample_update with SIZES_FULL: n_w = 3, nc = 2 only")
+        n_w, nc = 3, 2
+    elif sizes.ndim == 2:
+        if mu.shape[1] != 2 or nc_ != 1:
+            raise ValueError("sample_update with SIZES_LATERAL: n_w = 2, nc = 1 only")
+        n_w, nc = 2, 1
+    else:
+        n_w, nc = mu.shape[1], nc_
+    n = mu.shape[0]
+    na = avail.shape[0]
+    mch = b.shape[1]
+    nb = max(na, 1)
+    S = np.empty((nb, nb))
+    Lb = np.zeros((nb, nb))
+    Kt = np.empty((nb, mch))
+    DE = np.empty((nb, n_w))
+    innov = np.empty(nb)
+    Pn = np.empty((mch, mch))
+    ub = np.zeros(n_w)
+    for i in range(n if do_bias else 0):  # (first: it reads the statistics before their update and writes only b, P)
+        s = idx[i]
+        # 4. bias, eq. (30), with the predicted statistics
+        den = nu[i] - n_w - 1.0
+        for q in range(na):
+            for k in range(n_w):
+                t = 0.0
+                for j in range(n_w):
+                    t += D[s, avail[q], j] * (Lam[i, j, k] / den)
+                DE[q, k] = t
+        for q in range(na):
+            for q2 in range(na):
+                t = 0.0
+                for k in range(n_w):
+                    t += DE[q, k] * D[s, avail[q2], k]
+                S[q, q2] = P[i, avail[q], avail[q2]] + R[avail[q], avail[q2]] + t
+        _chol(S, Lb, na)
+        for c in range(mch):  # Kt[:, c] = S^-1 P[a, c]
+            for q in range(na):
+                acc = P[i, avail[q], c]
+                for j in range(q):
+                    acc = acc - Lb[q, j] * Kt[j, c]
+                Kt[q, c] = acc / Lb[q, q]
+            for q in range(na - 1, -1, -1):
+                acc = Kt[q, c]
+                for j in range(q + 1, na):
+                    acc = acc - Lb[j, q] * Kt[j, c]
+                Kt[q, c] = acc / Lb[q, q]
+        for q in range(na):
+            ch = avail[q]
+            t = 0.0
+            for j in range(n_w):
+                t += D[s, ch, j] * mu[i, j]
+            innov[q] = y[ch] - h[s, ch] - t - b[i, ch]
+        for c in range(mch):
+            t = 0.0
+            for q in range(na):
+                t += Kt[q, c] * innov[q]
+            b[i, c] = b[i, c] + t
+        for c in range(mch):  # Pn = P - P_{:,a} K^T (from the old P), then 0.5 (Pn + Pn^T)
+            for c2 in range(mch):
+                t = 0.0
+                for q in range(na):
+                    t += P[i, avail[q], c] * Kt[q, c2]
+                Pn[c, c2] = P[i, c, c2] - t
+        for c in range(mch):
+            for c2 in range(mch):
+                P[i, c, c2] = 0.5 * (Pn[c, c2] + Pn[c2, c])
+    # 3. and 5.
+    _sample(idx, own, scratch, draws, w, learning, flags, qw, ub, n_w, nc)
+    zd = math.nan
+    if active and drift:
+        finite = True
+        for j in range(n_w):
+            if not math.isfinite(ub[j]):
+                finite = False
+        if finite:
+            dd = 0.0
+            for j in range(n_w):
+                drift_state[j] = drift_state[j] + drift_a * (ub[j] - drift_state[j])
+                dd += drift_state[j] * drift_state[j]
+            zd = dd * (2.0 - drift_a) / (drift_a * n_w)
+    _moments(qw, x, gamma, mu, Lam, nu, b, mom)
+    return zd
+
+
+@njit(**_JIT)
+def estimate_moments(logw, x, gamma, mu, Lam, nu, b, mom):
+    """`_estimate`'s sums into the rows of mom (6, >= max(nx, n_w, m)): x mean and std, the
+    mean of mu, the posterior variance of the mean (gamma E[Sigma] plus the spread of the
+    particle means), eq. (27b) sigma^2, bias mean."""
+    q = np.empty(logw.shape[0])
+    for i in range(logw.shape[0]):
+        q[i] = math.exp(logw[i])
+    _moments(q, x, gamma, mu, Lam, nu, b, mom)
+
+
+@njit(**_JIT_IN)
+def _moments(q, x, gamma, mu, Lam, nu, b, mom):
+    """`estimate_moments` with the weights q = exp(logw) (N,) given."""
+    n, nx = x.shape
+    n_w = mu.shape[1]
+    mch = b.shape[1]
+    mom[:] = 0.0
+    xm, xs, mbar, vm, s2, bm = mom[0], mom[1], mom[2], mom[3], mom[4], mom[5]
+    spread = np.zeros(n_w)
+    for i in range(n):
+        for c in range(nx):
+            xm[c] += q[i] * x[i, c]
+        for j in range(n_w):
+            mbar[j] += q[i] * mu[i, j]
+        for c in range(mch):
+            bm[c] += q[i] * b[i, c]
+    for i in range(n):
+        for c in range(nx):
+            d = x[i, c] - xm[c]
+            xs[c] += q[i] * d * d
+        den = nu[i] - n_w - 1.0
+        for j in range(n_w):
+            d = mu[i, j] - mbar[j]
+            spread[j] += q[i] * d * d
+            es = Lam[i, j, j] / den
+            vm[j] += q[i] * (gamma[i] * es)
+            s2[j] += q[i] * es
+    for c in range(nx):
+        xs[c] = math.sqrt(max(xs[c], 0.0))
+    for j in range(n_w):
+        vm[j] += spread[j]
+        s2[j] += spread[j]
