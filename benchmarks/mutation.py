@@ -43,6 +43,7 @@ import argparse
 import ast
 import hashlib
 import json
+import math
 import os
 import random
 import signal
@@ -523,7 +524,9 @@ def run_target(target: Target, mutants: list[Mutant], equivalent: dict[str, str]
     return summarize(target.path, mutants, equivalent)
 
 
-def summarize(path: str, mutants: list[Mutant], equivalent: dict[str, str]) -> dict:
+def summarize(path: str, mutants: list[Mutant], equivalent: dict[str, str], population: int | None = None) -> dict:
+    """One module's counts; `population` is the number of mutants it has when `mutants` is a
+    random draw of them (--max)."""
     n = len(mutants)
     killed = sum(m.status.startswith("killed") for m in mutants)
     twin = sum(m.status.startswith("killed by the twin") for m in mutants)
@@ -533,7 +536,7 @@ def summarize(path: str, mutants: list[Mutant], equivalent: dict[str, str]) -> d
     return {"module": path, "mutants": n, "killed": killed, "killed_by_twin_only": twin, "equivalent": eq,
             "survived": n - killed - eq, "score": killed / scored if scored else None,
             "score_without_twin": (killed - twin) / scored if scored else None,
-            "allow_listed_but_killed": stale}
+            "allow_listed_but_killed": stale, "population": population or n}
 
 
 # ---- the command ------------------------------------------------------------------------------
@@ -550,9 +553,13 @@ def main(argv=None) -> int:
     ap.add_argument("--jobs", type=int, default=1, help="mutants run at a time; only 1: each is written into the "
                     "worktree's own source file in place")
     ap.add_argument("--logs", type=Path, help="folder for the test logs (default: a temporary one)")
+    ap.add_argument("--rescore", type=Path, metavar="JSON", help="print the report of an earlier --json file with "
+                    "the allow-list as it is now (runs nothing)")
     a = ap.parse_args(argv)
     if a.jobs != 1:
         ap.error("--jobs: only 1 (the mutants are written into the source files in place, one at a time)")
+    if a.rescore:
+        return rescore(a.rescore)
     targets = list(TARGETS)
     if a.module:
         wanted = {str((ROOT / p).resolve().relative_to(ROOT)) if (ROOT / p).exists() else p for p in a.module}
@@ -567,12 +574,13 @@ def main(argv=None) -> int:
         ms = mutants_of(t)
         if a.match:
             ms = [m for m in ms if any(s in m.key for s in a.match)]
+        population = len(ms)
         if a.max is not None and len(ms) > a.max:
             keep = set(random.Random(a.seed).sample(range(len(ms)), a.max))
             ms = [m for i, m in enumerate(ms) if i in keep]
-        plan.append((t, ms))
+        plan.append((t, ms, population))
     if a.list:
-        for t, ms in plan:
+        for t, ms, _ in plan:
             print(f"# {t.path}: {len(ms)} mutants")
             for i, m in enumerate(ms, 1):
                 eq = "  [equivalent]" if m.key in equivalent else ""
@@ -584,20 +592,20 @@ def main(argv=None) -> int:
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     for p in (ROOT / "viewer", ROOT / "src"):
         sys.path.insert(0, str(p))
-    _preload(numba=not any(dict(t.env).get("NUMBA_DISABLE_JIT") for t, _ in plan))
+    _preload(numba=not any(dict(t.env).get("NUMBA_DISABLE_JIT") for t, _, _ in plan))
     signal.signal(signal.SIGTERM, _raise_exit)
     logs = a.logs or Path(tempfile.mkdtemp(prefix="mutation-logs-"))
     logs.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()
     summaries, all_mutants = [], []
-    for t, ms in plan:
+    for t, ms, population in plan:
         if not ms:
             continue
-        summaries.append(run_target(t, ms, equivalent, logs))
+        summaries.append(run_target(t, ms, equivalent, logs) | {"population": population})
         all_mutants += ms
     print_report(summaries, all_mutants, equivalent, time.monotonic() - t0)
     if not (a.match or a.max is not None):  # every mutant of these modules ran: entries that match none are stale
-        ran = {t.path for t, ms in plan}
+        ran = {t.path for t, _, _ in plan}
         keys = {m.key for m in all_mutants}
         for key in equivalent:
             if key.split("|", 1)[0] in ran and key not in keys:
@@ -610,13 +618,51 @@ def main(argv=None) -> int:
     return 0
 
 
+def rescore(path: Path) -> int:
+    """The report of a --json file, its survivors and equivalents sorted again by the
+    allow-list as it is now."""
+    equivalent = load_equivalent()
+    data = json.loads(path.read_text())
+    by_module: dict[str, list[Mutant]] = {}
+    for d in data["mutants"]:
+        m = Mutant(start=0, end=0, text=b"", **d)
+        if m.status in ("survived", "equivalent"):
+            m.status = "equivalent" if m.key in equivalent else "survived"
+        by_module.setdefault(m.path, []).append(m)
+    population = {s["module"]: s.get("population") for s in data["summary"]}
+    summaries = [summarize(p, ms, equivalent, population.get(p)) for p, ms in by_module.items()]
+    print_report(summaries, [m for ms in by_module.values() for m in ms], equivalent, None)
+    return 0
+
+
 def total(summaries: list[dict]) -> dict:
     n = sum(s["mutants"] for s in summaries)
     k = sum(s["killed"] for s in summaries)
     tw = sum(s["killed_by_twin_only"] for s in summaries)
     eq = sum(s["equivalent"] for s in summaries)
-    return {"mutants": n, "killed": k, "killed_by_twin_only": tw, "equivalent": eq, "survived": n - k - eq,
-            "score": k / (n - eq) if n - eq else None, "score_without_twin": (k - tw) / (n - eq) if n - eq else None}
+    out = {"mutants": n, "killed": k, "killed_by_twin_only": tw, "equivalent": eq, "survived": n - k - eq,
+           "score": k / (n - eq) if n - eq else None, "score_without_twin": (k - tw) / (n - eq) if n - eq else None}
+    if any(s["population"] > s["mutants"] for s in summaries):
+        out |= stratified(summaries)
+    return out
+
+
+def stratified(summaries: list[dict]) -> dict:
+    """The score of all the modules' mutants estimated from a random draw of each (--max):
+    each module's share of caught non-equivalent mutants, weighted by its number of mutants,
+    with a normal-approximation 95 % interval (finite-population correction per module)."""
+    pop = sum(s["population"] for s in summaries)
+    est = var = 0.0
+    for s in summaries:
+        scored = s["mutants"] - s["equivalent"]
+        if not scored:
+            continue
+        w, p = s["population"] / pop, s["killed"] / scored
+        fpc = (s["population"] - s["mutants"]) / max(s["population"] - 1, 1)
+        est += w * p
+        var += w * w * p * (1 - p) / scored * fpc
+    half = 1.96 * math.sqrt(var)
+    return {"population": pop, "estimated_score": est, "estimated_score_ci95": [est - half, min(est + half, 1.0)]}
 
 
 def print_report(summaries, mutants, equivalent, seconds) -> None:
@@ -633,8 +679,14 @@ def print_report(summaries, mutants, equivalent, seconds) -> None:
     for s in summaries:
         row(s["module"].removeprefix("src/tirefilter/"), s)
     if len(summaries) > 1:
-        row("total", total(summaries))
-    print(f"({seconds / 60:.1f} min)")
+        tot = total(summaries)
+        row("total", tot)
+        if "estimated_score" in tot:
+            lo, hi = tot["estimated_score_ci95"]
+            print(f"score of all {tot['population']} mutants, estimated from this draw (weighted by each module's "
+                  f"count): {100 * tot['estimated_score']:.1f} % (95 % interval {100 * lo:.1f}-{100 * hi:.1f} %)")
+    if seconds is not None:
+        print(f"({seconds / 60:.1f} min)")
     surv = [m for m in mutants if m.status == "survived"]
     if surv:
         print("\nsurviving mutants:")

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from tirefilter.errors import LogError
-from tirefilter.io.log import iter_log_chunks, read_log, reference_name
+from tirefilter.io.log import iter_log_chunks, read_log, reference_name, write_log
 
 HEADER = "t,delta,ax,ay,yaw_rate,vx"
 
@@ -68,8 +68,20 @@ def test_errors_in_later_chunks_name_the_files_rows(tmp_path):
                      _error(_log(tmp_path, no_t, name="no_t.csv"), chunk_rows=3))
     step_back = list(rows)
     step_back[6] = (round(rows[4][0] + 0.001, 3),) + rows[6][1:]  # data row 7 (chunk 3's first) before row 6
-    msg = _error(_log(tmp_path, step_back, name="t.csv"), chunk_rows=3)
-    assert re.search(r"column 't', data row 7 \(file line 8\): time must increase strictly", msg), msg
+    path = _log(tmp_path, step_back, name="t.csv")
+    with pytest.raises(LogError) as info:
+        list(iter_log_chunks(path, chunk_rows=3))
+    assert re.search(r"column 't', data row 7 \(file line 8\): time must increase strictly: t = 5.041 s after "
+                     r"t = 5.05 s in data row 6", str(info.value)), str(info.value)
+    assert info.value.value == 5.041
+    same = list(rows)
+    same[6] = (rows[5][0],) + rows[6][1:]  # the first time of chunk 3 repeats the last of chunk 2
+    assert "data row 7 (file line 8): time must increase strictly" in _error(_log(tmp_path, same, name="s.csv"),
+                                                                              chunk_rows=3)
+    inner = list(rows)
+    inner[7] = (rows[6][0],) + rows[7][1:]  # inside chunk 3: row 8 repeats row 7's time
+    assert re.search(r"data row 8 \(file line 9\): time must increase strictly: t = 5.06 s after t = 5.06 s in "
+                     r"data row 7", _error(_log(tmp_path, inner, name="i.csv"), chunk_rows=3))
 
 
 def test_blank_lines_are_skipped_and_an_empty_log_names_its_lines(tmp_path):
@@ -112,3 +124,15 @@ def test_reference_columns_both_spellings(tmp_path):
     swa = _log(tmp_path, _rows(3), header=HEADER.replace("delta", "steering_wheel_angle"), name="swa.csv")
     assert "steering_ratio" in _error(swa)
     assert "delta" not in next(iter_log_chunks(swa, need_steering_ratio=False)).signals
+
+
+def test_write_log_round_trip_into_a_new_folder(tmp_path):
+    """write_log creates missing folders, ends every row with a newline, writes NaN as an
+    empty cell and values that read back exactly."""
+    cols = {"t": np.array([0.0, 0.01, 0.02]), "delta": np.array([0.1, np.nan, 1 / 3]), "ax": np.zeros(3),
+            "ay": np.ones(3), "yaw_rate": np.full(3, 0.2), "vx": np.full(3, 20.0)}
+    path = write_log(tmp_path / "a" / "b" / "log.csv", cols)
+    text = path.read_text()
+    assert text.endswith("\n") and text.count("\n") == 4 and ",," in text
+    log = read_log(path)
+    np.testing.assert_array_equal(log.signals["delta"], cols["delta"])

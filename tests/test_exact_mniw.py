@@ -147,11 +147,13 @@ def test_inverse_wishart_draws_are_symmetric_with_the_inverse_wishart_mean(batch
 
 @pytest.mark.parametrize("kind", ["exact", "rank1"])
 def test_make_mniw_picks_the_variant_and_the_backend(kind):
-    """`make_mniw`: the variant of `kind`, as the numpy class or its compiled twin."""
+    """`make_mniw`: the variant of `kind`, as the numpy class or its compiled twin, with the
+    prior precision of the columns V = 1 / S."""
     from tirefilter.stats.mniw import make_mniw
     from tirefilter.stats.mniw_numba import NumbaMNIW, NumbaMNIWRank1
 
-    S, args = np.ones(3), ((4,), 2, np.ones(3), LAM0, 5.0)
+    S = np.array([0.5, 2.0, 4.0])
+    args = ((4,), 2, S, LAM0, 5.0)
     assert type(make_mniw(kind, *args)) is (MNIWRank1 if kind == "rank1" else MNIW)
     assert type(make_mniw(kind, *args, backend="numba")) is (NumbaMNIWRank1 if kind == "rank1" else NumbaMNIW)
     assert make_mniw(kind, *args).V.tolist() == (1.0 / S).tolist()

@@ -261,6 +261,15 @@ def test_niw_forgetting_with_a_floor_on_the_degrees_of_freedom():
     np.testing.assert_allclose(plain.gamma, [2.0, 2.0], rtol=1e-15)
 
 
+def test_niw_take_selects_the_particles_statistics():
+    """Resampling: `take(idx)` holds particle idx[k]'s gamma, mu, Lambda and nu at k."""
+    s = _niw(batch=(4,))
+    idx = np.array([3, 3, 0, 2])
+    t = s.take(idx)
+    for a, b in ((t.gamma, s.gamma), (t.mu, s.mu), (t.Lam, s.Lam), (t.nu, s.nu)):
+        np.testing.assert_array_equal(a, b[idx])
+
+
 def test_niw_copy_is_independent_of_the_original():
     s = _niw()
     c = s.copy()
