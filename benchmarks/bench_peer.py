@@ -197,7 +197,8 @@ def set_tables(rows: list[dict]) -> str:
             f"| {name} | {_fmt(float(np.mean(ef)), '.1f')} / {_fmt(float(np.mean(er)), '.1f')} % | "
             f"{_fmt(float(max(ef.max(), er.max())), '.1f')} % | {n_err} / {len(sel)} | "
             f"{100 * cov.mean():.0f} % ({100 * cov.min():.0f}-{100 * cov.max():.0f} %) | {n_cov} / {len(sel)} | "
-            f"{_fmt(float(z.max()), '.1f')} | {n_z} / {len(sel)} | {_fmt(float(beta), '.3f')} deg ({n_beta} / {len(sel)}) | "
+            f"{_fmt(float(z.max()), '.1f')} | {n_z} / {len(sel)} | "
+            f"{_fmt(float(beta), '.3f')} deg ({n_beta} / {len(sel)}) | "
             + (f"{beta_hi:.3f} deg ({n_beta_hi} / {len(with_hi)})" if n_hi else "-")
             + f" | {sum(restarts) if restarts else '-'} |")
     return "\n".join(lines)
@@ -278,7 +279,8 @@ def main() -> None:
     ap.add_argument("--last", type=float, default=30.0, help="window of the stiffness mean (s)")
     ap.add_argument("--config", help="estimator configuration TOML for every replay (default: none, the defaults)")
     ap.add_argument("--workers", type=int, default=1)
-    ap.add_argument("--set", action="store_true", help="the peer set (SET_DRIVES: MB and TT, the MPF) instead of the grid")
+    ap.add_argument("--set", action="store_true",
+                    help="the peer set (SET_DRIVES: MB and TT, the MPF) instead of the grid")
     args = ap.parse_args()
     if args.set:
         main_set(args)

@@ -263,7 +263,7 @@ def test_peer_drive_tt_writes_a_log_with_dropouts_and_a_data_sheet_vehicle(tmp_p
     read_log(log, load_vehicle(vehicle))  # the replay's reader takes it
 
 
-def test_imu_position_is_for_the_two_track_model_only(tmp_path):
+def test_imu_position_is_for_the_two_track_model_only():
     from tirefilter.errors import TirefilterError
     from tirefilter.peer.drive import DriveSpec, simulate
 

@@ -428,8 +428,8 @@ def build_parser() -> argparse.ArgumentParser:
                         description="Simulate a drive with an independent published vehicle model (CommonRoad "
                         "vehiclemodels: single-track drift STD or multi-body MB with body roll, Pacejka tires) or the "
                         "two-track model TT (four wheels, load transfer, load-sensitive Magic Formula tyres with "
-                        "relaxation, IMU off the CG, logger dropouts), add "
-                        "a MEMS IMU with biases and noise (on the rolling body for MB and TT) and wheel-speed noise, and "
+                        "relaxation, IMU off the CG, logger dropouts), add a MEMS IMU with biases and noise (on the "
+                        "rolling body for MB and TT) and wheel-speed noise, and "
                         "write a Log CSV with *_true reference columns and a vehicle TOML of data-sheet values "
                         "(guessed nominal stiffness, no noise or bias keys).")
     pd.add_argument("--model", default="std", choices=("std", "mb", "tt"),

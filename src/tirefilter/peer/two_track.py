@@ -486,7 +486,8 @@ VEHICLES_TT = {
 def load_two_track(vehicle_id: int, imu_x: float | None = None, imu_y: float | None = None) -> Model:
     """The two-track model of car `vehicle_id` (1, 2, 3), the IMU optionally moved."""
     if vehicle_id not in VEHICLES_TT:
-        raise TirefilterError(f"two-track vehicle must be one of {', '.join(map(str, VEHICLES_TT))}, got {vehicle_id!r}")
+        raise TirefilterError(f"two-track vehicle must be one of {', '.join(map(str, VEHICLES_TT))}, "
+                              f"got {vehicle_id!r}")
     p = VEHICLES_TT[vehicle_id]
     moved = {k: v for k, v in (("imu_x", imu_x), ("imu_y", imu_y)) if v is not None}
     return make_model(dataclasses.replace(p, **moved) if moved else p)
