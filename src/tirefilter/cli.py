@@ -124,7 +124,8 @@ def cmd_peer_drive(args) -> int:
     spec = DriveSpec(model=args.model, vehicle=args.vehicle, maneuver=args.maneuver, duration=args.duration,
                      seed=args.seed, speed=args.speed, ay=args.ay, cornering_per_deg=args.cornering_per_deg,
                      sensors=SensorSpec().scaled(noise=args.noise_scale, bias=args.bias_scale),
-                     roll_gradient_in_vehicle=args.with_roll_gradient, camber=args.camber)
+                     roll_gradient_in_vehicle=args.with_roll_gradient, camber=args.camber, dropouts=args.dropouts,
+                     imu_x=args.imu_x, imu_y=args.imu_y)
     drive = simulate(spec)
     log, vehicle = write_drive(drive, args.out, args.vehicle_toml)
     print(describe(drive))
@@ -423,13 +424,17 @@ def build_parser() -> argparse.ArgumentParser:
     ck.set_defaults(func=cmd_check_log)
 
     pd = sub.add_parser("peer-drive", help="generate a test drive (Log CSV + vehicle TOML) from the CommonRoad vehicle "
-                        "models (needs the `peer` extra)",
+                        "models (needs the `peer` extra) or the two-track model",
                         description="Simulate a drive with an independent published vehicle model (CommonRoad "
-                        "vehiclemodels: single-track drift STD or multi-body MB with body roll, Pacejka tires), add "
-                        "a MEMS IMU with biases and noise (on the rolling body for MB) and wheel-speed noise, and "
+                        "vehiclemodels: single-track drift STD or multi-body MB with body roll, Pacejka tires) or the "
+                        "two-track model TT (four wheels, load transfer, load-sensitive Magic Formula tyres with "
+                        "relaxation, IMU off the CG, logger dropouts), add a MEMS IMU with biases and noise (on the "
+                        "rolling body for MB and TT) and wheel-speed noise, and "
                         "write a Log CSV with *_true reference columns and a vehicle TOML of data-sheet values "
                         "(guessed nominal stiffness, no noise or bias keys).")
-    pd.add_argument("--model", default="std", choices=("std", "mb"), help="peer model (default std)")
+    pd.add_argument("--model", default="std", choices=("std", "mb", "tt"),
+                    help="peer model (default std; tt: the two-track model written from the textbooks, "
+                    "docs/peer_drives.md)")
     pd.add_argument("--vehicle", type=int, default=2, choices=(1, 2, 3),
                     help="peer parameter set: 1 Ford Escort, 2 BMW 320i, 3 VW Vanagon (default 2)")
     pd.add_argument("--maneuver", default="sine", choices=("sine", "sweep", "steps", "slalom", "mixed"),
@@ -447,7 +452,11 @@ def build_parser() -> argparse.ArgumentParser:
                     help="MB tire camber thrust: off (default; the axle stiffness is the tires'), continuous (the "
                     "Magic Formula's camber terms), peer (as published: offsets that switch sign with the camber)")
     pd.add_argument("--with-roll-gradient", action="store_true",
-                    help="also write the MB drive's measured roll gradient into the vehicle TOML")
+                    help="also write the MB drive's measured roll gradient (tt: the model's) into the vehicle TOML")
+    pd.add_argument("--dropouts", default="auto", choices=("auto", "on", "off"),
+                    help="logger dropouts: empty cells, missing rows and one 0.5-1 s gap (auto: on for tt only)")
+    pd.add_argument("--imu-x", type=float, help="tt only: IMU position ahead of the CG in m (default the car's, 0.4)")
+    pd.add_argument("--imu-y", type=float, help="tt only: IMU position left of the CG in m (default the car's)")
     pd.add_argument("--out", required=True, help="Log CSV to write (.csv or .csv.gz)")
     pd.add_argument("--vehicle-toml", help="vehicle TOML to write (data-sheet values)")
     pd.set_defaults(func=cmd_peer_drive)

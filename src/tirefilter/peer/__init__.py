@@ -7,11 +7,14 @@ not ours.
 - `model`: the peer's models (single-track drift STD, multi-body MB) and parameter sets,
   what the log needs from their states (accelerations, wheel rates, true stiffness).
 - `maneuvers`: steering and speed profiles (sine, sweep, steps, slalom, mixed).
-- `sensors`: IMU white noise and biases, wheel-speed noise.
+- `sensors`: IMU white noise and biases, wheel-speed noise, logger dropouts.
 - `drive`: integrate, sample at 100 Hz, write the Log CSV and the vehicle TOML.
+- `two_track`, `two_track_drive`: a two-track model written here from the textbooks (four
+  wheels, load transfer, load-sensitive Magic Formula tyres with relaxation), its drives.
 
 `vehiclemodels` is an optional dependency (the `peer` extra): it is imported only when
-a drive is generated, with a clear error when it is missing.
+a CommonRoad drive is generated, with a clear error when it is missing (the two-track
+model needs only numpy).
 """
 
 from tirefilter.errors import TirefilterError

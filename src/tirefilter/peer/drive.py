@@ -1,6 +1,8 @@
 """A peer drive: integrate a peer model under a maneuver, sample it at 100 Hz, add the
 sensors, and write the Log CSV (docs/usage.md, "Replaying recorded logs") and a vehicle TOML of data-sheet
-values.
+values. The CommonRoad models (`model`) are integrated here; the two-track model (`--model
+tt`) in `two_track_drive`, with the same maneuvers, rate, settling and sensors, the IMU off
+the centre of gravity and, by default, the logger's dropouts (`with_dropouts`).
 
 Integration: classical Runge-Kutta (RK4) with a fixed step of 1 ms (10 steps per sample;
 the fastest mode, the wheel spin of ~300 1/s at 15 m/s, gives h*lambda ~ 0.3) after 2 s of
@@ -24,6 +26,7 @@ the MB model's camber thrust is on (`--camber continuous|peer`; the default is o
 from __future__ import annotations
 
 import math
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -32,7 +35,7 @@ import numpy as np
 from tirefilter.errors import TirefilterError
 from tirefilter.peer.maneuvers import Profile, make_profile
 from tirefilter.peer.model import VEHICLES, PeerModel, effective_stiffness, load_model
-from tirefilter.peer.sensors import SensorSpec, measure
+from tirefilter.peer.sensors import DropoutSpec, SensorSpec, dropouts, measure
 
 RATE = 100.0  # Hz, log sample rate
 SUBSTEPS = 10  # RK4 steps per sample (h = 1 ms)
@@ -56,7 +59,7 @@ TRUE_COLUMNS = ("beta", "vx", "vy", "yaw_rate", "ax", "ay", "alpha_f", "alpha_r"
 class DriveSpec:
     """What to generate (the options of `tirefilter peer-drive`)."""
 
-    model: str = "std"  # "std" | "mb"
+    model: str = "std"  # "std" | "mb" | "tt" (the two-track model, `two_track`)
     vehicle: int = 2  # peer parameter set 1, 2, 3
     maneuver: str = "sine"
     duration: float = 40.0  # s
@@ -68,15 +71,29 @@ class DriveSpec:
     camber: str = "off"  # MB tire camber terms: "continuous" | "peer" | "off" (model.load_model)
     cornering_per_deg: float = CORNERING_PER_DEG  # the user's guess of the nominal stiffness
     roll_gradient_in_vehicle: bool = False  # write the MB model's measured roll gradient into the vehicle TOML
+    dropouts: str = "auto"  # logger dropouts (sensors.DropoutSpec): "on" | "off" | "auto" (on for tt only)
+    imu_x: float | None = None  # m, tt only: the IMU ahead of the CG (None: the car's, two_track.VEHICLES_TT)
+    imu_y: float | None = None  # m, tt only: the IMU left of the CG
 
 
 @dataclass
 class PeerDrive:
     spec: DriveSpec
-    model: PeerModel
+    model: PeerModel  # a two_track.Model for tt
     columns: dict  # Log CSV columns, (n,) each
     vehicle: dict  # vehicle TOML values
-    roll_gradient: float  # rad per m/s^2, least-squares roll / a^Y of the drive (0 for STD)
+    roll_gradient: float  # rad per m/s^2, least-squares roll / a^Y of the drive (0 for STD; the model's for tt)
+    dropped: tuple[int, int] = (0, 0)  # rows and cells the logger dropped
+
+
+DROPOUTS = ("auto", "on", "off")
+
+
+def _check(spec: DriveSpec) -> None:
+    if spec.dropouts not in DROPOUTS:
+        raise TirefilterError(f"dropouts must be one of {', '.join(DROPOUTS)}, got {spec.dropouts!r}")
+    if spec.model != "tt" and (spec.imu_x is not None or spec.imu_y is not None):
+        raise TirefilterError(f"the IMU position can be set for the two-track model (tt) only, not {spec.model}")
 
 
 def steer_gain(model: PeerModel):
@@ -159,30 +176,72 @@ def trajectory(spec: DriveSpec, model: PeerModel) -> tuple[np.ndarray, np.ndarra
 
 
 def simulate(spec: DriveSpec) -> PeerDrive:
-    """Generate the drive `spec`: integrate, sample, add the sensors."""
-    model = load_model(spec.model, spec.vehicle, spec.camber)
-    t, X, U, sensor_seed = trajectory(spec, model)
-    rows = [model.sample(x, u) for x, u in zip(X, U)]
-    true = {key: np.array([r[key] for r in rows]) for key in rows[0]}
-    meas, bias = measure(t, true, spec.sensors, sensor_seed)
+    """Generate the drive `spec`: integrate, sample, add the sensors (and the logger's
+    dropouts where `spec.dropouts` has them)."""
+    _check(spec)
+    if spec.model == "tt":
+        drive = _simulate_tt(spec)
+    else:
+        model = load_model(spec.model, spec.vehicle, spec.camber)
+        t, X, U, sensor_seed = trajectory(spec, model)
+        rows = [model.sample(x, u) for x, u in zip(X, U)]
+        true = {key: np.array([r[key] for r in rows]) for key in rows[0]}
+        meas, bias = measure(t, true, spec.sensors, sensor_seed)
+        columns = _columns(t, true, meas, bias, effective_stiffness(model, true))
+        turning = np.abs(true["ay"]) > 0.5
+        roll_gradient = (float(-np.sum(true["roll"][turning] * true["ay"][turning]) / np.sum(true["ay"][turning] ** 2))
+                         if spec.model == "mb" and turning.any() else 0.0)  # outward roll is -x[6] for a^Y > 0
+        drive = PeerDrive(spec, model, columns, vehicle_values(model, spec, roll_gradient), roll_gradient)
+    return with_dropouts(drive) if spec.dropouts == "on" or (spec.dropouts == "auto" and spec.model == "tt") else drive
+
+
+def _columns(t, true: dict, meas: dict, bias: np.ndarray, eff: tuple[float, float]) -> dict:
     columns = {"t": t, "delta": true["delta"], "ax": meas["ax"], "ay": meas["ay"], "yaw_rate": meas["yaw_rate"],
                "vx": true["vx"], "omega_f": meas["omega_f"], "omega_r": meas["omega_r"]}
     columns.update({f"{name}_true": true[name] for name in TRUE_COLUMNS})
     columns.update({f"b_{name}_true": bias[:, i] for i, name in enumerate(("ax", "ay", "yaw_rate"))})
-    eff = effective_stiffness(model, true)
     columns["Cf_y_eff_true"] = np.full(t.size, eff[0])
     columns["Cr_y_eff_true"] = np.full(t.size, eff[1])
-    turning = np.abs(true["ay"]) > 0.5
-    roll_gradient = (float(-np.sum(true["roll"][turning] * true["ay"][turning]) / np.sum(true["ay"][turning] ** 2))
-                     if spec.model == "mb" and turning.any() else 0.0)  # outward roll is -x[6] for a^Y > 0
-    return PeerDrive(spec, model, columns, vehicle_values(model, spec, roll_gradient), roll_gradient)
+    return columns
+
+
+def _simulate_tt(spec: DriveSpec) -> PeerDrive:
+    from tirefilter.peer import two_track_drive as ttd
+
+    model = ttd.load(spec)
+    t, X, U, sensor_seed = ttd.trajectory_tt(spec, model, rate=RATE, substeps=SUBSTEPS, settle=SETTLE, k_speed=K_SPEED)
+    true = ttd.true_values(model, X, U)
+    meas, bias = measure(t, true, spec.sensors, sensor_seed)
+    columns = _columns(t, true, meas, bias, ttd.effective_stiffness_tt(model, true))
+    columns.update({f"{name}_true": true[name] for name in ttd.TT_TRUE_EXTRA})
+    return PeerDrive(spec, model, columns, vehicle_values(model, spec, model.roll_per_ay), model.roll_per_ay)
+
+
+def with_dropouts(drive: PeerDrive, spec: DropoutSpec = DropoutSpec()) -> PeerDrive:
+    """`drive` as a data logger with dropouts records it (`sensors.dropouts`, the third
+    child of the drive's seed): rows removed, signal cells empty; the gap starts after the
+    straight start."""
+    c = drive.columns
+    keep, blank = dropouts(c["t"], spec, np.random.SeedSequence(drive.spec.seed).spawn(3)[2],
+                           after=drive.spec.straight)
+    columns = {}
+    for name, values in c.items():
+        values = np.array(values, float)
+        if name in blank:
+            values[blank[name]] = math.nan
+        columns[name] = values[keep]
+    cells = int(sum(np.count_nonzero(b[keep]) for b in blank.values()))
+    return dataclasses.replace(drive, columns=columns, dropped=(int(keep.size - np.count_nonzero(keep)), cells))
 
 
 def vehicle_values(model: PeerModel, spec: DriveSpec, roll_gradient: float = 0.0) -> dict:
     """The vehicle TOML a user would write from the data sheet: the peer's published mass,
     yaw inertia, axle distances, wheel radius, centre-of-gravity height and driven axle,
     and nominal stiffness guessed by the rule of thumb (CORNERING_PER_DEG,
-    LONGITUDINAL_PER_LOAD) from the static axle loads. No sensor noise, no bias keys."""
+    LONGITUDINAL_PER_LOAD) from the static axle loads; for the two-track model also the
+    IMU's mounting position. No sensor noise, no bias keys."""
+    if spec.model == "tt":
+        return _vehicle_values_tt(model, spec, roll_gradient)
     p = model.p
     L = p.a + p.b
     Ff, Fr = p.m * G * p.b / L, p.m * G * p.a / L
@@ -196,8 +255,25 @@ def vehicle_values(model: PeerModel, spec: DriveSpec, roll_gradient: float = 0.0
     return values
 
 
+def _vehicle_values_tt(model, spec: DriveSpec, roll_gradient: float) -> dict:
+    p = model.p
+    L = p.wheelbase
+    Ff, Fr = p.mass * G * p.lr / L, p.mass * G * p.lf / L
+    k = spec.cornering_per_deg * 180.0 / math.pi
+    driven = {"front": Ff, "rear": Fr}.get(p.drive, Ff + Fr)
+    values = {"mass": float(p.mass), "yaw_inertia": float(p.yaw_inertia), "lf": float(p.lf), "lr": float(p.lr),
+              "wheel_radius": float(p.wheel_radius), "cg_height": float(p.cg_height), "drive": p.drive,
+              "Cf_y": round(k * Ff, -2), "Cr_y": round(k * Fr, -2), "Cx": round(LONGITUDINAL_PER_LOAD * driven, -2),
+              "imu_x": float(p.imu_x), "imu_y": float(p.imu_y)}
+    if spec.roll_gradient_in_vehicle and roll_gradient > 0:
+        values["roll_gradient"] = round(roll_gradient, 5)
+    return values
+
+
 def vehicle_toml(drive: PeerDrive) -> str:
     """The vehicle TOML text, with the source of each value."""
+    if drive.spec.model == "tt":
+        return _vehicle_toml_tt(drive)
     s, v, p = drive.spec, drive.vehicle, drive.model.p
     lines = [f"# {VEHICLES[s.vehicle]}: data-sheet values of the CommonRoad vehicle models' parameter set "
              f"{s.vehicle} (vehiclemodels)",
@@ -218,6 +294,32 @@ def vehicle_toml(drive: PeerDrive) -> str:
     if "roll_gradient" in v:
         lines.append(f'roll_gradient = {v["roll_gradient"]!r}  # rad per m/s^2, measured on this drive '
                      '(not a data-sheet value)')
+    return "\n".join(lines) + "\n"
+
+
+def _vehicle_toml_tt(drive: PeerDrive) -> str:
+    s, v = drive.spec, drive.vehicle
+    lines = [f"# {VEHICLES[s.vehicle]}: data-sheet values of the two-track peer car {s.vehicle} (mass, inertia and "
+             "geometry of the CommonRoad parameter set of that number)",
+             "# written by `tirefilter peer-drive` for the TT model; no sensor noise or bias keys.",
+             f'mass = {v["mass"]!r}  # kg',
+             f'yaw_inertia = {v["yaw_inertia"]!r}  # kg m^2',
+             f'lf = {v["lf"]!r}  # m',
+             f'lr = {v["lr"]!r}  # m',
+             f'wheel_radius = {v["wheel_radius"]!r}  # m',
+             f'cg_height = {v["cg_height"]!r}  # m',
+             f'drive = "{v["drive"]}"',
+             f'# guessed, not the truth: cornering coefficient {s.cornering_per_deg:g} per degree of slip angle '
+             f'times the static axle load ({s.cornering_per_deg * 180 / math.pi:.3g} per rad)',
+             f'Cf_y = {v["Cf_y"]!r}  # N/rad',
+             f'Cr_y = {v["Cr_y"]!r}  # N/rad',
+             f'Cx = {v["Cx"]!r}  # N per unit slip: guessed, {LONGITUDINAL_PER_LOAD:g} x the driven axle\'s '
+             'static load',
+             f'imu_x = {v["imu_x"]!r}  # m, IMU mounting position ahead of the CG',
+             f'imu_y = {v["imu_y"]!r}  # m, IMU mounting position left of the CG']
+    if "roll_gradient" in v:
+        lines.append(f'roll_gradient = {v["roll_gradient"]!r}  # rad per m/s^2, the model\'s (not a data-sheet '
+                     'value)')
     return "\n".join(lines) + "\n"
 
 
@@ -255,7 +357,16 @@ def describe(drive: PeerDrive) -> str:
              f"  IMU bias at t = 0: b_ax {c['b_ax_true'][0]:+.3f} m/s^2, b_ay {c['b_ay_true'][0]:+.3f} m/s^2, "
              f"b_yaw_rate {c['b_yaw_rate_true'][0]:+.4f} rad/s; noise std {s.sensors.sigma[0]:g}, "
              f"{s.sensors.sigma[1]:g} m/s^2, {s.sensors.sigma[2]:g} rad/s"]
-    if s.model == "mb":
+    if s.model == "tt":
+        p = drive.model.p
+        lines.append(f"  two-track: IMU at ({p.imu_x:g}, {p.imu_y:g}) m from the CG, true Cf_y "
+                     f"{c['Cf_y_true'][0]:.4g}, Cr_y {c['Cr_y_true'][0]:.4g} N/rad at the static loads, at the "
+                     f"current loads {np.min(c['Cf_y_load_true']):.4g}-{np.max(c['Cf_y_load_true']):.4g} and "
+                     f"{np.min(c['Cr_y_load_true']):.4g}-{np.max(c['Cr_y_load_true']):.4g}")
+    if any(drive.dropped):
+        lines.append(f"  logger dropouts: {drive.dropped[0]} rows missing (one gap among them), "
+                     f"{drive.dropped[1]} empty cells")
+    if s.model in ("mb", "tt"):
         lines.append(f"  body roll {drive.roll_gradient:.4f} rad per m/s^2 (the IMU's a^Y reads about "
                      f"{1 + G * drive.roll_gradient:.3f} x a^Y)")
     return "\n".join(lines)

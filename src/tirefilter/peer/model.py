@@ -157,10 +157,17 @@ def effective_stiffness(model: PeerModel, true: dict, min_ay: float = 0.3) -> tu
     l_r F_yr; `true` holds (n,) arrays "ay", "yaw_acc", "delta", "alpha_f", "alpha_r".
     With linear tires and no camber this is the tire stiffness; the MB model's camber
     thrust from body roll makes it larger (derivations: "Peer drives")."""
-    p, L = model.p, model.wheelbase
+    p = model.p
+    return axle_stiffness_fit(p.m, p.I_z, p.a, p.b, true, min_ay)
+
+
+def axle_stiffness_fit(mass: float, yaw_inertia: float, lf: float, lr: float, true: dict,
+                       min_ay: float = 0.3) -> tuple[float, float]:
+    """`effective_stiffness` of any car: mass [kg], yaw inertia [kg m^2], axle distances [m]."""
+    L = lf + lr
     ay, dr = true["ay"], true["yaw_acc"]
-    Fyf = (p.m * ay * p.b + p.I_z * dr) / L / np.cos(true["delta"])
-    Fyr = (p.m * ay * p.a - p.I_z * dr) / L
+    Fyf = (mass * ay * lr + yaw_inertia * dr) / L / np.cos(true["delta"])
+    Fyr = (mass * ay * lf - yaw_inertia * dr) / L
     sel = np.abs(ay) > min_ay
     if np.count_nonzero(sel) < 10:
         return math.nan, math.nan

@@ -74,3 +74,41 @@ def score(truth: dict, est: dict, *, last: float = 30.0) -> dict:
         np.isfinite(b)) else math.inf
     out["beta_zero_rmse_deg"] = float(np.degrees(np.sqrt(np.mean(truth["beta_true"] ** 2))))
     return out
+
+
+def final_scores(truth: dict, est: dict, *, ay_min: float = 4.0) -> dict:
+    """The peer set's scores (benchmarks/bench_peer.py --set) of one replay, from arrays of
+    the same rows: `truth` with "t", "beta_true", "ay_true", "Cf_y_true", "Cr_y_true",
+    `est` with "beta", "Cf_y", "Cr_y", "Cf_y_std", "Cr_y_std" (all (n,)).
+
+    Per axle p: `{p}_final_err` (%) and `{p}_final_z` (error over the reported std) at the
+    last row with a finite estimate; `{p}_cover`, the share of the rows of the second half
+    of the drive (t >= (t_0 + t_end) / 2) whose truth lies inside estimate +- Z90 std
+    (metrics.Z90, the 90 % band). Sideslip: `beta_rmse_deg` over every row and
+    `beta_rmse_hi_deg` over the rows with |ay_true| >= ay_min (NaN without one), with
+    the sums of squared errors and counts (`beta_se`, `beta_n`, `beta_se_hi`, `beta_n_hi`,
+    rad^2) for pooling over drives. A non-finite sideslip estimate counts as an infinite error."""
+    from tirefilter.metrics import Z90
+
+    t = np.asarray(truth["t"], float)
+    out = {}
+    for p in ("Cf_y", "Cr_y"):
+        e, s, tr = (np.asarray(a, float) for a in (est[p], est[f"{p}_std"], truth[f"{p}_true"]))
+        ok = np.flatnonzero(np.isfinite(e) & np.isfinite(s))
+        if ok.size == 0:
+            out.update({f"{p}_final_err": math.inf, f"{p}_final_z": math.inf, f"{p}_cover": 0.0})
+            continue
+        k = ok[-1]
+        out[f"{p}_final_err"] = float(100.0 * (e[k] / tr[k] - 1.0))
+        out[f"{p}_final_z"] = float((e[k] - tr[k]) / s[k]) if s[k] > 0 else math.inf
+        half = t >= 0.5 * (t[0] + t[-1])
+        inside = np.abs(e[half] - tr[half]) <= Z90 * s[half]  # NaN: outside
+        out[f"{p}_cover"] = float(np.mean(inside))
+    err = np.asarray(est["beta"], float) - np.asarray(truth["beta_true"], float)
+    err = np.where(np.isfinite(err), err, np.inf)
+    hi = np.abs(np.asarray(truth["ay_true"], float)) >= ay_min
+    out.update(beta_se=float(np.sum(err**2)), beta_n=int(err.size), beta_se_hi=float(np.sum(err[hi] ** 2)),
+               beta_n_hi=int(np.count_nonzero(hi)))
+    out["beta_rmse_deg"] = float(np.degrees(np.sqrt(out["beta_se"] / err.size)))
+    out["beta_rmse_hi_deg"] = float(np.degrees(np.sqrt(out["beta_se_hi"] / out["beta_n_hi"]))) if hi.any() else math.nan
+    return out

@@ -7,7 +7,8 @@ MEMS data sheets (accelerometer noise 0.1-0.3 m/s^2 and zero-g offset up to a fe
 0.1 m/s^2 over temperature; gyro noise 0.003-0.01 rad/s and zero-rate offset up to about
 0.01 rad/s at 100 Hz). Wheel rates: white noise only. The IMU reads the specific force and
 rate of the body that carries it (`model.PeerModel.sample`): on the rolling body of the MB
-model that includes g sin(roll).
+model that includes g sin(roll). A data logger's dropouts (`dropouts`): single empty cells,
+single missing rows and one gap of 0.5-1 s.
 """
 
 from __future__ import annotations
@@ -61,3 +62,32 @@ def measure(t: np.ndarray, true: dict, spec: SensorSpec, seed: np.random.SeedSeq
     for w, child in zip(("omega_f", "omega_r"), noise_seeds[len(IMU_CHANNELS):]):
         out[w] = true[w] + spec.sigma_omega * np.random.default_rng(child).standard_normal(t.size)
     return out, bias
+
+
+LOGGED_SIGNALS = ("delta", "ax", "ay", "yaw_rate", "vx", "omega_f", "omega_r")
+
+
+@dataclass(frozen=True)
+class DropoutSpec:
+    """A data logger's dropouts: empty cells, missing rows and one longer gap."""
+
+    blank_rate: float = 0.002  # probability that a signal's cell is empty (each signal on its own)
+    row_rate: float = 0.002  # probability that a row is missing
+    gap: tuple[float, float] = (0.5, 1.0)  # s, one gap of missing rows, its length uniform in this range
+
+
+def dropouts(t: np.ndarray, spec: DropoutSpec, seed: np.random.SeedSequence, *, after: float = 0.0,
+             signals: tuple[str, ...] = LOGGED_SIGNALS) -> tuple[np.ndarray, dict]:
+    """Which rows of the sample times t (n,) the logger keeps ((n,) bool: the first and the
+    last always) and which cells it leaves empty (signal -> (n,) bool): single rows and
+    cells missing at random, and one gap of `spec.gap` seconds starting at a uniform time
+    in [after, t[-1] - 3 s - its length]."""
+    rng = np.random.default_rng(seed)
+    n = t.size
+    keep = rng.random(n) >= spec.row_rate
+    length = rng.uniform(*spec.gap)
+    start = rng.uniform(after, max(after, t[-1] - 3.0 - length))
+    keep &= ~((t >= start) & (t < start + length))
+    keep[0] = keep[-1] = True
+    blank = {name: rng.random(n) < spec.blank_rate for name in signals}
+    return keep, blank
