@@ -1,7 +1,7 @@
 """Mutation testing of the core maths: small, deliberate errors put into the source one at a
 time, and whether a mapped, fast subset of the tests notices (docs/mutation.md).
 
-    .venv/bin/python benchmarks/mutation.py [--module PATH] [--max N] [--seed S] [--list]
+    .venv/bin/python benchmarks/mutation.py [--module PATH] [--max N] [--seed S] [--list] [--rescore FILE]
                                             [--match TEXT] [--json FILE] [--jobs 1]
 
 Mutants come from the source's syntax tree (`ast`), one per change:
@@ -651,7 +651,9 @@ def total(summaries: list[dict]) -> dict:
 def stratified(summaries: list[dict]) -> dict:
     """The score of all the modules' mutants estimated from a random draw of each (--max):
     each module's share of caught non-equivalent mutants, weighted by its number of mutants,
-    with a normal-approximation 95 % interval (finite-population correction per module)."""
+    with a 95 % interval from the normal approximation whose variance takes the Agresti-Coull
+    share (k + 2) / (n + 4) of each module (so that a draw with no survivor still has a width)
+    and the finite-population correction."""
     pop = sum(s["population"] for s in summaries)
     est = var = 0.0
     for s in summaries:
@@ -659,11 +661,12 @@ def stratified(summaries: list[dict]) -> dict:
         if not scored:
             continue
         w, p = s["population"] / pop, s["killed"] / scored
+        p_ac = (s["killed"] + 2) / (scored + 4)
         fpc = (s["population"] - s["mutants"]) / max(s["population"] - 1, 1)
         est += w * p
-        var += w * w * p * (1 - p) / scored * fpc
+        var += w * w * p_ac * (1 - p_ac) / (scored + 4) * fpc
     half = 1.96 * math.sqrt(var)
-    return {"population": pop, "estimated_score": est, "estimated_score_ci95": [est - half, min(est + half, 1.0)]}
+    return {"population": pop, "estimated_score": est, "estimated_score_ci95": [max(est - half, 0.0), min(est + half, 1.0)]}
 
 
 def print_report(summaries, mutants, equivalent, seconds) -> None:
