@@ -132,8 +132,10 @@ def make_dashboard_shots(particles: int = 500, seed: int = 0) -> None:
                 raise SystemExit(f"the dashboard's run did not finish: {status}")
             if "DIVERGED" in status or "restart" in status:
                 raise SystemExit(f"the dashboard's run diverged or restarted; no pictures written: {status}")
+            # the page has drawn the end (a loaded machine's browser can lag the run by a minute)
+            page.get_by_text(re.compile(r"^finished · ")).wait_for(timeout=300000)
             for tab, name in DASHBOARD_SHOTS.items():
-                page.get_by_role("tab", name=tab, exact=True).click()
+                page.get_by_role("tab", name=tab, exact=True).click(timeout=120000)
                 time.sleep(3)  # the tab's charts drawn
                 shots[name] = screenshot_png(page)
     finally:
