@@ -23,7 +23,6 @@ import argparse
 import contextlib
 import io
 import re
-import shutil
 import sys
 import tempfile
 import time
@@ -83,23 +82,37 @@ def make_readme_output() -> None:
     print(f"{README.relative_to(ROOT)}: example output of {len(block)} lines ({README.stat().st_size} bytes)")
 
 
-def make_rerun_shots() -> None:
-    """The recording's four tabs in Rerun's web viewer (make_readme_output made it)."""
+def make_rerun_shots(wait: float = 600.0) -> None:
+    """The recording's four tabs in Rerun's web viewer (make_readme_output made it); none
+    written unless every view of every tab shows data and no error (`rerun_web.check_views`)."""
     sys.path.insert(0, str(ROOT / "tests"))
+    from PIL import Image
+
     import rerun_web
 
     if not RRD.is_file():
         make_readme_output()
-    with tempfile.TemporaryDirectory() as tmp:
-        if rerun_web.main([str(RRD), tmp, "--all-tabs", "--wait", "300"]) != 0:
-            raise SystemExit("tests/rerun_web.py failed")
-        for (m, r), name in RERUN_SHOTS.items():
-            shot = Path(tmp) / f"tab-{m}-{r}.png"
-            if not shot.is_file():
-                raise SystemExit(f"Rerun's viewer gave no tab {m} {r}: the recording's layout has other tabs; "
-                                 "update RERUN_SHOTS")
-            shutil.copyfile(shot, IMG / name)
-            print(f"docs/img/{name}: {(IMG / name).stat().st_size / 1024:.0f} KB")
+    layout, _ = rerun_web.recorded_layout(RRD)
+    size = (rerun_web.VIEWPORT["width"], rerun_web.VIEWPORT["height"])
+    tabs = list(RERUN_SHOTS)
+    shots = {}
+    with rerun_web.serve_web_viewer(RRD) as (url, proxy), rerun_web.browser_page() as page:
+        page.goto(url)
+        rows, tabbed, text = rerun_web.layout_grid(layout, tabs[0])
+        # the whole file ingested (under load the first frames show part of it)
+        rerun_web.wait_loaded(page, rerun_web.view_cells(rows, tabbed, size), wait, text=text)
+        for active, img, boxes, text in rerun_web.screenshot_tabs(page, RRD, proxy, size, tabs, timeout=wait):
+            problems = rerun_web.check_views(img, boxes, text=text)
+            if problems:
+                raise SystemExit(f"Rerun's viewer, tab {active}: {'; '.join(problems)}; no pictures written")
+            shots[active] = img
+    missing = set(RERUN_SHOTS) - set(shots)
+    if missing:
+        raise SystemExit(f"Rerun's viewer gave no tab {sorted(missing)}: the recording's layout has other tabs; "
+                         "update RERUN_SHOTS")
+    for active, img in shots.items():
+        Image.fromarray(img).save(IMG / RERUN_SHOTS[active], optimize=True)
+        print(f"docs/img/{RERUN_SHOTS[active]}: {(IMG / RERUN_SHOTS[active]).stat().st_size / 1024:.0f} KB")
 
 
 def make_dashboard_shots(particles: int = 500, seed: int = 0) -> None:

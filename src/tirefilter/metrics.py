@@ -428,8 +428,9 @@ def format_metrics(m: dict, sensor_noise: dict | None = None) -> list[str]:
             k, unit = _shown(s, v["unit"])
             sensor = noise.get(s)
             sensor = "-" if sensor is None else f"{_with_unit(sensor[0], k, unit)} {sensor[1]}"
-            lines.append(f"{s:16s}{_with_unit(v['rmse'], k, unit):>15s}{_with_unit(v.get('settled_rmse'), k, unit):>15s}"
-                         f"{_with_unit(v['max_abs'], k, unit):>15s}{sensor:>20s}  {v['reference']}")
+            rmse, settled_rmse = _with_unit(v["rmse"], k, unit), _with_unit(v.get("settled_rmse"), k, unit)
+            lines.append(f"{s:16s}{rmse:>15s}{settled_rmse:>15s}{_with_unit(v['max_abs'], k, unit):>15s}{sensor:>20s}"
+                         f"  {v['reference']}")
     if scheduled and (m["stiffness"] or m["state"]):
         w = ", ".join(f"{a:g}-{b:g} s" for a, b in m["settled_windows"]) or "none"
         lines.append(f"  (settled: from 5 s after each excitation start / surface change: {w}; "

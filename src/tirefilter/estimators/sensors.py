@@ -86,10 +86,9 @@ class SensorModel:
         head = "sensor noise (std)" + (f", estimated from {self.data_span}" if "data" in self.sigma_source else "")
         lines = [f"{head}: {noise}"]
         if self.bias_on:
-            lines.append("IMU bias: estimated; prior std " + ", ".join(
-                f"{c} {_fmt(b)} {u}" for c, b, u in zip(CHANNELS, self.bias0_std, UNITS)) + "; random walk " + ", ".join(
-                f"{c} {_fmt(q)} {u}/sqrt(s)" for c, q, u in zip(CHANNELS, self.bias_rw, UNITS))
-                + f" ({self.bias_source})")
+            prior = ", ".join(f"{c} {_fmt(b)} {u}" for c, b, u in zip(CHANNELS, self.bias0_std, UNITS))
+            walk = ", ".join(f"{c} {_fmt(q)} {u}/sqrt(s)" for c, q, u in zip(CHANNELS, self.bias_rw, UNITS))
+            lines.append(f"IMU bias: estimated; prior std {prior}; random walk {walk} ({self.bias_source})")
         else:
             lines.append(f"IMU bias: not estimated ({self.bias_source})")
         if any(q > 0 for q in self.disturbance_rw):
