@@ -564,7 +564,8 @@ def _output_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--log-every", type=int, default=DEFAULT_LOG_EVERY, metavar="K",
                    help="log particle clouds, posterior densities and friction curves every K estimator steps "
                    f"(series every step; default {DEFAULT_LOG_EVERY})")
-    p.add_argument("--quiet", action="store_true", help="no progress (a bar on a terminal, else a line every 5 s) and no compile notice on stderr")
+    p.add_argument("--quiet", action="store_true",
+                   help="no progress (a bar on a terminal, else a line every 5 s) and no compile notice on stderr")
 
 
 def main(argv=None) -> int:
