@@ -9,7 +9,7 @@ OUT ?= runs/$(SCENARIO)
 # pytest-xdist workers for make test; the two browser tests share one (their xdist_group)
 TEST_WORKERS ?= 2
 
-.PHONY: setup fmu run test bench clean
+.PHONY: setup fmu run test bench docs-images clean
 
 $(BIN)/tirefilter: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -30,6 +30,9 @@ test: fmu
 
 bench: fmu
 	$(BIN)/python benchmarks/bench_cosim.py
+
+docs-images: fmu
+	$(BIN)/python tools/docs_images.py
 
 clean:
 	rm -rf fmu/build runs

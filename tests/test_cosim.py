@@ -151,6 +151,8 @@ def test_run_summary_states_the_metrics_of_its_results(fmu_paths, tmp_path, caps
     assert m["cx_excitation"] > 0.5  # paper-sim's torque steps excite Cx (derivations, "The undriven axle")
     assert m["settled_windows"] == [[5.0, 8.0]] and set(m["stiffness"]) == {"Cf_y", "Cr_y", "Cx"}
     assert m["resamples"] > 0 and m["restarts"] >= 0 and 0 < m["gate_open_share"] <= 1
-    assert "mean |err|" in printed and "settled" in printed and "coverage90" in printed
+    assert "mean |err|" in printed and "settled" in printed and "90% band, settled" in printed
     assert f"restarts {m['restarts']}, resamples {m['resamples']}" in printed
-    assert "vy RMSE" in printed
+    vy = next(line for line in printed.splitlines() if line.startswith("vy "))
+    assert vy.split()[1:5] == [f"{m['state']['vy']['rmse']:.3g}", "m/s", f"{m['state']['vy']['settled_rmse']:.3g}",
+                               "m/s"]

@@ -37,8 +37,8 @@ from tirefilter_viewer.app import Dashboard  # noqa: E402
 from tirefilter_viewer.history import MAX_POINTS, History  # noqa: E402
 from tirefilter_viewer.session import (EstimatorFailure, LiveRun, Settings, build_with_forgetting,  # noqa: E402
                                        open_result)
-from tirefilter_viewer.views import (CLOUD_SCALE, Z90, charts, cloud_positions, friction_data,  # noqa: E402
-                                     friction_from_csv, friction_truth, particle_stiffness, weight_colors, y_range)
+from tirefilter_viewer.views import (Z90, charts, friction_data, friction_from_csv, friction_truth,  # noqa: E402
+                                     particle_stiffness, y_range)
 
 VEHICLE = DATA_DIR / "vehicles" / "midsize-suv.toml"
 CHROMIUM = Path("/usr/bin/chromium")
@@ -150,13 +150,56 @@ def test_particle_cloud_is_the_posterior_whose_weighted_mean_is_the_estimate(fmu
     est = dict(zip(ESTIMATE_COLUMNS, row))
     for j, p in enumerate(names):  # eq. (27a): the weighted mean of the particles' means
         assert w @ values[:, j] == pytest.approx(est[p], rel=1e-9)
-    pos = cloud_positions(names, values, nominal)
-    np.testing.assert_allclose(pos[:, 0], values[:, 1] / nominal[1] * CLOUD_SCALE)  # x = Cf_y / nominal
-    np.testing.assert_allclose(pos[:, 2], values[:, 0] / nominal[0] * CLOUD_SCALE)  # z = Cx / nominal
-    lateral = cloud_positions(("Cf_y", "Cr_y"), values[:, 1:], nominal[1:])
-    assert np.all(lateral[:, 2] == 0)  # the lateral model: a plane
-    colors = weight_colors(np.array([0.0, 0.5, 1.0]))
-    assert colors.dtype == np.uint8 and tuple(colors[-1]) == (215, 25, 28) and tuple(colors[0]) == (190, 205, 225)
+    assert nominal.shape == (3,) and np.all(nominal > 0)
+
+
+def test_path_chart_is_the_pose_sorted_by_x_with_start_and_now_on_equal_axes():
+    from tirefilter_viewer.views import equal_axes, path_data
+
+    t = np.linspace(0.0, 2 * np.pi, 101)
+    h = History.from_columns({"t": t, "true_x": 30 * np.sin(t), "true_y": 10 * (1 - np.cos(t)), "true_psi": t})
+    x, path, start, now = path_data(h, h.decimation())
+    assert len(x) == 103 and np.all(np.diff(x) >= 0)  # 101 points, the start and now
+    pairs = sorted(zip(x[np.isfinite(path)], path[np.isfinite(path)]))
+    np.testing.assert_allclose(pairs, sorted(zip(30 * np.sin(t), 10 * (1 - np.cos(t)))), atol=1e-12)
+    assert np.count_nonzero(np.isfinite(start)) == 1 and np.count_nonzero(np.isfinite(now)) == 1
+    assert start[np.isfinite(start)][0] == 0.0 and now[np.isfinite(now)][0] == pytest.approx(0.0, abs=1e-12)
+    (x0, x1), (y0, y1) = equal_axes(x, np.concatenate([path, start, now]), 1000.0, 500.0)
+    assert (x1 - x0) / 1000.0 == pytest.approx((y1 - y0) / 500.0)  # as many metres per pixel both ways
+    assert x0 < -30 and x1 > 30 and y0 < 0 and y1 > 20  # the whole path inside
+    assert (x0 + x1) / 2 == pytest.approx(0.0) and (y0 + y1) / 2 == pytest.approx(10.0)  # centred
+    assert path_data(History.from_columns({"t": t[:1], "vx": t[:1]}), np.zeros(1, int)) is None
+
+
+def test_every_empty_tab_says_why():
+    from tirefilter_viewer.views import TABS, tab_notes
+
+    idle = tab_notes("none", None)
+    assert set(idle) == set(TABS) and all("press **Start**" in n for n in idle.values())
+    result = tab_notes("result", None)  # an opened Result CSV: no particles, no friction CSV
+    assert set(result) == {"densities", "particles", "friction"}
+    assert all(n.startswith("**Not in this file:**") for n in result.values())
+    assert "friction" not in tab_notes("result", None, friction=True)
+    mpf = tab_notes("run", "mpf", densities=True, particles=True)
+    assert set(mpf) == {"friction"} and "mpf learns the stiffness, not the friction curve" in mpf["friction"]
+    kf = tab_notes("run", "kf", densities=True, particles=False, friction=False, bias=False, cx=False)
+    assert kf["particles"].startswith("**Not for this estimator:** kf has no particle posterior")
+    assert set(kf) == {"particles", "friction", "bias, ESS", "stiffness"}
+    assert "the run has no estimator" in tab_notes("run", "none")["densities"]
+    assert tab_notes("run", "gpssm", densities=True, particles=True, friction=True) == {}
+
+
+def test_legends_and_axes_carry_each_parameters_unit():
+    from tirefilter_viewer.views import cloud_series, density_series
+
+    for chart in charts():
+        for s in chart.uplot_series()[1:]:
+            assert re.search(r"\[[^\]]+\]$", s["label"]), (chart.key, s["label"])  # every legend entry has a unit
+    assert next(c for c in charts() if c.key == "Cx").uplot_series()[-1]["label"] == "estimate [kN/unit slip]"
+    cx = [s["label"] for s in density_series("Cx")]
+    assert cx[0] == "Cx [kN/unit slip]" and all("kN/rad" not in label for label in cx)
+    assert density_series("Cf_y")[0]["label"] == "Cf_y [kN/rad]"
+    assert [s["label"] for s in cloud_series("Cf_y", "Cx")][:2] == ["Cf_y [kN/rad]", "particles: Cx [kN/unit slip]"]
 
 
 def test_friction_curve_and_its_truth():
@@ -555,18 +598,27 @@ def _not_blank(path: Path) -> float:
     return float(pixels.std())
 
 
-# Records every text uPlot draws (tick values, axis labels) with its canvas, position,
-# alignment and width, so the tests can read what the charts say and whether it fits.
+# Records the texts of each canvas's latest drawing (tick values, axis labels: uPlot clears
+# the whole canvas before it draws) with their position, alignment, width and the height of
+# their glyphs above and below their y (device px), so the tests can read what the charts
+# say and whether it fits.
 RECORD_CANVAS_TEXT = """
 (() => {
   const texts = new WeakMap();
   window.__canvasTexts = (canvas) => texts.get(canvas) || [];
+  const clear = CanvasRenderingContext2D.prototype.clearRect;
+  CanvasRenderingContext2D.prototype.clearRect = function (x, y, w, h) {
+    if (x <= 0 && y <= 0 && w >= this.canvas.width && h >= this.canvas.height) texts.set(this.canvas, []);
+    return clear.apply(this, arguments);
+  };
   const orig = CanvasRenderingContext2D.prototype.fillText;
   CanvasRenderingContext2D.prototype.fillText = function (text, x, y, maxWidth) {
     const t = this.getTransform();
     const list = texts.get(this.canvas) || [];
-    list.push({text: String(text), x: t.a * x + t.c * y + t.e, align: this.textAlign,
-               width: this.measureText(String(text)).width * Math.abs(t.a || 1), rotated: t.b !== 0});
+    const m = this.measureText(String(text));
+    list.push({text: String(text), x: t.a * x + t.c * y + t.e, y: t.b * x + t.d * y + t.f, align: this.textAlign,
+               width: m.width * Math.abs(t.a || 1), ascent: m.actualBoundingBoxAscent * Math.abs(t.d || 1),
+               descent: m.actualBoundingBoxDescent * Math.abs(t.d || 1), rotated: t.b !== 0});
     if (list.length > 400) list.splice(0, list.length - 400);
     texts.set(this.canvas, list);
     return orig.apply(this, arguments);
@@ -582,7 +634,9 @@ def _charts_on_page(page) -> list[dict]:
         .map(u => {
             const c = u.querySelector('canvas'); const r = u.getBoundingClientRect();
             return {title: (u.querySelector('.u-title') || {}).textContent || '', x: r.x, y: r.y, width: r.width,
-                    height: r.height, canvas_width: c ? c.width : 0, texts: c ? window.__canvasTexts(c) : []};
+                    height: r.height, canvas_width: c ? c.width : 0, canvas_height: c ? c.height : 0,
+                    texts: c ? window.__canvasTexts(c) : [],
+                    legend: [...u.querySelectorAll('.u-legend .u-series .u-label')].map(l => l.textContent)};
         })""")
 
 
@@ -612,19 +666,38 @@ def _chart_has_line(page, index: int = 0) -> bool:
     }""", index)
 
 
+def _click_tab(page, tab: str) -> None:
+    page.get_by_role("tab", name=tab, exact=True).click()
+
+
+def _note(page) -> str:
+    """The visible note at the head of the charts panel's shown tab ('' without one): the
+    text of the visible paragraphs left of the controls."""
+    from tirefilter_viewer.app import CHARTS_WIDTH
+
+    return page.evaluate("""(w) => [...document.querySelectorAll('p')].filter(e => e.offsetParent !== null
+        && e.getBoundingClientRect().right <= w).map(e => e.textContent).join(' ')""", CHARTS_WIDTH)
+
+
 def _check_layout(page, tmp_path) -> None:
     """At 1600 x 1000 the charts are the page: each tab of the charts panel shows its charts
-    whole (no scrolling), at least 900 px wide; the controls take at most 300 px; the axes
-    are labelled, tick labels keep their signs and fit in the canvas; the particle cloud has
-    numeric ticks on both axes; the densities are there."""
+    whole (no scrolling), at least 1150 px wide (the width the old 3-D strip had is theirs:
+    the canvas keeps about 120 px and draws nothing, no 3-D labels); the controls take at
+    most 300 px; the axes are labelled, tick labels keep their signs and fit in the canvas,
+    across and up and down (the top tick of the bias chart, '0.01', was cut in half); every
+    legend entry has its unit, the densities' and the clouds' their parameter's (Cx is
+    kN per unit slip); the sideslip has its chart; the particle cloud has numeric ticks on
+    both axes; a tab that shows nothing says why (paper-sim's bias is not estimated)."""
     from tirefilter_viewer.app import CONTROLS_WIDTH
-    from tirefilter_viewer.views import TABS, charts
+    from tirefilter_viewer.views import TABS, UNITS, charts
 
     expected = {tab: [c.title for c in charts() if c.tab == tab] for tab in TABS}
     expected["densities"] = [f"posterior density of {p} (eq. (26)), true surface mean" for p in ("Cf_y", "Cr_y", "Cx")]
     expected["particles"] = [f"particle cloud: stiffness mean per particle, {y} against Cf_y" for y in ("Cr_y", "Cx")]
-    for tab in ("stiffness", "state, bias", "densities", "particles"):
-        page.get_by_role("tab", name=tab, exact=True).click()
+    expected["path"] = ["vehicle path seen from above (truth, else dead-reckoned), equal scales"]
+    assert "sideslip beta [deg]: estimate vs truth" in expected["state"]
+    for tab in ("stiffness", "state", "bias, ESS", "densities", "particles", "path"):
+        _click_tab(page, tab)
         wait_for(lambda: [c["title"] for c in _charts_on_page(page)] == expected[tab], timeout=60,
                  what=f"the charts of the {tab} tab")
         # a redraw with data (the texts of this drawing are the newest ones)
@@ -632,28 +705,77 @@ def _check_layout(page, tmp_path) -> None:
                  what=f"tick labels in the {tab} tab")
         _shot(page, tmp_path / f"tab-{tab.replace(', ', '-')}.png")
         for c in _charts_on_page(page):
-            assert c["width"] >= 900 and c["height"] >= 150, c["title"]
+            assert c["width"] >= 1150 and c["height"] >= 150, c["title"]
             assert c["x"] >= 0 and c["y"] >= 0 and c["y"] + c["height"] <= 1000, f"{c['title']} needs scrolling"
             labels = [t for t in c["texts"] if not _tick_labels({"texts": [t]})]
             assert any(t["rotated"] for t in labels) and any(not t["rotated"] for t in labels), \
                 f"{c['title']}: axis labels {[t['text'] for t in labels]}"
+            ticks = [(t["text"], t["align"]) for t in c["texts"] if not t["rotated"] and _tick_labels({"texts": [t]})]
+            assert len(ticks) == len(set(ticks)), (c["title"], ticks)  # no two ticks of an axis read the same
             for t in _tick_labels(c):  # every tick label lies inside the canvas: nothing clipped
                 left = t["x"] - (t["width"] if t["align"] == "right" else t["width"] / 2 if t["align"] == "center"
                                  else 0)
                 assert left >= -0.5 and left + t["width"] <= c["canvas_width"] + 0.5, (c["title"], t)
-        if tab == "state, bias":
+                if not t["rotated"]:
+                    assert t["y"] - t["ascent"] >= -0.5 and t["y"] + t["descent"] <= c["canvas_height"] + 0.5, \
+                        (c["title"], t)
+            assert len(c["legend"]) >= 2 and all(re.search(r"\[[^\]]+\]$", label) for label in c["legend"]), \
+                (c["title"], c["legend"])  # every entry with its unit
+            param = next((p for p in ("Cf_y", "Cr_y", "Cx") if f"density of {p} " in c["title"]
+                          or c["title"].endswith(f"{p} against Cf_y")), None)
+            if param is not None:  # the densities' and clouds' legends in that parameter's unit
+                assert all(UNITS[param] in label for label in c["legend"][1:]), (c["title"], c["legend"])
+                if param == "Cx":
+                    assert "kN/rad" not in " ".join(c["legend"][1:]), c["legend"]
+        if tab == "bias, ESS":
             bias = next(c for c in _charts_on_page(page) if c["title"].startswith("accelerometer bias"))
             ticks = [t["text"] for t in _tick_labels(bias) if not t["rotated"]]
             assert any(x.startswith(("-", "\u2212")) for x in ticks), ticks  # the signs are drawn
+            assert "0.01" in ticks, ticks  # the top tick, whole (above)
             assert "bias [m/s^2]" in [t["text"] for t in bias["texts"]]
+            assert "IMU bias not estimated" in _note(page)
         if tab == "particles":
             for c in _charts_on_page(page):
                 values = {t["text"] for t in _tick_labels(c)}
                 assert len(values) >= 6, (c["title"], values)  # numeric ticks on both axes
+    _click_tab(page, "friction")
+    wait_for(lambda: "Not for this estimator: mpf learns the stiffness, not the friction curve" in _note(page),
+             what="the friction tab's note")
+    assert not _charts_on_page(page)
+    scene = page.evaluate("""() => [...document.querySelectorAll('canvas')].filter(c => !c.closest('.uplot'))
+        .map(c => c.getBoundingClientRect().width)""")
+    assert scene and max(scene) <= 130, scene  # the 3-D canvas: the strip viser keeps, nothing in it
+    assert page.get_by_text(re.compile("/ nominal")).count() == 0  # no 3-D labels ('Cf_y / nominal')
     controls = page.evaluate("""() => Math.max(...[...document.querySelectorAll('button')]
         .filter(b => b.textContent.trim() === 'Start').map(b => b.getBoundingClientRect().width))""")
     assert controls <= CONTROLS_WIDTH, controls
-    page.get_by_role("tab", name="stiffness", exact=True).click()
+    _click_tab(page, "stiffness")
+
+
+def _check_inputs_are_named(page) -> None:
+    """Every visible input of the page has an accessible name (a label tied to it, or
+    aria-labelledby / aria-label naming it): viser's text inputs had none."""
+    unnamed = page.evaluate("""() => [...document.querySelectorAll('input:not([type=hidden]), textarea')]
+        .filter(e => e.offsetParent !== null)
+        .filter(e => !(e.labels && e.labels.length) && !e.getAttribute('aria-label')
+                     && !(e.getAttribute('aria-labelledby') || '').split(' ').some(id => {
+                         const l = document.getElementById(id); return l && l.textContent.trim(); }))
+        .map(e => e.outerHTML.slice(0, 120))""")
+    assert not unnamed, unnamed
+    for name in ("Log CSV", "Vehicle TOML", "Result CSV", "Particles N", "Seed"):
+        assert page.get_by_label(name, exact=True).count() == 1, name
+
+
+def _close_notices(page) -> None:
+    """Close viser's notices (headless chromium's 'software WebGL' one sits over the controls
+    at 1600 px)."""
+    try:
+        page.locator(".mantine-Notification-closeButton").first.wait_for(timeout=5000)
+    except Exception:  # none came
+        return
+    close = page.locator(".mantine-Notification-closeButton")
+    for k in range(close.count()):
+        close.nth(k).click()
 
 
 @pytest.mark.xdist_group("browser")  # one browser at a time (make test runs two workers)
@@ -676,6 +798,10 @@ def test_the_page_in_a_real_browser(fmu_paths, tmp_path, chromium):
                 page.on("request", lambda r: requests.append(r.url))
                 page.goto(d.url)
                 status = page.locator("p", has_text=re.compile(r"^(idle|running|paused|finished|failed|result)"))
+                _close_notices(page)
+                wait_for(lambda: _note(page) == "Nothing to show yet: press Start for a run, or open a Result CSV.",
+                         what="the empty tab's note")  # before a run, the tabs say why they are empty
+                _check_inputs_are_named(page)
                 page.get_by_role("button", name="Start", exact=True).click()
                 page.get_by_text(re.compile(r"running · scenario paper-sim")).wait_for(timeout=60000)
                 page.wait_for_function("() => document.querySelectorAll('.uplot canvas').length >= 3", timeout=60000)
@@ -702,11 +828,26 @@ def test_the_page_in_a_real_browser(fmu_paths, tmp_path, chromium):
                 shots.append(tmp_path / "restarted.png")
                 _shot(page, shots[-1])
 
+                # a Result CSV (typed into its named input): the tabs it cannot fill say why
+                results = tmp_path / "results.csv"
+                short = replace(load_scenario("paper-sim"), duration=2.0)
+                run_scenario(short, estimator=build_estimator("mpf", short, model="auto", particles=N_SMALL, config={}),
+                             seed=SEED, results_csv=results)
+                page.get_by_label("Result CSV", exact=True).fill(str(results))
+                wait_for(lambda: d._result_path.value == str(results), what="the Result CSV's path")
+                page.get_by_role("button", name="Open Result CSV", exact=True).click()
+                page.get_by_text(re.compile(r"^result · Result CSV results\.csv")).wait_for(timeout=60000)
+                for tab in ("densities", "particles", "friction"):
+                    _click_tab(page, tab)
+                    wait_for(lambda: _note(page).startswith("Not in this file:"), what=f"the {tab} tab's note")
+                    assert not _charts_on_page(page), tab  # nothing but the note
+                shots.append(tmp_path / "result-densities.png")
+                _shot(page, shots[-1])
+                _click_tab(page, "stiffness")
+
                 page.get_by_label("Source", exact=True).click()
                 page.get_by_role("option", name="log", exact=True).click()
-                label = page.locator("label", has_text=re.compile("^Log CSV$"))
-                log_box = page.locator("div.mantine-Flex-root", has=label)
-                log_box.locator("input").fill(str(bad))
+                page.get_by_label("Log CSV", exact=True).fill(str(bad))
                 wait_for(lambda: d._log.value == str(bad) and d._source.value == "log", what="the log settings")
                 page.get_by_role("button", name="Restart", exact=True).click()
                 message = page.get_by_text(re.compile(r"^Error: .*bad_log\.csv"))

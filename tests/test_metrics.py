@@ -45,8 +45,9 @@ def test_errors_are_absolute_and_the_settled_window_follows_the_schedule():
     assert s["settled_missing"] == 0
     # after 10 s the estimate is within 5 % at once
     assert s["settling_s"] == [0.0]
-    assert m["state"]["vy"] == {"reference": "true_vy", "rmse": pytest.approx(0.1), "max_abs": pytest.approx(0.1),
-                                "unit": "m/s"}
+    assert m["state"]["vy"] == {"reference": "true_vy", "rmse": pytest.approx(0.1), "settled_rmse": pytest.approx(0.1),
+                                "max_abs": pytest.approx(0.1), "unit": "m/s"}
+    assert m["state_settled"] == "settled windows"
     assert m["restarts"] == 0 and m["resamples"] == 7
     assert m["gate_open_share"] == pytest.approx(1801 / 2001)
     assert m["diverged"]["samples"] == 0 and m["warnings"] == []
@@ -63,6 +64,48 @@ def test_log_references_without_a_schedule():
     assert m["stiffness"]["Cf_y"]["reference"] == "Cf_y_true"
     assert m["state"]["beta"]["reference"] == "beta_true" and m["state"]["beta"]["rmse"] == pytest.approx(0.02)
     assert m["restarts"] is None and m["resamples"] is None
+
+
+def test_state_rmse_settled_leaves_out_the_start_up_and_the_changes():
+    """vy off by 0.3 m/s before 5 s (start-up) and in 10-15 s (after the surface change),
+    by 0.1 m/s elsewhere: the settled RMSE is 0.1 exactly, the whole run's is not; a replay
+    (no schedule) leaves out the first STARTUP_S = 5 s."""
+    from tirefilter.metrics import STARTUP_S
+
+    off = np.where((T < 5.0) | ((T >= 10.0) & (T < 15.0)), 0.3, 0.1)
+    r = _run(vy=np.zeros(T.size), true_vy=off)
+    m = run_metrics(r, SCHEDULE)
+    n_bad = np.count_nonzero(off == 0.3)
+    assert m["state"]["vy"]["rmse"] == pytest.approx(np.sqrt((n_bad * 0.09 + (T.size - n_bad) * 0.01) / T.size))
+    assert m["state"]["vy"]["settled_rmse"] == pytest.approx(0.1, rel=1e-12)
+    replay = run_metrics(r)
+    after = T >= STARTUP_S
+    assert replay["state_settled"] == "after 5 s"
+    assert replay["state"]["vy"]["settled_rmse"] == pytest.approx(np.sqrt(np.mean(off[after] ** 2)), rel=1e-12)
+    assert _streamed(r, None, [300, 901])["state"]["vy"]["settled_rmse"] == pytest.approx(
+        replay["state"]["vy"]["settled_rmse"], rel=1e-12)  # the same in chunks
+
+
+def test_printed_summary_labels_each_window_and_unit():
+    """Every column of the printed tables says the window it covers; beta is in degrees;
+    the yaw rate's error stands beside the gyro's noise."""
+    r = _run(beta=np.full(T.size, 0.01), yaw_rate=np.full(T.size, 0.002), true_yaw_rate=np.zeros(T.size))
+    lines = format_metrics(run_metrics(r, SCHEDULE), {"yaw_rate": (0.0035, "gyro")})
+    head = lines[:2]
+    assert head[0].split() == ["stiffness", "error", "mean", "|err|", "mean", "|err|", "error", "truth", "in", "the",
+                               "reference"]
+    assert head[1].split() == ["whole", "run", "settled", "at", "end", "90%", "band,", "settled"]
+    beta = next(line for line in lines if line.startswith("beta "))
+    assert beta.split()[1:3] == [f"{np.degrees(0.01):.3g}", "deg"]  # 0.573 deg, not 0.01 rad
+    yaw = next(line for line in lines if line.startswith("yaw_rate "))
+    assert "0.002 rad/s" in yaw and "0.0035 rad/s gyro" in yaw
+    states = next(k for k, line in enumerate(lines) if line.startswith("state error"))
+    assert lines[states + 1].split() == ["whole", "run", "settled", "whole", "run", "(std)"]
+    assert any(line.strip().startswith("(settled: from 5 s after each excitation start") for line in lines)
+    replay = format_metrics(run_metrics(r))
+    states = next(k for k, line in enumerate(replay) if line.startswith("state error"))
+    assert replay[states + 1].split() == ["whole", "run", "after", "5", "s", "whole", "run", "(std)"]
+    assert "whole run" in replay[1]  # the 90% band's share is over the whole run there
 
 
 def test_divergence_restarts_and_overconfidence_are_warned():

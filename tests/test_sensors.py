@@ -205,7 +205,7 @@ def test_check_log_shows_the_noise_and_warns_on_a_3x_disagreement(tmp_path):
     assert summary.noise["sigma_from_data"]["ay"] == pytest.approx(0.2, rel=0.1)
     assert summary.noise["sigma_from_data"]["yaw_rate"] == pytest.approx(0.004, rel=0.1)
     text = summary.format()
-    assert "white noise estimated from the log: ax 0.3" in text and "(vehicle file: 0.05)" in text
+    assert "white noise estimated from the log: ax 0.3" in text and "(vehicle file: 0.05 m/s^2)" in text
     assert any("sigma_ay = 0.05" in w and "0.25 times" in w for w in summary.warnings)
     assert not any("sigma_ax" in w for w in summary.warnings)  # not given: nothing to disagree with
     assert json.loads(json.dumps(summary.to_dict()))["noise"]["sigma_source"]["ay"] == "vehicle file"

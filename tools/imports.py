@@ -21,7 +21,7 @@ PACKAGES = {"tirefilter": ROOT / "src" / "tirefilter", "tirefilter_viewer": ROOT
 
 # Lowest first. A part may import parts of its own layer and of the layers before it.
 LAYERS = (
-    ("__init__", "errors", "config"),  # the version, the errors, the TOML reader
+    ("__init__", "errors", "config", "compiling"),  # the version, the errors, the TOML reader, the compile watch
     ("vehicle", "stats", "vehicle_fmu"),  # the models, the probability machinery, the vehicle FMU's sources
     ("scenarios",),  # what a co-simulation plays (vehicle, tires, inputs, sensors)
     ("estimators",),  # the filters, and the registry that builds one by name

@@ -10,7 +10,8 @@ the two fronts), ax, ay, yaw_rate (IMU at the centre of gravity), vx (GPS/INS re
 the "other logic" that gives v^X to the lateral model), and the references beta_true and
 vy_true (ignored by the reader, kept to compare the sideslip estimate with). `--start` and
 `--end` [s, recording time] cut a stretch. The script also prints the white-noise std of
-the IMU channels (see `noise_std`), the figures in vehicle.toml.
+the IMU channels of the rows written, estimated as `tirefilter check-log` and the replay
+estimate it (`tirefilter.estimators.sensors.noise_from_data`), with their units.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from tirefilter.estimators.sensors import CHANNELS, UNITS, noise_from_data
 from tirefilter.replay import write_log
 
 REPO = Path(__file__).resolve().parents[2]
@@ -58,13 +60,12 @@ def to_log(rec: dict[str, np.ndarray], start: float | None = None, end: float | 
     return {name: rec[source][keep] for name, source in COLUMNS.items()}
 
 
-def noise_std(x: np.ndarray, window: int = 5) -> float:
-    """White-noise std of a signal: the std of its difference to a centred moving average
-    over `window` samples, divided by sqrt(1 - 1/window) (the variance of e - mean(e) over
-    the window for white e). Signal content slower than the window hardly enters."""
-    smooth = np.convolve(x, np.ones(window) / window, mode="same")
-    residual = (x - smooth)[window:-window]
-    return float(np.std(residual) / np.sqrt(1.0 - 1.0 / window))
+def noise_summary(log: dict[str, np.ndarray]) -> str:
+    """The white-noise std of the IMU channels of the Log CSV columns `log`, as check-log
+    and the replay estimate it from the same rows (second differences, held samples
+    dropped: docs/derivations.md, "White noise from the data")."""
+    sigma, _ = noise_from_data(log, "the log")
+    return ", ".join(f"{c} {s:.3g} {u}" for c, s, u in zip(CHANNELS, sigma, UNITS))
 
 
 def main(argv=None) -> int:
@@ -81,13 +82,13 @@ def main(argv=None) -> int:
         return 2
     rec = read_recording(args.data)
     try:
-        out = write_log(args.out, to_log(rec, args.start, args.end))
+        log = to_log(rec, args.start, args.end)
+        out = write_log(args.out, log)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    noise = ", ".join(f"{name} {noise_std(rec[col]):.3g}" for name, col in (("ax", "axCG"), ("ay", "ayCG"),
-                                                                            ("yaw_rate", "yawRate")))
-    print(f"wrote {out}\nwhite-noise std of the whole recording (centred 5-sample moving average): {noise}")
+    print(f"wrote {out}\nwhite noise estimated from the log (as check-log and the replay estimate it): "
+          f"{noise_summary(log)}")
     return 0
 
 

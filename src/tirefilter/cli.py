@@ -11,8 +11,10 @@ from tirefilter import __version__
 from tirefilter.config import read_toml
 from tirefilter.errors import ConfigError, TirefilterError
 
+from tirefilter.compiling import CompileWatch
 from tirefilter.estimators import ESTIMATORS
 from tirefilter.viz.options import DEFAULT_LOG_EVERY
+from tirefilter.viz.units import scale, unit
 
 SENSOR_CHECK_S = 10.0  # s: a co-simulation's sensor noise is checked against its first seconds
 
@@ -25,8 +27,10 @@ def cmd_run(args) -> int:
 
     scenario = load_scenario(args.scenario)
     config = read_toml(args.config) if args.config else {}
-    estimator = build(args.estimator, for_scenario(scenario), model=args.model, particles=args.particles,
-                      config=config)
+    compiling = _compile_watch(args)
+    with compiling:
+        estimator = build(args.estimator, for_scenario(scenario), model=args.model, particles=args.particles,
+                          config=config)
     _init_state(args, estimator)
     out = Path(args.out) if args.out else Path("runs") / scenario.name
     out.mkdir(parents=True, exist_ok=True)
@@ -35,23 +39,24 @@ def cmd_run(args) -> int:
 
     def record() -> dict:  # run.json's fields besides the summary's, once the run is over
         _check_sensors(estimator, results)
-        return dict(command=sys.argv, model=model, fmi_version=args.fmi, **_estimator_record(estimator, config, args))
+        return dict(command=sys.argv, model=model, fmi_version=args.fmi, compile_s=compiling.seconds,
+                    **_estimator_record(estimator, config, args))
 
     summary = _run_and_report(
         lambda: run_scenario(scenario, estimator=estimator, seed=args.seed, fmi_version=args.fmi, results_csv=results,
                              recording=_recording(args), progress=_progress(args), coupling=args.coupling,
                              friction_csv=_friction_csv(estimator, out / "friction.csv"),
                              sinks=[SummaryJson(out / "run.json", record)]),
-        results)
+        results, compiling)
     if summary is None:
         return 1
     print(f"scenario {scenario.name}: {summary.steps} samples over {scenario.duration:g} s "
           f"({summary.communication_steps} FMU steps of {scenario.communication_step:g} s, FMI {args.fmi}.0), "
           f"estimator {summary.estimator}, seed {args.seed}")
-    _print_timing(summary, scenario.duration)
+    _print_timing(summary, scenario.duration, compiling)
     _print_sensors(estimator)
     _print_truth_summary(results)
-    _print_metrics(summary)
+    _print_metrics(summary, estimator)
     print(f"results: {results}\nsummary: {out / 'run.json'}" + (f"\nrecording: {args.rrd}" if args.rrd else "")
           + _streamed(args))
     _print_friction(estimator, out / "friction.csv")
@@ -78,7 +83,9 @@ def cmd_replay(args) -> int:
     config = read_toml(args.config) if args.config else {}
     setting = for_log(vehicle, log.t, log.signals, source=log.path)
     log.release()  # the setting keeps nothing of the log's length: neither does the replay from here on
-    estimator = build(args.estimator, setting, model=args.model, particles=args.particles, config=config)
+    compiling = _compile_watch(args)
+    with compiling:
+        estimator = build(args.estimator, setting, model=args.model, particles=args.particles, config=config)
     _init_state(args, estimator)
     model = getattr(getattr(estimator, "cfg", None), "model", None) or resolve_model(args.model, log.available)
     summary = _run_and_report(
@@ -86,9 +93,10 @@ def cmd_replay(args) -> int:
                            progress=_progress(args), vehicle_file=args.vehicle,
                            friction_csv=_friction_csv(estimator, _friction_name(results)),
                            sinks=[SummaryJson(summary_json, lambda: dict(command=sys.argv, model=model,
+                                                                         compile_s=compiling.seconds,
                                                                          **_estimator_record(estimator, config,
                                                                                              args)))]),
-        results)
+        results, compiling)
     if summary is None:
         return 1
     rate = (log.rows - 1) / log.duration if log.duration > 0 else float("nan")
@@ -96,18 +104,19 @@ def cmd_replay(args) -> int:
           f"estimator {summary.estimator}" + (f" ({model} model, N = {estimator.cfg.particles})"
                                               if hasattr(getattr(estimator, "cfg", None), "particles") else "")
           + f", seed {args.seed}")
-    _print_timing(summary, log.duration)
+    _print_timing(summary, log.duration, compiling)
     _print_sensors(estimator)
     q = estimator.state_noise_estimated() if callable(getattr(estimator, "state_noise_estimated", None)) else None
     if q:
-        print("state process noise (std per sqrt(s)), estimated from the log at its end: "
-              + ", ".join(f"{n} {v:.3g}" for n, v in q.items()) + " [m/s, rad/s] (docs/derivations.md, 'State noise from the data')")
+        print("state process noise (std), estimated from the log at its end: "
+              + ", ".join(f"{n} {v:.3g} {unit(n)}/sqrt(s)" for n, v in q.items())
+              + " (docs/derivations.md, 'State noise from the data')")
     final = summary.final or {}
-    estimates = [f"{p} {final[p]:.4g} +- {final[p + '_std']:.2g}" for p in ("Cf_y", "Cr_y", "Cx")
-                 if final.get(p) is not None and final.get(p + "_std") is not None]
+    estimates = [f"{p} {final[p] * scale(p):.4g} +- {final[p + '_std'] * scale(p):.2g} {unit(p)}"
+                 for p in ("Cf_y", "Cr_y", "Cx") if final.get(p) is not None and final.get(p + "_std") is not None]
     if estimates:
         print(f"final stiffness at t = {final['t']:g} s: {', '.join(estimates)} (mean +- posterior std of the mean)")
-    _print_metrics(summary)
+    _print_metrics(summary, estimator)
     print(f"results: {results}\nsummary: {summary_json}" + (f"\nrecording: {args.rrd}" if args.rrd else "")
           + _streamed(args))
     _print_friction(estimator, _friction_name(results))
@@ -191,8 +200,21 @@ def _print_friction(estimator, path: Path) -> None:
              else ""))
 
 
-def _progress(args) -> bool:
-    return sys.stderr.isatty() and not args.quiet
+def _progress(args) -> bool | str:
+    """The progress of a run on stderr: a bar on a terminal, a line every few seconds
+    otherwise ("lines": a log, CI), none with --quiet."""
+    if args.quiet:
+        return False
+    return True if sys.stderr.isatty() else "lines"
+
+
+def _compile_watch(args) -> CompileWatch:
+    """The watch on the numba kernels' one-time compile: announced on stderr (unless
+    --quiet) when it starts, its time printed apart from the run's."""
+    def announce(text: str) -> None:
+        print(("\n" if sys.stderr.isatty() else "") + text, file=sys.stderr, flush=True)
+
+    return CompileWatch(None if args.quiet else announce)
 
 
 def _estimator_record(estimator, config: dict, args) -> dict:
@@ -222,14 +244,18 @@ def _check_sensors(estimator, results: Path) -> None:
     estimator.sensors = checked_against(estimator.sensors, signals, f"the first {SENSOR_CHECK_S:g} s")
 
 
-def _run_and_report(run, results: Path):
+def _run_and_report(run, results: Path, compiling: CompileWatch):
     """`run()` -> (summary, rows), whose sinks write the run summary JSON whether the run
-    succeeds, fails (status "failed") or is interrupted. Returns the summary, None on a
-    failure (said on stderr)."""
+    succeeds, fails (status "failed") or is interrupted, under the watch on the kernels'
+    compile (`compiling`: its seconds inside the run go to `summary.compile_s`). Returns the
+    summary, None on a failure (said on stderr)."""
     from tirefilter.runs import Interrupted
 
     try:
-        summary, _ = run()
+        before = compiling.seconds
+        with compiling:
+            summary, _ = run()
+        summary.compile_s = compiling.seconds - before  # of the run's wall time
     except Interrupted as exc:
         summary = getattr(exc, "summary", None)
         at = f" at t = {summary.t_reached:g} s" if summary is not None and summary.t_reached is not None else ""
@@ -242,8 +268,14 @@ def _run_and_report(run, results: Path):
     return summary
 
 
-def _print_timing(summary, duration: float) -> None:
-    print(f"wall time {summary.wall_time_s:.2f} s ({duration / summary.wall_time_s:.0f}x real time)"
+def _print_timing(summary, duration: float, compiling: CompileWatch) -> None:
+    """The one-time compile of the kernels (if this run compiled them) on its own line; the
+    wall time of the run without it, its real-time factor and the median step."""
+    if compiling.kernels:
+        print(f"compile {compiling.seconds:.1f} s: the estimator's numba kernels ({compiling.kernels}), once for "
+              "this code on this machine (cached for later runs; not in the wall time below)")
+    wall = max(summary.wall_time_s - getattr(summary, "compile_s", 0.0), 1e-9)
+    print(f"wall time {wall:.2f} s ({duration / wall:.0f}x real time)"
           + (f", median step {summary.median_step_us:.1f} us" if summary.median_step_us else ""))
 
 
@@ -258,8 +290,9 @@ def _print_truth_summary(results: Path) -> None:
     from tirefilter.io.results import iter_results
 
     rows = [("speed vx [m/s]", "true_vx"), ("lateral acc. ay [m/s^2]", "true_ay"), ("yaw rate [rad/s]", "true_yaw_rate"),
-            ("slip angle front [rad]", "true_alpha_f"), ("wheel slip front [-]", "true_lambda_f"),
-            ("Cf_y surface mean [N/rad]", "true_Cf_y_mean"), ("Cr_y surface mean [N/rad]", "true_Cr_y_mean")]
+            ("slip angle front [deg]", "true_alpha_f"), ("wheel slip front [-]", "true_lambda_f"),
+            (f"Cf_y surface mean [{unit('Cf_y')}]", "true_Cf_y_mean"),
+            (f"Cr_y surface mean [{unit('Cr_y')}]", "true_Cr_y_mean")]
     lo, hi, total, n = {}, {}, {}, 0
     # chunk by chunk: a long run's table is not loaded whole; only the columns printed are parsed
     for r in iter_results(results, columns=["t", *(col for _, col in rows)]):
@@ -271,15 +304,19 @@ def _print_truth_summary(results: Path) -> None:
             total[col] = total.get(col, 0.0) + float(np.sum(x))
     print(f"{'truth':28s}{'min':>12s}{'mean':>12s}{'max':>12s}")
     for label, col in rows:
-        print(f"{label:28s}{lo[col]:12.4g}{total[col] / n:12.4g}{hi[col]:12.4g}")
+        k = scale(col)  # as the recording shows it: kN/rad, deg (viz/units.py)
+        print(f"{label:28s}{k * lo[col]:12.4g}{k * total[col] / n:12.4g}{k * hi[col]:12.4g}")
 
 
-def _print_metrics(summary) -> None:
-    """The accuracy and health lines of `metrics.format_metrics` (run.json `metrics`)."""
+def _print_metrics(summary, estimator) -> None:
+    """The accuracy and health lines of `metrics.format_metrics` (run.json `metrics`), the
+    yaw rate's error beside the gyro's white noise the estimator assumes."""
     from tirefilter.metrics import format_metrics
 
+    sensors = getattr(estimator, "sensors", None)
+    noise = {"yaw_rate": (float(sensors.sigma[2]), "gyro")} if sensors is not None else None
     if summary.metrics:
-        print("\n".join(format_metrics(summary.metrics)))
+        print("\n".join(format_metrics(summary.metrics, noise)))
 
 
 def cmd_scenarios(args) -> int:
@@ -536,7 +573,8 @@ def _output_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--log-every", type=int, default=DEFAULT_LOG_EVERY, metavar="K",
                    help="log particle clouds, posterior densities and friction curves every K estimator steps "
                    f"(series every step; default {DEFAULT_LOG_EVERY})")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--quiet", action="store_true",
+                   help="no progress (a bar on a terminal, else a line every 5 s) and no compile notice on stderr")
 
 
 def main(argv=None) -> int:

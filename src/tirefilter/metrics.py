@@ -57,6 +57,7 @@ Z90 = 1.6448536269514722  # the 90% interval of the coverage (docs/usage.md): es
 CX_EXCITED = 0.5  # a run whose excitation weight of Cx (derivations, "The undriven axle") stays below this: "not excited"
 DIVERGED_VY = 1.0  # m/s: |v^Y - reference| beyond this is a diverged state ...
 DIVERGED_BETA = 0.1  # rad: ... or |beta - reference| beyond this, where v^Y has no reference
+STARTUP_S = 5.0  # s: without a schedule (a replay) the states' settled RMSE leaves out the first seconds
 
 
 def run_metrics(r: dict, schedule=None, *, restarts: int | None = None, resamples: int | None = None,
@@ -71,7 +72,9 @@ def run_metrics(r: dict, schedule=None, *, restarts: int | None = None, resample
       e.g. a replay), the final error, the coverage of the 90% interval estimate
       +- 1.645 `*_std` (whole run and settled window; about 0.9 when calibrated) and the
       settling time after each surface change;
-    - state RMSE of v^Y, beta, yaw rate, v^X against `true_<s>` or a log's `<s>_true`;
+    - state RMSE of v^Y, beta, yaw rate, v^X against `true_<s>` or a log's `<s>_true`, over
+      the whole run (`rmse`) and settled (`settled_rmse`: over the schedule's settled windows,
+      or without a schedule from STARTUP_S after the first sample; `state_settled` says which);
     - diverged samples: |v^Y error| > DIVERGED_VY (else |beta error| > DIVERGED_BETA), with
       their time windows;
     - restarts and resamples (the estimator's counters, None where it has none), the share
@@ -207,11 +210,12 @@ class _StateAgainst:
         self.s, self.ref = s, ref
         self.ref_finite = False
         self.sq, self.n, self.max = 0.0, 0, -np.inf
+        self.sq_settled, self.n_settled = 0.0, 0
         self.bad, self.max_e = 0, None  # divergence: samples beyond the threshold, nanmax of |e|
         self.any_ok = False
         self.bad_runs = _Runs()
 
-    def add(self, c: dict, t: np.ndarray, limit: float | None) -> None:
+    def add(self, c: dict, t: np.ndarray, limit: float | None, settled: np.ndarray) -> None:
         truth = c[self.ref]
         self.ref_finite |= bool(np.isfinite(truth).any())
         e = c[self.s] - truth
@@ -221,6 +225,9 @@ class _StateAgainst:
             self.sq += float(np.sum(eo ** 2))
             self.n += eo.size
             self.max = max(self.max, float(np.max(np.abs(eo))))
+            es = e[ok & settled]
+            self.sq_settled += float(np.sum(es ** 2))
+            self.n_settled += es.size
         if limit is not None:
             a = np.abs(e)
             bad = np.nan_to_num(a, nan=0.0) > limit
@@ -248,7 +255,7 @@ class RunMetrics:
             raise ValueError("RunMetrics needs the column t")
         self.schedule = schedule
         self.n = 0
-        self.t_last = None
+        self.t_first = self.t_last = None
         self.settled_runs = _Runs() if schedule is not None else None
         self.active = _Sum() if "active" in cols else None
         self.stiffness: dict[str, list[_StiffnessAgainst]] = {}
@@ -275,10 +282,13 @@ class RunMetrics:
         if not t.size:
             return
         self.n += t.size
+        if self.t_first is None:
+            self.t_first = float(t[0])
         self.t_last = float(t[-1])
         settled = steady_state_mask(t, self.schedule) if self.schedule is not None else None
         if settled is not None:
             self.settled_runs.add(settled, t)
+        state_settled = settled if settled is not None else t >= self.t_first + STARTUP_S
         for p, cands in self.stiffness.items():
             self.est_finite[p] |= bool(np.isfinite(c[p]).any())
             for a in cands:
@@ -287,7 +297,7 @@ class RunMetrics:
                 st.add(t, c[p], c[f"true_{p}_mean"])
         for s, cands in self.states.items():
             for a in cands:
-                a.add(c, t, self._limits.get(s))
+                a.add(c, t, self._limits.get(s), state_settled)
         if self.active is not None:
             self.active.add(c["active"])
 
@@ -328,8 +338,10 @@ class RunMetrics:
                 continue
             a = chosen[s] = cands[0]
             if a.n:
-                out["state"][s] = {"reference": a.ref, "rmse": float(np.sqrt(a.sq / a.n)), "max_abs": a.max,
-                                   "unit": unit}
+                out["state"][s] = {"reference": a.ref, "rmse": float(np.sqrt(a.sq / a.n)),
+                                   "settled_rmse": float(np.sqrt(a.sq_settled / a.n_settled)) if a.n_settled else None,
+                                   "max_abs": a.max, "unit": unit}
+        out["state_settled"] = "settled windows" if sched is not None else f"after {STARTUP_S:g} s"
         out["diverged"] = None
         for s, limit, unit in (("vy", DIVERGED_VY, "m/s"), ("beta", DIVERGED_BETA, "rad")):
             if s in chosen:
@@ -349,9 +361,10 @@ def _finish(out: dict, warnings: list[str], restarts, resamples, gate_open_share
     if out["diverged"] is not None and out["diverged"]["samples"]:
         d = out["diverged"]
         spans = ", ".join(f"{a:g}-{b:g} s" for a, b in d["windows"][:3]) + (", ..." if len(d["windows"]) > 3 else "")
-        largest = "inf" if d["max_abs"] is None else f"{d['max_abs']:.3g}"  # (None: no finite error, all infinite)
+        k, unit = _shown(d["signal"], d["unit"])
+        largest = "inf" if d["max_abs"] is None else f"{k * d['max_abs']:.3g}"  # (None: no finite error, all infinite)
         warnings.append(f"state diverged at {d['samples']} samples ({spans}): |{d['signal']} error| up to "
-                        f"{largest} {d['unit']} (threshold {d['threshold']:g})")
+                        f"{largest} {unit} (threshold {k * d['threshold']:.3g}" + (f" {unit})" if k != 1 else ")"))
     out["restarts"] = None if restarts is None else int(restarts)
     out["resamples"] = None if resamples is None else int(resamples)
     if restarts:
@@ -374,25 +387,56 @@ def _signed_pct(x) -> str:
     return "n/a" if x is None else f"{x:+.2f} %"
 
 
-def format_metrics(m: dict) -> list[str]:
-    """The lines of the printed run summary: per stiffness parameter the mean absolute and
-    settled errors, the final error and the coverage; the state RMSE; restarts, resamples,
-    the gate; then the warnings, each on a line starting with `warning:`."""
+def _shown(state: str, unit: str) -> tuple[float, str]:
+    """Factor and unit a state's figures are printed in: the sideslip in degrees (as the
+    recording shows it, viz/units.py), the rest in their SI unit."""
+    return (180.0 / np.pi, "deg") if unit == "rad" else (1.0, unit)
+
+
+def _with_unit(x, k: float, unit: str) -> str:
+    return "-" if x is None else f"{k * x:.3g} {unit}"
+
+
+def format_metrics(m: dict, sensor_noise: dict | None = None) -> list[str]:
+    """The lines of the printed run summary, each column headed by what it is and the
+    window it covers: per stiffness parameter the mean absolute error over the whole run
+    and over the settled windows, the error at the end, how often the 90% band held the
+    reference; per state the RMSE over the whole run and settled (the schedule's settled
+    windows, or after the start-up of a replay), the largest error, and the white-noise std
+    of the sensor that measures it (`sensor_noise`: state -> (std in the state's unit, the
+    sensor's name), e.g. the gyro for the yaw rate); restarts, resamples, the gate; then the
+    warnings, each on a line starting with `warning:`. The sideslip is printed in degrees."""
     lines = []
+    scheduled = m.get("settled_windows") is not None
+    settled = "settled" if scheduled else m.get("state_settled") or "settled"
     if m["stiffness"]:
-        lines.append(f"{'stiffness error':16s}{'mean |err|':>12s}{'settled':>12s}{'final':>10s}"
-                     f"{'coverage90':>12s}  reference")
+        cov_window = "settled" if any("settled_coverage90" in s for s in m["stiffness"].values()) else "whole run"
+        lines.append(f"{'stiffness error':16s}{'mean |err|':>12s}{'mean |err|':>12s}{'error':>10s}"
+                     f"{'truth in the':>19s}  reference")
+        lines.append(f"{'':16s}{'whole run':>12s}{'settled':>12s}{'at end':>10s}"
+                     f"{'90% band, ' + cov_window:>19s}")
         for p, s in m["stiffness"].items():
             cov = s.get("settled_coverage90", s["coverage90"])
             lines.append(f"{p:16s}{_pct(s['mean_abs_pct']):>12s}{_pct(s.get('settled_mean_abs_pct')):>12s}"
                          f"{_signed_pct(s['final_pct']):>10s}"
-                         f"{('n/a' if cov is None else f'{100 * cov:.0f} %'):>12s}  {s['reference']}")
-        if m.get("settled_windows") is not None:
-            w = ", ".join(f"{a:g}-{b:g} s" for a, b in m["settled_windows"]) or "none"
-            lines.append(f"  (settled: 5 s after each excitation start / surface change: {w}; "
-                         "coverage: reference inside estimate +- 1.645 std)")
-    for s, v in m["state"].items():
-        lines.append(f"{s} RMSE {v['rmse']:.4g} {v['unit']} (max |err| {v['max_abs']:.3g}) against {v['reference']}")
+                         f"{('n/a' if cov is None else f'{100 * cov:.0f} %'):>19s}  {s['reference']}")
+    if m["state"]:
+        noise = sensor_noise or {}
+        lines.append(f"{'state error':16s}{'RMSE':>15s}{'RMSE':>15s}{'max |err|':>15s}{'sensor noise':>20s}  reference")
+        lines.append(f"{'':16s}{'whole run':>15s}{settled:>15s}{'whole run':>15s}{'(std)':>20s}")
+        for s, v in m["state"].items():
+            k, unit = _shown(s, v["unit"])
+            sensor = noise.get(s)
+            sensor = "-" if sensor is None else f"{_with_unit(sensor[0], k, unit)} {sensor[1]}"
+            rmse, settled_rmse = _with_unit(v["rmse"], k, unit), _with_unit(v.get("settled_rmse"), k, unit)
+            lines.append(f"{s:16s}{rmse:>15s}{settled_rmse:>15s}{_with_unit(v['max_abs'], k, unit):>15s}{sensor:>20s}"
+                         f"  {v['reference']}")
+    if scheduled and (m["stiffness"] or m["state"]):
+        w = ", ".join(f"{a:g}-{b:g} s" for a, b in m["settled_windows"]) or "none"
+        lines.append(f"  (settled: from 5 s after each excitation start / surface change: {w}; "
+                     "90% band: estimate +- 1.645 std)")
+    elif m["state"] and m.get("state_settled"):
+        lines.append(f"  ({m['state_settled']}: from {STARTUP_S:g} s after the first sample, the start-up left out)")
     counts = [f"restarts {m['restarts']}" if m.get("restarts") is not None else None,
               f"resamples {m['resamples']}" if m.get("resamples") is not None else None,
               f"learning gate open {100 * m['gate_open_share']:.0f} % of the time"

@@ -294,13 +294,14 @@ def run(samples, stepper: Run, summary: StepSummary, *, rng: np.random.Generator
 
 def output_sinks(columns: tuple[str, ...], estimator, *, results_csv: str | Path | None = None,
                  rrd: str | Path | None = None, recording=None, context=None, friction_csv: str | Path | None = None,
-                 friction_truth=None, metrics: bool = True, schedule=None, progress: bool = False,
+                 friction_truth=None, metrics: bool = True, schedule=None, progress: bool | str = False,
                  total: int = 0) -> list:
     """The sinks of a run of the command line, in this order: the Rerun recording
     (`recording`, viz.options.RecordingOptions, or a file-only `rrd`; `context` what it draws
     besides the rows), the Result CSV, the friction CSV of a friction estimator (with
     `friction_truth(alpha, surface)` its truth columns), the run's metrics (`metrics`;
-    scored against the `schedule`'s settled windows), the progress bar over `total` rows."""
+    scored against the `schedule`'s settled windows), the progress over `total` rows
+    (`Progress`: True a bar, "lines" a line every few seconds)."""
     from tirefilter.io.friction import FrictionWriter, is_friction_estimator
     from tirefilter.io.results import ResultWriter
     from tirefilter.viz.options import recording_options
@@ -404,12 +405,16 @@ class Metrics:
 
 
 class Progress:
-    """A percentage bar on stderr over `total` rows (only when enabled, i.e. on a terminal)."""
+    """The run's progress on stderr over `total` rows: a percentage bar redrawn in place
+    (`enabled` True: a terminal), or a line every LINE_EVERY_S seconds (`enabled` "lines":
+    a log file or CI, where a bar redrawn in place is one endless line); nothing when off."""
 
     EVERY = 256  # rows
+    LINE_EVERY_S = 5.0  # s between two progress lines
 
-    def __init__(self, total: int, enabled: bool):
+    def __init__(self, total: int, enabled: bool | str):
         self.total, self.enabled, self._last, self.rows = total, enabled, -1, 0
+        self._t0 = self._line_at = time.perf_counter()
 
     def write(self, row) -> None:
         if self.rows % self.EVERY == 0:
@@ -420,6 +425,13 @@ class Progress:
         if not self.enabled:
             return
         pct = int(100 * k / max(self.total, 1))
+        if self.enabled == "lines":
+            now = time.perf_counter()
+            if now - self._line_at >= self.LINE_EVERY_S:
+                self._line_at = now
+                sys.stderr.write(f"progress: {pct}% ({k} of {self.total} rows) after {now - self._t0:.0f} s\n")
+                sys.stderr.flush()
+            return
         if pct != self._last:
             self._last = pct
             bar = "#" * (pct // 4)
@@ -427,7 +439,7 @@ class Progress:
             sys.stderr.flush()
 
     def close(self) -> None:
-        if self.enabled:
+        if self.enabled is True:
             sys.stderr.write("\n")
 
 

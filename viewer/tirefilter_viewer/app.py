@@ -23,24 +23,49 @@ import numpy as np
 
 from tirefilter_viewer.history import History
 from tirefilter_viewer.session import LiveRun, Settings, open_result
-from tirefilter_viewer.views import (CLOUD_SCALE, CLOUD_SERIES, DENSITY_SERIES, FRICTION_BANDS, FRICTION_SERIES,
-                                     STIFFNESS, TABS, UNITS, Chart, axes, charts, cloud_positions, cloud_scatter,
-                                     density_data, friction_data, friction_from_csv, friction_truth,
-                                     particle_stiffness, placeholder, truth_position, weight_colors, y_range)
+from tirefilter_viewer.views import (AXIS_SIZE, FRICTION_BANDS, FRICTION_SERIES, PADDING, PATH_SERIES, STIFFNESS, TABS,
+                                     UNITS, Chart, axes, charts, cloud_scatter, cloud_series, density_data,
+                                     density_series, equal_axes, friction_data, friction_from_csv, friction_truth,
+                                     particle_stiffness, path_data, placeholder, tab_notes, y_range)
 
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8080
 PUBLISH_HZ = 30.0  # the most view updates per second
 POSTERIOR_HZ = 4.0  # the most updates per second of the densities and the 2-D clouds (eq. (26) costs)
 SPEEDS = ("0.1x", "0.25x", "0.5x", "1x", "2x", "5x", "10x", "max")
-PATH_BOX = 10.0  # scene units the vehicle path is scaled into
-PATH_CENTRE = (0.8 * CLOUD_SCALE, 3.2 * CLOUD_SCALE, 0.0)  # beyond the cloud: the scene is a tall column
-# The page at 1600 x 1000: the charts panel on the left (the main part), the 3-D scene in the
-# middle, the controls docked on the right, compact.
-CHARTS_WIDTH = 1000  # px
+# The page at 1600 x 1000: the charts panel docked left takes all the width the controls
+# docked right leave, but for the strip of about 120 px that viser keeps for its 3-D canvas
+# (it squeezes the controls to keep it); the dashboard draws nothing there.
+CHARTS_WIDTH = 1190  # px
 CONTROLS_WIDTH = 280  # px
-# px per chart, by tab: each tab fits the page's height without scrolling
-CHART_HEIGHT = {"stiffness": 240, "state, bias": 170, "densities": 235, "particles": 370, "friction": 370}
+# px per chart, by tab: each tab fits the page's height without scrolling, with its note
+CHART_HEIGHT = {"stiffness": 240, "state": 240, "bias, ESS": 215, "densities": 235, "particles": 370, "path": 800,
+                "friction": 370}
+# Two fixes of viser 1.1's page, run in the browser. (1) Its text inputs (Log CSV, Vehicle TOML,
+# Result CSV) render their label without tying it to the input (the label's `for` names an id the
+# input does not have), so a screen reader and `get_by_label` find no name for them: each unnamed
+# input gets the label beside it (aria-labelledby), whenever the page changes. (2) A chart that
+# mounts before its panel has its width can keep the width it measured then (about 50 px) inside a
+# panel 1190 px wide: a chart narrower than its box gets its box resized by a pixel and back, which
+# makes it measure again. It runs from an image that fails to load (an empty data: URL), as a viser
+# HTML element runs no <script>.
+PAGE_FIXES = """<img alt="" src="data:," style="display:none" onerror="(() => {
+  const name = () => document.querySelectorAll('label[for]').forEach((label) => {
+    const row = label.closest('.mantine-Flex-root');
+    const input = row && row.querySelector('input:not([type=hidden]), textarea');
+    if (!input || input.labels.length || input.getAttribute('aria-labelledby')) return;
+    if (!label.id) label.id = 'label-' + label.htmlFor;
+    input.setAttribute('aria-labelledby', label.id);
+  });
+  name();
+  new MutationObserver(name).observe(document.body, {childList: true, subtree: true});
+  setInterval(() => document.querySelectorAll('.uplot-container').forEach((box) => {
+    const plot = box.querySelector('.uplot');
+    if (!plot || box.clientWidth < 100 || box.clientWidth - plot.offsetWidth < 30) return;
+    box.style.width = (box.clientWidth - 1) + 'px';
+    requestAnimationFrame(() => requestAnimationFrame(() => { box.style.width = ''; }));
+  }), 300);
+})()">"""
 
 
 def friction_files(results_csv) -> list[Path]:
@@ -91,7 +116,6 @@ class Dashboard:
         self._posterior_shown = -math.inf  # perf_counter of the last density / 2-D cloud update
         self._metrics = ""  # metrics.metrics_line of a finished run or an opened Result CSV
         self._build_gui(speed)
-        self._build_scene()
         self._quit = threading.Event()
         self._worker = threading.Thread(target=self._work, name="tirefilter-dashboard", daemon=True)
         self._worker.start()
@@ -143,6 +167,7 @@ class Dashboard:
         gui.main_panel.set_width(CONTROLS_WIDTH)
         s = self.settings
         gui.add_markdown("**tirefilter** — tire stiffness and friction estimation, live")
+        gui.add_html(PAGE_FIXES)
         with gui.add_folder("Run"):
             self._start = gui.add_button("Start", hint="start a new run, or resume a paused one")
             self._pause = gui.add_button("Pause")
@@ -181,42 +206,55 @@ class Dashboard:
         self._build_charts()
 
     def _build_charts(self) -> None:
-        """The charts panel, docked left: one tab per group of charts (views.TABS)."""
+        """The charts panel, docked left: one tab per group of charts (views.TABS), each tab
+        headed by a note that says why it shows nothing, when it does not (`views.tab_notes`)."""
         gui = self.server.gui
         self._panel = gui.add_panel()
+        self._panel.dock_left()  # placed and sized before its charts: a chart sizes itself to the panel
+        self._panel.set_width(CHARTS_WIDTH)  # when it mounts (one that mounted first could stay 50 px wide)
         tabs = {name: self._panel.add_tab(name) for name in TABS}
+        self._notes = {}
+        for name, tab in tabs.items():
+            with tab:
+                self._notes[name] = gui.add_markdown("", visible=False)
         self._charts: list[tuple[Chart, object]] = []
         self._ranges: dict[int, tuple[float, float]] = {}  # id(handle) -> the y range it shows
         for chart in charts():
             with tabs[chart.tab]:
                 handle = gui.add_uplot(placeholder(len(chart.series)), chart.uplot_series(), title=chart.title,
                                        bands=chart.uplot_bands() or None, scales=self._scales(chart.uplot_scales()),
-                                       axes=chart.uplot_axes(), height=CHART_HEIGHT[chart.tab])
+                                       axes=chart.uplot_axes(), height=CHART_HEIGHT[chart.tab], padding=PADDING)
             self._charts.append((chart, handle))
         self._densities = {}
         self._clouds = {}
         with tabs["densities"]:
             for p in STIFFNESS:
                 self._densities[p] = gui.add_uplot(
-                    placeholder(len(DENSITY_SERIES) - 1), DENSITY_SERIES, axes=axes(f"{p} [{UNITS[p]}]", "density"),
+                    placeholder(2), density_series(p), axes=axes(f"{p} [{UNITS[p]}]", f"density [1/({UNITS[p]})]"),
                     title=f"posterior density of {p} (eq. (26)), true surface mean", height=CHART_HEIGHT["densities"],
-                    scales=self._scales({"x": {"time": False}}))
+                    scales=self._scales({"x": {"time": False}}), padding=PADDING, visible=False)
         with tabs["particles"]:
             for x, y in (("Cf_y", "Cr_y"), ("Cf_y", "Cx")):
                 self._clouds[(x, y)] = gui.add_uplot(
-                    placeholder(len(CLOUD_SERIES) - 1), CLOUD_SERIES, axes=axes(f"{x} [{UNITS[x]}]", f"{y} [{UNITS[y]}]"),
+                    placeholder(3), cloud_series(x, y), axes=axes(f"{x} [{UNITS[x]}]", f"{y} [{UNITS[y]}]"),
                     title=f"particle cloud: stiffness mean per particle, {y} against {x}",
-                    height=CHART_HEIGHT["particles"], scales=self._scales({"x": {"time": False}}))
+                    height=CHART_HEIGHT["particles"], scales=self._scales({"x": {"time": False}}), padding=PADDING,
+                    visible=False)
+        with tabs["path"]:
+            self._path = gui.add_uplot(placeholder(len(PATH_SERIES) - 1), PATH_SERIES, axes=axes("x [m]", "y [m]"),
+                                       title="vehicle path seen from above (truth, else dead-reckoned), equal scales",
+                                       height=CHART_HEIGHT["path"], scales=self._scales({"x": {"time": False}}),
+                                       padding=PADDING, visible=False)
         self._friction = {}
         with tabs["friction"]:
             for axle, name in (("f", "front"), ("r", "rear")):
                 self._friction[axle] = gui.add_uplot(placeholder(len(FRICTION_SERIES) - 1), FRICTION_SERIES,
                                                      title=f"friction mu(alpha), {name} axle: estimate, 90% band, truth",
                                                      bands=FRICTION_BANDS, scales=self._scales({"x": {"time": False}}),
-                                                     axes=axes("alpha [deg]", "mu [-]"),
+                                                     axes=axes("alpha [deg]", "mu [-]"), padding=PADDING,
                                                      height=CHART_HEIGHT["friction"], visible=False)
-        self._panel.dock_left()
-        self._panel.set_width(CHARTS_WIDTH)
+        self._posterior_shown_in = {"densities": False, "particles": False}  # what the run's posterior gave
+        self._publish_notes()
 
     @staticmethod
     def _scales(base: dict, y: tuple[float, float] = (0.0, 1.0), x: tuple[float, float] = (0.0, 1.0)) -> dict:
@@ -235,32 +273,6 @@ class Dashboard:
             self._ranges[id(handle)] = rng
             handle.scales = self._scales(base_scales, rng[1], rng[0])
         handle.data = data
-
-    def _build_scene(self) -> None:
-        scene = self.server.scene
-        top = 1.6 * CLOUD_SCALE
-        axes = np.array([[[0, 0, 0], [top, 0, 0]], [[0, 0, 0], [0, top, 0]], [[0, 0, 0], [0, 0, top]]], float)
-        colors = np.array([[[200, 60, 60]] * 2, [[60, 160, 60]] * 2, [[60, 60, 200]] * 2], np.uint8)
-        scene.add_line_segments("/cloud/axes", axes, colors, thickness=0.03)
-        for p, end in zip(STIFFNESS, axes[:, 1]):
-            scene.add_label(f"/cloud/label_{p}", f"{p} / nominal", position=tuple(end))
-        ticks = np.array([[[CLOUD_SCALE * v, 0, 0], [CLOUD_SCALE * v, -0.15, 0]] for v in (0.5, 1.0, 1.5)]
-                         + [[[0, CLOUD_SCALE * v, 0], [-0.15, CLOUD_SCALE * v, 0]] for v in (0.5, 1.0, 1.5)], float)
-        scene.add_grid("/cloud/grid", width=1.6 * CLOUD_SCALE, height=1.6 * CLOUD_SCALE, cell_size=0.1 * CLOUD_SCALE,
-                       section_size=0.5 * CLOUD_SCALE, position=(0.8 * CLOUD_SCALE, 0.8 * CLOUD_SCALE, 0.0))
-        scene.add_line_segments("/cloud/ticks", ticks, (90, 90, 90), thickness=0.02)
-        scene.add_label("/cloud/label_one", "1.0", position=(CLOUD_SCALE, -0.3, 0))
-        self._cloud = scene.add_point_cloud("/cloud/particles", np.zeros((1, 3)), np.zeros((1, 3), np.uint8),
-                                            point_size=0.12, point_shape="circle", visible=False)
-        self._truth = scene.add_box("/cloud/truth", color=(214, 39, 40), dimensions=(0.3, 0.3, 0.3), visible=False)
-        scene.add_label("/vehicle/label", "vehicle path (top view)",
-                        position=(PATH_CENTRE[0] - PATH_BOX / 2, PATH_CENTRE[1] - PATH_BOX / 2 - 0.5, 0))
-        self._path = scene.add_line_segments("/vehicle/path", np.zeros((1, 2, 3)), (40, 40, 40), thickness=0.04,
-                                             visible=False)
-        self._car = scene.add_box("/vehicle/car", color=(31, 119, 180), dimensions=(0.7, 0.3, 0.2), visible=False)
-        self.server.initial_camera.position = (0.8 * CLOUD_SCALE, -2.2 * CLOUD_SCALE, 4.2 * CLOUD_SCALE)
-        self.server.initial_camera.look_at = (0.8 * CLOUD_SCALE, 1.9 * CLOUD_SCALE, 0.0)
-        self.server.initial_camera.up = (0.0, 0.0, 1.0)
 
     def _settings(self) -> Settings:
         return Settings(source=self._source.value, scenario=self._scenario.value, log=self._log.value.strip(),
@@ -432,23 +444,22 @@ class Dashboard:
 
     # -- the views -------------------------------------------------------------------------------
     def _clear_views(self) -> None:
-        """Empty charts and scene: what a new run (or a run that could not start) begins from."""
+        """Empty charts: what a new run (or a run that could not start) begins from."""
         self._history = None
         self._result_friction = None
         self._source_label = ""
+        self._posterior_shown_in = {"densities": False, "particles": False}
         with self.server.atomic():
             for chart, handle in self._charts:
                 if self._ranges.pop(id(handle), None) is not None:
                     handle.scales = self._scales(chart.uplot_scales())
                     handle.data = placeholder(len(chart.series))
-            for handle in self._friction.values():
+            for handle in (*self._friction.values(), *self._densities.values(), *self._clouds.values(), self._path):
                 handle.visible = False
-            for handle in (*self._densities.values(), *self._clouds.values()):
                 if self._ranges.pop(id(handle), None) is not None:
                     handle.data = placeholder(len(handle.series) - 1)
             self._metrics = ""
-            for node in (self._cloud, self._truth, self._path, self._car):
-                node.visible = False
+            self._publish_notes()
 
     def _publish(self) -> None:
         now = time.perf_counter()
@@ -466,40 +477,57 @@ class Dashboard:
                     if visible:
                         self._set_data(handle, chart.data(h, idx), chart.y_series(), chart.uplot_scales(), x_range,
                                        chart.min_span)
-                self._publish_pose(h, idx)
+                self._publish_path(h, idx)
             self._publish_cloud(h)
             self._publish_friction(h)
+            self._publish_notes()
             self._publish_times.append(now)
             self.updates += 1
             self._finished_unshown = False
             self._status.content = self._status_text()
 
+    def _publish_notes(self) -> None:
+        """Each tab's note: why it shows nothing (`views.tab_notes`), hidden where it shows
+        what it should."""
+        h = self._history
+        if h is None or not h.rows:
+            source = "none" if self._run is None and h is None else "run"
+            notes = tab_notes(source, None) if source == "none" else {}
+        else:
+            source = "run" if self._run is not None else "result"
+            est = self._run.estimator if self._run is not None else None
+            notes = tab_notes(source, self._run.name if self._run is not None else None,
+                              densities=self._posterior_shown_in["densities"],
+                              particles=self._posterior_shown_in["particles"],
+                              friction=callable(getattr(est, "friction", None)) or self._result_friction is not None,
+                              bias=_bias_estimated(est, h), cx=h.has_values("Cx"))
+            if source == "run" and est is not None and h.rows < 2:  # the posterior is not drawn yet: no verdict
+                notes.pop("densities", None), notes.pop("particles", None)
+        for tab, handle in self._notes.items():
+            text = notes.get(tab, "")
+            if handle.content != text:
+                handle.content = text
+            if handle.visible != bool(text):
+                handle.visible = bool(text)
+
     def _publish_cloud(self, h: History | None) -> None:
+        """The posterior tabs (at most POSTERIOR_HZ times a second): the densities and the
+        particle clouds of the run's estimator; their charts hidden while it gives none."""
         cloud = None
         if self._run is not None and self._run.estimator is not None and h is not None and h.rows:
-            cloud = particle_stiffness(self._run.estimator.posterior())
-        if cloud is None:
-            self._cloud.visible = self._truth.visible = False
-            return
-        names, values, w, nominal = cloud
-        now = time.perf_counter()
-        if now - self._posterior_shown >= 1.0 / POSTERIOR_HZ or self._finished_unshown or not self._playing:
+            now = time.perf_counter()
+            if not (now - self._posterior_shown >= 1.0 / POSTERIOR_HZ or self._finished_unshown or not self._playing):
+                return
             self._posterior_shown = now
+            cloud = particle_stiffness(self._run.estimator.posterior())
             self._publish_posterior(h, cloud)
-        points, colors = cloud_positions(names, values, nominal).astype(np.float16), weight_colors(w)
-        if self._cloud.points.shape == points.shape and self._cloud.visible:
-            self._cloud.points = points
-            self._cloud.colors = colors
-        else:  # a new N: a new cloud (points and colours must change together)
-            self._cloud = self.server.scene.add_point_cloud("/cloud/particles", points, colors, point_size=0.12,
-                                                            point_shape="circle")
-        truth = truth_position(h, dict(zip(names, nominal)))
-        if truth is not None:
-            self._truth.position = tuple(truth)
-        self._truth.visible = truth is not None
+            return
+        for handle in (*self._densities.values(), *self._clouds.values()):
+            if handle.visible:
+                handle.visible = False
 
     def _publish_posterior(self, h: History, cloud) -> None:
-        """The posterior tab: the density of each stiffness parameter (eq. (26) for the MPF)
+        """The posterior tabs: the density of each stiffness parameter (eq. (26) for the MPF)
         and the particle cloud in two projections, each framed on what it shows (ticks in
         kN/rad), with the true surface mean where the run has one."""
         from tirefilter.viz.density import stiffness_mixture
@@ -507,30 +535,39 @@ class Dashboard:
         est = self._run.estimator
         truth = {p: h.last(f"true_{p}_mean") for p in STIFFNESS if h.has_values(f"true_{p}_mean")}
         mixture = stiffness_mixture(est.posterior(), None, params=getattr(est, "params", None))
+        shown = {"densities": False, "particles": False}
         for p, handle in self._densities.items():
             data = density_data(mixture, p, truth.get(p, math.nan))
             if data is not None:
                 self._set_data(handle, data, (1, 2), {"x": {"time": False}}, (data[0][0], data[0][-1]))
+                shown["densities"] = True
+            if handle.visible != (data is not None):
+                handle.visible = data is not None
         for (x, y), handle in self._clouds.items():
             data = cloud_scatter(cloud, x, y, truth)
             if data is not None:
                 self._set_data(handle, data, (1, 2, 3), {"x": {"time": False}}, _padded(data[0]))
+                shown["particles"] = True
+            if handle.visible != (data is not None):
+                handle.visible = data is not None
+        self._posterior_shown_in = shown
 
-    def _publish_pose(self, h: History, idx: np.ndarray) -> None:
-        x, y, psi = h.pose()
-        if len(idx) < 2 or not (np.isfinite(x[idx]).all() and np.isfinite(y[idx]).all()):
+    def _publish_path(self, h: History, idx: np.ndarray) -> None:
+        """The path tab: the vehicle path from above, on axes with as many metres per pixel
+        both ways (the plot area: the chart less its axes and padding)."""
+        data = path_data(h, idx)
+        if data is None:
             return
-        px, py = x[idx], y[idx]
-        cx, cy = (px.min() + px.max()) / 2, (py.min() + py.max()) / 2
-        scale = PATH_BOX / max(px.max() - px.min(), py.max() - py.min(), 50.0)
-        pts = np.column_stack([(px - cx) * scale + PATH_CENTRE[0], (py - cy) * scale + PATH_CENTRE[1],
-                               np.zeros(len(px))])
-        self._path.points = np.stack([pts[:-1], pts[1:]], axis=1).astype(np.float32)
-        self._path.visible = True
-        yaw = float(psi[-1]) if np.isfinite(psi[-1]) else 0.0
-        self._car.position = (float(pts[-1, 0]), float(pts[-1, 1]), 0.1)
-        self._car.wxyz = (math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2))
-        self._car.visible = True
+        x_range, y_range_m = equal_axes(data[0], np.concatenate([d[np.isfinite(d)] for d in data[1:]]),
+                                        CHARTS_WIDTH - 40 - AXIS_SIZE - PADDING[1],
+                                        CHART_HEIGHT["path"] - 44 - PADDING[0] - 60)
+        rng = (x_range, y_range_m)
+        if self._ranges.get(id(self._path)) != rng:
+            self._ranges[id(self._path)] = rng
+            self._path.scales = self._scales({"x": {"time": False}}, y_range_m, x_range)
+        self._path.data = data
+        if not self._path.visible:
+            self._path.visible = True
 
     def _publish_friction(self, h: History | None) -> None:
         est = self._run.estimator if self._run is not None else None
@@ -571,6 +608,20 @@ class Dashboard:
         if self._metrics:
             parts.append(self._metrics)
         return " · ".join(parts)
+
+
+def _bias_estimated(estimator, h: History) -> bool:
+    """Whether the rows hold an IMU bias estimate: the estimator's sensor model says so
+    (`sensors.bias_on`); without one (a Result CSV, an estimator without it), a bias column
+    with a finite value other than 0 (a filter that does not estimate it writes 0 or nothing)."""
+    sensors = getattr(estimator, "sensors", None)
+    if sensors is not None and hasattr(sensors, "bias_on"):
+        return bool(sensors.bias_on)
+    for c in ("b_ax", "b_ay", "b_yaw_rate"):
+        x = h.column(c)
+        if x is not None and np.any(np.isfinite(x) & (x != 0)):
+            return True
+    return False
 
 
 def _padded(x: np.ndarray) -> tuple[float, float]:

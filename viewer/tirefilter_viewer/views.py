@@ -1,6 +1,7 @@
 """What the dashboard draws, as plain arrays: the uPlot charts (series, bands, data from
-a History), the particle cloud of the stiffness posterior, the friction curves and their
-truth. No viser here; `app` hands these arrays to the page.
+a History), the particle cloud of the stiffness posterior, the vehicle path, the friction
+curves and their truth, and what each tab says when it has nothing to show. No viser
+here; `app` hands these arrays and texts to the page.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from tirefilter_viewer.history import History
 Z90 = 1.6448536269514722  # the 90% interval of a Gaussian: mean +- Z90 std (docs/usage.md, coverage)
 STIFFNESS = ("Cf_y", "Cr_y", "Cx")
 UNITS = {"Cf_y": "kN/rad", "Cr_y": "kN/rad", "Cx": "kN/unit slip"}
-CLOUD_SCALE = 5.0  # scene units per 100% of the nominal stiffness
+DEG = 180.0 / math.pi  # rad -> deg
 ESTIMATE_COLOR = "#1f77b4"  # the estimate line of every chart (the browser test looks for it)
 TRUTH_COLOR = "#d62728"
 BAND_FILL = "rgba(31, 119, 180, 0.2)"
@@ -34,8 +35,10 @@ class Series:
     dash: tuple[float, ...] | None = None
     scale: str = "y"
 
-    def uplot(self) -> dict:
-        s = {"label": self.label, "stroke": self.stroke, "width": self.width, "scale": self.scale,
+    def uplot(self, unit: str = "") -> dict:
+        """The uPlot series; `unit` is added to the legend's label ("estimate [kN/rad]")."""
+        label = f"{self.label} [{unit}]" if unit else self.label
+        s = {"label": label, "stroke": self.stroke, "width": self.width, "scale": self.scale,
              "points": {"show": False}, "spanGaps": False}
         if self.dash:
             s["dash"] = self.dash
@@ -55,6 +58,7 @@ class Chart:
     min_span: float = 1e-9  # the smallest y range shown (a flat series sits in its middle)
     tab: str = "stiffness"  # the tab of the charts panel it is on
     y_label: str = ""  # the y axis label (the x axis is the time, t [s])
+    unit: str = ""  # the unit of the "y" scale's series, shown in the legend beside each label
 
     def data(self, history: History, idx: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
         idx = history.decimation() if idx is None else idx
@@ -66,7 +70,7 @@ class Chart:
         return tuple(j + 1 for j, s in enumerate(self.series) if s.scale == "y")
 
     def uplot_series(self) -> tuple[dict, ...]:
-        return ({"label": "t [s]"},) + tuple(s.uplot() for s in self.series)
+        return ({"label": "t [s]"},) + tuple(s.uplot(self.unit if s.scale == "y" else "") for s in self.series)
 
     def uplot_bands(self) -> tuple[dict, ...]:
         return tuple({"series": b, "fill": BAND_FILL} for b in self.bands)
@@ -81,6 +85,10 @@ class Chart:
 
 
 AXIS_SIZE = 80  # px left of a chart for the y tick labels: room for a sign and 6 digits
+# px around the plot (top, right, bottom, left): a tick label centred on the top edge or the
+# right end of the x axis needs half its height / width there (uPlot's default clipped the
+# top y tick, '0.01' of the bias chart, and the last x tick); the axes take the bottom and left
+PADDING = (14, 24, 0, 0)
 
 
 def axes(x_label: str, y_label: str) -> tuple[dict, ...]:
@@ -144,7 +152,7 @@ def stiffness_chart(p: str) -> Chart:
     surface mean and the true per-step stiffness, in kN."""
     k = 1e-3
     return Chart(
-        key=p, title=f"{p} [{UNITS[p]}]: estimate, 90% band, truth", y_label=f"{p} [{UNITS[p]}]",
+        key=p, title=f"{p} [{UNITS[p]}]: estimate, 90% band, truth", y_label=f"{p} [{UNITS[p]}]", unit=UNITS[p],
         series=(Series("true per step", col(f"true_{p}", k), stroke="rgba(214,39,40,0.25)", width=1),
                 Series("true surface mean", col(f"true_{p}_mean", k), stroke=TRUTH_COLOR),
                 Series("lower 90%", edge(p, -1, k), stroke="rgba(31,119,180,0.5)", width=1),
@@ -157,36 +165,46 @@ def charts() -> tuple[Chart, ...]:
     """Every time chart of the dashboard (friction curves are separate: `friction_chart`)."""
     return (
         *(stiffness_chart(p) for p in STIFFNESS),
-        Chart(key="bias_acc", title="accelerometer bias [m/s^2]: estimate vs truth", min_span=0.02, tab="state, bias",
-              y_label="bias [m/s^2]",
+        Chart(key="vy", title="lateral velocity v^Y [m/s]: estimate vs truth", min_span=0.1, tab="state",
+              y_label="v^Y [m/s]", unit="m/s",
+              series=(Series("true vy", col("true_vy"), stroke=TRUTH_COLOR), Series("vy", col("vy")))),
+        Chart(key="beta", title="sideslip beta [deg]: estimate vs truth", min_span=0.2, tab="state",
+              y_label="beta [deg]", unit="deg",
+              series=(Series("true beta", col("true_beta", DEG), stroke=TRUTH_COLOR),
+                      Series("beta", col("beta", DEG)))),
+        Chart(key="yaw_rate", title="yaw rate [rad/s]: estimate vs truth and the gyro", min_span=0.01, tab="state",
+              y_label="yaw rate [rad/s]", unit="rad/s",
+              series=(Series("gyro (measured)", col("meas_yaw_rate"), stroke="rgba(127,127,127,0.6)", width=1),
+                      Series("true yaw rate", col("true_yaw_rate"), stroke=TRUTH_COLOR),
+                      Series("yaw rate", col("yaw_rate")))),
+        Chart(key="bias_acc", title="accelerometer bias [m/s^2]: estimate vs truth", min_span=0.02, tab="bias, ESS",
+              y_label="bias [m/s^2]", unit="m/s^2",
               series=(Series("b_ax", col("b_ax")), Series("true b_ax", col("true_b_ax"), stroke=TRUTH_COLOR),
                       Series("b_ay", col("b_ay"), stroke="#2ca02c"),
                       Series("true b_ay", col("true_b_ay"), stroke="#ff7f0e"))),
-        Chart(key="bias_yaw", title="yaw-rate bias [rad/s]: estimate vs truth", min_span=2e-3, tab="state, bias",
-              y_label="bias [rad/s]",
-              series=(Series("b_yaw_rate", col("b_yaw_rate")),
-                      Series("true b_yaw_rate", col("true_b_yaw_rate"), stroke=TRUTH_COLOR))),
-        Chart(key="vy", title="lateral velocity v^Y [m/s]: estimate vs truth", min_span=0.1, tab="state, bias",
-              y_label="v^Y [m/s]",
-              series=(Series("vy", col("vy")), Series("true vy", col("true_vy"), stroke=TRUTH_COLOR))),
+        # in mrad/s: uPlot prints ticks with at most 3 decimals ('0.0005' as '0.001', twice on one axis)
+        Chart(key="bias_yaw", title="yaw-rate bias [mrad/s]: estimate vs truth", min_span=2.0, tab="bias, ESS",
+              y_label="bias [mrad/s]", unit="mrad/s",
+              series=(Series("b_yaw_rate", col("b_yaw_rate", 1e3)),
+                      Series("true b_yaw_rate", col("true_b_yaw_rate", 1e3), stroke=TRUTH_COLOR))),
         Chart(key="ess", title="effective sample size; grey: learning gate (top: active)", min_span=2.0,
-              tab="state, bias", y_label="ESS [particles]",
+              tab="bias, ESS", y_label="ESS [particles]", unit="particles",
               series=(Series("ESS", col("ess")),
-                      Series("learning active", col("active"), stroke="#7f7f7f", width=1, scale="gate")),
+                      Series("learning active [0/1]", col("active"), stroke="#7f7f7f", width=1, scale="gate")),
               scales={"gate": {"range": (0.0, 1.05)}}),
     )
 
 
-TABS = ("stiffness", "state, bias", "densities", "particles", "friction")  # the charts panel's tabs, in order
+TABS = ("stiffness", "state", "bias, ESS", "densities", "particles", "path", "friction")  # the panel's tabs, in order
 DENSITY_POINTS = 241  # grid points of a density chart
 
 
 def density_data(mixture, param: str, truth: float = math.nan) -> tuple[np.ndarray, ...] | None:
     """uPlot data of the posterior density of `param` (eq. (26) for the MPF; what
-    `viz.density.stiffness_mixture` gives for the others): stiffness [kN/rad] on a grid
-    over the mixture's mean +- 6 of its std (the truth, if given, included), the density
-    [per kN/rad], and the truth as a vertical line (two points: 0 and the peak). None
-    when the mixture lacks `param`."""
+    `viz.density.stiffness_mixture` gives for the others): stiffness [kN/rad, Cx kN/unit
+    slip] on a grid over the mixture's mean +- 6 of its std (the truth, if given,
+    included), the density [per kN/rad], and the truth as a vertical line (two points: 0
+    and the peak). None when the mixture lacks `param`."""
     if mixture is None or param not in mixture.params:
         return None
     j = mixture.index(param)
@@ -203,7 +221,7 @@ def density_data(mixture, param: str, truth: float = math.nan) -> tuple[np.ndarr
     grid = np.linspace(lo, hi, DENSITY_POINTS)
     if math.isfinite(truth):
         grid = np.sort(np.append(grid, truth))
-    pdf = mixture.pdf(param, grid) * 1e3  # per kN/rad
+    pdf = mixture.pdf(param, grid) * 1e3  # per kN/rad (per kN/unit slip)
     line = np.full(grid.shape, math.nan)
     if math.isfinite(truth):
         k = int(np.searchsorted(grid, truth))
@@ -211,12 +229,16 @@ def density_data(mixture, param: str, truth: float = math.nan) -> tuple[np.ndarr
     return grid * 1e-3, pdf, line
 
 
-DENSITY_SERIES = (
-    {"label": "stiffness [kN/rad]"},
-    {"label": "posterior density", "stroke": ESTIMATE_COLOR, "width": 2, "fill": BAND_FILL, "points": {"show": False}},
-    {"label": "true surface mean", "stroke": TRUTH_COLOR, "width": 0, "points": {"show": True, "size": 9,
-                                                                                  "fill": TRUTH_COLOR}},
-)
+def density_series(param: str) -> tuple[dict, ...]:
+    """The uPlot series of the density chart of `param`, each label with its unit."""
+    u = UNITS[param]
+    return (
+        {"label": f"{param} [{u}]"},
+        {"label": f"posterior density [1/({u})]", "stroke": ESTIMATE_COLOR, "width": 2, "fill": BAND_FILL,
+         "points": {"show": False}},
+        {"label": f"true surface mean [1/({u})]", "stroke": TRUTH_COLOR, "width": 0,
+         "points": {"show": True, "size": 9, "fill": TRUTH_COLOR}},
+    )
 
 
 def cloud_scatter(cloud, x_param: str, y_param: str, truth: dict | None = None) -> tuple[np.ndarray, ...] | None:
@@ -245,14 +267,106 @@ def cloud_scatter(cloud, x_param: str, y_param: str, truth: dict | None = None) 
     return xs[order], ys_light[order], ys_heavy[order], ys_truth[order]
 
 
-CLOUD_SERIES = (
-    {"label": "x"},
-    {"label": "particles", "stroke": "rgba(31,119,180,0.45)", "width": 0,
-     "points": {"show": True, "size": 5, "fill": "rgba(31,119,180,0.45)"}},
-    {"label": "heaviest 10%", "stroke": "#1f3f8f", "width": 0, "points": {"show": True, "size": 7, "fill": "#1f3f8f"}},
-    {"label": "true surface mean", "stroke": TRUTH_COLOR, "width": 0,
-     "points": {"show": True, "size": 11, "fill": TRUTH_COLOR}},
+def cloud_series(x_param: str, y_param: str) -> tuple[dict, ...]:
+    """The uPlot series of the particle cloud of `y_param` against `x_param`, each label
+    with its unit."""
+    uy = UNITS[y_param]
+    return (
+        {"label": f"{x_param} [{UNITS[x_param]}]"},
+        {"label": f"particles: {y_param} [{uy}]", "stroke": "rgba(31,119,180,0.45)", "width": 0,
+         "points": {"show": True, "size": 5, "fill": "rgba(31,119,180,0.45)"}},
+        {"label": f"heaviest 10%: {y_param} [{uy}]", "stroke": "#1f3f8f", "width": 0,
+         "points": {"show": True, "size": 7, "fill": "#1f3f8f"}},
+        {"label": f"true surface mean: {y_param} [{uy}]", "stroke": TRUTH_COLOR, "width": 0,
+         "points": {"show": True, "size": 11, "fill": TRUTH_COLOR}},
+    )
+
+
+# -- the vehicle path ------------------------------------------------------------------------
+def path_data(history: History, idx: np.ndarray) -> tuple[np.ndarray, ...] | None:
+    """uPlot data of the vehicle path seen from above (`History.pose`: the truth, else dead
+    reckoning), x [m] sorted (uPlot needs increasing x; the path is drawn as points), the
+    path's y [m], the start, and the newest position. None without a finite path."""
+    x, y, _ = history.pose()
+    if len(idx) < 2:
+        return None
+    px, py = x[idx], y[idx]
+    if not (np.isfinite(px).all() and np.isfinite(py).all()):
+        return None
+    n = len(px)
+    xs = np.concatenate([px, px[:1], px[-1:]])
+    path = np.concatenate([py, [math.nan, math.nan]])
+    start = np.full(n + 2, math.nan)
+    start[n] = py[0]
+    now = np.full(n + 2, math.nan)
+    now[n + 1] = py[-1]
+    order = np.argsort(xs, kind="stable")
+    return xs[order], path[order], start[order], now[order]
+
+
+def equal_axes(x: np.ndarray, y: np.ndarray, width_px: float, height_px: float,
+               margin: float = 0.08) -> tuple[tuple[float, float], tuple[float, float]]:
+    """x and y ranges [m] showing the points (x, y) with as many metres per pixel on both
+    axes (a plot area of width_px x height_px), centred, with `margin` of the span around
+    them; at least 20 m across."""
+    x, y = x[np.isfinite(x)], y[np.isfinite(y)]
+    cx, cy = (x.min() + x.max()) / 2, (y.min() + y.max()) / 2
+    per_px = max((x.max() - x.min()) / width_px, (y.max() - y.min()) / height_px, 20.0 / min(width_px, height_px))
+    per_px *= 1 + 2 * margin
+    hw, hh = per_px * width_px / 2, per_px * height_px / 2
+    return (float(cx - hw), float(cx + hw)), (float(cy - hh), float(cy + hh))
+
+
+PATH_SERIES = (
+    {"label": "x [m]"},
+    {"label": "path: y [m]", "stroke": ESTIMATE_COLOR, "width": 0,
+     "points": {"show": True, "size": 3, "fill": ESTIMATE_COLOR}},
+    {"label": "start: y [m]", "stroke": "#2ca02c", "width": 0, "points": {"show": True, "size": 11, "fill": "#2ca02c"}},
+    {"label": "now: y [m]", "stroke": TRUTH_COLOR, "width": 0, "points": {"show": True, "size": 13,
+                                                                         "fill": TRUTH_COLOR}},
 )
+
+
+# -- what an empty tab says -------------------------------------------------------------------
+def tab_notes(source: str, estimator: str | None, *, densities: bool = False, particles: bool = False,
+              friction: bool = False, bias: bool = True, cx: bool = True) -> dict[str, str]:
+    """Why a tab (or a chart in it) shows nothing, by tab name; tabs with nothing to explain
+    are absent.
+
+    `source`: "none" (no run yet), "run" (a live run) or "result" (an opened Result CSV);
+    `estimator`: its name (None or "none": no estimator); `densities`, `particles`,
+    `friction`: whether those tabs have something to draw; `bias`: the rows hold an IMU
+    bias estimate; `cx`: the Cx chart is shown (the lateral model has no Cx).
+    """
+    if source == "none":
+        text = "Nothing to show yet: press **Start** for a run, or open a Result CSV."
+        return {tab: text for tab in TABS}
+    notes = {}
+    name = estimator if estimator not in (None, "none") else None
+    posterior = (("densities", densities, "posterior densities"), ("particles", particles, "particle cloud"))
+    if source == "result":
+        for tab, shown, what in posterior:
+            if not shown:
+                notes[tab] = (f"**Not in this file:** a Result CSV holds the estimates, not the particles, so it has "
+                              f"no {what}. Start a run to see it live.")
+        if not friction:
+            notes["friction"] = ("**Not in this file:** no friction CSV beside this Result CSV (a friction "
+                                 "estimator's run writes RESULT.friction.csv, or friction.csv next to results.csv).")
+    else:
+        for tab, shown, what in posterior:
+            if not shown:
+                why = "the run has no estimator" if name is None else f"{name} has no particle posterior of the stiffness"
+                notes[tab] = f"**Not for this estimator:** {why}, so there is no {what}."
+        if not friction:
+            notes["friction"] = ("**Not for this estimator:** " + ("the run has no estimator" if name is None
+                                 else f"{name} learns the stiffness, not the friction curve")
+                                 + "; the friction GP-SSM (`gpssm`) learns mu(alpha).")
+    if not bias:
+        notes["bias, ESS"] = ("**IMU bias not estimated** in these rows (the sensors' model has no bias, or the "
+                              "estimator does not estimate one): the bias charts show the truth only.")
+    if not cx:
+        notes["stiffness"] = "**Cx not estimated:** the lateral model has no longitudinal stiffness."
+    return notes
 
 
 # -- the particle cloud ---------------------------------------------------------------------
@@ -283,43 +397,6 @@ def particle_stiffness(posterior) -> tuple[tuple[str, ...], np.ndarray, np.ndarr
     w = np.exp(logw - np.max(logw)) if logw.size else logw
     w = w / w.sum() if w.size and w.sum() > 0 else np.full(len(values), 1.0 / max(len(values), 1))
     return tuple(names), values, w, nominal
-
-
-def cloud_positions(names, values: np.ndarray, nominal: np.ndarray) -> np.ndarray:
-    """Scene positions (N, 3) of per-particle stiffness: x = Cf_y, y = Cr_y, z = Cx, each
-    relative to its nominal value times CLOUD_SCALE (z = 0 without Cx: the lateral model)."""
-    out = np.zeros((len(values), 3))
-    for axis, p in enumerate(STIFFNESS):
-        if p in names:
-            j = list(names).index(p)
-            out[:, axis] = values[:, j] / nominal[j] * CLOUD_SCALE
-    return out
-
-
-_WEIGHT_MAP = np.array([[190, 205, 225], [90, 130, 200], [30, 60, 160], [150, 30, 120], [215, 25, 28]], float)
-
-
-def weight_colors(w: np.ndarray) -> np.ndarray:
-    """uint8 RGB (N, 3) colouring each particle by its weight relative to the largest:
-    pale blue (negligible) through dark blue to red (the heaviest), readable on white."""
-    if w.size == 0:
-        return np.zeros((0, 3), np.uint8)
-    rel = w / np.max(w) if np.max(w) > 0 else np.zeros_like(w)
-    pos = rel * (len(_WEIGHT_MAP) - 1)
-    lo = np.clip(np.floor(pos).astype(int), 0, len(_WEIGHT_MAP) - 2)
-    frac = (pos - lo)[:, None]
-    return np.round(_WEIGHT_MAP[lo] * (1 - frac) + _WEIGHT_MAP[lo + 1] * frac).astype(np.uint8)
-
-
-def truth_position(history: History, nominal: dict[str, float]) -> np.ndarray | None:
-    """Scene position (3,) of the newest true surface-mean stiffness (None without truth)."""
-    if history.rows == 0 or not history.has_values("true_Cf_y_mean"):
-        return None
-    pos = np.zeros(3)
-    for axis, p in enumerate(STIFFNESS):
-        if p in nominal:
-            pos[axis] = history.last(f"true_{p}_mean") / nominal[p] * CLOUD_SCALE
-    return pos if np.all(np.isfinite(pos)) else None
 
 
 # -- friction ---------------------------------------------------------------------------------
@@ -360,9 +437,9 @@ def friction_data(curve, truth: tuple[np.ndarray, np.ndarray] | None, axle: str)
 
 FRICTION_SERIES = (
     {"label": "alpha [deg]"},
-    {"label": "mu estimate", "stroke": ESTIMATE_COLOR, "width": 2, "points": {"show": False}},
-    {"label": "lower 90%", "stroke": "rgba(31,119,180,0.5)", "width": 1, "points": {"show": False}},
-    {"label": "upper 90%", "stroke": "rgba(31,119,180,0.5)", "width": 1, "points": {"show": False}},
-    {"label": "mu truth", "stroke": TRUTH_COLOR, "width": 2, "points": {"show": False}},
+    {"label": "mu estimate [-]", "stroke": ESTIMATE_COLOR, "width": 2, "points": {"show": False}},
+    {"label": "lower 90% [-]", "stroke": "rgba(31,119,180,0.5)", "width": 1, "points": {"show": False}},
+    {"label": "upper 90% [-]", "stroke": "rgba(31,119,180,0.5)", "width": 1, "points": {"show": False}},
+    {"label": "mu truth [-]", "stroke": TRUTH_COLOR, "width": 2, "points": {"show": False}},
 )
 FRICTION_BANDS = ({"series": (3, 2), "fill": BAND_FILL},)

@@ -50,7 +50,7 @@ class ScenarioOutputs:
     rrd: str | Path | None = None
     recording: object = None
     friction_csv: str | Path | None = None
-    progress: bool = False
+    progress: bool | str = False  # runs.Progress: True a bar, "lines" a line every few seconds
 
 
 def run_scenario(

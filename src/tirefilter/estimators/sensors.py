@@ -81,20 +81,20 @@ class SensorModel:
 
     def describe(self) -> list[str]:
         """Lines for a run summary: the noise used and its source, the bias model, warnings."""
-        noise = ", ".join(f"{c} {_fmt(s)}" + (f" ({src})" if src != "data" else "")
-                          for c, s, src in zip(CHANNELS, self.sigma, self.sigma_source))
+        noise = ", ".join(f"{c} {_fmt(s)} {u}" + (f" ({src})" if src != "data" else "")
+                          for c, s, u, src in zip(CHANNELS, self.sigma, UNITS, self.sigma_source))
         head = "sensor noise (std)" + (f", estimated from {self.data_span}" if "data" in self.sigma_source else "")
-        lines = [f"{head}: {noise} [m/s^2, rad/s]"]
+        lines = [f"{head}: {noise}"]
         if self.bias_on:
-            lines.append("IMU bias: estimated; prior std " + ", ".join(
-                f"{c} {_fmt(b)}" for c, b in zip(CHANNELS, self.bias0_std)) + ", random walk " + ", ".join(
-                f"{_fmt(q)}" for q in self.bias_rw) + f" per sqrt(s) ({self.bias_source})")
+            prior = ", ".join(f"{c} {_fmt(b)} {u}" for c, b, u in zip(CHANNELS, self.bias0_std, UNITS))
+            walk = ", ".join(f"{c} {_fmt(q)} {u}/sqrt(s)" for c, q, u in zip(CHANNELS, self.bias_rw, UNITS))
+            lines.append(f"IMU bias: estimated; prior std {prior}; random walk {walk} ({self.bias_source})")
         else:
             lines.append(f"IMU bias: not estimated ({self.bias_source})")
         if any(q > 0 for q in self.disturbance_rw):
             lines.append("wandering offsets (road bank and crown, body roll): random walk " + ", ".join(
-                f"{c} {_fmt(q)}" for c, q in zip(CHANNELS, self.disturbance_rw) if q > 0)
-                + " per sqrt(s), in the linear tire region")
+                f"{c} {_fmt(q)} {u}/sqrt(s)" for c, q, u in zip(CHANNELS, self.disturbance_rw, UNITS) if q > 0)
+                + ", in the linear tire region")
         if self.sigma_omega > 0:
             src = f"estimated from {self.data_span}" if self.sigma_omega_source == "data" else self.sigma_omega_source
             lines.append(f"wheel-speed noise (std): {_fmt(self.sigma_omega)} rad/s ({src}); the MPF filters the wheel "

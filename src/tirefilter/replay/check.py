@@ -68,10 +68,13 @@ class LogSummary:
         out.append(f"|ay| > {ga['ay_max']:g} m/s^2 (MPF linear-region gate): {_pct(ga['share_ay_above'])} of samples")
         if self.noise:
             n = self.noise
+            from tirefilter.estimators.sensors import CHANNELS, UNITS
+
+            units = dict(zip(CHANNELS, UNITS))
             out.append("white noise estimated from the log: " + ", ".join(
-                f"{c} {_g3(n['sigma_from_data'][c])}" + (f" (vehicle file: {_g3(n['sigma'][c])})"
-                                                        if n["sigma_source"][c] == "vehicle file" else "")
-                for c in n["sigma_from_data"]) + " [m/s^2, rad/s]"
+                f"{c} {_g3(n['sigma_from_data'][c])} {units[c]}" + (
+                    f" (vehicle file: {_g3(n['sigma'][c])} {units[c]})" if n["sigma_source"][c] == "vehicle file"
+                    else "") for c in n["sigma_from_data"])
                 + (f"; wheel speeds {_g3(n['sigma_omega'])} rad/s" if n.get("sigma_omega") else ""))
         out.append(f"speed < {ga['speed_min']:g} m/s (MPF gate speed): " + (
             f"{_pct(ga['share_speed_below'])} of samples (speed from {ga['speed_from']})" if ga["speed_from"]

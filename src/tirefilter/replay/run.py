@@ -97,7 +97,7 @@ def replay_log(
     seed: int = 0,
     results_csv: str | Path | None = None,
     rrd: str | Path | None = None,
-    progress: bool = False,
+    progress: bool | str = False,  # runs.Progress: True a bar, "lines" a line every few seconds
     keep_rows: bool = False,
     vehicle_file: str | Path | None = None,
     friction_csv: str | Path | None = None,
