@@ -135,7 +135,8 @@ def run_set_drive(job: tuple) -> dict:
         t1 = time.perf_counter()
         est = replay_as_cli(log, vehicle, Path(tmp) / "result.csv", config)
         wall = time.perf_counter() - t1
-        result = read_columns(Path(tmp) / "result.csv", ("t", "beta", "Cf_y", "Cr_y", "Cf_y_std", "Cr_y_std"))
+        result = read_columns(Path(tmp) / "result.csv", ("t", "beta", "Cf_y", "Cr_y", "Cf_y_std", "Cr_y_std",
+                                                          "roll_gradient"))
     c = drive.columns
     scores = final_scores({k: c[k] for k in ("t", "beta_true", "ay_true", "Cf_y_true", "Cr_y_true")}, result,
                           ay_min=AY_HIGH)
@@ -145,6 +146,7 @@ def run_set_drive(job: tuple) -> dict:
             "eff_f": float(c["Cf_y_eff_true"][0] / c["Cf_y_true"][-1] - 1.0),
             "eff_r": float(c["Cr_y_eff_true"][0] / c["Cr_y_true"][-1] - 1.0),
             "restarts": getattr(est, "restarts", None), "gen_s": gen_s, "wall_s": wall,
+            "k_true": float(drive.roll_gradient), "k_est": float(result["roll_gradient"][-1]),
             "dropped": drive.dropped}
 
 
@@ -158,8 +160,9 @@ def set_tables(rows: list[dict]) -> str:
     """Per drive, then per model family and in total, as markdown."""
     T = SET_TARGETS
     lines = ["| drive | max abs a^Y | eff. / static Cf_y, Cr_y | Cf_y final | Cr_y final | coverage f / r "
-             "| final err / std f / r | sideslip RMSE | at abs a^Y >= 4 (rows) | restarts |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "| final err / std f / r | sideslip RMSE | at abs a^Y >= 4 (rows) | roll gradient est. / true "
+             "| restarts |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         hi = ("-" if not math.isfinite(r["beta_rmse_hi_deg"])
               else f"{r['beta_rmse_hi_deg']:.3f} deg ({100 * r['hi_share']:.0f} %)")
@@ -169,7 +172,8 @@ def set_tables(rows: list[dict]) -> str:
             f"{_fmt(r['Cf_y_final_err'], '+.1f')} % | {_fmt(r['Cr_y_final_err'], '+.1f')} % | "
             f"{100 * r['Cf_y_cover']:.0f} / {100 * r['Cr_y_cover']:.0f} % | "
             f"{_fmt(r['Cf_y_final_z'], '+.1f')} / {_fmt(r['Cr_y_final_z'], '+.1f')} | "
-            f"{_fmt(r['beta_rmse_deg'], '.3f')} deg | {hi} | {'-' if r['restarts'] is None else r['restarts']} |")
+            f"{_fmt(r['beta_rmse_deg'], '.3f')} deg | {hi} | {_k(r['k_est'])} / {_k(r['k_true'])} | "
+            f"{'-' if r['restarts'] is None else r['restarts']} |")
     lines += ["", f"Totals (targets: final error within {T['final_err']:g} %, coverage {100 * T['cover'][0]:.0f}-"
               f"{100 * T['cover'][1]:.0f} %, final error <= {T['final_z']:g} std, sideslip RMSE <= {T['beta']:g} deg "
               f"overall and <= {T['beta_hi']:g} deg where abs(a^Y) >= {AY_HIGH:g}; sideslip pooled over the rows):", "",
@@ -219,6 +223,11 @@ def main_set(args) -> None:
               f"{'`--config ' + args.config + '`' if args.config else 'the default settings (no --config)'}; "
               f"{args.workers} workers, run time {time.perf_counter() - t0:.0f} s.")
     print(header + "\n\n" + set_tables(rows))
+
+
+def _k(k: float) -> str:
+    """A roll gradient in mrad per m/s^2 ("-": not estimated)."""
+    return "-" if not math.isfinite(k) else f"{1000 * k:.1f}"
 
 
 def _fmt(x: float, spec: str) -> str:

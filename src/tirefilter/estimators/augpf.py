@@ -171,7 +171,7 @@ class AugmentedPF:
         self.C_nom = np.array([v.Cx, v.Cf_y, v.Cr_y] if self.full else [v.Cf_y, v.Cr_y])
         self.n_w = len(self.params)
         self.channels = (0, 1, 2) if self.full else (1, 2)  # ax, ay, yaw rate
-        self.roll_gain = 1.0 + v.roll_gradient * GRAVITY  # measured a^Y ~ (1 + k g) a^Y
+        self.roll_gain = v.imu_roll_gain(GRAVITY)  # measured a^Y ~ (1 + k g) a^Y
         # the model's parameters: the undriven axle at its nominal stiffness (the paper's model)
         self._vp = single_track.model_params(v)
         self._st = None
@@ -293,7 +293,7 @@ class AugmentedPF:
         yk = np.array([y.ax, y.ay, y.yaw_rate], float)[list(self.channels)]
         a = np.flatnonzero(np.isfinite(yk))
         model_k = self._model(self.x, uk)
-        h, D = single_track.measurement(model_k[0], model_k[1], self.x, self.roll_gain, self.full)
+        h, D = single_track.measurement(model_k[0], model_k[1], self.x, self.roll_gain, self.full, self._vp)
         if cfg.proposal == "bootstrap":
             w = self.mu + np.sqrt(self.s2) * rng.standard_normal(self.mu.shape)  # w_k ~ N(m_k, s2_k)
             pred = h + np.einsum("nij,nj->ni", D, w)

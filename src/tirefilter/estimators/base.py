@@ -56,6 +56,8 @@ class Estimate:
     b_yaw_rate: float = NAN
     ess: float = NAN
     state_std: tuple[float, float, float] = (NAN, NAN, NAN)  # vx, vy, yaw_rate
+    roll_gradient: float = NAN  # rad per m/s^2, the IMU's a^Y gain 1 + k g where estimated (the MPF), its posterior
+    roll_gradient_std: float = NAN  # mean and std
 
     @property
     def beta(self) -> float:
@@ -63,11 +65,12 @@ class Estimate:
 
 
 def particle_estimate(*, active: bool, ess: float, x_mean, x_std, vx_input: float, stiffness: dict,
-                      bias: dict) -> Estimate:
+                      bias: dict, roll: tuple[float, float] = (NAN, NAN)) -> Estimate:
     """The Estimate of a particle filter over the full state (vx, vy, r) or the lateral one
     (vy, r; v^X is the input `vx_input`): weighted state mean and std, `stiffness` maps
     each estimated parameter (Cx, Cf_y, Cr_y) to (value, *_std, *_sigma), `bias` each IMU
-    channel (ax, ay, yaw_rate) to its estimate; what is not estimated is NaN."""
+    channel (ax, ay, yaw_rate) to its estimate, `roll` the roll gradient's mean and std; what
+    is not estimated is NaN."""
     if len(x_mean) == 3:
         (vx, vy, r), std = x_mean, tuple(x_std)
     else:
@@ -80,7 +83,8 @@ def particle_estimate(*, active: bool, ess: float, x_mean, x_std, vx_input: floa
         Cf_y_std=float(cf[1]), Cr_y_std=float(cr[1]), Cx_std=float(cx[1]),
         Cf_y_sigma=float(cf[2]), Cr_y_sigma=float(cr[2]), Cx_sigma=float(cx[2]),
         b_ax=float(bias.get("ax", NAN)), b_ay=float(bias.get("ay", NAN)), b_yaw_rate=float(bias.get("yaw_rate", NAN)),
-        ess=float(ess), state_std=tuple(float(s) for s in std),
+        ess=float(ess), state_std=tuple(float(s) for s in std), roll_gradient=float(roll[0]),
+        roll_gradient_std=float(roll[1]),
     )
 
 

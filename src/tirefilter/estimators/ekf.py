@@ -10,7 +10,8 @@ relative units keep the covariance well conditioned) and the biases b of the mod
 Model (`dynamics`, `measurement`): the MPF's accelerations, eq. (1), (2), (4) and (3) with
 the traction-positive slip sign (docs/design.md) and the axle stiffness C_nom + c:
   vx' = vy r + a^X,  vy' = a^Y - vx r,  r' = (lf F_yf,body - lr F_yr) / I,  c' = 0 + w_c,
-  b' = 0 + w_b,  y = [a^X, (1 + k g) a^Y, r] + b + e,
+  b' = 0 + w_b,  y = [a^X - i_y r' - i_x r^2, (1 + k g) a^Y + i_x r' - i_y r^2, r] + b + e
+(the IMU at (i_x, i_y) = (imu_x, imu_y) from the centre of gravity, `single_track.measurement`),
 with slip angles alpha_f = delta - (vy + lf r)/v, alpha_r = (lr r - vy)/v, v = max(vx, 1)
 and wheel slip (R_w omega - vx) / max(|vx|, |R_w omega|, 1). Jacobians are analytic
 (`dynamics`, `measurement` return them; tested against finite differences).
@@ -120,7 +121,7 @@ class SingleTrackEKFModel:
         self.C_scale = self.C_nom.copy() if C_scale is None else np.asarray(C_scale, float)
         self.m = 3 if full else 2  # IMU channels (bias states)
         self.nz = self.nx + self.n_w + self.m
-        self.roll_gain = 1.0 + v.roll_gradient * GRAVITY
+        self.roll_gain = v.imu_roll_gain(GRAVITY)
 
     def _forces(self, z, u):
         """Accelerations (a^X, a^Y, r') and their gradients over z (3, nz)."""
@@ -220,6 +221,18 @@ class SingleTrackEKFModel:
             h = np.array([self.roll_gain * acc[1], z[1]]) + b
             H[0] += self.roll_gain * g[1]
             H[1, 1] += 1.0
+        ix, iy = self.v.imu_x, self.v.imu_y
+        if ix != 0.0 or iy != 0.0:  # the lever arm: r' = acc[2] and the centripetal r^2 (`single_track.measurement`)
+            jr = self.nx - 1
+            r = z[jr]
+            jy = 1 if self.full else 0
+            if self.full:
+                h[0] += -iy * acc[2] - ix * r * r
+                H[0] += -iy * g[2]
+                H[0, jr] += -2.0 * ix * r
+            h[jy] += ix * acc[2] - iy * r * r
+            H[jy] += ix * g[2]
+            H[jy, jr] += -2.0 * iy * r
         return h, H
 
 

@@ -11,6 +11,10 @@ inputs delta (road-wheel steer) and vx (from other logic), fixed stiffness Cf, C
     y = [(1 + k g) a^Y, r] + e           (k = roll_gradient: the IMU's lateral axis sees the
                                           roll, docs/design.md; e ~ N(0, diag(sigma_ay^2, sigma_r^2)))
 
+With the IMU at (imu_x, imu_y) off the centre of gravity its a^Y reads imu_x r' - imu_y r^2 more
+(`single_track.measurement`): r' is affine in x; r^2 enters linearised at the prior's yaw rate r0,
+r^2 ~ 2 r0 r - r0^2 (an extended Kalman update of that one term; exact with imu_y = 0).
+
 The speed floor v = max(vx, vx_min) applies to the slip formulas only (as in the MPF); the
 kinematic term -vx r uses vx itself. For given (vx, delta) the model is affine in x:
 
@@ -114,9 +118,10 @@ class KFConfig:
 
 
 def lateral_model(vx: float, delta: float, Cf: float, Cr: float, vehicle: VehicleParams,
-                  roll_gain: float = 1.0, vx_min: float = 1.0):
+                  roll_gain: float = 1.0, vx_min: float = 1.0, r0: float = 0.0):
     """The affine lateral single-track model at given (vx, delta): x' = A x + b,
-    y = C x + d for x = [vy, r], y = [measured a^Y, r] (module docstring).
+    y = C x + d for x = [vy, r], y = [measured a^Y, r] (module docstring; the IMU's lever arm's
+    r^2 linearised at r0).
 
     Returns A (2, 2), b (2,), C (2, 2), d (2,)."""
     m, I, lf, lr = vehicle.mass, vehicle.yaw_inertia, vehicle.lf, vehicle.lr
@@ -129,6 +134,10 @@ def lateral_model(vx: float, delta: float, Cf: float, Cr: float, vehicle: Vehicl
     b = np.array([cf * delta / m, lf * cf * delta / I])  # the steer term of alpha_f
     C = np.array([roll_gain * ay_row, (0.0, 1.0)])
     d = np.array([roll_gain * b[0], 0.0])
+    ix, iy = vehicle.imu_x, vehicle.imu_y
+    if ix != 0.0 or iy != 0.0:  # the lever arm: + imu_x r' - imu_y (2 r0 r - r0^2)
+        C[0] += ix * rdot_row - (0.0, 2.0 * iy * r0)
+        d[0] += ix * b[1] + iy * r0 * r0
     return A, b, C, d
 
 
@@ -177,7 +186,7 @@ class LinearKF:
         self.sigma = sig
         self.R = np.diag(np.square(sig))
         self.Qc = np.diag([cfg.q_vy, cfg.q_r])
-        self.roll_gain = 1.0 + vehicle.roll_gradient * GRAVITY  # measured a^Y ~ (1 + k g) a^Y
+        self.roll_gain = vehicle.imu_roll_gain(GRAVITY)  # measured a^Y ~ (1 + k g) a^Y
         self.reset()
 
     def config_dict(self) -> dict:
@@ -194,8 +203,8 @@ class LinearKF:
         self.u_prev = None  # (vx, delta) of the previous sample, held over the step
         self.delta_last = 0.0
 
-    def _model(self, vx: float, delta: float):
-        return lateral_model(vx, delta, self.Cf, self.Cr, self.vehicle, self.roll_gain, self.cfg.vx_min)
+    def _model(self, vx: float, delta: float, r0: float = 0.0):
+        return lateral_model(vx, delta, self.Cf, self.Cr, self.vehicle, self.roll_gain, self.cfg.vx_min, r0)
 
     def predict(self, vx: float, delta: float, dt: float) -> None:
         """Time update over dt with (vx, delta) held: x <- Ad x + bd, P <- Ad P Ad^T + Qd."""
@@ -212,7 +221,7 @@ class LinearKF:
         avail = [i for i in range(2) if math.isfinite(y[i])]
         if not avail:
             return
-        _, _, C, d = self._model(vx, delta)
+        _, _, C, d = self._model(vx, delta, float(self.x[1]))
         x, P = self.x, self.P
         for i in avail:
             c, r = C[i], self.R[i, i]

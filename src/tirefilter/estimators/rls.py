@@ -17,6 +17,10 @@ lateral dynamics feeds a forgetting-factor linear regression for the lateral axl
    regressor is the mean of the regressors at k-1 and k (r' is the mean slope over the
    interval). Weights W = diag(1/sigma_ay'^2, 1/sigma_yaw_acc^2) (sigma_ay' = sigma_ay /
    g_roll). A missing a^Y sample drops equation 1, a missing yaw-rate sample equation 2.
+   With the IMU at (imu_x, imu_y) off the centre of gravity the accelerometer reads
+   g_roll a^Y + imu_x r' - imu_y r^2 (`single_track.measurement`); r' is the second equation's
+   regressor times theta, so equation 1 becomes (a^Y_meas + imu_y r^2) / g_roll =
+   ([cos(delta) alpha_f, alpha_r] / m + imu_x / g_roll [lf cos(delta) alpha_f, -lr alpha_r] / I) theta.
 3. Weighted RLS with forgetting lambda (`rls_update`): the minimiser of
    sum_j lambda^(k-j) |y_j - Phi_j theta|^2_W + lambda^k |theta - theta_0|^2_(P_0^-1),
      K = P Phi^T (lambda W^-1 + Phi P Phi^T)^-1, theta += K (y - Phi theta),
@@ -131,7 +135,7 @@ class RLSEstimator:
         self.C_ref, self.theta0, std = stiffness_prior(cfg, self.C_nom, self.params, "rls configuration")
         self.P0 = np.diag(np.maximum(std, 1e-9 * self.C_ref) ** 2)
         self.lo, self.hi = cfg.bound_low * self.C_ref, cfg.bound_high * self.C_ref
-        self.roll_gain = 1.0 + vehicle.roll_gradient * GRAVITY
+        self.roll_gain = vehicle.imu_roll_gain(GRAVITY)
         x0 = tuple(cfg.x0_mean[-2:]) if cfg.x0_mean is not None else (0.0, 0.0)
         kf_C = self.theta0 if cfg.kf_stiffness == "estimate" else self.C_nom
         self.kf_config = KFConfig(Cf_y=float(kf_C[0]), Cr_y=float(kf_C[1]), q_vy=cfg.q_vy, q_r=cfg.q_r,
@@ -177,7 +181,12 @@ class RLSEstimator:
         phi1, phi2, af, ar = self._phi2(vx, delta, vy, r)
         rows, ys, ws = [], [], []
         if math.isfinite(y.ay):
-            rows.append(phi1), ys.append(y.ay / self.roll_gain), ws.append(self.w_eq[0])
+            ix, iy = self.vehicle.imu_x, self.vehicle.imu_y
+            if ix != 0.0 or iy != 0.0:  # the IMU's lever arm: y.ay = g a^Y + imu_x r' - imu_y r^2 (r' = phi2 C)
+                rows.append(phi1 + (ix / self.roll_gain) * phi2), ys.append((y.ay + iy * r * r) / self.roll_gain)
+            else:
+                rows.append(phi1), ys.append(y.ay / self.roll_gain)
+            ws.append(self.w_eq[0])
         if self.t_prev is not None and math.isfinite(y.yaw_rate) and self.r_prev is not None:
             rows.append(0.5 * (phi2 + self.phi2_prev)), ys.append((r - self.r_prev) / (t - self.t_prev))
             ws.append(self.w_eq[1])

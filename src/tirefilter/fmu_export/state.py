@@ -20,8 +20,9 @@ MAGIC = b"TIREFILTER-FMU-STATE\x00"
 # the GP-SSM's K in lanes and its deferred resampling copy of K. 3: the MPF's work arrays name
 # the kernels' sizes (`sizes_all`, `sizes_any`), not entry points. 4: the MPF's classes in the
 # package `estimators.mpf`, its model parameters and kernel modules (`_vp`, `_st`), its work arrays'
-# workspace tuples (`own`, `scratch`); the AUGPF's model without a borrowed MPF.
-FORMAT = 4
+# workspace tuples (`own`, `scratch`); the AUGPF's model without a borrowed MPF. 5: the MPF's roll gradient per
+# particle (`k_roll`, `roll_estimated`) and the work arrays' roll gain (`gain`).
+FORMAT = 5
 
 _NUMPY_ALLOWED = {
     ("numpy", "ndarray"), ("numpy", "dtype"),

@@ -14,7 +14,7 @@ from tirefilter.estimators.base import Estimate
 ESTIMATE_COLUMNS = (
     "t", "active", "vx", "vy", "yaw_rate", "beta",
     "Cf_y", "Cr_y", "Cx", "Cf_y_std", "Cr_y_std", "Cx_std", "Cf_y_sigma", "Cr_y_sigma", "Cx_sigma",
-    "b_ax", "b_ay", "b_yaw_rate", "ess",
+    "b_ax", "b_ay", "b_yaw_rate", "ess", "roll_gradient", "roll_gradient_std",
 )
 INPUT_TRUTH_COLUMNS = ("true_delta", "true_drive_torque", "true_brake_torque", "true_surface", "true_bank")
 
@@ -41,6 +41,7 @@ def estimate_values(t: float, est: Estimate | None) -> list[float]:
         t, 1.0 if est.active else 0.0, est.vx, est.vy, est.yaw_rate, est.beta,
         est.Cf_y, est.Cr_y, est.Cx, est.Cf_y_std, est.Cr_y_std, est.Cx_std,
         est.Cf_y_sigma, est.Cr_y_sigma, est.Cx_sigma, est.b_ax, est.b_ay, est.b_yaw_rate, est.ess,
+        est.roll_gradient, est.roll_gradient_std,
     ]
 
 

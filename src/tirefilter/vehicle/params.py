@@ -25,7 +25,9 @@ class VehicleParams:
     Cx: float  # N per unit slip, nominal longitudinal stiffness of the driven axle
     drive: str = "front"  # "front" | "rear" | "all"
     steering_ratio: float | None = None  # steering-wheel angle / road-wheel angle
-    roll_gradient: float = 0.0  # rad of roll per m/s^2 of lateral acceleration
+    # rad of roll per m/s^2 of lateral acceleration: the IMU reads (1 + k g) a^Y; None (absent): the MPF estimates
+    # it (derivations, "The roll gain from the data"), the other estimators and the simulator take 0
+    roll_gradient: float | None = None
     imu_x: float = 0.0  # m, IMU ahead of the CG
     imu_y: float = 0.0  # m, IMU left of the CG
     # IMU white-noise std; None (absent): estimated from the data (estimators.sensors)
@@ -52,6 +54,10 @@ class VehicleParams:
     @property
     def wheelbase(self) -> float:
         return self.lf + self.lr
+
+    def imu_roll_gain(self, g: float = 9.80665) -> float:
+        """The IMU's gain on a^Y from body roll, 1 + k g (k = `roll_gradient`, 0 when absent)."""
+        return 1.0 + (0.0 if self.roll_gradient is None else self.roll_gradient) * g
 
     def static_axle_loads(self, g: float = 9.80665) -> tuple[float, float]:
         """Front and rear static normal loads [N]."""

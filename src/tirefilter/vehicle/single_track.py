@@ -10,7 +10,7 @@ The estimators' model (`accelerations`, `state_derivative`, `propagate`, `slip_o
 stiffness is nominal plus the deviations w, the accelerations split as a(x, u) + B(x, u) w.
 State x (N, 3) = [vx, vy, r] (full model) or (N, 2) = [vy, r] (lateral model, vx an input);
 inputs u (4,) = [delta, omega_f, omega_r, vx]; w (N, n_w) = [dC_x, dCf_y, dCr_y] (full) or
-[dCf_y, dCr_y] (lateral); params p (10,) packed by `model_params` (the compiled twin,
+[dCf_y, dCr_y] (lateral); params p (12,) packed by `model_params` (the compiled twin,
 `single_track_numba`, reads the same array). Particles lie on the leading axis.
 """
 
@@ -143,20 +143,23 @@ def steady_state_cornering(vehicle: VehicleParams, vx: float, delta: float):
 
 # ---- the estimators' model -------------------------------------------------------------------
 # the packed parameters p of the estimators' model (`model_params`; the compiled twin reads the same)
-P_MASS, P_YAW_INERTIA, P_LF, P_LR, P_CF_Y, P_CR_Y, P_CX_F, P_CX_R, P_WHEEL_RADIUS, P_UNDRIVEN_SHARE = range(10)
+(P_MASS, P_YAW_INERTIA, P_LF, P_LR, P_CF_Y, P_CR_Y, P_CX_F, P_CX_R, P_WHEEL_RADIUS, P_UNDRIVEN_SHARE, P_IMU_X,
+ P_IMU_Y) = range(12)
 
 
 def model_params(vehicle: VehicleParams, undriven_share: float = 0.0) -> np.ndarray:
-    """The packed parameters p (10,) of the estimators' model: mass (kg), yaw inertia (kg m^2),
+    """The packed parameters p (12,) of the estimators' model: mass (kg), yaw inertia (kg m^2),
     lf, lr (m), nominal Cf_y, Cr_y (N/rad), nominal longitudinal stiffness front, rear (N,
-    `longitudinal_stiffness`), wheel radius (m), and the undriven axle's share of the driven
+    `longitudinal_stiffness`), wheel radius (m), the undriven axle's share of the driven
     axle's deviation dC_x (d F_undriven / d w_x per unit slip, relative to the driven axle's:
-    0 keeps the undriven axle at its nominal stiffness). An array, not a dataclass, so that a
-    filter can update the share in place and the compiled kernels read it as it is."""
+    0 keeps the undriven axle at its nominal stiffness), and the IMU's position imu_x, imu_y (m,
+    ahead of and left of the centre of gravity: the lever arm of `measurement`). An array, not a
+    dataclass, so that a filter can update the share in place and the compiled kernels read it as
+    it is."""
     v = vehicle
     c_fx, c_rx = longitudinal_stiffness(v)
-    return np.array([v.mass, v.yaw_inertia, v.lf, v.lr, v.Cf_y, v.Cr_y, c_fx, c_rx, v.wheel_radius, undriven_share],
-                    float)
+    return np.array([v.mass, v.yaw_inertia, v.lf, v.lr, v.Cf_y, v.Cr_y, c_fx, c_rx, v.wheel_radius, undriven_share,
+                     v.imu_x, v.imu_y], float)
 
 
 def small_slip_angles(vx, vy, r, delta, lf, lr, vx_min: float = 1.0):
@@ -288,19 +291,39 @@ def slip_over_step(x, u0, u1, w, first, dt: float, p: np.ndarray, jw: np.ndarray
     return accelerations(x, u0, p, True, rear_drive, slip)
 
 
-def measurement(a, B, x, roll_gain: float, full: bool):
+def measurement(a, B, x, roll_gain, full: bool, p: np.ndarray | None = None):
     """h(x, u) (N, m) and d(x, u) (N, m, n_w) of eq. (12) for the model's IMU channels (full:
-    a^X, a^Y, yaw rate; lateral: a^Y, yaw rate), from the accelerations of `accelerations`: the
-    IMU sees the accelerations (a^Y times the roll gain 1 + k g) and the yaw rate;
-    d = d a / d w (no Ts: eq. (12), docs/derivations.md, "Model")."""
+    a^X, a^Y, yaw rate; lateral: a^Y, yaw rate), from the accelerations of `accelerations`
+    (docs/derivations.md, "The single-track model and the measurement"). The IMU sits at
+    (imu_x, imu_y) of p (`model_params`; None: at the centre of gravity) on the rolling body:
+
+        h^X = a^X - imu_y r' - imu_x r^2,   h^Y = g a^Y + imu_x r' - imu_y r^2,   h^r = r
+
+    (the rigid body's a + r' z x p + r z x (r z x p) in 2-D; r' = a[:, 2], the model's yaw
+    acceleration), g = 1 + k g_0 the roll gain: a float, or (N,) one per particle (the MPF's
+    estimated roll gradient). r' is affine in w too, so d = d h / d w = [B_0 - imu_y B_2;
+    g B_1 + imu_x B_2; 0] (no Ts: eq. (12), "The single-track model and the measurement").
+    With the IMU at the centre of gravity the lever-arm terms are skipped, not added as zeros."""
     r = x[:, -1]
+    g = roll_gain if np.ndim(roll_gain) == 0 else np.asarray(roll_gain)[:, None]
+    ix, iy = (0.0, 0.0) if p is None else (float(p[P_IMU_X]), float(p[P_IMU_Y]))
+    lever = ix != 0.0 or iy != 0.0
     if full:
         h = np.array([a[:, 0], roll_gain * a[:, 1], r]).T
         D = B.copy()
-        D[:, 1] *= roll_gain
+        D[:, 1] *= g
         D[:, 2] = 0.0
+        jx, jy = 0, 1
     else:
         h = np.array([roll_gain * a[:, 1], r]).T
         D = np.zeros((len(x), 2, B.shape[2]))
-        D[:, 0] = roll_gain * B[:, 1]
+        D[:, 0] = g * B[:, 1]
+        jx, jy = None, 0
+    if lever:  # the lever arm: the yaw acceleration r' = a_2 + B_2 w and the centripetal r^2
+        rd, r2 = a[:, 2], r * r
+        if jx is not None:
+            h[:, jx] = (a[:, 0] - iy * rd) - ix * r2
+            D[:, jx] = B[:, 0] - iy * B[:, 2]
+        h[:, jy] = (h[:, jy] + ix * rd) - iy * r2
+        D[:, jy] = D[:, jy] + ix * B[:, 2]
     return h, D

@@ -4,8 +4,9 @@ order, one particle at a time), and the per-particle scalar helpers that the sti
 kernels (`estimators.mpf.kernels_weigh`) inline: `_model_t`, `_xdot_t` on scalars (the values
 returned, not stored in scratch arrays and read back, so that LLVM keeps them in registers),
 `_model1`, `_xdot1` into arrays, `_interval_slip1`, `_steer_consts`. The GP-SSM's kernels take
-`slip_angles1`. The packed parameters vp are `single_track.model_params`': (m, I, lf, lr, Cf_y,
-Cr_y, C_nom_fx, C_nom_rx, R_w, undriven_share). Compiled on first use and cached beside this file.
+`slip_angles1`; the measurement map's `_measure_h`, `_measure_d` (`measurement` for all particles).
+The packed parameters vp are `single_track.model_params`': (m, I, lf, lr, Cf_y, Cr_y, C_nom_fx,
+C_nom_rx, R_w, undriven_share, imu_x, imu_y). Compiled on first use and cached beside this file.
 Numba keys a kernel's cache by its own file only: after editing a helper here, delete the cache of
 the kernels that inline it (`estimators/mpf/__pycache__/kernels_*`, `estimators/gpssm/__pycache__/kernels_particles.*`).
 """
@@ -189,6 +190,55 @@ def slip_over_step(x, u0, u1, w, first, dt, vp, jw, c_floor, rear_drive, n_w):
                                                c_floor, rear_drive)
         af[i], ar[i], _, _ = _model1(xs, us, k0, True, out[0, i], out[1, i], a2[i], B2[i], vp, True, rear_drive, n_w)
     return a2, B2, af, ar, out
+
+
+@njit(inline="always", **_JIT)
+def _measure_h(a0, a1, a2, r, gain, ix, iy, lever):
+    """One particle's h of `single_track.measurement` on scalars: (h^X, h^Y) from the accelerations
+    (a0, a1, a2) = (a^X, a^Y, r') and the yaw rate r, the roll gain `gain`, the IMU at (ix, iy)
+    (vp[10], vp[11]); `lever` False (the IMU at the centre of gravity): no lever-arm terms."""
+    hx, hy = a0, gain * a1
+    if lever:
+        r2 = r * r
+        hx = (a0 - iy * a2) - ix * r2
+        hy = (hy + ix * a2) - iy * r2
+    return hx, hy
+
+
+@njit(inline="always", **_JIT)
+def _measure_d(b0, b1, b2, gain, ix, iy, lever):
+    """One column of d of `single_track.measurement` on scalars, from the column (b0, b1, b2) of B:
+    (d^X, d^Y) = (b0 - iy b2, gain b1 + ix b2) (without the lever arm (b0, b1 gain))."""
+    if lever:
+        return b0 - iy * b2, b1 * gain + ix * b2
+    return b0, b1 * gain
+
+
+@njit(**_JIT)
+def measurement(a, B, x, gain, vp, full, n_w):
+    """`single_track.measurement(a, B, x, gain, full, vp)` for all particles, gain (N,) the roll
+    gain per particle: h (N, m), d (N, m, n_w) by `_measure_h`, `_measure_d` (the per-particle
+    arithmetic of the MPF's weighting, `kernels_weigh._weigh`)."""
+    n, nx = x.shape
+    m = 3 if full else 2
+    ix, iy = vp[10], vp[11]
+    lever = ix != 0.0 or iy != 0.0
+    h = np.zeros((n, m))
+    D = np.zeros((n, m, n_w))
+    for i in range(n):
+        r = x[i, nx - 1]
+        hx, hy = _measure_h(a[i, 0], a[i, 1], a[i, 2], r, gain[i], ix, iy, lever)
+        jy = 1 if full else 0
+        if full:
+            h[i, 0] = hx
+        h[i, jy] = hy
+        h[i, m - 1] = r
+        for j in range(n_w):
+            dx, dy = _measure_d(B[i, 0, j], B[i, 1, j], B[i, 2, j], gain[i], ix, iy, lever)
+            if full:
+                D[i, 0, j] = dx
+            D[i, jy, j] = dy
+    return h, D
 
 
 @njit(inline="always", **_JIT)

@@ -13,6 +13,7 @@ import numpy as np
 
 from tirefilter.estimators.base import Estimate, Measurement
 from tirefilter.stats import effective_sample_size, normalize_log_weights
+from tirefilter.vehicle.single_track import GRAVITY
 
 NAN = math.nan
 _new_object = object.__new__  # (`CompiledStep._estimate_fused`)
@@ -56,6 +57,11 @@ class CompiledStep:
             noise, noise_scale = rng.standard_normal(self.x.shape), self._state_noise_scale(dt)
         else:
             noise, noise_scale = wk.no_noise, wk.no_scale
+        if self.k_roll is not None:  # the roll gain per particle (`_walk_roll`, `_roll_gains`)
+            if not start:
+                self._walk_roll(dt)
+            np.multiply(self.k_roll, GRAVITY, out=wk.gain)
+            wk.gain += 1.0
         if math.isfinite(sum(yl)):  # the kernels compiled for this model's sizes (kernels.SIZES_FULL ...)
             a, nc, sizes = wk.avail_all, wk.nc_all, wk.sizes_all
         else:
@@ -68,7 +74,7 @@ class CompiledStep:
         innovation, ess, count, nu_common = nb.predict_weigh(
             wk.own, wk.scratch, (u_prev, uk, yk, a, self.w_prev, self.logw, noise, noise_scale, redraw),
             wk.model[self.linear_region],
-            (dt, wk.max_step, float(self.lam), self.nu0, self.roll_gain, wk.beta, wk.yaw_max, wk.gate_speed),
+            (dt, wk.max_step, float(self.lam), self.nu0, wk.beta, wk.yaw_max, wk.gate_speed),
             wk.flags[self.active] if not start else wk.start_flags[weigh], nc, sizes)
         if math.isfinite(innovation):  # adaptive forgetting (`_adapt_forgetting`)
             self._smooth_surprise(innovation, dt)
@@ -93,6 +99,8 @@ class CompiledStep:
         if resample:
             self._swap_work(wk)
             self.resamples += 1
+            if self.k_roll is not None:
+                self.k_roll = self.k_roll[wk.idx]
         vx_est = vx_est if self.full else uk[3]
         if self._gate_or_restart(t, uk, y, vx_est, alpha, vy_std, pinned):
             return self._restart(t, uk, y)
@@ -137,6 +145,7 @@ class CompiledStep:
             self._sigma2_rel = max(v / c**2 for v, c in zip(s2, self.C_ref.tolist()))
         root, C = _sqrt_or_nan, self._C_nom_list
         f0 = f1 = 1.0
+        k_mean, k_std = self._roll_moments()
         est = _new_object(Estimate)
         if self.full:  # params Cx, Cf_y, Cr_y; bias ax, ay, yaw rate
             if dt is not None and self._calib is not None:
@@ -145,7 +154,8 @@ class CompiledStep:
                                 Cr_y=C[2] + mb[2], Cx=C[0] + mb[0], Cf_y_std=root(vm[1]) * f0,
                                 Cr_y_std=root(vm[2]) * f1, Cx_std=root(vm[0]), Cf_y_sigma=root(s2[1]),
                                 Cr_y_sigma=root(s2[2]), Cx_sigma=root(s2[0]), b_ax=bm[0], b_ay=bm[1], b_yaw_rate=bm[2],
-                                ess=float(ess), state_std=(xs[0], xs[1], xs[2]))
+                                ess=float(ess), state_std=(xs[0], xs[1], xs[2]), roll_gradient=k_mean,
+                                roll_gradient_std=k_std)
             return est
         vx = float(self.u_prev[3])
         if dt is not None and self._calib is not None:
@@ -153,7 +163,8 @@ class CompiledStep:
         est.__dict__.update(active=bool(self.active), vx=vx, vy=xm[0], yaw_rate=xm[1], Cf_y=C[0] + mb[0],
                             Cr_y=C[1] + mb[1], Cx=NAN, Cf_y_std=root(vm[0]) * f0, Cr_y_std=root(vm[1]) * f1, Cx_std=NAN,
                             Cf_y_sigma=root(s2[0]), Cr_y_sigma=root(s2[1]), Cx_sigma=NAN, b_ax=NAN, b_ay=bm[0],
-                            b_yaw_rate=bm[1], ess=float(ess), state_std=(0.0, xs[0], xs[1]))
+                            b_yaw_rate=bm[1], ess=float(ess), state_std=(0.0, xs[0], xs[1]), roll_gradient=k_mean,
+                            roll_gradient_std=k_std)
         return est
 
     def _estimate_compiled(self, ess: float) -> Estimate:
@@ -255,8 +266,9 @@ class _MPFWork:
         # walk q by the linear region, `model[linear_region]`), and the flags (by the gate, `flags[active]`)
         self.max_step, self.beta = float(cfg.max_step), float(cfg.plausible_beta)
         self.yaw_max, self.gate_speed = float(cfg.plausible_yaw_rate), float(cfg.gate_speed)
-        self.model = {linear: (mpf._vp, mpf._jw, mpf._c_floor, mpf.R, mpf.q_bias if linear else mpf.q_bias_nonlinear)
-                      for linear in (False, True)}
+        self.gain = np.full(N, mpf.roll_gain)  # the roll gain per particle (`_roll_gains`)
+        self.model = {linear: (mpf._vp, mpf._jw, mpf._c_floor, mpf.R, mpf.q_bias if linear else mpf.q_bias_nonlinear,
+                               self.gain) for linear in (False, True)}
         adaptive = cfg.forgetting_mode == "adaptive"
         self.flags = {active: (self.heun, self.interval, mpf.bias_on, active, mpf.full, mpf.rear_drive, adaptive,
                                True, True) for active in (False, True)}

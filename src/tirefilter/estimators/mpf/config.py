@@ -119,6 +119,13 @@ class MPFConfig:
     # parameter projection (Sec. V): stiffness bounds relative to the reference
     bound_low: float = 0.2
     bound_high: float = 3.0
+    # the roll gradient k of the IMU's a^Y gain 1 + k g (derivations, "The roll gain from the data"): a vehicle
+    # file without `roll_gradient` has it estimated as a parameter of each particle (True; False: k = 0 there),
+    # drawn uniform over roll_gradient_prior (rad per m/s^2) and walking by roll_gradient_rw per sqrt(s)
+    # (reflected at the prior's bounds) so that resampling does not collapse it
+    roll_estimate: bool = True
+    roll_gradient_prior: tuple[float, float] = (0.0, 0.02)
+    roll_gradient_rw: float = 5e-4
     # sensors
     sigma: tuple[float, float, float] = (0.05, 0.05, 0.0035)  # ax, ay, yaw rate white noise
     # IMU bias (eq. (29)-(30)): prior std and random walk per sqrt(s) of ax, ay, yaw rate;
@@ -210,6 +217,12 @@ class MPFConfig:
             bad("max_step", f"must be > 0, got {self.max_step!r}")
         if not (self.gap_after >= 0 and math.isfinite(self.gap_after)):
             bad("gap_after", f"must be finite and >= 0 (0: never), got {self.gap_after!r}")
+        prior = tuple(self.roll_gradient_prior)
+        if len(prior) != 2 or not 0.0 <= prior[0] <= prior[1] <= 0.05:
+            bad("roll_gradient_prior", f"needs (low, high) with 0 <= low <= high <= 0.05 rad per m/s^2, got "
+                f"{self.roll_gradient_prior!r}")
+        if not (self.roll_gradient_rw >= 0 and math.isfinite(self.roll_gradient_rw)):
+            bad("roll_gradient_rw", f"must be finite and >= 0, got {self.roll_gradient_rw!r}")
         if self.backend not in ("numba", "numpy"):
             bad("backend", f"expected numba or numpy, got {self.backend!r}")
         if not (self.calibration_memory > 0 and math.isfinite(self.calibration_memory)):

@@ -53,7 +53,10 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         self.C_nom = np.array([v.Cx, v.Cf_y, v.Cr_y] if self.full else [v.Cf_y, v.Cr_y])
         self.n_w = len(self.params)
         self.channels = (0, 1, 2) if self.full else (1, 2)  # ax, ay, yaw rate
-        self.roll_gain = 1.0 + v.roll_gradient * GRAVITY  # measured a^Y ~ (1 + k g) a^Y
+        self.roll_gain = v.imu_roll_gain(GRAVITY)  # measured a^Y ~ (1 + k g) a^Y
+        # no roll_gradient in the vehicle file: k a parameter of each particle (`k_roll`, derivations, "The roll gain
+        # from the data"), the roll gain 1 + k g per particle
+        self.roll_estimated = v.roll_gradient is None and self.cfg.roll_estimate
         sig = np.asarray(self.cfg.sigma)[list(self.channels)]
         self.R = np.diag(sig**2)
         ch = list(self.channels)
@@ -186,6 +189,29 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         self.b = np.zeros((N, m))
         self.P = np.broadcast_to(np.diag(np.asarray(cfg.bias0_std)[list(self.channels)] ** 2), (N, m, m)).copy()
         self.logw = np.full(N, -math.log(N))
+        # the roll gradient of each particle, uniform over the prior (None: the vehicle file's, `roll_gain`)
+        self.k_roll = rng.uniform(*cfg.roll_gradient_prior, N) if self.roll_estimated else None
+
+    # ---- the roll gain (derivations, "The roll gain from the data") --------------------------
+    def _roll_gains(self):
+        """The IMU's a^Y gain 1 + k g: (N,) per particle where k is estimated, else the float."""
+        return self.roll_gain if self.k_roll is None else 1.0 + self.k_roll * GRAVITY
+
+    def _walk_roll(self, dt: float) -> None:
+        """The random walk of k over dt (`roll_gradient_rw` per sqrt(s)), reflected at the prior's bounds:
+        without it, resampling would leave every particle with the k of a few ancestors."""
+        lo, hi = self.cfg.roll_gradient_prior
+        k = self.k_roll + (self.cfg.roll_gradient_rw * math.sqrt(dt)) * self.rng.standard_normal(len(self.k_roll))
+        k = np.where(k < lo, 2.0 * lo - k, k)
+        self.k_roll = np.clip(np.where(k > hi, 2.0 * hi - k, k), lo, hi)
+
+    def _roll_moments(self) -> tuple[float, float]:
+        """The posterior mean and std of k (NaN, NaN where it is not estimated)."""
+        if self.k_roll is None:
+            return NAN, NAN
+        q = np.exp(self.logw)
+        mean = float(q @ self.k_roll)
+        return mean, math.sqrt(max(float(q @ (self.k_roll - mean) ** 2), 0.0))
 
     # ---- model: `vehicle.single_track` (numpy) or its compiled twin ------------------------
     def _model(self, x, u, slip=None):
@@ -217,8 +243,9 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
                                            self.rear_drive)
 
     def _measurement(self, a, B, x):
-        """`single_track.measurement`: h (N, m) and d (N, m, n_w) of eq. (12)."""
-        return single_track.measurement(a, B, x, self.roll_gain, self.full)
+        """`single_track.measurement`: h (N, m) and d (N, m, n_w) of eq. (12), the IMU's lever arm and roll
+        gain (per particle where it is estimated) included."""
+        return single_track.measurement(a, B, x, self._roll_gains(), self.full, self._vp)
 
     # ---- the filter: the numpy reference step ----------------------------------------------
     def step(self, t: float, u: Inputs, y: Measurement) -> Estimate:
@@ -265,6 +292,8 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
             self._redraw_after_gap(dt, u_now)
             if self.state_noise is not None:  # optional regularisation against sample impoverishment
                 self.x = self.x + self._state_noise_scale(dt) * self.rng.standard_normal(self.x.shape)
+            if self.k_roll is not None:
+                self._walk_roll(dt)
             if self.bias_on:
                 q = self.q_bias if self.linear_region else self.q_bias_nonlinear
                 self.P = self.P + np.diag(q * dt)
@@ -315,6 +344,8 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         if ess < cfg.resample_threshold * cfg.particles:
             idx = systematic_resample(self.logw, self.rng)
             self.x, self.b, self.P = self.x[idx], self.b[idx], self.P[idx]
+            if self.k_roll is not None:
+                self.k_roll = self.k_roll[idx]
             self.stats = self.stats.take(idx)
             h, D, af, ar = h[idx], D[idx], af[idx], ar[idx]
             a_k, B_k, _, _, slip_k = model_k
@@ -428,7 +459,7 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
                                                                              var_mean, sigma2)}
         bias = dict(zip(("ax", "ay", "yaw_rate") if self.full else ("ay", "yaw_rate"), b_mean))
         return particle_estimate(active=self.active, ess=ess, x_mean=x_mean, x_std=x_std, stiffness=vals, bias=bias,
-                                 vx_input=NAN if self.u_prev is None else self.u_prev[3])
+                                 vx_input=NAN if self.u_prev is None else self.u_prev[3], roll=self._roll_moments())
 
     # ---- carrying the learned stiffness from one drive to the next -------------------------
     def learned_state(self) -> dict:
@@ -484,6 +515,8 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         stats = {"gamma": self.stats.gamma.copy(), "mu": self.stats.mu.copy(), "Lam": self.stats.Lam.copy(),
                  "nu": self.stats.nu.copy(), "bias": self.b.copy(), "bias_cov": self.P.copy(),
                  "C_nominal": self.C_nom.copy(), "params": self.params}
+        if self.k_roll is not None:
+            stats["roll_gradient"] = self.k_roll.copy()
         if self._calib is not None:  # the factor of the calibrated lateral *_std ("Batch-means sandwich"), 1 for Cx
             stats["std_factor"] = np.concatenate([np.ones(len(self.params) - 2), self._calib.factor])
         return Posterior(self.x.copy(), self.logw.copy(), stats)

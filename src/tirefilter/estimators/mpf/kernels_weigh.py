@@ -9,7 +9,8 @@ import math
 import numpy as np
 from numba import njit
 
-from tirefilter.vehicle.single_track_numba import _interval_slip1, _model_t, _steer_consts, _xdot_t
+from tirefilter.vehicle.single_track_numba import (_interval_slip1, _measure_d, _measure_h, _model_t, _steer_consts,
+                                                   _xdot_t)
 
 _JIT = dict(cache=True, nogil=True, no_cfunc_wrapper=True)  # (no C callback is taken of a kernel)
 # a helper only kernels call: no wrapper for Python calls either (each wrapper, which unboxes every
@@ -70,8 +71,9 @@ def _normalise_into(logw, add):
 
 
 @njit(inline="always", **_JIT)
-def _weigh(own, scratch, y, avail, R, roll_gain, full, bias_on, n_w, na):
-    """Step 2 of `predict_weigh` (its arguments, n_w and na the sizes): per particle h, D, nu~ (nu_w),
+def _weigh(own, scratch, y, avail, R, gain, vp, full, bias_on, n_w, na):
+    """Step 2 of `predict_weigh` (its arguments, n_w and na the sizes; gain (N,) the roll gain per
+    particle, vp the model's parameters with the IMU's lever arm): per particle h, D, nu~ (nu_w),
     L11, L12, Lc = chol(S), e, v and the Student-t log-density ll, into `scratch`."""
     x, b, P, gamma, mu, Lam, nu, a, B, slip = own
     af, ar, h, D, L11, nu_w, L12, Lc, e, v, ll, ok = scratch
@@ -79,22 +81,26 @@ def _weigh(own, scratch, y, avail, R, roll_gain, full, bias_on, n_w, na):
     DL = np.empty((max(na, 1), n_w))
     p = float(na)
     last, cn = -1.0, 0.0
+    ix, iy = vp[10], vp[11]  # the IMU's lever arm (`single_track.measurement`)
+    lever = ix != 0.0 or iy != 0.0
     for i in range(n):
-        # 2. h, D (`_measurement`), the predictive (eq. (21)) and the weight (eq. (36))
+        # 2. h, D (`_measurement`: the model twin's `_measure_h`, `_measure_d`), the predictive (eq. (21))
+        # and the weight (eq. (36))
         r = x[i, nx - 1]
+        g = gain[i]
+        hx, hy = _measure_h(a[i, 0], a[i, 1], a[i, 2], r, g, ix, iy, lever)
         if full:
-            h[i, 0] = a[i, 0]
-            h[i, 1] = roll_gain * a[i, 1]
+            h[i, 0] = hx
+            h[i, 1] = hy
             h[i, 2] = r
             for j in range(n_w):
-                D[i, 0, j] = B[i, 0, j]
-                D[i, 1, j] = B[i, 1, j] * roll_gain
+                D[i, 0, j], D[i, 1, j] = _measure_d(B[i, 0, j], B[i, 1, j], B[i, 2, j], g, ix, iy, lever)
                 D[i, 2, j] = 0.0
         else:
-            h[i, 0] = roll_gain * a[i, 1]
+            h[i, 0] = hy
             h[i, 1] = r
             for j in range(n_w):
-                D[i, 0, j] = roll_gain * B[i, 1, j]
+                D[i, 0, j] = _measure_d(B[i, 0, j], B[i, 1, j], B[i, 2, j], g, ix, iy, lever)[1]
                 D[i, 1, j] = 0.0
         dof = nu[i] - n_w + 1.0
         nu_w[i] = dof
@@ -171,9 +177,9 @@ def predict_weigh(own, scratch, inputs, model, scalars, flags, nc, sizes):
       own = (x, b, P, gamma, mu, Lam, nu, a, B, slip), the particles' own arrays (read and written);
       scratch = (af, ar, h, D, L11, nu_w, L12, Lc, e, v, ll, ok), the weighting's arrays (written);
       inputs = (u_prev, uk, y, avail, w_prev, logw, noise, noise_scale, redraw), this sample's
-      (logw written); model = (vp, jw, c_floor, R, q); scalars = (dt, max_step, lam, nu_min, roll_gain,
-      beta, yaw_max, gate_speed); flags = (heun, interval, bias_on, forget, full, rear_drive, want_nis,
-      propagate, weigh); nc the accelerometer channels among `avail`; `sizes` below.
+      (logw written); model = (vp, jw, c_floor, R, q, gain), gain (N,) the roll gain per particle;
+      scalars = (dt, max_step, lam, nu_min, beta, yaw_max, gate_speed); flags = (heun, interval, bias_on, forget,
+      full, rear_drive, want_nis, propagate, weigh); nc the accelerometer channels among `avail`; `sizes` below.
     `propagate` False (the first sample) skips step 1 (propagation, bias prediction, forgetting);
     `weigh` False (the informed start) normalises the start's weights that the caller put in logw
     instead of adding the likelihood. Per particle: the first stage of the
@@ -207,8 +213,8 @@ def predict_weigh(own, scratch, inputs, model, scalars, flags, nc, sizes):
     x, b, P, gamma, mu, Lam, nu, a, B, slip = own
     af, ar, h, D, L11, nu_w, L12, Lc, e, v, ll, ok = scratch
     u_prev, uk, y, avail, w_prev, logw, noise, noise_scale, redraw = inputs
-    vp, jw, c_floor, R, q = model
-    dt, max_step, lam, nu_min, roll_gain, beta, yaw_max, gate_speed = scalars
+    vp, jw, c_floor, R, q, gain = model
+    dt, max_step, lam, nu_min, beta, yaw_max, gate_speed = scalars
     heun, interval, bias_on, forget, full, rear_drive, want_nis, propagate, weigh = flags
     if sizes.ndim == 3:
         if mu.shape[1] != 3 or avail.shape[0] != 3:
@@ -316,7 +322,7 @@ def predict_weigh(own, scratch, inputs, model, scalars, flags, nc, sizes):
         ok[i] = abs(x[i, nx - 2]) <= beta * max(abs(vxp), gate_speed) and abs(x[i, nx - 1]) <= yaw_max
         count += ok[i]
     # 2. the weights
-    _weigh(own, scratch, y, avail, R, roll_gain, full, bias_on, n_w, na)
+    _weigh(own, scratch, y, avail, R, gain, vp, full, bias_on, n_w, na)
     innovation = math.nan
     if want_nis and nc:
         innovation = 0.0
