@@ -96,7 +96,7 @@ TARGETS = (
            ("tests/test_kernels.py", "-k", "mniw_kernels_equal")),
     Target("src/tirefilter/vehicle/tires.py", ("tests/test_vehicle_model.py", "tests/test_exact_vehicle.py")),
     Target("src/tirefilter/vehicle/single_track.py", ("tests/test_vehicle_model.py", "tests/test_exact_vehicle.py",
-                                                    "tests/test_exact_model.py")),
+                                                    "tests/test_exact_model.py", "tests/test_imu_roll.py")),
     Target("src/tirefilter/vehicle/params.py", ("tests/test_vehicle_model.py", "tests/test_scenarios.py",
                                                 "tests/test_exact_vehicle.py")),
     Target("src/tirefilter/metrics.py", ("tests/test_metrics.py", "tests/test_exact_metrics.py"),
