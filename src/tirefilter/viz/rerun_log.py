@@ -37,7 +37,7 @@ from tirefilter.errors import ConfigError
 from tirefilter.viz import clouds, paths
 from tirefilter.viz.blueprint import (BODY, ESTIMATE, POSTERIOR_BAND, SPREAD_BAND, STATE_NAMES, STEER, TRUTH, Z90,
                                       Layout, build_blueprint, layout_json, overview_scale)
-from tirefilter.viz.density import ComponentCache, stiffness_mixture, window_grid
+from tirefilter.viz.density import ComponentCache, grid_quantiles, stiffness_mixture, window_grid
 from tirefilter.viz.options import RecordingContext, RecordingOptions
 from tirefilter.viz.paths import TIMELINE, entity_path
 from tirefilter.viz.units import DEG, scale, unit
@@ -49,6 +49,7 @@ BETA_GAIN = 10.0  # the velocity arrows are drawn at this many times beta to the
 STARTUP_S = 5.0  # s: the y ranges fit the data from this long after the first row
 DENSITY_REACH = 4.0  # the density snapshot shows the posterior over its mean -+ this many std
 MIN_WINDOW = 1e-4  # ... and at least -+ this share of the mean
+QUANTILES = (0.05, 0.95)  # the density views' and the quantiles tab's band
 SETTLED_LIMIT = 100_000  # values kept per view for its y range (thinned by 2 beyond)
 BIAS_NOTE = ("**Bias not estimated.** This estimator takes the IMU as unbiased: its bias prior "
              "(`bias0_std`) and random walk (`bias_rw`) are zero, as in the stiffness paper's Sec. VI. "
@@ -361,7 +362,9 @@ class RerunRecorder:
             self.rec.log(paths.density_truth(e, p), rr.BarChart(np.array([values.max()], np.float32),
                                                                 abscissa=np.array([truth]),
                                                                 widths=np.array([2 * step], np.float32), color=TRUTH))
-        q = mixture.quantiles(p, [0.05, 0.95]) * k
+        # to 1e-6 of the std: below what the recording's float32 resolves at the mean (6e-8 of it)
+        q = mixture.quantiles(p, QUANTILES, start=grid_quantiles(mixture, p, grid, values * k, QUANTILES),
+                              rtol=1e-6) * k
         for which, v in zip(("q05", "q95"), q):
             self.rec.log(paths.density_quantile(e, p, which), rr.Scalars(float(v)))
         if self._t0 is not None and t >= self._t0 + STARTUP_S:
