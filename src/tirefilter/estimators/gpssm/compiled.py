@@ -79,7 +79,8 @@ import numpy as np
 
 from tirefilter.errors import ConfigError
 from tirefilter.estimators.base import Estimate
-from tirefilter.estimators.gpssm.kernels_particles import DOF, PHI, front, sample, weigh
+from tirefilter.estimators.gpssm.bias import bias_predict
+from tirefilter.estimators.gpssm.kernels_particles import DOF, PF, PHI, PR, front, sample, weigh
 from tirefilter.estimators.gpssm.kernels_resample import gather_lower, resample
 from tirefilter.estimators.gpssm.kernels_stats import (LANES, LANES_BELOW, exact_forget_predictive,
                                                        exact_forget_predictive_rows, lanes_load, lanes_store,
@@ -145,7 +146,6 @@ class CompiledStep:
         self.sn = np.asarray(cfg.state_noise, float)
         self.noise = bool(cfg.state_noise[0] > 0 or cfg.state_noise[1] > 0)
         self.gate_speed = float(cfg.gate_speed)
-        self.lam = float(cfg.forgetting)
         self.nu0 = float(est.nu0)
         self.learned = cfg.measurement_friction == "learned"
         self.threshold = cfg.resample_threshold * N
@@ -161,21 +161,23 @@ class CompiledStep:
 
     def _arrays(self):
         """(statistics, particles, flat statistics' views, the resampling's (N, k) views, K for the
-        resampling copies, the statistics' arrays), rebuilt when the statistics, their arrays or
-        the particles' array were replaced (K then loaded into the lanes again)."""
+        resampling copies, the statistics' arrays, the bias filters), rebuilt when the statistics,
+        their arrays, the particles' array or the bias's were replaced (K then loaded into the
+        lanes again)."""
         est = self.est
         st = est._stats
         a0, a1, a2 = (st.K, st.Psi, st.Phi) if self.exact else (st.M, st.P, st.Lam)
         c = self._cache
         if c is not None:  # (`is` one by one: a generator over the four costs about a microsecond)
             a = c[5]
-            if c[0] is st and c[1] is est.x and a[0] is a0 and a[1] is a1 and a[2] is a2 and a[3] is st.nu:
+            if (c[0] is st and c[1] is est.x and a[0] is a0 and a[1] is a1 and a[2] is a2 and a[3] is st.nu
+                    and c[6] is est.bias):
                 return c
         arrays = (a0, a1, a2, st.nu)
         N = self.N
         views = (_flat(arrays[0], 2), _flat(arrays[1], 2), _flat(arrays[2], 2), arrays[3].reshape(-1))
         rows = (st.Psi, st.Phi) if self.exact else (st.M, st.P, st.Lam)
-        rows = tuple(a.reshape(N, -1) for a in rows) + (st.nu.reshape(N, -1), est.x, self.work)
+        rows = tuple(a.reshape(N, -1) for a in rows) + (st.nu.reshape(N, -1), est.x, self.work, est.bias)
         if self.exact and not self.lanes:  # (the rows pass makes the copy: `resample`'s `defer`)
             kcopy = st.K.reshape((N, self.per) + st.K.shape[-2:])
         else:
@@ -184,7 +186,7 @@ class CompiledStep:
             self.kl_loaded = False  # other statistics or another K: K from them (a new particles'
             # array alone leaves the lanes holding the statistics' current K)
             self.gather = False  # (and no resampling copy made into them)
-        self._cache = c = (st, est.x, views, rows, kcopy, arrays)
+        self._cache = c = (st, est.x, views, rows, kcopy, arrays, est.bias)
         return c
 
     def flush(self) -> None:
@@ -234,15 +236,17 @@ class CompiledStep:
         fields.update(self._template)
         fields.update(active=est.active, vx=vx, vy=float(m0), yaw_rate=float(m1), ess=ess,
                       state_std=(0.0, float(s0), float(s1)))
+        if est.bias_on:
+            fields["b_ay"], fields["b_yaw_rate"] = est.bias_mean()
         return e
 
     def step(self, t, uk, delta: float, vx: float, y):
         est = self.est
         N, rng = self.N, est.rng
         work, (Fz0, Fz1, mass) = self.work, self.veh[:3]
-        _, _, (a1, a2, a3, nu), rows, kcopy, _ = self._arrays()
+        _, _, (a1, a2, a3, nu), rows, kcopy, _, _ = self._arrays()
         # 1. propagate with the friction drawn at k-1 (eq. (1)), forget (eq. (29), fused into 2.)
-        forget = False
+        forget, lam = False, 1.0
         propagate, n_sub, h, cd, vx_prev = False, 0, 0.0, 1.0, 0.0
         if est.t_prev is None:
             if math.isfinite(y.yaw_rate):
@@ -255,12 +259,15 @@ class CompiledStep:
             h = dt / n_sub
             u_prev = est.u_prev
             cd, vx_prev, propagate = math.cos(u_prev[0]), float(u_prev[1]), True
+            if est.bias_on:  # the bias's random walk (`gpssm.bias`)
+                bias_predict(est.bias, est.q_bias, dt)
             if self.noise:
                 front(est.x, est.mu, work, (True, n_sub, h, cd, vx_prev), self.veh, delta, vx,
                       (self.L, self.m1, self.keep, self.keep_r, self.tensor), (1.0, 1.0, 1.0, 0.0, 0.0, 0.0))
                 est.x[:] = est.x + math.sqrt(dt) * self.sn * rng.standard_normal(est.x.shape)
                 propagate = False
             forget = est.active
+            lam = est.forgetting_factor(dt)
         est.active = active = bool(vx > self.gate_speed and est.learning_started)
         # 2. slip angles (clipped, counted), features, prior
         p = est.prior
@@ -270,6 +277,7 @@ class CompiledStep:
         n_out = front(est.x, est.mu, work, (propagate, n_sub, h, cd, vx_prev), self.veh, delta, vx,
                       (self.L, self.m1, self.keep, self.keep_r, self.tensor), self._pargs)
         est.slip_evaluations += N
+        est.clip_share = n_out / N
         if n_out:
             est.clipped += n_out
             est.clipped_steps += 1
@@ -281,15 +289,15 @@ class CompiledStep:
                     lanes_load(a1, self.Kl)
                     self.kl_loaded = True
                 exact_forget_predictive(self.Kl, (a2, a3, nu), (V, Lam0), work, self.per,
-                                        (forget, self.lam, self.nu0), (self.pending, self.zeta, self.phi_p))
+                                        (forget, lam, self.nu0), (self.pending, self.zeta, self.phi_p))
             else:
-                exact_forget_predictive_rows(a1, (a2, a3, nu), (V, Lam0), work, self.per, (forget, self.lam, self.nu0),
+                exact_forget_predictive_rows(a1, (a2, a3, nu), (V, Lam0), work, self.per, (forget, lam, self.nu0),
                                              (self.pending, self.zeta, self.phi_p), self.anc, self.gather)
                 self.stale_upper = True
                 self.gather = False
             self.pending = False
         else:
-            rank1_forget_predictive(a1, a2, a3, nu, work, self.per, forget, self.lam, self.nu0,
+            rank1_forget_predictive(a1, a2, a3, nu, work, self.per, forget, lam, self.nu0,
                                     bool(est._stats.bounded), float(est._stats.trace0))
         # 4. weights (eq. (22)), resampling
         yay, yr = float(y.ay), float(y.yaw_rate)
@@ -297,9 +305,10 @@ class CompiledStep:
         learned = self.learned
         conditional = have_ay and learned
         add = 1.0 if conditional else 0.0
-        ess, pa, pr_, c = weigh(est.x, work, est.logw, Fz0 * math.cos(delta) / mass, Fz1 / mass,
-                                (yay, yr, have_ay, math.isfinite(yr)), (self.R0, self.R1), learned, add)
-        est.prediction = (pa, pr_)
+        c0, c1 = Fz0 * math.cos(delta) / mass, Fz1 / mass
+        ess, pa, pr_, c, va, vr = weigh(est.x, work, est.logw, est.bias, c0, c1,
+                                        (yay, yr, have_ay, math.isfinite(yr)), (self.R0, self.R1), learned, add)
+        est.prediction, est.prediction_var = (pa, pr_), (va, vr)
         if ess < self.threshold:  # as stats.systematic_resample, its uniform first
             defer = self.exact and not self.lanes
             c = resample(est.logw, float(rng.random((1,))[0]), rows, kcopy, self.per, self.lanes, add, work,
@@ -315,6 +324,8 @@ class CompiledStep:
         exact_active = active and self.exact
         m0, m1, s0, s1, mf, mr = sample(est.x, work, est.logw, z, u, self.zeta, est.mu, conditional, exact_active,
                                         self.phi_p)
+        if est.bias_on:  # the bias given the trajectory (`FrictionGPSSM._bias_update`)
+            est._bias_update(y, est.mu @ np.array([c0, c1]) if learned else c0 * work[:, PF] + c1 * work[:, PR])
         if active:
             if self.exact:  # applied in the next step's pass over the statistics (or by `flush`)
                 self.pending = True
