@@ -255,8 +255,8 @@ def for_log(vehicle, t, signals: dict, source="log") -> Setting:
     """A recorded log: `signals` maps the log's signal names that have samples to (n,)
     arrays at the times `t` (n,); the IMU model comes from the vehicle TOML or is estimated
     from them (`sensors.sensors_for_log`), the MPF's options from them (`mpf_config_for_log`),
-    the GP-SSM's sample period is the median time step, its state starts at zero and its
-    tires have no known shape; `source` names the log in errors. What is kept of the log is
+    the GP-SSM's sample period is the median time step, its state starts at zero, its
+    tires have no known shape and its prior's slope is the vehicle file's stiffness; `source` names the log in errors. What is kept of the log is
     its IMU model and `log_start`, nothing of its length: a replay may drop its samples once
     this is made."""
     from tirefilter.estimators.sensors import sensors_for_log
@@ -270,7 +270,7 @@ def for_log(vehicle, t, signals: dict, source="log") -> Setting:
         particles=None, sample_period=sample_period,
         gpssm={"sigma": sensors.sigma[1:], "x0_mean": (0.0, 0.0), "tire_shape": None,
                "bias0_std": sensors.bias0_std[1:], "bias_rw": sensors.bias_rw[1:], "sigma_omega": sensors.sigma_omega,
-               "sigma_ax": sensors.sigma[0]},
+               "sigma_ax": sensors.sigma[0], "prior_slope": "vehicle"},
         kf={"sigma_ay": sensors.sigma[1], "sigma_yaw_rate": sensors.sigma[2]})
 
 

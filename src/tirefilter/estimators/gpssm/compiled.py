@@ -322,7 +322,7 @@ class CompiledStep:
         else:  # t_draws' generator calls for a common dof, without its checks
             z, u = rng.standard_normal((N, 2)), rng.chisquare(c, (N,))
         exact_active = active and self.exact
-        m0, m1, s0, s1, mf, mr = sample(est.x, work, est.logw, z, u, self.zeta, est.mu, conditional, exact_active,
+        m0, m1, s0, s1, mf, mr, vf, vr = sample(est.x, work, est.logw, z, u, self.zeta, est.mu, conditional, exact_active,
                                         self.phi_p)
         if est.bias_on:  # the bias given the trajectory (`FrictionGPSSM._bias_update`)
             est._bias_update(y, est.mu @ np.array([c0, c1]) if learned else c0 * work[:, PF] + c1 * work[:, PR])
@@ -333,13 +333,16 @@ class CompiledStep:
                 rank1_update(a1, a2, a3, nu, work, self.zeta, self.per)
             v = est.visited
             est.visited = [min(v[0], mf), max(v[1], mf), min(v[2], mr), max(v[3], mr)]
+            jf, jr = est._bin(mf), est._bin(mr)
             if self.tensor:  # the reference's `_path[0, jf] += (1.0, mr)`, element by element
-                jf, jr = est._bin(mf), est._bin(mr)
                 path = est._path
                 path[0, jf, 0] += 1.0
                 path[0, jf, 1] += mr
                 path[1, jr, 0] += 1.0
                 path[1, jr, 1] += mf
+            est._slip_spread(lam if forget else 1.0, jf, jr, vf, vr)
+            est.mean_slip = (mf, mr)
+        est.lam_step = lam if forget else 1.0
         est.t_prev, est.u_prev, est.last_t = t, uk, t
         if self.exact and est.mpf_estimate is None:
             return self._estimate(ess, vx, (m0, m1, s0, s1))

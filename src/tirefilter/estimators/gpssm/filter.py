@@ -41,6 +41,7 @@ from tirefilter.estimators.sensors import MEMS_BIAS0_STD, MEMS_BIAS_RW
 from tirefilter.stats import effective_sample_size, normalize_log_weights, systematic_resample
 from tirefilter.stats.gp import GPBasis1D, make_basis
 from tirefilter.stats.mniw import make_mniw
+from tirefilter.stats.sandwich import BatchMeansSandwichPair
 from tirefilter.stats.student_t import t_sample
 from tirefilter.vehicle.params import VehicleParams
 from tirefilter.vehicle.single_track import GRAVITY, slip_angles
@@ -70,6 +71,10 @@ class GPSSMConfig:
     q0: float = 0.01  # prior guess of the std of w (friction units): Lambda_0 = q0^2 (nu_0 - d - 1) I
     nu0_margin: float = 2.0  # nu_0 = d + 1 + margin
     prior_peak: float = 0.05  # D of the Pacejka prior (Sec. 4)
+    # "peak": the prior of prior_peak and prior_B/C/E (the paper's Sec. 4); "vehicle": its slope the vehicle
+    # file's cornering stiffness over the static axle load, its peak that slope times saturation_slip (F6's
+    # scaling; a replay's default: a car on an unknown road, derivations, "F6. Combined pipeline")
+    prior_slope: str = "peak"
     prior_B: float | None = None  # Magic-Formula shape of the prior; None: the scenario's tire set
     prior_C: float | None = None  # (else B = 10, C = 1.3, E = 0)
     prior_E: float | None = None
@@ -100,10 +105,16 @@ class GPSSMConfig:
     supervise: bool = True  # watch for divergence, report it and start the state again
     diverge_clip_share: float = 0.2  # share of particles with a slip angle outside [-L, L]
     diverge_beta: float = 20.0 * DEG  # rad, |posterior-mean sideslip|
-    diverge_nis: float = 25.0  # smoothed normalised squared prediction error (1: the data fit)
+    diverge_nis: float = 400.0  # smoothed normalised squared prediction error (1: the data fit)
     diverge_window: float = 2.0  # s, time constant of that smoothing
     diverge_after: float = 1.0  # s
     checkpoint_every: float = 5.0  # s between copies of the statistics kept for a restart
+    # the band of the learned curve (derivations, "F5. The friction estimate"): "calibrated" adds the slip's
+    # posterior variance at the learning samples times the curve's squared slope and scales the GP's variance by
+    # the batch-means sandwich of the a^Y residuals (as the MPF's `std_calibration`); "posterior": eq. (30) alone
+    band: str = "calibrated"
+    calibration_batch: float = 0.75  # s of learning per batch of the sandwich
+    calibration_memory: float = 2.0  # the sandwich's memory in units of the statistics' (lambda^(1 / this))
     # output
     grid_step: float = 0.25 * DEG  # spacing of the friction() grid (0.25 deg or finer)
     slip_range: float | None = None  # half-width of the friction() grid (default L; at most L)
@@ -123,6 +134,13 @@ class GPSSMConfig:
             bad("stats", f"expected exact or rank1, got {self.stats!r}")
         if self.backend not in ("numba", "numpy"):
             bad("backend", f"expected numba or numpy, got {self.backend!r}")
+        if self.prior_slope not in ("peak", "vehicle"):
+            bad("prior_slope", f"expected peak or vehicle, got {self.prior_slope!r}")
+        if self.band not in ("calibrated", "posterior"):
+            bad("band", f"expected calibrated or posterior, got {self.band!r}")
+        for key in ("calibration_batch", "calibration_memory"):
+            if not (getattr(self, key) > 0 and math.isfinite(getattr(self, key))):
+                bad(key, f"must be finite and > 0, got {getattr(self, key)!r}")
         if self.measurement_friction not in ("learned", "prior"):
             bad("measurement_friction", f"expected learned or prior, got {self.measurement_friction!r}")
         GPBasis1D(self.L, self.m, self.lengthscale, self.s_f)  # L, l, m, s_f checks
@@ -199,6 +217,14 @@ class PacejkaPrior:
         return self.B[0] * self.C * self.D[0], self.B[1] * self.C * self.D[1]
 
 
+def slip_slope_prior(slope_f: float, slope_r: float, C: float, saturation_slip: float) -> PacejkaPrior:
+    """The prior of given slopes mu~'(0) per axle (cornering stiffness over the axle load) whose
+    peak is the slope times `saturation_slip` (derivations, "F6. Combined pipeline"):
+    D = slope a, B = 1 / (C a), E = 0, so that B C D = slope."""
+    a = saturation_slip
+    return PacejkaPrior((slope_f * a, slope_r * a), (1.0 / (C * a), 1.0 / (C * a)), C, 0.0)
+
+
 class FrictionGPSSM:
     """Algorithm 1 of the friction paper, vectorised over particles; `mpf` given: the
     combined pipeline (name "combined")."""
@@ -217,7 +243,11 @@ class FrictionGPSSM:
         B = cfg.prior_B if cfg.prior_B is not None else shape[0]
         C = cfg.prior_C if cfg.prior_C is not None else shape[1]
         E = cfg.prior_E if cfg.prior_E is not None else shape[2]
-        self.prior0 = PacejkaPrior((cfg.prior_peak, cfg.prior_peak), (B, B), C, E)
+        if cfg.prior_slope == "vehicle":
+            self.prior0 = slip_slope_prior(vehicle.Cf_y / self.Fz[0], vehicle.Cr_y / self.Fz[1], C,
+                                           cfg.saturation_slip)
+        else:
+            self.prior0 = PacejkaPrior((cfg.prior_peak, cfg.prior_peak), (B, B), C, E)
         self.R = np.array(cfg.sigma, float) ** 2
         self.q_bias = np.square(np.asarray(cfg.bias_rw, float))  # per s
         self.bias_on = bool(np.any(self.q_bias > 0) or np.any(np.asarray(cfg.bias0_std, float) > 0))
@@ -300,7 +330,11 @@ class FrictionGPSSM:
         self.checkpoints = Checkpoints(cfg.checkpoint_every)
         self.divergences: list[Divergence] = []
         self.clip_share = 0.0  # share of particles with a slip angle clipped at the last sample
+        self.lam_step = 1.0  # the forgetting factor of the last step (1: none)
+        self.mean_slip = (NAN, NAN)  # the posterior-mean slip angles of the last step (after resampling)
+        self._calib = (BatchMeansSandwichPair(cfg.calibration_batch, math.inf) if cfg.band == "calibrated" else None)
         self.prediction_var = (NAN, NAN)  # variance of the one-step prediction of (a^Y, r)
+        self._t_calib = None  # the time of the last sample the sandwich saw
         self.mu = np.zeros((N, 2))  # friction realised over the current step
         self.prior = self.prior0
         self.t_prev = self.u_prev = None
@@ -314,6 +348,9 @@ class FrictionGPSSM:
         self.last_t = NAN
         self.prediction = (NAN, NAN)  # one-step-ahead (a^Y, r) before the last measurement
         self._path = np.zeros((2, len(self.grid), 2))  # (axle, grid bin, [count, sum of the other slip])
+        # the slip's posterior variance at the learning samples, per axle and grid bin of the mean slip, forgotten
+        # as the statistics: [weight, weighted sum of the variance] (`_slip_spread`, `slip_variance`)
+        self._spread = np.zeros((2, len(self.grid), 2))
         self._slope = (NAN, NAN, NAN, NAN)
         self._dphi0 = self._slope_features()
         if cfg.backend == "numba":
@@ -391,6 +428,13 @@ class FrictionGPSSM:
         if self.vx_wheels.filter is not None:  # the wheel-speed pre-filter's drive over the next step
             q = np.exp(self.logw)
             self.vx_wheels.set_drive(y.ax, float(q @ (self.x[:, 0] * self.x[:, 1])))
+        if self._calib is not None and self.active and y.ay == y.ay and self._t_calib is not None:
+            # the score of this sample's a^Y residual for the two axles' local slopes (`_band_factor`)
+            e = y.ay - self.prediction[0]
+            d0, d1 = self.mean_slip[0] * math.cos(delta), self.mean_slip[1]
+            self._calib.update_pair(d0 * e, d1 * e, d0, d1, t - self._t_calib,
+                                    self.lam_step ** (1.0 / self.cfg.calibration_memory))
+        self._t_calib = t
         if self.cfg.supervise:
             est = self._supervise(t, uk, y, est)
         return est
@@ -419,6 +463,7 @@ class FrictionGPSSM:
     def _step(self, t: float, uk, delta: float, vx: float, y: Measurement) -> Estimate:
         """The numpy reference step (the module docstring's steps 1-5)."""
         cfg, N, rng = self.cfg, self.cfg.particles, self.rng
+        lam = 1.0  # the forgetting factor of this step (1: none)
 
         # 1. propagate with the friction drawn at k-1, forget (eq. (29)); the bias's random walk
         if self.t_prev is None:
@@ -433,7 +478,8 @@ class FrictionGPSSM:
             if np.any(sn > 0):
                 self.x = self.x + math.sqrt(dt) * sn * rng.standard_normal(self.x.shape)
             if self.active:
-                self.stats.forget(self.forgetting_factor(dt), nu_min=self.nu0)
+                lam = self.forgetting_factor(dt)
+                self.stats.forget(lam, nu_min=self.nu0)
             if self.bias_on:
                 bias_predict(self.bias, self.q_bias, dt)
         self.active = bool(vx > cfg.gate_speed and self.learning_started)
@@ -508,10 +554,13 @@ class FrictionGPSSM:
             mf, mr = float(q @ af), float(q @ ar)
             self.visited = [min(self.visited[0], mf), max(self.visited[1], mf),
                             min(self.visited[2], mr), max(self.visited[3], mr)]
+            jf, jr = self._bin(mf), self._bin(mr)
             if self.d == 2:  # the visited path: mean alpha_r per alpha_f bin and vice versa
-                jf, jr = self._bin(mf), self._bin(mr)
                 self._path[0, jf] += (1.0, mr)
                 self._path[1, jr] += (1.0, mf)
+            self._slip_spread(lam, jf, jr, float(q @ (af - mf) ** 2), float(q @ (ar - mr) ** 2))
+            self.mean_slip = (mf, mr)
+        self.lam_step = lam
         self.mu = np.stack([pf, pr], axis=1) + zeta
         if self.bias_on:
             self._bias_update(y, self.mu @ c if learned else c[0] * pf + c[1] * pr)
@@ -541,9 +590,7 @@ class FrictionGPSSM:
         sf, sr = est.Cf_y / self.Fz[0], est.Cr_y / self.Fz[1]
         if not (math.isfinite(sf) and math.isfinite(sr) and sf > 0 and sr > 0):
             return
-        C = self.prior0.C
-        a = cfg.saturation_slip
-        self.prior = PacejkaPrior((sf * a, sr * a), (1.0 / (C * a), 1.0 / (C * a)), C, 0.0)
+        self.prior = slip_slope_prior(sf, sr, self.prior0.C, cfg.saturation_slip)
         settled = max(est.Cf_y_std / est.Cf_y, est.Cr_y_std / est.Cr_y) < cfg.handover_std
         if self.mpf_active_time >= cfg.handover_after and settled:
             self.learning_started = True
@@ -674,6 +721,30 @@ class FrictionGPSSM:
         g = self._grid_list
         return min(bisect_left(g, a) if a == a else len(g), len(g) - 1)
 
+    def _slip_spread(self, lam: float, jf: int, jr: int, var_f: float, var_r: float) -> None:
+        """A learning sample's posterior variance of the slip angles (var_f, var_r: over the
+        particles, after resampling) into the grid bins jf, jr of their means, the older ones
+        forgotten with the statistics' factor lam (derivations, "F5. The friction estimate")."""
+        sp = self._spread
+        if lam != 1.0:
+            sp *= lam
+        sp[0, jf, 0] += 1.0
+        sp[0, jf, 1] += var_f
+        sp[1, jr, 0] += 1.0
+        sp[1, jr, 1] += var_r
+
+    def slip_variance(self) -> np.ndarray:
+        """(2, G): per axle and grid point, the posterior variance of the slip angle at the
+        learning samples near it: the forgotten sums of `_slip_spread` smoothed over the
+        grid with the kernel's length-scale, sum_b k(a - a_b) V_b / sum_b k(a - a_b) W_b
+        (0 where no learning sample is near)."""
+        if getattr(self, "_smoother", None) is None:
+            d = (self.grid[:, None] - self.grid[None, :]) / self.cfg.lengthscale
+            self._smoother = np.exp(-0.5 * d * d)
+        num = self._spread[:, :, 1] @ self._smoother.T
+        den = self._spread[:, :, 0] @ self._smoother.T
+        return np.where(den > 1e-12, num / np.maximum(den, 1e-300), 0.0)
+
     def path(self) -> tuple[np.ndarray, np.ndarray]:
         """Tensor basis: the other axle's slip along which each axle's curve is evaluated,
         on the grid: the mean alpha_r seen with alpha_f in each grid bin (front curve) and the
@@ -690,31 +761,69 @@ class FrictionGPSSM:
         """mu(alpha) = mu~(alpha) + sum_i q^i M^i phi(alpha) on the fixed grid with its posterior
         std (Algorithm 1, line 12, and eq. (30): the mixture over particles of the MNIW
         posterior of A phi, E[Q] phi^T Sigma* phi within each particle plus the spread of the
-        particle means). Tensor basis: mu_f(alpha_f, alpha_r) is a function of both slips;
-        each axle's curve is taken along the visited path (`path()`), and along
-        alpha_f = alpha_r = alpha where nothing was visited."""
+        particle means; `band = "calibrated"`: each particle's data information Sigma divided by
+        the sandwich's tau, plus the slip's variance at the learning samples times the squared
+        slope, derivations, "F5. The friction estimate"). Tensor basis: mu_f(alpha_f, alpha_r)
+        is a function of both slips; each axle's curve is taken along the visited path
+        (`path()`), and along alpha_f = alpha_r = alpha where nothing was visited."""
         q = np.exp(self.logw)
         g = self.grid
+        G = len(g)
+        calibrated = self.cfg.band == "calibrated"
+        tau = np.square(self._calib.factor_pair) if calibrated else np.ones(2)
         if self.d == 2:  # front row along (alpha, path_f(alpha)), rear row along (path_r(alpha), alpha)
             other_f, other_r = self.path()
             phi = np.concatenate([self.basis.features(g, other_f), self.basis.features(other_r, g)])  # (2G, size)
             mean2, cov2 = self.stats.function_moments(phi[None])  # (N, 2G, 2), (N, 2G, 2, 2)
-            G = len(g)
             mean = np.stack([mean2[:, :G, 0], mean2[:, G:, 1]], axis=-1)
             var = np.stack([cov2[:, :G, 0, 0], cov2[:, G:, 1, 1]], axis=-1)
+            if calibrated:
+                var = self._calibrated_variance((phi[:G], phi[G:]), tau)
         else:
             phi = self.basis.phi(g)[None, None]  # (1, 1, G, m)
             mean, cov = self.stats.function_moments(phi)  # (N, 2, G, 1), (N, 2, G, 1, 1)
             mean, var = np.moveaxis(mean[..., 0], 1, 2), np.moveaxis(cov[..., 0, 0], 1, 2)
+            if calibrated:
+                var = self._calibrated_variance((phi[0, 0], phi[0, 0]), tau)
         mbar = np.einsum("n,ngk->gk", q, mean)
         vbar = np.einsum("n,ngk->gk", q, var + mean**2) - mbar**2
-        std = np.sqrt(np.maximum(vbar, 0.0))
         pf, pr = self.prior(g, g)
+        if calibrated:  # the slip each value was learned at is uncertain: its variance there times the squared slope
+            slope = np.stack([np.gradient(pf + mbar[:, 0], g), np.gradient(pr + mbar[:, 1], g)], axis=1)
+            vbar = vbar + slope**2 * self.slip_variance().T
+        std = np.sqrt(np.maximum(vbar, 0.0))
         M, _ = self.stats.posterior()
         self._curve_slope(q, M)
         vis = tuple(float(v) if math.isfinite(v) else NAN for v in self.visited)
         return FrictionCurve(t=float(self.last_t), alpha=g.copy(), mu_f=pf + mbar[:, 0], mu_f_std=std[:, 0],
                              mu_r=pr + mbar[:, 1], mu_r_std=std[:, 1], visited=vis)
+
+    def _calibrated_variance(self, phi_axles, tau) -> np.ndarray:
+        """(N, G, 2): per particle and axle a the posterior variance of A phi given the
+        measurements rather than the draws, (E[Q]_aa + r_a) phi^T (Sigma / tau_a + V)^-1 phi
+        (eq. (30): r_a = 0, tau_a = 1; derivations, "F5. The friction estimate"): r_a =
+        sigma_ay^2 c_a^2 / |c|^4 the a^Y noise along the measured direction c = (F^z_f, F^z_r)
+        / m, which the drawn zeta carry only in the particles' spread that resampling removes,
+        and tau_a the sandwich factor of the residuals' correlation. phi_axles: the features
+        (G, m) along which each axle's curve is taken. Rank-one statistics: Sigma + V taken as
+        the inverse of their P (their V is forgotten with the data: approximate)."""
+        st = self.stats
+        _, Lam = st.posterior()
+        V = np.diag(st.V)
+        K = st.K if self.cfg.stats == "exact" else np.linalg.inv(st.P)
+        EQ = Lam / (np.asarray(st.nu) - self.d - 1.0)[..., None, None]
+        c = self.Fz / self.vehicle.mass
+        r = self.R[0] * c**2 / float(c @ c) ** 2
+        out = []
+        for a, (ph, ta) in enumerate(zip(phi_axles, tau)):
+            if self.d == 2:
+                Ka, Qa = K, EQ[:, a, a]
+            else:
+                Ka, Qa = K[:, a], EQ[:, a, 0, 0]
+            Kt = (Ka - V) / ta + V if ta != 1.0 else Ka
+            X = np.linalg.solve(Kt, np.broadcast_to(ph.T, Kt.shape[:-1] + ph.shape[:1]))  # (N, m, G)
+            out.append(np.einsum("gj,njg->ng", ph, X) * (Qa + r[a])[:, None])
+        return np.stack(out, axis=-1)
 
     def posterior(self) -> Posterior:
         M, Lam = self.stats.posterior()

@@ -204,7 +204,8 @@ def _chol2_apply(s00, s10, s11, z0, z1):
 def sample(x, work, logw, z, u, zeta, mu, conditional, keep_phi, phi_p):
     """zeta ~ St (the t conditional given the a^Y residual when `conditional`, else the
     predictive) from z ~ N(0, I), u ~ chi2(dof'), as `student_t.t_sample`; mu = mu~ + zeta.
-    Returns the weighted means and std of x and the mean slip angles."""
+    Returns the weighted means and std of x and the weighted means and variances of the
+    (clipped) slip angles."""
     n = x.shape[0]
     for i in range(n):
         l0, l1 = work[i, LOC], work[i, LOC + 1]
@@ -235,17 +236,19 @@ def sample(x, work, logw, z, u, zeta, mu, conditional, keep_phi, phi_p):
         m1 += q * x[i, 1]
         mf += q * work[i, AF]
         mr += q * work[i, AR]
-    v0 = v1 = 0.0
+    v0 = v1 = vf = vr = 0.0
     for i in range(n):
         q = qs[i]
         v0 += q * (x[i, 0] - m0) ** 2
         v1 += q * (x[i, 1] - m1) ** 2
+        vf += q * (work[i, AF] - mf) ** 2
+        vr += q * (work[i, AR] - mr) ** 2
     if keep_phi:  # the features of the pending update (exact statistics while learning)
         k = phi_p.shape[1]
         for i in range(n):
             for j in range(k):
                 phi_p[i, j] = work[i, PHI + j]
-    return m0, m1, math.sqrt(max(v0, 0.0)), math.sqrt(max(v1, 0.0)), mf, mr
+    return m0, m1, math.sqrt(max(v0, 0.0)), math.sqrt(max(v1, 0.0)), mf, mr, vf, vr
 
 
 @njit(**_JIT)
