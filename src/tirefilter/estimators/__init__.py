@@ -252,13 +252,13 @@ def for_scenario(scenario) -> Setting:
 
 
 def for_log(vehicle, t, signals: dict, source="log") -> Setting:
-    """A recorded log: `signals` maps the log's signal names that have samples to (n,)
-    arrays at the times `t` (n,); the IMU model comes from the vehicle TOML or is estimated
-    from them (`sensors.sensors_for_log`), the MPF's options from them (`mpf_config_for_log`),
-    the GP-SSM's sample period is the median time step, its state starts at zero, its
-    tires have no known shape and its prior's slope is the vehicle file's stiffness; `source` names the log in errors. What is kept of the log is
-    its IMU model and `log_start`, nothing of its length: a replay may drop its samples once
-    this is made."""
+    """A recorded log: `signals` maps the log's signal names that have samples to (n,) arrays at
+    the times `t` (n,); the IMU model comes from the vehicle TOML or is estimated from them
+    (`sensors.sensors_for_log`), the MPF's options from them (`mpf_config_for_log`), the
+    GP-SSM's sample period is the median time step, its state starts at zero, its tires have no
+    known shape and its prior's slope is the vehicle file's stiffness; `source` names the log
+    in errors. What is kept of the log is its IMU model and `log_start`, nothing of its
+    length: a replay may drop its samples once this is made."""
     from tirefilter.estimators.sensors import sensors_for_log
 
     sensors = sensors_for_log(vehicle, signals)

@@ -17,8 +17,9 @@ one path:
      (eq. (27), kept pending until now), the forgetting (eq. (29)) and the predictive
      (eq. (31)-(32)), `exact_forget_predictive` (`_rows` from `LANES_BELOW` functions);
      for the rank-one ones the forgetting and the predictive, `rank1_forget_predictive`;
-  3. `weigh`: the Student-t a^Y and Gaussian yaw-rate likelihoods (eq. (22)), the one-step
-     prediction, log-sum-exp normalisation and the ESS, and `common_dof` (whether every
+  3. `weigh`: the Student-t a^Y and Gaussian yaw-rate likelihoods (eq. (22)) with the bias
+     filters' prediction (`gpssm.bias`; its random walk is added before, in numpy), the one-step
+     prediction and its variance, log-sum-exp normalisation and the ESS, and `common_dof` (whether every
      particle draws with the same dof: the step then makes `t_draws`' two generator calls
      itself, `t_draws` otherwise);
   4. `resample` (when the ESS is low): systematic resampling (`systematic_ancestors`, the
@@ -30,8 +31,9 @@ one path:
      sorted ancestors only, else `resample` copies K itself; `flush` makes the copy with
      `gather_lower` when the statistics are read in between): one pass over K instead of two;
   5. `sample`: the conditional Student-t draw of zeta (the locally optimal proposal), mu = mu~
-     + zeta, the weighted moments for the estimate and, while the exact statistics learn, the
-     features of the pending update;
+     + zeta, the weighted moments for the estimate and of the slip angles (the band's slip
+     variance) and, while the exact statistics learn, the features of the pending update; then
+     the bias filters' update given mu (numpy, `FrictionGPSSM._bias_update`);
   6. `rank1_update` (rank-one statistics, eq. (27)/(28) as recursive least squares); the exact
      statistics' update waits for the next step's pass (`CompiledStep.flush` applies it with
      `exact_update` when the statistics are read in between).
@@ -67,7 +69,8 @@ Per-particle quantities of the step live in one (N, columns) array `work` (its c
 so resampling copies them with the statistics in one call. The Python around the kernels is
 kept short (at N = 8 the per-axle step is mostly this fixed cost): the flat views
 of the statistics and the configuration's scalars are made once (`CompiledStep._arrays`,
-rebuilt when the statistics or the particles' arrays are replaced, not pickled), and the
+rebuilt when the statistics or the particles' or the bias filters' arrays are replaced, not
+pickled), and the
 Estimate is a copy of a template's fields (`CompiledStep._estimate`).
 """
 
@@ -322,8 +325,8 @@ class CompiledStep:
         else:  # t_draws' generator calls for a common dof, without its checks
             z, u = rng.standard_normal((N, 2)), rng.chisquare(c, (N,))
         exact_active = active and self.exact
-        m0, m1, s0, s1, mf, mr, vf, vr = sample(est.x, work, est.logw, z, u, self.zeta, est.mu, conditional, exact_active,
-                                        self.phi_p)
+        m0, m1, s0, s1, mf, mr, vf, vr = sample(est.x, work, est.logw, z, u, self.zeta, est.mu, conditional,
+                                                exact_active, self.phi_p)
         if est.bias_on:  # the bias given the trajectory (`FrictionGPSSM._bias_update`)
             est._bias_update(y, est.mu @ np.array([c0, c1]) if learned else c0 * work[:, PF] + c1 * work[:, PR])
         if active:

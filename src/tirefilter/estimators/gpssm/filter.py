@@ -5,8 +5,9 @@ combined pipeline the paper proposes but does not build (docs/derivations.md, "C
 
 Per particle: the lateral state x = [v^Y, r] (inputs u = [delta, v^X]), MNIW statistics of
 the friction deviation Delta mu(alpha) = A phi(alpha) (eq. (14), (24)-(29)), the friction
-realised over the current step. Friction mu = mu~(alpha) + Delta mu (Sec. 4): mu~ is a
-Pacejka prior (peak 0.05 by default); `combined` sets its slope from the stiffness MPF.
+realised over the current step, and Kalman filters of the a^Y and yaw-rate biases (`bias`).
+Friction mu = mu~(alpha) + Delta mu (Sec. 4): mu~ is a Pacejka prior (peak 0.05 by default, a
+replay's slope from the vehicle file); `combined` sets its slope from the stiffness MPF.
 
 One step at sample k (the order of docs/derivations.md, "The filter step": weight with the current predictive, resample,
 then update the statistics with the same sample that drives the state):
@@ -16,11 +17,14 @@ then update the statistics with the same sample that drives the state):
   3. predictive of zeta_k = A phi + w integrating A and Q (eq. (31)-(32), multivariate t);
      measurement y = [a^Y, r] (eq. (8)): a^Y = (F^z_f mu_f cos delta + F^z_r mu_r) / m with
      mu = mu~ + zeta ("learned", default) or mu = mu~ ("prior", the paper's Sec. 2.3);
-  4. weight: Student-t likelihood of a^Y (zeta integrated out) times the Gaussian yaw-rate
-     likelihood (eq. (22)); normalise, resample when ESS < threshold (Algorithm 1, 6-10);
+  4. weight: Student-t likelihood of a^Y (zeta and the bias integrated out) times the Gaussian
+     yaw-rate likelihood (eq. (22)); normalise, resample when ESS < threshold (Algorithm 1, 6-10);
   5. draw zeta_k from its t conditional given the a^Y residual (the locally optimal
      proposal for the a^Y part; "prior": from the predictive), update the statistics with
-     (zeta_k, phi(alpha_k)) while learning (eq. (27)/(28)); mu_k = mu~(alpha_k) + zeta_k.
+     (zeta_k, phi(alpha_k)) while learning (eq. (27)/(28)); mu_k = mu~(alpha_k) + zeta_k; the
+     bias filters given mu_k and r_k (docs/derivations.md, "F7. IMU bias").
+Around the step: v^X from the wheel speeds where there is no vx input (`speed`), and the
+divergence supervision (`supervision`, "F9. Divergence: detection and recovery").
 """
 
 from __future__ import annotations
@@ -511,7 +515,8 @@ class FrictionGPSSM:
         ay_pred = (h0 + loc @ c if learned else h0) + b[:, AY]
         if learned:
             Sc = S @ c  # (N, 2)
-            s_y = Sc @ c + (self.R[0] + b[:, AY_VAR]) * (dof - 2.0) / dof  # scale of the a^Y marginal (consistent joint t)
+            # scale of the a^Y marginal (the consistent joint t), the bias's variance with the white noise's
+            s_y = Sc @ c + (self.R[0] + b[:, AY_VAR]) * (dof - 2.0) / dof
             var_ay = s_y * dof / (dof - 2.0)
         else:
             var_ay = self.R[0] + b[:, AY_VAR]
