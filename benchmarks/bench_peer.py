@@ -3,8 +3,8 @@ simulated by the CommonRoad vehicle models (`tirefilter peer-drive`; the `peer` 
 with data-sheet vehicle TOMLs (guessed nominal stiffness, no noise or bias keys).
 
     .venv/bin/python benchmarks/bench_peer.py [--models std mb] [--vehicles 1 2 3] [--seeds 0 1]
-        [--estimators mpf ekf kf augpf] [--maneuver mixed] [--duration 60] [--speed 20] [--last 30]
-        [--config FILE.toml] [--workers 1]
+        [--estimators mpf ekf kf augpf] [--maneuver mixed] [--duration 60] [--speed 20] [--ay 3] [--last 30]
+        [--config FILE.toml] [--workers 1] [--no-vx]
 
 Per drive and estimator: the lateral stiffness error (mean of the estimate over the last
 `--last` seconds against the mean of `Cf_y_true`, `Cr_y_true` there, in %), the sideslip
@@ -56,10 +56,11 @@ SET_DRIVES = (
 SET_TARGETS = {"final_err": 5.0, "cover": (0.70, 0.97), "final_z": 2.0, "beta": 0.05, "beta_hi": 0.15}
 AY_HIGH = 4.0  # m/s^2
 
-def replay_drive(drive, name: str, config: dict, seed: int, last: float):
+def replay_drive(drive, name: str, config: dict, seed: int, last: float, no_vx: bool = False):
     """Replay the peer drive `drive` through its CSV log and vehicle TOML, as a user would,
     with estimator `name` and `config`; returns its scores against the drive's truth (last
-    `last` s, `peer.score`) and the estimator."""
+    `last` s, `peer.score`) and the estimator. `no_vx`: the log without its `vx` column (wheel
+    speeds only)."""
     from tirefilter.estimators import build_log_estimator
     from tirefilter.peer.drive import write_drive
     from tirefilter.peer.score import score
@@ -68,6 +69,10 @@ def replay_drive(drive, name: str, config: dict, seed: int, last: float):
 
     with tempfile.TemporaryDirectory() as tmp:
         log_path, vehicle_path = write_drive(drive, Path(tmp) / "drive.csv", Path(tmp) / "vehicle.toml")
+        if no_vx:
+            lines = log_path.read_text().splitlines()
+            keep = [i for i, c in enumerate(lines[0].split(",")) if c != "vx"]
+            log_path.write_text("\n".join(",".join(r.split(",")[i] for i in keep) for r in lines) + "\n")
         vehicle = load_vehicle(vehicle_path)
         log = read_log(log_path, vehicle)
     est = build_log_estimator(name, vehicle, log.t, {s: log.signals[s] for s in log.available}, model="auto",
@@ -83,16 +88,16 @@ def run_drive(job: tuple) -> list[dict]:
     from tirefilter.config import read_toml
     from tirefilter.peer.drive import DriveSpec, simulate
 
-    model, vehicle_id, seed, estimators, maneuver, duration, speed, last, config_path = job
+    model, vehicle_id, seed, estimators, maneuver, duration, speed, last, config_path, ay, no_vx = job
     config = read_toml(config_path) if config_path else {}
     t0 = time.perf_counter()
     drive = simulate(DriveSpec(model=model, vehicle=vehicle_id, maneuver=maneuver, duration=duration, seed=seed,
-                                speed=speed))
+                                speed=speed, ay=ay))
     gen_s = time.perf_counter() - t0
     rows = []
     for name in estimators:
         t1 = time.perf_counter()
-        s, est = replay_drive(drive, name, config, seed, last)
+        s, est = replay_drive(drive, name, config, seed, last, no_vx)
         rows.append({"model": model, "vehicle": vehicle_id, "seed": seed, "estimator": name, **s,
                      "restarts": getattr(est, "restarts", None), "wall_s": time.perf_counter() - t1,
                      "gen_s": gen_s, "ay_max": float(np.max(np.abs(drive.columns["ay_true"]))),
@@ -285,6 +290,8 @@ def main() -> None:
     ap.add_argument("--maneuver", default="mixed")
     ap.add_argument("--duration", type=float, default=60.0)
     ap.add_argument("--speed", type=float, default=20.0, help="set speed of the drives (m/s)")
+    ap.add_argument("--ay", type=float, default=3.0, help="steady-state |a^Y| the steering is set for (m/s^2)")
+    ap.add_argument("--no-vx", action="store_true", help="replay the logs without their vx column (wheel speeds only)")
     ap.add_argument("--last", type=float, default=30.0, help="window of the stiffness mean (s)")
     ap.add_argument("--config", help="estimator configuration TOML for every replay (default: none, the defaults)")
     ap.add_argument("--workers", type=int, default=1)
@@ -295,7 +302,7 @@ def main() -> None:
         main_set(args)
         return
     jobs = [(m, v, s, tuple(args.estimators), args.maneuver, args.duration, args.speed, args.last,
-             args.config)
+             args.config, args.ay, args.no_vx)
             for m in args.models for v in args.vehicles for s in args.seeds]
     t0 = time.perf_counter()
     rows = []
@@ -313,7 +320,8 @@ def main() -> None:
     table = tables(rows, args)
     header = (f"{len(jobs)} drives ({', '.join(args.models)}; vehicles {', '.join(map(str, args.vehicles))}; seeds "
               f"{', '.join(map(str, args.seeds))}), maneuver `{args.maneuver}`, {args.duration:g} s at 100 Hz, "
-              f"set speed {args.speed:g} m/s; "
+              f"set speed {args.speed:g} m/s, steering for {args.ay:g} m/s^2"
+              f"{', logs without vx' if args.no_vx else ''}; "
               f"settings: {'`--config ' + args.config + '`' if args.config else 'the defaults (no --config)'}; "
               f"stiffness error over the last {args.last:g} s; run time {time.perf_counter() - t0:.0f} s.")
     print(header + "\n\n" + table)

@@ -5,7 +5,7 @@ data README mentions) and the EKF baseline with its default settings (state and 
 and the lateral stiffness the MPF converges to.
 
     .venv/bin/python benchmarks/bench_real.py [--particles 500] [--seeds 0 1 2] [--start T --end T]
-        [--config FILE.toml] [--mpf-only] [--vehicle FILE.toml]
+        [--config FILE.toml] [--mpf-only] [--friction] [--vehicle FILE.toml]
 
 Everything runs with default settings: the vehicle file holds the publishers' values only, so
 the sensor noise is estimated from the log and the IMU bias model is the MEMS default (the
@@ -62,6 +62,8 @@ def main() -> None:
     ap.add_argument("--end", type=float)
     ap.add_argument("--config", help="estimator configuration TOML for the MPF runs (default: none, the defaults)")
     ap.add_argument("--mpf-only", action="store_true", help="only the MPF runs (no kf and ekf baselines)")
+    ap.add_argument("--friction", action="store_true",
+                    help="also the friction GP-SSM and combined (their default N and basis; --config applies)")
     ap.add_argument("--vehicle", type=Path, default=EXAMPLE / "vehicle.toml",
                     help="vehicle TOML (default: the example's, the publishers' values)")
     args = ap.parse_args()
@@ -97,6 +99,8 @@ def main() -> None:
     config = read_toml(args.config) if args.config else {}
     runs = [_replay(log, vehicle, "mpf", seed, args.particles, config) for seed in args.seeds]
     mpf = [report(f"mpf N = {args.particles}, seed {seed}", *run) for seed, run in zip(args.seeds, runs)]
+    friction = {name: [report(f"{name}, seed {seed}", *_replay(log, vehicle, name, seed, None, config))
+                       for seed in args.seeds] for name in (("gpssm", "combined") if args.friction else ())}
     print("\n".join(runs[0][2].sensors.describe()))
     print(f"settings of the mpf runs: {'--config ' + args.config if args.config else 'the defaults'}")
     line = f"sideslip RMSE: mpf {np.mean(mpf):.3f} deg (mean over seeds), worst seed {np.max(mpf):.3f} deg"
@@ -105,6 +109,8 @@ def main() -> None:
                  f"N/rad), {kf_ls:.3f} deg with the least-squares fit ({LEAST_SQUARES[0]:.3g} / {LEAST_SQUARES[1]:.3g} "
                  "N/rad)")
     print(line)
+    for name, rmse in friction.items():
+        print(f"sideslip RMSE: {name} {np.mean(rmse):.3f} deg (mean over seeds), worst seed {np.max(rmse):.3f} deg")
 
 
 if __name__ == "__main__":

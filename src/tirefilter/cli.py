@@ -198,6 +198,10 @@ def _print_friction(estimator, path: Path) -> None:
           f"particle evaluations, at {d['slip_clipped_steps']} steps"
           + (f"; prior handed over from the MPF at t = {d['handover_time']:g} s" if d.get("handover_time") is not None
              else ""))
+    if "divergences" in d:
+        print(f"divergences detected and recovered: {len(d['divergences'])}"
+              + ("".join(f"\n  t = {v['t_onset']:g} s ({v['cause']}): {v['detail']}; {v['action']}"
+                         for v in d["divergences"])))
 
 
 def _progress(args) -> bool | str:

@@ -366,7 +366,8 @@ class Metrics:
     """The run's metrics (`metrics.RunMetrics`, run.json `metrics`): the scored columns of the
     rows, gathered CHUNK rows at a time and handed on chunk by chunk, so that they take
     constant memory (one chunk of 8192 rows, whatever the run's length); `summarize` adds
-    the estimator's restart and resample counters (`summary.metrics`, None before a row)."""
+    the estimator's restart and resample counters and its own warnings (`run_warnings()`,
+    where it has them) (`summary.metrics`, None before a row)."""
 
     CHUNK = 8192
 
@@ -402,6 +403,9 @@ class Metrics:
         summary.metrics = self.metrics.finalize(restarts=getattr(self.estimator, "restarts", None),
                                                 resamples=getattr(self.estimator, "resamples", None),
                                                 cx_excitation=getattr(self.estimator, "cx_weight_max", None))
+        own = getattr(self.estimator, "run_warnings", None)  # an estimator's own (the GP-SSM's divergences)
+        if callable(own):
+            summary.metrics["warnings"] += own()
 
 
 class Progress:

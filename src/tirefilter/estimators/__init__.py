@@ -236,7 +236,9 @@ def for_scenario(scenario) -> Setting:
     p = scenario.model.pacejka
     gpssm = {"sigma": (s.sigma_ay, s.sigma_yaw_rate),
              "x0_mean": (scenario.truth.get("vy0", 0.0), scenario.truth.get("yaw_rate0", 0.0)),
-             "tire_shape": None if p is None else (p.B_y, p.C_y, p.E_y)}
+             "tire_shape": None if p is None else (p.B_y, p.C_y, p.E_y),
+             "bias0_std": (s.bias0_std_ay, s.bias0_std_yaw_rate), "bias_rw": (s.bias_rw_ay, s.bias_rw_yaw_rate),
+             "sigma_omega": float(s.sigma_omega), "sigma_ax": s.sigma_ax}
     if "prior_peak_friction" in scenario.estimator:
         gpssm["prior_peak"] = scenario.estimator["prior_peak_friction"]
     return Setting(
@@ -250,13 +252,13 @@ def for_scenario(scenario) -> Setting:
 
 
 def for_log(vehicle, t, signals: dict, source="log") -> Setting:
-    """A recorded log: `signals` maps the log's signal names that have samples to (n,)
-    arrays at the times `t` (n,); the IMU model comes from the vehicle TOML or is estimated
-    from them (`sensors.sensors_for_log`), the MPF's options from them (`mpf_config_for_log`),
-    the GP-SSM's sample period is the median time step, its state starts at zero and its
-    tires have no known shape; `source` names the log in errors. What is kept of the log is
-    its IMU model and `log_start`, nothing of its length: a replay may drop its samples once
-    this is made."""
+    """A recorded log: `signals` maps the log's signal names that have samples to (n,) arrays at
+    the times `t` (n,); the IMU model comes from the vehicle TOML or is estimated from them
+    (`sensors.sensors_for_log`), the MPF's options from them (`mpf_config_for_log`), the
+    GP-SSM's sample period is the median time step, its state starts at zero, its tires have no
+    known shape and its prior's slope is the vehicle file's stiffness; `source` names the log
+    in errors. What is kept of the log is its IMU model and `log_start`, nothing of its
+    length: a replay may drop its samples once this is made."""
     from tirefilter.estimators.sensors import sensors_for_log
 
     sensors = sensors_for_log(vehicle, signals)
@@ -266,7 +268,9 @@ def for_log(vehicle, t, signals: dict, source="log") -> Setting:
         mpf_config=lambda model, particles, overrides: _mpf_config_for_log_start(
             vehicle, sample_period, first, model=model, particles=particles, overrides=overrides, sensors=sensors),
         particles=None, sample_period=sample_period,
-        gpssm={"sigma": sensors.sigma[1:], "x0_mean": (0.0, 0.0), "tire_shape": None},
+        gpssm={"sigma": sensors.sigma[1:], "x0_mean": (0.0, 0.0), "tire_shape": None,
+               "bias0_std": sensors.bias0_std[1:], "bias_rw": sensors.bias_rw[1:], "sigma_omega": sensors.sigma_omega,
+               "sigma_ax": sensors.sigma[0], "prior_slope": "vehicle"},
         kf={"sigma_ay": sensors.sigma[1], "sigma_yaw_rate": sensors.sigma[2]})
 
 
@@ -305,7 +309,10 @@ def _with_sensors(estimator, sensors):
         sigma, channels = (cfg.sigma_ay, cfg.sigma_yaw_rate), ("ay", "yaw_rate")
     else:
         channels = ()
-    model = sensors.with_config(sigma, getattr(cfg, "bias0_std", None), getattr(cfg, "bias_rw", None), channels)
+    bias0_std, bias_rw = getattr(cfg, "bias0_std", None), getattr(cfg, "bias_rw", None)
+    if bias0_std is not None and len(bias0_std) == 2:  # the GP-SSM's (a^Y, yaw rate): no a^X bias
+        bias0_std, bias_rw = (0.0, *bias0_std), (0.0, *bias_rw)
+    model = sensors.with_config(sigma, bias0_std, bias_rw, channels)
     if not hasattr(cfg, "bias_rw"):
         model = dataclasses.replace(model, bias0_std=(0.0,) * 3, bias_rw=(0.0,) * 3,
                                     bias_source=f"the {estimator.name} estimator has no bias model")
@@ -349,7 +356,7 @@ def _friction_estimator(combined: bool):
     """The friction GP-SSM; `combined`: with its prior slope from a lateral MPF (the user's
     `[mpf]` table, the MPF's default N)."""
     def make(setting: Setting, *, model: str, particles: int | None, config: dict):
-        check_model_signals(_friction_model(model), setting.signals, setting.source, setting.key)
+        _check_friction_signals(_friction_model(model), setting)
         mpf = None
         if combined:
             from tirefilter.estimators.mpf import StiffnessMPF
@@ -394,6 +401,16 @@ def _baseline(name: str, vehicle, mpf_cfg, config: dict):
     else:
         from tirefilter.estimators.ekf import EKFConfig as config_cls, StiffnessEKF as cls
     return cls(vehicle, shared_options(config_cls, mpf_cfg, config.get(name, {}), f"--config [{name}]"))
+
+
+def _check_friction_signals(model: str, setting: Setting) -> None:
+    """The friction GP-SSM takes v^X from `vx`, else from the undriven axle's wheel speed
+    (`gpssm.speed`)."""
+    from tirefilter.estimators.gpssm.speed import undriven_wheel
+
+    if "vx" not in setting.signals and undriven_wheel(setting.vehicle) in setting.signals:
+        return
+    check_model_signals(model, setting.signals, setting.source, setting.key)
 
 
 def _friction_model(model: str) -> str:

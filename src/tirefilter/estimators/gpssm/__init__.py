@@ -10,6 +10,9 @@ state-space models", IFAC 2020), one concern per module:
   kernels_stats.py      its kernels over the statistics: the pending update, the forgetting
                         and the predictive in one pass, the rank-one update
   kernels_resample.py   its resampling and the in-place copies
+  bias.py               the per-particle IMU bias filters (a^Y, yaw rate)
+  speed.py              v^X from the undriven axle's wheel speed (a log without vx)
+  supervision.py        divergence: its symptoms, the checkpoints of the statistics
 """
 
 from tirefilter.estimators.gpssm.filter import FrictionGPSSM, GPSSMConfig

@@ -17,8 +17,9 @@ one path:
      (eq. (27), kept pending until now), the forgetting (eq. (29)) and the predictive
      (eq. (31)-(32)), `exact_forget_predictive` (`_rows` from `LANES_BELOW` functions);
      for the rank-one ones the forgetting and the predictive, `rank1_forget_predictive`;
-  3. `weigh`: the Student-t a^Y and Gaussian yaw-rate likelihoods (eq. (22)), the one-step
-     prediction, log-sum-exp normalisation and the ESS, and `common_dof` (whether every
+  3. `weigh`: the Student-t a^Y and Gaussian yaw-rate likelihoods (eq. (22)) with the bias
+     filters' prediction (`gpssm.bias`; its random walk is added before, in numpy), the one-step
+     prediction and its variance, log-sum-exp normalisation and the ESS, and `common_dof` (whether every
      particle draws with the same dof: the step then makes `t_draws`' two generator calls
      itself, `t_draws` otherwise);
   4. `resample` (when the ESS is low): systematic resampling (`systematic_ancestors`, the
@@ -30,8 +31,9 @@ one path:
      sorted ancestors only, else `resample` copies K itself; `flush` makes the copy with
      `gather_lower` when the statistics are read in between): one pass over K instead of two;
   5. `sample`: the conditional Student-t draw of zeta (the locally optimal proposal), mu = mu~
-     + zeta, the weighted moments for the estimate and, while the exact statistics learn, the
-     features of the pending update;
+     + zeta, the weighted moments for the estimate and of the slip angles (the band's slip
+     variance) and, while the exact statistics learn, the features of the pending update; then
+     the bias filters' update given mu (numpy, `FrictionGPSSM._bias_update`);
   6. `rank1_update` (rank-one statistics, eq. (27)/(28) as recursive least squares); the exact
      statistics' update waits for the next step's pass (`CompiledStep.flush` applies it with
      `exact_update` when the statistics are read in between).
@@ -67,7 +69,8 @@ Per-particle quantities of the step live in one (N, columns) array `work` (its c
 so resampling copies them with the statistics in one call. The Python around the kernels is
 kept short (at N = 8 the per-axle step is mostly this fixed cost): the flat views
 of the statistics and the configuration's scalars are made once (`CompiledStep._arrays`,
-rebuilt when the statistics or the particles' arrays are replaced, not pickled), and the
+rebuilt when the statistics or the particles' or the bias filters' arrays are replaced, not
+pickled), and the
 Estimate is a copy of a template's fields (`CompiledStep._estimate`).
 """
 
@@ -79,7 +82,8 @@ import numpy as np
 
 from tirefilter.errors import ConfigError
 from tirefilter.estimators.base import Estimate
-from tirefilter.estimators.gpssm.kernels_particles import DOF, PHI, front, sample, weigh
+from tirefilter.estimators.gpssm.bias import bias_predict
+from tirefilter.estimators.gpssm.kernels_particles import DOF, PF, PHI, PR, front, sample, weigh
 from tirefilter.estimators.gpssm.kernels_resample import gather_lower, resample
 from tirefilter.estimators.gpssm.kernels_stats import (LANES, LANES_BELOW, exact_forget_predictive,
                                                        exact_forget_predictive_rows, lanes_load, lanes_store,
@@ -145,7 +149,6 @@ class CompiledStep:
         self.sn = np.asarray(cfg.state_noise, float)
         self.noise = bool(cfg.state_noise[0] > 0 or cfg.state_noise[1] > 0)
         self.gate_speed = float(cfg.gate_speed)
-        self.lam = float(cfg.forgetting)
         self.nu0 = float(est.nu0)
         self.learned = cfg.measurement_friction == "learned"
         self.threshold = cfg.resample_threshold * N
@@ -161,21 +164,23 @@ class CompiledStep:
 
     def _arrays(self):
         """(statistics, particles, flat statistics' views, the resampling's (N, k) views, K for the
-        resampling copies, the statistics' arrays), rebuilt when the statistics, their arrays or
-        the particles' array were replaced (K then loaded into the lanes again)."""
+        resampling copies, the statistics' arrays, the bias filters), rebuilt when the statistics,
+        their arrays, the particles' array or the bias's were replaced (K then loaded into the
+        lanes again)."""
         est = self.est
         st = est._stats
         a0, a1, a2 = (st.K, st.Psi, st.Phi) if self.exact else (st.M, st.P, st.Lam)
         c = self._cache
         if c is not None:  # (`is` one by one: a generator over the four costs about a microsecond)
             a = c[5]
-            if c[0] is st and c[1] is est.x and a[0] is a0 and a[1] is a1 and a[2] is a2 and a[3] is st.nu:
+            if (c[0] is st and c[1] is est.x and a[0] is a0 and a[1] is a1 and a[2] is a2 and a[3] is st.nu
+                    and c[6] is est.bias):
                 return c
         arrays = (a0, a1, a2, st.nu)
         N = self.N
         views = (_flat(arrays[0], 2), _flat(arrays[1], 2), _flat(arrays[2], 2), arrays[3].reshape(-1))
         rows = (st.Psi, st.Phi) if self.exact else (st.M, st.P, st.Lam)
-        rows = tuple(a.reshape(N, -1) for a in rows) + (st.nu.reshape(N, -1), est.x, self.work)
+        rows = tuple(a.reshape(N, -1) for a in rows) + (st.nu.reshape(N, -1), est.x, self.work, est.bias)
         if self.exact and not self.lanes:  # (the rows pass makes the copy: `resample`'s `defer`)
             kcopy = st.K.reshape((N, self.per) + st.K.shape[-2:])
         else:
@@ -184,7 +189,7 @@ class CompiledStep:
             self.kl_loaded = False  # other statistics or another K: K from them (a new particles'
             # array alone leaves the lanes holding the statistics' current K)
             self.gather = False  # (and no resampling copy made into them)
-        self._cache = c = (st, est.x, views, rows, kcopy, arrays)
+        self._cache = c = (st, est.x, views, rows, kcopy, arrays, est.bias)
         return c
 
     def flush(self) -> None:
@@ -234,15 +239,17 @@ class CompiledStep:
         fields.update(self._template)
         fields.update(active=est.active, vx=vx, vy=float(m0), yaw_rate=float(m1), ess=ess,
                       state_std=(0.0, float(s0), float(s1)))
+        if est.bias_on:
+            fields["b_ay"], fields["b_yaw_rate"] = est.bias_mean()
         return e
 
     def step(self, t, uk, delta: float, vx: float, y):
         est = self.est
         N, rng = self.N, est.rng
         work, (Fz0, Fz1, mass) = self.work, self.veh[:3]
-        _, _, (a1, a2, a3, nu), rows, kcopy, _ = self._arrays()
+        _, _, (a1, a2, a3, nu), rows, kcopy, _, _ = self._arrays()
         # 1. propagate with the friction drawn at k-1 (eq. (1)), forget (eq. (29), fused into 2.)
-        forget = False
+        forget, lam = False, 1.0
         propagate, n_sub, h, cd, vx_prev = False, 0, 0.0, 1.0, 0.0
         if est.t_prev is None:
             if math.isfinite(y.yaw_rate):
@@ -255,12 +262,15 @@ class CompiledStep:
             h = dt / n_sub
             u_prev = est.u_prev
             cd, vx_prev, propagate = math.cos(u_prev[0]), float(u_prev[1]), True
+            if est.bias_on:  # the bias's random walk (`gpssm.bias`)
+                bias_predict(est.bias, est.q_bias, dt)
             if self.noise:
                 front(est.x, est.mu, work, (True, n_sub, h, cd, vx_prev), self.veh, delta, vx,
                       (self.L, self.m1, self.keep, self.keep_r, self.tensor), (1.0, 1.0, 1.0, 0.0, 0.0, 0.0))
                 est.x[:] = est.x + math.sqrt(dt) * self.sn * rng.standard_normal(est.x.shape)
                 propagate = False
             forget = est.active
+            lam = est.forgetting_factor(dt)
         est.active = active = bool(vx > self.gate_speed and est.learning_started)
         # 2. slip angles (clipped, counted), features, prior
         p = est.prior
@@ -270,6 +280,7 @@ class CompiledStep:
         n_out = front(est.x, est.mu, work, (propagate, n_sub, h, cd, vx_prev), self.veh, delta, vx,
                       (self.L, self.m1, self.keep, self.keep_r, self.tensor), self._pargs)
         est.slip_evaluations += N
+        est.clip_share = n_out / N
         if n_out:
             est.clipped += n_out
             est.clipped_steps += 1
@@ -281,15 +292,15 @@ class CompiledStep:
                     lanes_load(a1, self.Kl)
                     self.kl_loaded = True
                 exact_forget_predictive(self.Kl, (a2, a3, nu), (V, Lam0), work, self.per,
-                                        (forget, self.lam, self.nu0), (self.pending, self.zeta, self.phi_p))
+                                        (forget, lam, self.nu0), (self.pending, self.zeta, self.phi_p))
             else:
-                exact_forget_predictive_rows(a1, (a2, a3, nu), (V, Lam0), work, self.per, (forget, self.lam, self.nu0),
+                exact_forget_predictive_rows(a1, (a2, a3, nu), (V, Lam0), work, self.per, (forget, lam, self.nu0),
                                              (self.pending, self.zeta, self.phi_p), self.anc, self.gather)
                 self.stale_upper = True
                 self.gather = False
             self.pending = False
         else:
-            rank1_forget_predictive(a1, a2, a3, nu, work, self.per, forget, self.lam, self.nu0,
+            rank1_forget_predictive(a1, a2, a3, nu, work, self.per, forget, lam, self.nu0,
                                     bool(est._stats.bounded), float(est._stats.trace0))
         # 4. weights (eq. (22)), resampling
         yay, yr = float(y.ay), float(y.yaw_rate)
@@ -297,9 +308,10 @@ class CompiledStep:
         learned = self.learned
         conditional = have_ay and learned
         add = 1.0 if conditional else 0.0
-        ess, pa, pr_, c = weigh(est.x, work, est.logw, Fz0 * math.cos(delta) / mass, Fz1 / mass,
-                                (yay, yr, have_ay, math.isfinite(yr)), (self.R0, self.R1), learned, add)
-        est.prediction = (pa, pr_)
+        c0, c1 = Fz0 * math.cos(delta) / mass, Fz1 / mass
+        ess, pa, pr_, c, va, vr = weigh(est.x, work, est.logw, est.bias, c0, c1,
+                                        (yay, yr, have_ay, math.isfinite(yr)), (self.R0, self.R1), learned, add)
+        est.prediction, est.prediction_var = (pa, pr_), (va, vr)
         if ess < self.threshold:  # as stats.systematic_resample, its uniform first
             defer = self.exact and not self.lanes
             c = resample(est.logw, float(rng.random((1,))[0]), rows, kcopy, self.per, self.lanes, add, work,
@@ -313,8 +325,10 @@ class CompiledStep:
         else:  # t_draws' generator calls for a common dof, without its checks
             z, u = rng.standard_normal((N, 2)), rng.chisquare(c, (N,))
         exact_active = active and self.exact
-        m0, m1, s0, s1, mf, mr = sample(est.x, work, est.logw, z, u, self.zeta, est.mu, conditional, exact_active,
-                                        self.phi_p)
+        m0, m1, s0, s1, mf, mr, vf, vr = sample(est.x, work, est.logw, z, u, self.zeta, est.mu, conditional,
+                                                exact_active, self.phi_p)
+        if est.bias_on:  # the bias given the trajectory (`FrictionGPSSM._bias_update`)
+            est._bias_update(y, est.mu @ np.array([c0, c1]) if learned else c0 * work[:, PF] + c1 * work[:, PR])
         if active:
             if self.exact:  # applied in the next step's pass over the statistics (or by `flush`)
                 self.pending = True
@@ -322,13 +336,16 @@ class CompiledStep:
                 rank1_update(a1, a2, a3, nu, work, self.zeta, self.per)
             v = est.visited
             est.visited = [min(v[0], mf), max(v[1], mf), min(v[2], mr), max(v[3], mr)]
+            jf, jr = est._bin(mf), est._bin(mr)
             if self.tensor:  # the reference's `_path[0, jf] += (1.0, mr)`, element by element
-                jf, jr = est._bin(mf), est._bin(mr)
                 path = est._path
                 path[0, jf, 0] += 1.0
                 path[0, jf, 1] += mr
                 path[1, jr, 0] += 1.0
                 path[1, jr, 1] += mf
+            est._slip_spread(lam if forget else 1.0, jf, jr, vf, vr)
+            est.mean_slip = (mf, mr)
+        est.lam_step = lam if forget else 1.0
         est.t_prev, est.u_prev, est.last_t = t, uk, t
         if self.exact and est.mpf_estimate is None:
             return self._estimate(ess, vx, (m0, m1, s0, s1))

@@ -5,8 +5,9 @@ combined pipeline the paper proposes but does not build (docs/derivations.md, "C
 
 Per particle: the lateral state x = [v^Y, r] (inputs u = [delta, v^X]), MNIW statistics of
 the friction deviation Delta mu(alpha) = A phi(alpha) (eq. (14), (24)-(29)), the friction
-realised over the current step. Friction mu = mu~(alpha) + Delta mu (Sec. 4): mu~ is a
-Pacejka prior (peak 0.05 by default); `combined` sets its slope from the stiffness MPF.
+realised over the current step, and Kalman filters of the a^Y and yaw-rate biases (`bias`).
+Friction mu = mu~(alpha) + Delta mu (Sec. 4): mu~ is a Pacejka prior (peak 0.05 by default, a
+replay's slope from the vehicle file); `combined` sets its slope from the stiffness MPF.
 
 One step at sample k (the order of docs/derivations.md, "The filter step": weight with the current predictive, resample,
 then update the statistics with the same sample that drives the state):
@@ -16,27 +17,35 @@ then update the statistics with the same sample that drives the state):
   3. predictive of zeta_k = A phi + w integrating A and Q (eq. (31)-(32), multivariate t);
      measurement y = [a^Y, r] (eq. (8)): a^Y = (F^z_f mu_f cos delta + F^z_r mu_r) / m with
      mu = mu~ + zeta ("learned", default) or mu = mu~ ("prior", the paper's Sec. 2.3);
-  4. weight: Student-t likelihood of a^Y (zeta integrated out) times the Gaussian yaw-rate
-     likelihood (eq. (22)); normalise, resample when ESS < threshold (Algorithm 1, 6-10);
+  4. weight: Student-t likelihood of a^Y (zeta and the bias integrated out) times the Gaussian
+     yaw-rate likelihood (eq. (22)); normalise, resample when ESS < threshold (Algorithm 1, 6-10);
   5. draw zeta_k from its t conditional given the a^Y residual (the locally optimal
      proposal for the a^Y part; "prior": from the predictive), update the statistics with
-     (zeta_k, phi(alpha_k)) while learning (eq. (27)/(28)); mu_k = mu~(alpha_k) + zeta_k.
+     (zeta_k, phi(alpha_k)) while learning (eq. (27)/(28)); mu_k = mu~(alpha_k) + zeta_k; the
+     bias filters given mu_k and r_k (docs/derivations.md, "F7. IMU bias").
+Around the step: v^X from the wheel speeds where there is no vx input (`speed`), and the
+divergence supervision (`supervision`, "F9. Divergence: detection and recovery").
 """
 
 from __future__ import annotations
 
 import math
 from bisect import bisect_left
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 from scipy.special import gammaln
 
 from tirefilter.errors import ConfigError
 from tirefilter.estimators.base import Estimate, FrictionCurve, Inputs, Measurement, Posterior
+from tirefilter.estimators.gpssm.bias import AY, AY_VAR, R, R_VAR, bias_moments, bias_predict, bias_prior, bias_update
+from tirefilter.estimators.gpssm.speed import WheelSpeedVx
+from tirefilter.estimators.gpssm.supervision import CAUSES, Checkpoints, Divergence, DivergenceMonitor
+from tirefilter.estimators.sensors import MEMS_BIAS0_STD, MEMS_BIAS_RW
 from tirefilter.stats import effective_sample_size, normalize_log_weights, systematic_resample
 from tirefilter.stats.gp import GPBasis1D, make_basis
 from tirefilter.stats.mniw import make_mniw
+from tirefilter.stats.sandwich import BatchMeansSandwichPair
 from tirefilter.stats.student_t import t_sample
 from tirefilter.vehicle.params import VehicleParams
 from tirefilter.vehicle.single_track import GRAVITY, slip_angles
@@ -60,10 +69,16 @@ class GPSSMConfig:
     s_f: float = 500.0  # SE kernel variance, relative to Q (A | Q ~ MN(0, Q, diag S)); the paper's 500
     stats: str = "exact"  # "exact" (eq. (27)-(29)) | "rank1" (forgetting applied to the prior too)
     backend: str = "numba"  # "numba" (compiled step, estimators/gpssm/compiled.py) | "numpy" (the reference)
-    forgetting: float = 0.99  # lambda of eq. (29) (about 100 samples of memory: 4 s at 25 Hz)
+    forgetting: float = 0.99  # lambda of eq. (29) per `forgetting_period` (100 samples of memory at 25 Hz: 4 s)
+    forgetting_period: float = 0.04  # s: a step dt forgets lambda^(dt / period), the same memory in seconds at any
+    # sample rate (the paper's 25 Hz: lambda per sample; derivations, "F2. MNIW statistics with forgetting")
     q0: float = 0.01  # prior guess of the std of w (friction units): Lambda_0 = q0^2 (nu_0 - d - 1) I
     nu0_margin: float = 2.0  # nu_0 = d + 1 + margin
     prior_peak: float = 0.05  # D of the Pacejka prior (Sec. 4)
+    # "peak": the prior of prior_peak and prior_B/C/E (the paper's Sec. 4); "vehicle": its slope the vehicle
+    # file's cornering stiffness over the static axle load, its peak that slope times saturation_slip (F6's
+    # scaling; a replay's default: a car on an unknown road, derivations, "F6. Combined pipeline")
+    prior_slope: str = "peak"
     prior_B: float | None = None  # Magic-Formula shape of the prior; None: the scenario's tire set
     prior_C: float | None = None  # (else B = 10, C = 1.3, E = 0)
     prior_E: float | None = None
@@ -81,6 +96,29 @@ class GPSSMConfig:
     gate_speed: float = 5.0  # m/s: below this nothing is learned (as the stiffness MPF)
     sample_period: float = 0.04  # s
     max_step: float = 0.01  # s, longest Euler sub-step
+    # IMU bias of a^Y and the yaw rate (the stiffness MPF's sensor model, derivations, "F7. IMU bias"): prior std
+    # and random walk per sqrt(s), a Kalman filter per particle and channel; all zero: no bias model (the paper)
+    bias0_std: tuple[float, float] = MEMS_BIAS0_STD[1:]  # a^Y [m/s^2], yaw rate [rad/s]
+    bias_rw: tuple[float, float] = MEMS_BIAS_RW[1:]  # per sqrt(s)
+    # v^X where the log has none: the undriven axle's wheel speed R_w omega (derivations, "F8. v^X from the wheel
+    # speeds"), pre-filtered with a^X where sigma_omega > 0 (`wheel_filter.WheelSpeedFilter`)
+    sigma_omega: float = 0.0  # rad/s, the wheel speeds' white noise (0: taken as exact)
+    sigma_ax: float = 0.3  # m/s^2, a^X white noise (the pre-filter's process noise)
+    wheel_slip_rw: float = 0.02  # m/s per sqrt(s), random walk of the axle's slip speed in the pre-filter
+    # divergence (derivations, "F9. Divergence: detection and recovery"): a symptom that lasts `diverge_after` s
+    supervise: bool = True  # watch for divergence, report it and start the state again
+    diverge_clip_share: float = 0.2  # share of particles with a slip angle outside [-L, L]
+    diverge_beta: float = 20.0 * DEG  # rad, |posterior-mean sideslip|
+    diverge_nis: float = 400.0  # smoothed normalised squared prediction error (1: the data fit)
+    diverge_window: float = 2.0  # s, time constant of that smoothing
+    diverge_after: float = 1.0  # s
+    checkpoint_every: float = 5.0  # s between copies of the statistics kept for a restart
+    # the band of the learned curve (derivations, "F5. The friction estimate"): "calibrated" adds the slip's
+    # posterior variance at the learning samples times the curve's squared slope and scales the GP's variance by
+    # the batch-means sandwich of the a^Y residuals (as the MPF's `std_calibration`); "posterior": eq. (30) alone
+    band: str = "calibrated"
+    calibration_batch: float = 0.75  # s of learning per batch of the sandwich
+    calibration_memory: float = 2.0  # the sandwich's memory in units of the statistics' (lambda^(1 / this))
     # output
     grid_step: float = 0.25 * DEG  # spacing of the friction() grid (0.25 deg or finer)
     slip_range: float | None = None  # half-width of the friction() grid (default L; at most L)
@@ -100,13 +138,20 @@ class GPSSMConfig:
             bad("stats", f"expected exact or rank1, got {self.stats!r}")
         if self.backend not in ("numba", "numpy"):
             bad("backend", f"expected numba or numpy, got {self.backend!r}")
+        if self.prior_slope not in ("peak", "vehicle"):
+            bad("prior_slope", f"expected peak or vehicle, got {self.prior_slope!r}")
+        if self.band not in ("calibrated", "posterior"):
+            bad("band", f"expected calibrated or posterior, got {self.band!r}")
+        for key in ("calibration_batch", "calibration_memory"):
+            if not (getattr(self, key) > 0 and math.isfinite(getattr(self, key))):
+                bad(key, f"must be finite and > 0, got {getattr(self, key)!r}")
         if self.measurement_friction not in ("learned", "prior"):
             bad("measurement_friction", f"expected learned or prior, got {self.measurement_friction!r}")
         GPBasis1D(self.L, self.m, self.lengthscale, self.s_f)  # L, l, m, s_f checks
         if not 0.0 < self.forgetting <= 1.0:
             bad("forgetting", f"lambda must be in (0, 1], got {self.forgetting!r}")
         for key in ("q0", "prior_peak", "saturation_slip", "sample_period", "max_step", "grid_step",
-                    "snapshot_every", "handover_std"):
+                    "snapshot_every", "handover_std", "forgetting_period"):
             v = getattr(self, key)
             if not (isinstance(v, (int, float)) and v > 0 and math.isfinite(v)):
                 bad(key, f"must be a finite number > 0, got {v!r}")
@@ -133,6 +178,19 @@ class GPSSMConfig:
                 bad(key, f"needs two values (vy, r), got {getattr(self, key)!r}")
         if min(self.x0_std) < 0 or min(self.state_noise) < 0:
             bad("x0_std", "standard deviations must be >= 0")
+        for key in ("bias0_std", "bias_rw"):
+            v = getattr(self, key)
+            if len(v) != 2 or not all(math.isfinite(x) and x >= 0 for x in v):
+                bad(key, f"two finite values >= 0 (a^Y, yaw rate), got {v!r}")
+        for key in ("sigma_omega", "sigma_ax", "wheel_slip_rw"):
+            if not (math.isfinite(getattr(self, key)) and getattr(self, key) >= 0):
+                bad(key, f"must be finite and >= 0, got {getattr(self, key)!r}")
+        for key in ("diverge_clip_share", "diverge_beta", "diverge_nis", "diverge_window", "checkpoint_every"):
+            v = getattr(self, key)
+            if not (isinstance(v, (int, float)) and v > 0 and math.isfinite(v)):
+                bad(key, f"must be a finite number > 0, got {v!r}")
+        if not self.diverge_after >= 0:
+            bad("diverge_after", f"must be >= 0, got {self.diverge_after!r}")
         return self
 
     @property
@@ -163,6 +221,14 @@ class PacejkaPrior:
         return self.B[0] * self.C * self.D[0], self.B[1] * self.C * self.D[1]
 
 
+def slip_slope_prior(slope_f: float, slope_r: float, C: float, saturation_slip: float) -> PacejkaPrior:
+    """The prior of given slopes mu~'(0) per axle (cornering stiffness over the axle load) whose
+    peak is the slope times `saturation_slip` (derivations, "F6. Combined pipeline"):
+    D = slope a, B = 1 / (C a), E = 0, so that B C D = slope."""
+    a = saturation_slip
+    return PacejkaPrior((slope_f * a, slope_r * a), (1.0 / (C * a), 1.0 / (C * a)), C, 0.0)
+
+
 class FrictionGPSSM:
     """Algorithm 1 of the friction paper, vectorised over particles; `mpf` given: the
     combined pipeline (name "combined")."""
@@ -181,8 +247,14 @@ class FrictionGPSSM:
         B = cfg.prior_B if cfg.prior_B is not None else shape[0]
         C = cfg.prior_C if cfg.prior_C is not None else shape[1]
         E = cfg.prior_E if cfg.prior_E is not None else shape[2]
-        self.prior0 = PacejkaPrior((cfg.prior_peak, cfg.prior_peak), (B, B), C, E)
+        if cfg.prior_slope == "vehicle":
+            self.prior0 = slip_slope_prior(vehicle.Cf_y / self.Fz[0], vehicle.Cr_y / self.Fz[1], C,
+                                           cfg.saturation_slip)
+        else:
+            self.prior0 = PacejkaPrior((cfg.prior_peak, cfg.prior_peak), (B, B), C, E)
         self.R = np.array(cfg.sigma, float) ** 2
+        self.q_bias = np.square(np.asarray(cfg.bias_rw, float))  # per s
+        self.bias_on = bool(np.any(self.q_bias > 0) or np.any(np.asarray(cfg.bias0_std, float) > 0))
         half = cfg.slip_range if cfg.slip_range is not None else cfg.L
         n = int(math.floor(half / cfg.grid_step + 1e-9))
         self.grid = np.arange(-n, n + 1) * cfg.grid_step
@@ -201,11 +273,34 @@ class FrictionGPSSM:
             d["mpf"] = self.mpf.config_dict()
         return d
 
+    def forgetting_factor(self, dt: float) -> float:
+        """The factor of eq. (29) over a step dt: lambda^(dt / forgetting_period) (lambda itself
+        at that period)."""
+        cfg = self.cfg
+        ratio = dt / cfg.forgetting_period
+        return cfg.forgetting if abs(ratio - 1.0) <= 1e-9 else cfg.forgetting ** ratio
+
+    def _prior_stats(self):
+        """The MNIW statistics of every particle at their prior (eq. (24))."""
+        cfg, N = self.cfg, self.cfg.particles
+        batch = (N,) if self.d == 2 else (N, 2)
+        Lam0 = np.eye(self.d) * cfg.q0**2 * (self.nu0 - self.d - 1.0)  # E[Q] = q0^2 I
+        return make_mniw(cfg.stats, batch, self.d, self.basis.S, Lam0, self.nu0, cfg.backend)
+
     def diagnostics(self) -> dict:
-        """Counts a user should see: slip clipping at +-L, resampling, the handover."""
+        """Counts a user should see: slip clipping at +-L, resampling, the handover, the
+        divergences (each with its onset, detection, symptom and what was done) and the
+        largest value each symptom of divergence reached (`supervision`)."""
+        mon = getattr(self, "monitor", None)
         return {"slip_clipped_samples": int(self.clipped), "slip_clipped_steps": int(self.clipped_steps),
                 "particle_slip_evaluations": int(self.slip_evaluations), "resamples": int(self.resamples),
-                "handover_time": self.handover_time}
+                "handover_time": self.handover_time, "divergences": [d.to_dict() for d in self.divergences],
+                "symptom_max": None if mon is None else {k: float(v) for k, v in mon.worst.items()},
+                "vx_source": self.vx_source}
+
+    def run_warnings(self) -> list[str]:
+        """One line per divergence, for the run summary's warnings (`runs.Metrics`)."""
+        return [d.message() for d in self.divergences]
 
     @property
     def stats(self):
@@ -227,12 +322,23 @@ class FrictionGPSSM:
         self.rng = rng
         if self.mpf is not None:
             self.mpf.reset(rng)
-        batch = (N,) if self.d == 2 else (N, 2)
-        Lam0 = np.eye(self.d) * cfg.q0**2 * (self.nu0 - self.d - 1.0)  # E[Q] = q0^2 I
         self._compiled = None  # before the statistics change: an old compiled step must not flush into them
-        self.stats = make_mniw(cfg.stats, batch, self.d, self.basis.S, Lam0, self.nu0, cfg.backend)
+        self.stats = self._prior_stats()
         self.x = np.asarray(cfg.x0_mean, float) + rng.standard_normal((N, 2)) * np.asarray(cfg.x0_std, float)
+        self.bias = bias_prior(N, cfg.bias0_std)  # (N, 4): b_ay, b_r, their variances (`bias`)
         self.logw = np.full(N, -math.log(N))
+        self.vx_wheels = WheelSpeedVx(self.vehicle, cfg.sigma_omega, cfg.sigma_ax, cfg.wheel_slip_rw)
+        self.vx_source = None  # "input" (the vx signal) or "wheels", once a step has taken one
+        self.monitor = DivergenceMonitor(cfg.diverge_clip_share, cfg.diverge_beta, cfg.diverge_nis,
+                                         cfg.diverge_window, cfg.diverge_after)
+        self.checkpoints = Checkpoints(cfg.checkpoint_every)
+        self.divergences: list[Divergence] = []
+        self.clip_share = 0.0  # share of particles with a slip angle clipped at the last sample
+        self.lam_step = 1.0  # the forgetting factor of the last step (1: none)
+        self.mean_slip = (NAN, NAN)  # the posterior-mean slip angles of the last step (after resampling)
+        self._calib = (BatchMeansSandwichPair(cfg.calibration_batch, math.inf) if cfg.band == "calibrated" else None)
+        self.prediction_var = (NAN, NAN)  # variance of the one-step prediction of (a^Y, r)
+        self._t_calib = None  # the time of the last sample the sandwich saw
         self.mu = np.zeros((N, 2))  # friction realised over the current step
         self.prior = self.prior0
         self.t_prev = self.u_prev = None
@@ -246,6 +352,9 @@ class FrictionGPSSM:
         self.last_t = NAN
         self.prediction = (NAN, NAN)  # one-step-ahead (a^Y, r) before the last measurement
         self._path = np.zeros((2, len(self.grid), 2))  # (axle, grid bin, [count, sum of the other slip])
+        # the slip's posterior variance at the learning samples, per axle and grid bin of the mean slip, forgotten
+        # as the statistics: [weight, weighted sum of the variance] (`_slip_spread`, `slip_variance`)
+        self._spread = np.zeros((2, len(self.grid), 2))
         self._slope = (NAN, NAN, NAN, NAN)
         self._dphi0 = self._slope_features()
         if cfg.backend == "numba":
@@ -311,24 +420,56 @@ class FrictionGPSSM:
 
     # ---- the filter -------------------------------------------------------------------
     def step(self, t: float, u: Inputs, y: Measurement) -> Estimate:
-        delta, vx = float(u.delta), float(u.vx)  # a missing input: the previous one (scalars: a few us a step)
+        delta, vx = self._inputs(t, u)
+        uk = np.array([delta, vx])
+        if self.mpf is not None:  # (v^X from the wheels where the log has none: the MPF's lateral model gets it too)
+            self.mpf_estimate = self.mpf.step(t, u if u.vx == u.vx else replace(u, vx=vx), y)
+            self._combined_prior(t)
+        if self._compiled is not None:  # the same step, compiled (estimators/gpssm/compiled.py)
+            est = self._compiled.step(t, uk, delta, vx, y)
+        else:
+            est = self._step(t, uk, delta, vx, y)
+        if self.vx_wheels.filter is not None:  # the wheel-speed pre-filter's drive over the next step
+            q = np.exp(self.logw)
+            self.vx_wheels.set_drive(y.ax, float(q @ (self.x[:, 0] * self.x[:, 1])))
+        if self._calib is not None and self.active and y.ay == y.ay and self._t_calib is not None:
+            # the score of this sample's a^Y residual for the two axles' local slopes (`_band_factor`)
+            e = y.ay - self.prediction[0]
+            d0, d1 = self.mean_slip[0] * math.cos(delta), self.mean_slip[1]
+            self._calib.update_pair(d0 * e, d1 * e, d0, d1, t - self._t_calib,
+                                    self.lam_step ** (1.0 / self.cfg.calibration_memory))
+        self._t_calib = t
+        if self.cfg.supervise:
+            est = self._supervise(t, uk, y, est)
+        return est
+
+    def _inputs(self, t: float, u: Inputs) -> tuple[float, float]:
+        """delta and v^X of this sample: v^X from the `vx` input, else from the undriven axle's
+        wheel speed (`speed.WheelSpeedVx`); a missing input: the previous one (scalars: a few us
+        a step)."""
+        delta, vx = float(u.delta), float(u.vx)
+        if vx == vx:
+            self.vx_source = self.vx_source or "input"
+        elif u.omega_f == u.omega_f or u.omega_r == u.omega_r or self.vx_source == "wheels":
+            vx = self.vx_wheels.step(t, float(u.omega_f), float(u.omega_r))
+            if vx == vx:
+                self.vx_source = "wheels"
         if self.u_prev is not None:
             delta = delta if math.isfinite(delta) else float(self.u_prev[0])
             vx = vx if math.isfinite(vx) else float(self.u_prev[1])
         if not math.isfinite(vx):
-            raise ConfigError("inputs", "vx",
-                              f"the friction GP-SSM (lateral model) needs vx; none given up to t = {t} s")
+            raise ConfigError("inputs", "vx", "the friction GP-SSM (lateral model) needs vx or the undriven axle's "
+                              f"wheel speed; neither given up to t = {t} s")
         if not math.isfinite(delta):
             delta = 0.0
-        uk = np.array([delta, vx])
-        if self.mpf is not None:
-            self.mpf_estimate = self.mpf.step(t, u, y)
-            self._combined_prior(t)
-        if self._compiled is not None:  # the same step, compiled (estimators/gpssm/compiled.py)
-            return self._compiled.step(t, uk, delta, vx, y)
-        cfg, N, rng = self.cfg, self.cfg.particles, self.rng
+        return delta, vx
 
-        # 1. propagate with the friction drawn at k-1, forget (eq. (29))
+    def _step(self, t: float, uk, delta: float, vx: float, y: Measurement) -> Estimate:
+        """The numpy reference step (the module docstring's steps 1-5)."""
+        cfg, N, rng = self.cfg, self.cfg.particles, self.rng
+        lam = 1.0  # the forgetting factor of this step (1: none)
+
+        # 1. propagate with the friction drawn at k-1, forget (eq. (29)); the bias's random walk
         if self.t_prev is None:
             if math.isfinite(y.yaw_rate):  # start the yaw rate at the first sample
                 self.x[:, 1] = y.yaw_rate + math.sqrt(self.R[1]) * rng.standard_normal(N)
@@ -341,7 +482,10 @@ class FrictionGPSSM:
             if np.any(sn > 0):
                 self.x = self.x + math.sqrt(dt) * sn * rng.standard_normal(self.x.shape)
             if self.active:
-                self.stats.forget(cfg.forgetting, nu_min=self.nu0)
+                lam = self.forgetting_factor(dt)
+                self.stats.forget(lam, nu_min=self.nu0)
+            if self.bias_on:
+                bias_predict(self.bias, self.q_bias, dt)
         self.active = bool(vx > cfg.gate_speed and self.learning_started)
 
         # 2. slip angles, clipped to the basis domain (counted), features
@@ -350,6 +494,7 @@ class FrictionGPSSM:
         out = (np.abs(af) > L) | (np.abs(ar) > L)
         n_out = int(np.count_nonzero(out))
         self.slip_evaluations += N
+        self.clip_share = n_out / N
         if n_out:
             self.clipped += n_out
             self.clipped_steps += 1
@@ -357,40 +502,51 @@ class FrictionGPSSM:
         phi = self._features(af, ar)
         pf, pr = self.prior(af, ar)
 
-        # 3.-4. predictive of zeta, weights (eq. (22) with zeta integrated out)
+        # 3.-4. predictive of zeta, weights (eq. (22) with zeta integrated out, the bias with its Kalman
+        #       filter's prediction: derivations, "F7. IMU bias")
         loc, S, dof = self._predictive(phi)
         c = np.array([self.Fz[0] * math.cos(delta), self.Fz[1]]) / self.vehicle.mass  # a^Y = c . mu
         h0 = c[0] * pf + c[1] * pr
+        b = self.bias
         logl = np.zeros(N)
-        have_ay = math.isfinite(y.ay)
+        have_ay, have_r = math.isfinite(y.ay), math.isfinite(y.yaw_rate)
+        learned = cfg.measurement_friction == "learned"
+        q_prev = np.exp(self.logw)  # one-step-ahead prediction of y_k (before y_k is used)
+        ay_pred = (h0 + loc @ c if learned else h0) + b[:, AY]
+        if learned:
+            Sc = S @ c  # (N, 2)
+            # scale of the a^Y marginal (the consistent joint t), the bias's variance with the white noise's
+            s_y = Sc @ c + (self.R[0] + b[:, AY_VAR]) * (dof - 2.0) / dof
+            var_ay = s_y * dof / (dof - 2.0)
+        else:
+            var_ay = self.R[0] + b[:, AY_VAR]
         if have_ay:
-            if cfg.measurement_friction == "learned":
-                Sc = S @ c  # (N, 2)
-                s_y = Sc @ c + self.R[0] * (dof - 2.0) / dof  # scale of the a^Y marginal (consistent joint t)
-                e = y.ay - h0 - loc @ c
+            e = (y.ay - h0 - loc @ c if learned else y.ay - h0) - b[:, AY]
+            if learned:
                 logl += _t1_logpdf(e, s_y, dof)
             else:
-                e = y.ay - h0
-                logl += -0.5 * (e * e / self.R[0] + math.log(2 * math.pi * self.R[0]))
-        if math.isfinite(y.yaw_rate):
-            e_r = y.yaw_rate - self.x[:, 1]
-            logl += -0.5 * (e_r * e_r / self.R[1] + math.log(2 * math.pi * self.R[1]))
-        q_prev = np.exp(self.logw)  # one-step-ahead prediction of y_k (before y_k is used)
-        ay_pred = h0 + loc @ c if cfg.measurement_friction == "learned" else h0
-        self.prediction = (float(q_prev @ ay_pred), float(q_prev @ self.x[:, 1]))
+                logl += -0.5 * (e * e / var_ay + np.log(2 * math.pi * var_ay))
+        var_r = self.R[1] + b[:, R_VAR]
+        if have_r:
+            e_r = y.yaw_rate - self.x[:, 1] - b[:, R]
+            logl += -0.5 * (e_r * e_r / var_r + np.log(2 * math.pi * var_r))
+        r_pred = self.x[:, 1] + b[:, R]
+        self.prediction = (float(q_prev @ ay_pred), float(q_prev @ r_pred))
+        self.prediction_var = (float(q_prev @ (var_ay + ay_pred**2)) - self.prediction[0] ** 2,
+                               float(q_prev @ (var_r + r_pred**2)) - self.prediction[1] ** 2)
         self.logw = normalize_log_weights(self.logw + logl)
         ess = float(effective_sample_size(self.logw))
         if ess < cfg.resample_threshold * N:
             idx = systematic_resample(self.logw, rng)
-            self.x, self.stats = self.x[idx], self.stats.take(idx)
+            self.x, self.stats, self.bias = self.x[idx], self.stats.take(idx), self.bias[idx]
             af, ar, phi, pf, pr, loc, S, dof = (a[idx] for a in (af, ar, phi, pf, pr, loc, S, dof))
-            if have_ay and cfg.measurement_friction == "learned":
+            if have_ay and learned:
                 Sc, s_y, e = Sc[idx], s_y[idx], e[idx]
             self.logw = np.full(N, -math.log(N))
             self.resamples += 1
 
-        # 5. draw zeta_k (t conditional given the a^Y residual), learn, store mu_k
-        if have_ay and cfg.measurement_friction == "learned":
+        # 5. draw zeta_k (t conditional given the a^Y residual), learn, store mu_k; the bias given zeta_k
+        if have_ay and learned:
             g = Sc / s_y[:, None]
             loc_c = loc + g * e[:, None]
             scale_c = ((dof + e * e / s_y) / (dof + 1.0))[:, None, None] * (S - Sc[:, :, None] * g[:, None, :])
@@ -403,13 +559,27 @@ class FrictionGPSSM:
             mf, mr = float(q @ af), float(q @ ar)
             self.visited = [min(self.visited[0], mf), max(self.visited[1], mf),
                             min(self.visited[2], mr), max(self.visited[3], mr)]
+            jf, jr = self._bin(mf), self._bin(mr)
             if self.d == 2:  # the visited path: mean alpha_r per alpha_f bin and vice versa
-                jf, jr = self._bin(mf), self._bin(mr)
                 self._path[0, jf] += (1.0, mr)
                 self._path[1, jr] += (1.0, mf)
+            self._slip_spread(lam, jf, jr, float(q @ (af - mf) ** 2), float(q @ (ar - mr) ** 2))
+            self.mean_slip = (mf, mr)
+        self.lam_step = lam
         self.mu = np.stack([pf, pr], axis=1) + zeta
+        if self.bias_on:
+            self._bias_update(y, self.mu @ c if learned else c[0] * pf + c[1] * pr)
         self.t_prev, self.u_prev, self.last_t = t, uk, t
         return self._estimate(ess, vx)
+
+    def _bias_update(self, y: Measurement, h_ay: np.ndarray) -> None:
+        """The bias's Kalman update given each particle's trajectory (derivations, "F7. IMU
+        bias"): a^Y against the particle's h_ay = c . mu_k ("learned": mu~ + zeta_k; "prior":
+        mu~ alone, the measurement the weights used), the yaw rate against its r_k."""
+        if math.isfinite(y.ay):
+            bias_update(self.bias, AY, y.ay - h_ay, float(self.R[0]))
+        if math.isfinite(y.yaw_rate):
+            bias_update(self.bias, R, y.yaw_rate - self.x[:, 1], float(self.R[1]))
 
     def _combined_prior(self, t: float) -> None:
         """Combined pipeline: until the handover the prior's slope follows the MPF's current
@@ -425,9 +595,7 @@ class FrictionGPSSM:
         sf, sr = est.Cf_y / self.Fz[0], est.Cr_y / self.Fz[1]
         if not (math.isfinite(sf) and math.isfinite(sr) and sf > 0 and sr > 0):
             return
-        C = self.prior0.C
-        a = cfg.saturation_slip
-        self.prior = PacejkaPrior((sf * a, sr * a), (1.0 / (C * a), 1.0 / (C * a)), C, 0.0)
+        self.prior = slip_slope_prior(sf, sr, self.prior0.C, cfg.saturation_slip)
         settled = max(est.Cf_y_std / est.Cf_y, est.Cr_y_std / est.Cr_y) < cfg.handover_std
         if self.mpf_active_time >= cfg.handover_after and settled:
             self.learning_started = True
@@ -448,8 +616,87 @@ class FrictionGPSSM:
         else:  # the learned curve's slope at zero slip times the static axle load
             M, _ = self.stats.posterior() if self.cfg.stats == "rank1" else (None, None)
             stiff = self._curve_slope(q, M)
+        b_ay, b_r = self.bias_mean() if self.bias_on else (NAN, NAN)
         return Estimate(active=self.active, vx=vx, vy=float(xm[0]), yaw_rate=float(xm[1]), ess=ess,
-                        state_std=(0.0, float(xs[0]), float(xs[1])), **{k: float(v) for k, v in stiff.items()})
+                        state_std=(0.0, float(xs[0]), float(xs[1])), b_ay=b_ay, b_yaw_rate=b_r,
+                        **{k: float(v) for k, v in stiff.items()})
+
+    def bias_mean(self) -> tuple[float, float]:
+        """The posterior means of the a^Y and yaw-rate biases (m/s^2, rad/s)."""
+        q = np.exp(self.logw)
+        return float(q @ self.bias[:, AY]), float(q @ self.bias[:, R])
+
+    # ---- divergence: detection, report, recovery (`supervision`) ----------------------
+    def _supervise(self, t: float, uk, y: Measurement, est: Estimate) -> Estimate:
+        """The symptoms of this sample to the monitor; a checkpoint of the statistics while
+        healthy and learning; on a confirmed divergence the report and the restart
+        (`_recover`), whose estimate replaces this sample's."""
+        vx = float(uk[1])
+        beta = math.atan(abs(est.vy) / max(abs(vx), self.cfg.gate_speed)) if est.vy == est.vy else math.inf
+        z = [(m - p) ** 2 / v for m, p, v in zip((y.ay, y.yaw_rate), self.prediction, self.prediction_var)
+             if m == m and v > 0]
+        found = self.monitor.observe(t, self.clip_share, beta, sum(z) / len(z) if z else NAN)
+        if found is None:
+            if self.active and self.monitor.healthy and self.checkpoints.due(t):
+                self.checkpoints.add(t, self.stats.take(np.arange(self.cfg.particles)))
+            return est
+        cause, onset = found
+        v = self.monitor.values[cause]
+        detail = CAUSES[cause].format(value=math.degrees(v) if cause == "beta" else v, L=math.degrees(self.cfg.L),
+                                      vx=vx) + f" for {t - onset:.1f} s"
+        div = Divergence(t_onset=onset, t_detected=t, cause=cause, detail=detail)
+        self.divergences.append(div)
+        div.action = self._recover(t, uk, y, onset)
+        return self._estimate(float(self.cfg.particles), vx)
+
+    def _recover(self, t: float, uk, y: Measurement, onset: float) -> str:
+        """Start the particles again (derivations, "F9. Divergence: detection and recovery"):
+        the state and the bias from the prior and this sample's yaw rate (`combined`: from the
+        MPF's posterior), equal weights, the friction deviation zero; the statistics from the
+        newest checkpoint taken before the onset, else from their prior (`combined`: handed
+        back to the MPF, whose next handover starts the learning again). Returns what was done."""
+        cfg, N, rng = self.cfg, self.cfg.particles, self.rng
+        vy0, vy_std = float(cfg.x0_mean[0]), float(cfg.x0_std[0])
+        b0 = np.array([0.0, 0.0])
+        b_var = np.square(np.asarray(cfg.bias0_std, float))
+        mpf, m = self.mpf, self.mpf_estimate
+        source = "the prior and the measured yaw rate"
+        if mpf is not None and m is not None and math.isfinite(m.vy):
+            vy0, vy_std = m.vy, max(m.state_std[1], 0.02)
+            source = "the MPF's posterior"
+            if getattr(mpf, "bias_on", False) and self.bias_on:  # the MPF's lateral model: channels (a^Y, yaw rate)
+                w = np.exp(mpf.logw)
+                b0 = w @ mpf.b[:, -2:]
+                P = np.diagonal(mpf.P, axis1=1, axis2=2)[:, -2:]
+                b_var = w @ (P + (mpf.b[:, -2:] - b0) ** 2)
+        if not self.bias_on:
+            b_var = np.zeros(2)
+        self.bias[:, AY], self.bias[:, R] = b0
+        self.bias[:, AY_VAR], self.bias[:, R_VAR] = b_var
+        r0, r_std = float(np.exp(self.logw) @ self.x[:, 1]), math.sqrt(self.R[1] + b_var[1])
+        if math.isfinite(y.yaw_rate):
+            r0 = y.yaw_rate - b0[1]
+        self.x[:, 0] = vy0 + vy_std * rng.standard_normal(N)
+        self.x[:, 1] = r0 + r_std * rng.standard_normal(N)
+        self.logw[:] = -math.log(N)
+        ck = self.checkpoints.before(onset - cfg.checkpoint_every)
+        if ck is not None:
+            self.stats = ck[1].take(np.arange(N))
+            curve = f"the learned curve from t = {ck[0]:.1f} s (before the onset)"
+        elif mpf is not None:
+            self.stats = self._prior_stats()
+            self.learning_started, self.active, self.mpf_active_time, self.prior = False, False, 0.0, self.prior0
+            curve = "the curve handed back to the MPF (learning starts again at its next handover)"
+        else:
+            self.stats = self._prior_stats()
+            curve = "the learned curve back to its prior (no checkpoint before the onset)"
+        self.checkpoints.clear()
+        delta, vx = float(uk[0]), float(uk[1])
+        af, ar = self._slip(self.x, delta, vx)
+        L = cfg.L
+        self.mu[:] = np.stack(self.prior(np.clip(af, -L, L), np.clip(ar, -L, L)), axis=1)
+        self.monitor.reset()
+        return f"restarted: the state and the bias from {source}, {curve}"
 
     def _curve_slope(self, q, M) -> dict:
         """Cornering stiffness of the learned curve, F^z (mu~'(0) + E[A] phi'(0)); the
@@ -479,6 +726,30 @@ class FrictionGPSSM:
         g = self._grid_list
         return min(bisect_left(g, a) if a == a else len(g), len(g) - 1)
 
+    def _slip_spread(self, lam: float, jf: int, jr: int, var_f: float, var_r: float) -> None:
+        """A learning sample's posterior variance of the slip angles (var_f, var_r: over the
+        particles, after resampling) into the grid bins jf, jr of their means, the older ones
+        forgotten with the statistics' factor lam (derivations, "F5. The friction estimate")."""
+        sp = self._spread
+        if lam != 1.0:
+            sp *= lam
+        sp[0, jf, 0] += 1.0
+        sp[0, jf, 1] += var_f
+        sp[1, jr, 0] += 1.0
+        sp[1, jr, 1] += var_r
+
+    def slip_variance(self) -> np.ndarray:
+        """(2, G): per axle and grid point, the posterior variance of the slip angle at the
+        learning samples near it: the forgotten sums of `_slip_spread` smoothed over the
+        grid with the kernel's length-scale, sum_b k(a - a_b) V_b / sum_b k(a - a_b) W_b
+        (0 where no learning sample is near)."""
+        if getattr(self, "_smoother", None) is None:
+            d = (self.grid[:, None] - self.grid[None, :]) / self.cfg.lengthscale
+            self._smoother = np.exp(-0.5 * d * d)
+        num = self._spread[:, :, 1] @ self._smoother.T
+        den = self._spread[:, :, 0] @ self._smoother.T
+        return np.where(den > 1e-12, num / np.maximum(den, 1e-300), 0.0)
+
     def path(self) -> tuple[np.ndarray, np.ndarray]:
         """Tensor basis: the other axle's slip along which each axle's curve is evaluated,
         on the grid: the mean alpha_r seen with alpha_f in each grid bin (front curve) and the
@@ -495,37 +766,75 @@ class FrictionGPSSM:
         """mu(alpha) = mu~(alpha) + sum_i q^i M^i phi(alpha) on the fixed grid with its posterior
         std (Algorithm 1, line 12, and eq. (30): the mixture over particles of the MNIW
         posterior of A phi, E[Q] phi^T Sigma* phi within each particle plus the spread of the
-        particle means). Tensor basis: mu_f(alpha_f, alpha_r) is a function of both slips;
-        each axle's curve is taken along the visited path (`path()`), and along
-        alpha_f = alpha_r = alpha where nothing was visited."""
+        particle means; `band = "calibrated"`: each particle's data information Sigma divided by
+        the sandwich's tau, plus the slip's variance at the learning samples times the squared
+        slope, derivations, "F5. The friction estimate"). Tensor basis: mu_f(alpha_f, alpha_r)
+        is a function of both slips; each axle's curve is taken along the visited path
+        (`path()`), and along alpha_f = alpha_r = alpha where nothing was visited."""
         q = np.exp(self.logw)
         g = self.grid
+        G = len(g)
+        calibrated = self.cfg.band == "calibrated"
+        tau = np.square(self._calib.factor_pair) if calibrated else np.ones(2)
         if self.d == 2:  # front row along (alpha, path_f(alpha)), rear row along (path_r(alpha), alpha)
             other_f, other_r = self.path()
             phi = np.concatenate([self.basis.features(g, other_f), self.basis.features(other_r, g)])  # (2G, size)
             mean2, cov2 = self.stats.function_moments(phi[None])  # (N, 2G, 2), (N, 2G, 2, 2)
-            G = len(g)
             mean = np.stack([mean2[:, :G, 0], mean2[:, G:, 1]], axis=-1)
             var = np.stack([cov2[:, :G, 0, 0], cov2[:, G:, 1, 1]], axis=-1)
+            if calibrated:
+                var = self._calibrated_variance((phi[:G], phi[G:]), tau)
         else:
             phi = self.basis.phi(g)[None, None]  # (1, 1, G, m)
             mean, cov = self.stats.function_moments(phi)  # (N, 2, G, 1), (N, 2, G, 1, 1)
             mean, var = np.moveaxis(mean[..., 0], 1, 2), np.moveaxis(cov[..., 0, 0], 1, 2)
+            if calibrated:
+                var = self._calibrated_variance((phi[0, 0], phi[0, 0]), tau)
         mbar = np.einsum("n,ngk->gk", q, mean)
         vbar = np.einsum("n,ngk->gk", q, var + mean**2) - mbar**2
-        std = np.sqrt(np.maximum(vbar, 0.0))
         pf, pr = self.prior(g, g)
+        if calibrated:  # the slip each value was learned at is uncertain: its variance there times the squared slope
+            slope = np.stack([np.gradient(pf + mbar[:, 0], g), np.gradient(pr + mbar[:, 1], g)], axis=1)
+            vbar = vbar + slope**2 * self.slip_variance().T
+        std = np.sqrt(np.maximum(vbar, 0.0))
         M, _ = self.stats.posterior()
         self._curve_slope(q, M)
         vis = tuple(float(v) if math.isfinite(v) else NAN for v in self.visited)
         return FrictionCurve(t=float(self.last_t), alpha=g.copy(), mu_f=pf + mbar[:, 0], mu_f_std=std[:, 0],
                              mu_r=pr + mbar[:, 1], mu_r_std=std[:, 1], visited=vis)
 
+    def _calibrated_variance(self, phi_axles, tau) -> np.ndarray:
+        """(N, G, 2): per particle and axle a the posterior variance of A phi given the
+        measurements rather than the draws, (E[Q]_aa + r_a) phi^T (Sigma / tau_a + V)^-1 phi
+        (eq. (30): r_a = 0, tau_a = 1; derivations, "F5. The friction estimate"): r_a =
+        sigma_ay^2 c_a^2 / |c|^4 the a^Y noise along the measured direction c = (F^z_f, F^z_r)
+        / m, which the drawn zeta carry only in the particles' spread that resampling removes,
+        and tau_a the sandwich factor of the residuals' correlation. phi_axles: the features
+        (G, m) along which each axle's curve is taken. Rank-one statistics: Sigma + V taken as
+        the inverse of their P (their V is forgotten with the data: approximate)."""
+        st = self.stats
+        _, Lam = st.posterior()
+        V = np.diag(st.V)
+        K = st.K if self.cfg.stats == "exact" else np.linalg.inv(st.P)
+        EQ = Lam / (np.asarray(st.nu) - self.d - 1.0)[..., None, None]
+        c = self.Fz / self.vehicle.mass
+        r = self.R[0] * c**2 / float(c @ c) ** 2
+        out = []
+        for a, (ph, ta) in enumerate(zip(phi_axles, tau)):
+            if self.d == 2:
+                Ka, Qa = K, EQ[:, a, a]
+            else:
+                Ka, Qa = K[:, a], EQ[:, a, 0, 0]
+            Kt = (Ka - V) / ta + V if ta != 1.0 else Ka
+            X = np.linalg.solve(Kt, np.broadcast_to(ph.T, Kt.shape[:-1] + ph.shape[:1]))  # (N, m, G)
+            out.append(np.einsum("gj,njg->ng", ph, X) * (Qa + r[a])[:, None])
+        return np.stack(out, axis=-1)
+
     def posterior(self) -> Posterior:
         M, Lam = self.stats.posterior()
         return Posterior(self.x.copy(), self.logw.copy(),
                          {"M": M, "Lam": Lam, "nu": np.asarray(self.stats.nu).copy(), "mu": self.mu.copy(),
-                          "basis": self.cfg.basis})
+                          "basis": self.cfg.basis, "bias": self.bias.copy()})
 
 
 def _t1_logpdf(e, s, nu):

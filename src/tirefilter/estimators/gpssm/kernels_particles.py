@@ -116,45 +116,58 @@ def front(x, mu, work, prop, veh, delta, vx, basis, prior):
 
 # ---- 3. weights ---------------------------------------------------------------------------------
 @njit(**_JIT)
-def weigh(x, work, logw, c0, c1, y, R, learned, add):
-    """Eq. (22) with zeta integrated out (y = (a^Y, yaw rate, whether each is available), R =
-    (R_aY, R_r) their noise variances, c0, c1 the coefficients of mu_f, mu_r in a^Y); returns
-    (ESS, predicted a^Y, predicted yaw rate) and writes the normalised log-weights (as
-    `normalize_log_weights`) and, for the learned measurement, work[:, SC:E + 1] = S c, the a^Y
-    marginal's scale and the residual."""
+def weigh(x, work, logw, bias, c0, c1, y, R, learned, add):
+    """Eq. (22) with zeta integrated out and the bias with its Kalman filter's prediction (y =
+    (a^Y, yaw rate, whether each is available), R = (R_aY, R_r) their noise variances, c0, c1
+    the coefficients of mu_f, mu_r in a^Y, bias (N, 4) the bias filters (`gpssm.bias`));
+    returns (ESS, predicted a^Y, predicted yaw rate, `common_dof`, the variances of those
+    predictions) and writes the normalised log-weights (as `normalize_log_weights`) and, for
+    the learned measurement, work[:, SC:E + 1] = S c, the a^Y marginal's scale and the
+    residual."""
     ay, yr, have_ay, have_r = y
     R0, R1 = R
     n = x.shape[0]
     lw = np.empty(n)
     pred_ay = 0.0
     pred_r = 0.0
+    m2_ay = 0.0  # the second moments of the predictions, for their variances
+    m2_r = 0.0
     nu_last = math.nan
     const = 0.0
     for i in range(n):
         h0 = c0 * work[i, PF] + c1 * work[i, PR]
         lc = work[i, LOC] * c0 + work[i, LOC + 1] * c1
+        b_ay, b_r, P_ay, P_r = bias[i, 0], bias[i, 1], bias[i, 2], bias[i, 3]
         l = 0.0
-        if have_ay:
-            if learned:
-                sc0 = work[i, S] * c0 + work[i, S + 1] * c1
-                sc1 = work[i, S + 2] * c0 + work[i, S + 3] * c1
-                nu = work[i, DOF]
-                s_y = (sc0 * c0 + sc1 * c1) + R0 * (nu - 2.0) / nu
-                e = ay - h0 - lc
+        if learned:
+            sc0 = work[i, S] * c0 + work[i, S + 1] * c1
+            sc1 = work[i, S + 2] * c0 + work[i, S + 3] * c1
+            nu = work[i, DOF]
+            s_y = (sc0 * c0 + sc1 * c1) + (R0 + P_ay) * (nu - 2.0) / nu
+            v_ay = s_y * nu / (nu - 2.0)
+            if have_ay:
+                e = ay - h0 - lc - b_ay
                 work[i, SC], work[i, SC + 1], work[i, SY], work[i, E] = sc0, sc1, s_y, e
                 if nu != nu_last:
                     const = math.lgamma(0.5 * (nu + 1.0)) - math.lgamma(0.5 * nu)
                     nu_last = nu
                 l += const - 0.5 * math.log(nu * math.pi * s_y) - 0.5 * (nu + 1.0) * math.log1p(e * e / (nu * s_y))
-            else:
-                e = ay - h0
-                l += -0.5 * (e * e / R0 + math.log(2 * math.pi * R0))
+        else:
+            v_ay = R0 + P_ay
+            if have_ay:
+                e = ay - h0 - b_ay
+                l += -0.5 * (e * e / v_ay + math.log(2 * math.pi * v_ay))
+        v_r = R1 + P_r
         if have_r:
-            er = yr - x[i, 1]
-            l += -0.5 * (er * er / R1 + math.log(2 * math.pi * R1))
+            er = yr - x[i, 1] - b_r
+            l += -0.5 * (er * er / v_r + math.log(2 * math.pi * v_r))
         q = math.exp(logw[i])
-        pred_ay += q * (h0 + lc if learned else h0)
-        pred_r += q * x[i, 1]
+        p_ay = (h0 + lc if learned else h0) + b_ay
+        p_r = x[i, 1] + b_r
+        pred_ay += q * p_ay
+        pred_r += q * p_r
+        m2_ay += q * (v_ay + p_ay * p_ay)
+        m2_r += q * (v_r + p_r * p_r)
         v = logw[i] + l
         lw[i] = -math.inf if math.isnan(v) else v
     mx = -math.inf
@@ -173,7 +186,7 @@ def weigh(x, work, logw, c0, c1, y, R, learned, add):
     s2 = 0.0
     for i in range(n):
         s2 += math.exp(2.0 * logw[i])
-    return 1.0 / s2, pred_ay, pred_r, common_dof(work, add)
+    return 1.0 / s2, pred_ay, pred_r, common_dof(work, add), m2_ay - pred_ay * pred_ay, m2_r - pred_r * pred_r
 
 # ---- 5. conditional draw, friction, moments --------------------------------------------------------
 @njit(**_JIT_IN)
@@ -191,7 +204,8 @@ def _chol2_apply(s00, s10, s11, z0, z1):
 def sample(x, work, logw, z, u, zeta, mu, conditional, keep_phi, phi_p):
     """zeta ~ St (the t conditional given the a^Y residual when `conditional`, else the
     predictive) from z ~ N(0, I), u ~ chi2(dof'), as `student_t.t_sample`; mu = mu~ + zeta.
-    Returns the weighted means and std of x and the mean slip angles."""
+    Returns the weighted means and std of x and the weighted means and variances of the
+    (clipped) slip angles."""
     n = x.shape[0]
     for i in range(n):
         l0, l1 = work[i, LOC], work[i, LOC + 1]
@@ -222,17 +236,19 @@ def sample(x, work, logw, z, u, zeta, mu, conditional, keep_phi, phi_p):
         m1 += q * x[i, 1]
         mf += q * work[i, AF]
         mr += q * work[i, AR]
-    v0 = v1 = 0.0
+    v0 = v1 = vf = vr = 0.0
     for i in range(n):
         q = qs[i]
         v0 += q * (x[i, 0] - m0) ** 2
         v1 += q * (x[i, 1] - m1) ** 2
+        vf += q * (work[i, AF] - mf) ** 2
+        vr += q * (work[i, AR] - mr) ** 2
     if keep_phi:  # the features of the pending update (exact statistics while learning)
         k = phi_p.shape[1]
         for i in range(n):
             for j in range(k):
                 phi_p[i, j] = work[i, PHI + j]
-    return m0, m1, math.sqrt(max(v0, 0.0)), math.sqrt(max(v1, 0.0)), mf, mr
+    return m0, m1, math.sqrt(max(v0, 0.0)), math.sqrt(max(v1, 0.0)), mf, mr, vf, vr
 
 
 @njit(**_JIT)
