@@ -7,6 +7,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from figures import within
 
 from tirefilter.cosim.fmu import VehicleFMU
 from tirefilter.io.results import ESTIMATE_COLUMNS, INPUT_TRUTH_COLUMNS, truth_column
@@ -190,18 +191,19 @@ def test_conditional_deviation_is_gaussian_conditioning():
 #   augpf             +0.27 / +0.87, 2.90 / 3.33, 0.0138  (seeds 0, 2: diverged, -54 / -59 % and +17 / +54 %)
 #   augpf bootstrap   +0.27 / +0.00, 3.41 / 4.06, 0.0167  (seeds 0, 2, 3: -3.7 / -3.7, +52 / +128, +35 / +80 %)
 #   rls (nominal KF)  +0.34 / -0.77, 0.50 / 0.83, 0.0226  (seeds 0, 2, 3: mean -0.77 to +0.34, mean abs up to 0.83)
-# Bounds about 3x the seed-1 figures (the EKF's mean 1.2x of its own -2.4 % bias, 1.1x of the seeds' largest);
+# Bounds about 3x the larger of the seed-1 figures of Cf_y and Cr_y (the EKF's mean 1.2x of its own -2.4 % bias,
+# 1.1x of the seeds' largest);
 # the AUGPF's seed 1 is one of its runs that converge (55 of 100 paper-sim trials in an earlier study,
 # benchmarks/README.md; the bootstrap proposal fewer).
-@pytest.mark.parametrize("name, particles, config, mean_tol, mean_abs_tol", [
-    ("ekf", None, {}, 3.0, 6.0),
-    ("augpf", 300, {}, 2.6, 8.0),
-    ("augpf", 300, {"augpf": {"proposal": "bootstrap"}}, 1.0, 12.0),
+@pytest.mark.parametrize("name, particles, config, mean_tol, mean_abs_tol, vy_tol", [
+    ("ekf", None, {}, 3.0, 6.0, 0.05),
+    ("augpf", 300, {}, 2.6, 8.0, 0.042),
+    ("augpf", 300, {"augpf": {"proposal": "bootstrap"}}, 0.8, 12.0, 0.05),
     # the KF of the cascade on the nominal (= true, before 30 s) stiffness: with its own
     # estimate (the default) the cascade stays near its start (README, Baselines)
-    ("rls", None, {"rls": {"kf_stiffness": "nominal"}}, 2.0, 2.5),
+    ("rls", None, {"rls": {"kf_stiffness": "nominal"}}, 2.0, 2.5, 0.05),
 ])
-def test_converges_on_paper_sim(fmu_paths, name, particles, config, mean_tol, mean_abs_tol):
+def test_converges_on_paper_sim(fmu_paths, name, particles, config, mean_tol, mean_abs_tol, vy_tol):
     """paper-sim up to the surface change (29.5 s), initial stiffness 70% +- 30% of truth,
     seed 1: the mean steady-state error of Cf_y and Cr_y below `mean_tol` percent, the mean
     absolute error below `mean_abs_tol`, the v^Y RMSE after 5 s below 0.05 m/s."""
@@ -211,11 +213,11 @@ def test_converges_on_paper_sim(fmu_paths, name, particles, config, mean_tol, me
     with VehicleFMU("2") as fmu:
         names = ESTIMATE_COLUMNS + tuple(map(truth_column, fmu.output_names)) + INPUT_TRUTH_COLUMNS
     r = {c: rows[:, j] for j, c in enumerate(names)}
-    for param in ("Cf_y", "Cr_y"):
-        e = stiffness_errors(r, scenario, param)
-        assert abs(e["mean"]) < mean_tol and e["mean_abs"] < mean_abs_tol, (name, param, e)
-    # measured 0.0138-0.0226 m/s (table above); bound 2.2-3.6x
-    assert np.sqrt(np.mean((r["vy"] - r["true_vy"])[r["t"] > 5] ** 2)) < 0.05
+    e = [stiffness_errors(r, scenario, param) for param in ("Cf_y", "Cr_y")]
+    within("largest abs mean error of Cf_y, Cr_y %", max(abs(x["mean"]) for x in e), mean_tol)
+    within("largest mean abs error of Cf_y, Cr_y %", max(x["mean_abs"] for x in e), mean_abs_tol)
+    # measured 0.0138-0.0226 m/s (table above); bound 2.2-3x
+    within("vy RMSE m/s", np.sqrt(np.mean((r["vy"] - r["true_vy"])[r["t"] > 5] ** 2)), vy_tol)
 
 
 def test_augpf_borrows_the_numpy_model_by_default_and_numba_gives_the_same(fmu_paths):

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from figures import within
 
 from tirefilter.cli import main
 from tirefilter.io.friction import FRICTION_COLUMNS, read_friction, snapshot_blocks
@@ -48,8 +49,10 @@ def test_learns_the_snow_curve_over_the_visited_range(fmu_paths, basis, particle
     run_scenario(replace(SCENARIO, duration=20.0), estimator=est, seed=3)
     fc = est.friction()
     assert fc.visited[0] < -1 * DEG and fc.visited[1] > 1 * DEG
-    for rmse, _, n in _visited_rmse(fc):
-        assert n >= 8 and rmse < tol_pct / 100 * PEAK, (rmse, PEAK)
+    visited = _visited_rmse(fc)
+    assert all(n >= 8 for _, _, n in visited), visited
+    within("larger curve RMSE of mu_f, mu_r over the visited range, % of the peak",
+           max(100 * rmse / PEAK for rmse, _, _ in visited), tol_pct)
     # the prior alone is far off there: learning, not the prior, did it
     i = np.argmin(np.abs(fc.alpha - 1 * DEG))
     assert est.prior(fc.alpha[i], fc.alpha[i])[0] < 0.5 * pure_lateral_friction(SCENARIO.model.pacejka, fc.alpha[i])

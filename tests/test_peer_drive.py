@@ -15,6 +15,7 @@ import tomllib
 
 import numpy as np
 import pytest
+from figures import within
 
 from tirefilter.cli import build_parser, main
 from tirefilter.errors import TirefilterError
@@ -71,11 +72,14 @@ def _replay(tmp_path, log, vehicle, config: str | None = None) -> dict:
     return score_replay(log, out, last=LAST)
 
 
-def _assert_targets(score: dict, stiffness_tol: float = STIFFNESS_TOL, beta_tol: float = BETA_RMSE_TOL) -> None:
-    assert stiffness_tol <= STIFFNESS_TOL and beta_tol <= BETA_RMSE_TOL  # never looser than the targets
-    assert abs(score["Cf_y_err"]) <= stiffness_tol, score
-    assert abs(score["Cr_y_err"]) <= stiffness_tol, score
-    assert score["beta_rmse_deg"] <= beta_tol, score
+def _assert_targets(score: dict, stiffness_tol: float = STIFFNESS_TOL, beta_tol: float = BETA_RMSE_TOL,
+                    wide: str = "") -> None:
+    """The lateral stiffness errors and the sideslip RMSE within their bounds, never looser than the
+    targets; `wide` says why the stiffness bound leaves more than about 3x this replay's figure."""
+    assert stiffness_tol <= STIFFNESS_TOL and beta_tol <= BETA_RMSE_TOL
+    within("larger abs error of Cf_y, Cr_y %", max(abs(score["Cf_y_err"]), abs(score["Cr_y_err"])), stiffness_tol,
+           wide=wide)
+    within("sideslip RMSE deg", score["beta_rmse_deg"], beta_tol, wide=wide)
 
 
 # --- the estimator on the peer's drives ------------------------------------------------------
@@ -86,9 +90,10 @@ def _assert_targets(score: dict, stiffness_tol: float = STIFFNESS_TOL, beta_tol:
 #   mb-roll  -1.99 / -1.65, 0.0166  (-1.1 to -1.9 / -0.6 to -1.5, 0.012-0.019)
 #   mb       -2.39 / -1.78, 0.0175  (-1.6 to +1.4 / -0.9 to +1.8, 0.014-0.017; the roll gradient estimated, 16.6-17.8
 #            mrad per m/s^2 for the drive's 15.9)
-@pytest.mark.parametrize("kind,stiffness_tol,beta_tol", [("std", 10.0, 0.07), ("mb-roll", 6.0, 0.05),
-                                                         ("mb", 7.0, 0.05)])
-def test_default_replay_meets_the_peer_drive_targets(drives, tmp_path, kind, stiffness_tol, beta_tol):
+@pytest.mark.parametrize("kind,stiffness_tol,beta_tol,wide", [
+    ("std", 10.0, 0.07, "3x the replay seeds' largest (3.1 %, 0.023 deg)"), ("mb-roll", 6.0, 0.05, ""),
+    ("mb", 7.0, 0.05, "")])
+def test_default_replay_meets_the_peer_drive_targets(drives, tmp_path, kind, stiffness_tol, beta_tol, wide):
     """`tirefilter replay LOG.csv --vehicle V.toml`, nothing else: lateral stiffness within
     10 % of the truth (mean over the last 20 s), sideslip RMSE at most 0.1 deg, and within
     about 3x this replay's figures. The single-track drive with a data-sheet vehicle file; the
@@ -99,11 +104,13 @@ def test_default_replay_meets_the_peer_drive_targets(drives, tmp_path, kind, sti
     the file does not give (derivations, "The roll gain from the data") it meets the targets at
     every seed, as with the roll gradient given."""
     _, log, vehicle, with_roll = drives[kind.split("-")[0]]
-    _assert_targets(_replay(tmp_path, log, with_roll if kind == "mb-roll" else vehicle), stiffness_tol, beta_tol)
+    _assert_targets(_replay(tmp_path, log, with_roll if kind == "mb-roll" else vehicle), stiffness_tol, beta_tol,
+                    wide)
 
 
-@pytest.mark.parametrize("kind,stiffness_tol,beta_tol", [("std", 7.5, 0.055), ("mb", 2.5, 0.04)])
-def test_drive_is_sound_with_bias_estimation(drives, tmp_path, kind, stiffness_tol, beta_tol):
+@pytest.mark.parametrize("kind,stiffness_tol,beta_tol,wide", [
+    ("std", 7.5, 0.055, "2.3x the replay seeds' largest (3.2 %)"), ("mb", 2.5, 0.04, "1.6x the replay seeds' largest")])
+def test_drive_is_sound_with_bias_estimation(drives, tmp_path, kind, stiffness_tol, beta_tol, wide):
     """With bias estimation on and the drive's noise (and, for the rolling body, the roll
     gradient) the same replay meets the targets: what is missing is defaults, not physics.
     Measured (replay seed 0; seeds 1-3): STD +0.87 / +1.77 %, 0.020 deg (up to +2.3 / +3.2 %,
@@ -112,7 +119,7 @@ def test_drive_is_sound_with_bias_estimation(drives, tmp_path, kind, stiffness_t
     0.025 deg). Bounds 3x (STD), and for MB 1.6x the seeds' largest (4.4x the seed-0 figure)."""
     _, log, vehicle, with_roll = drives[kind]
     _assert_targets(_replay(tmp_path, log, with_roll if kind == "mb" else vehicle, BIAS_CONFIG), stiffness_tol,
-                    beta_tol)
+                    beta_tol, wide)
 
 
 # --- the generator -------------------------------------------------------------------------
@@ -364,7 +371,8 @@ def test_default_replay_learns_cx_through_noisy_wheel_speeds(tmp_path):
     out = tmp_path / "result.csv"
     assert main(["replay", str(log), "--vehicle", str(vehicle), "--out", str(out), "--quiet"]) == 0
     score = score_replay(log, out, last=30.0)
-    assert abs(score["Cx_err"]) < 25.0, score
+    within("Cx abs error %", abs(score["Cx_err"]), 25.0,
+           wide="1.9x the seed-0 figure, the seeds' spread: Cx is weakly excited on this drive")
     # measured -4.3 / -2.5 %, 0.0121 deg (seed 0; seeds 1-4: within 4.5 %, 0.011-0.018 deg): the stiffness's
     # bound is the target (2.3x), the sideslip's 3x
     _assert_targets(score, beta_tol=0.036)

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from figures import within
 
 from conftest import skip_or_fail_in_ci
 from tirefilter.cli import main
@@ -442,7 +443,7 @@ def test_real_recording_checks_and_replays(mbds_log, tmp_path):
     # README); bound 1.5x. The estimate beta = 0 scores 1.37 deg on this stretch: the bound must be below that.
     # (300-320 s alone, the stretch before, scored 0.93 deg with beta = 0 at 1.20: its large sideslip comes in its
     # last 5 s, before the stiffness is learned, so no bound there told the filter from beta = 0.)
-    assert math.degrees(rmse) < 1.0
+    within("sideslip RMSE deg, 320-360 s", math.degrees(rmse), 1.0)
     assert math.degrees(np.sqrt(np.mean(beta_true**2))) > 1.3
     metrics = json.loads(out.with_suffix(".json").read_text())["metrics"]
     assert metrics["state"]["beta"]["reference"] == "true_beta"

@@ -7,6 +7,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from figures import within
 
 from tirefilter.io.results import read_results
 from tirefilter.cosim.run import run_scenario
@@ -59,19 +60,21 @@ def test_paper_sim_lateral_stiffness_converges(fmu_paths, tmp_path, model):
     for param in ("Cf_y", "Cr_y"):
         mean_tol, mean_abs_tol, (sigma_lo, sigma_hi) = CONVERGED[model][param]
         e = stiffness_errors(r, scenario, param)
-        assert abs(e["mean"]) < mean_tol, (param, e)
-        assert e["mean_abs"] < mean_abs_tol, (param, e)
+        within(f"{param} abs mean error %", abs(e["mean"]), mean_tol,
+               wide="the seeds' largest, about 3x: the seed's own mean is near zero by chance")
+        within(f"{param} mean abs error %", e["mean_abs"], mean_abs_tol)
         late = r["t"] >= 20.0
         sigma_pct = np.mean(100 * r[f"{param}_sigma"][late] / r[f"true_{param}_mean"][late])
-        assert sigma_lo < sigma_pct < sigma_hi, (param, sigma_pct)
+        within(f"{param} deviation spread % (true 5)", sigma_pct, sigma_hi, lower=sigma_lo)
     vy_rmse = np.sqrt(np.mean((r["vy"] - r["true_vy"])[r["t"] > 5] ** 2))
     # measured 0.0042 (full) / 0.0047 (lateral) m/s (seed 1; seeds 0-3: 0.0037-0.0063); bound 3x
-    assert vy_rmse < 0.013, vy_rmse
+    within("vy RMSE m/s", vy_rmse, 0.013)
     if model == "full":
         assert np.isfinite(r["Cx"]).all()
         # weakly observable (docs/design.md): measured -0.24 % (seed 1), +0.83 / +1.14 / +0.51 % (seeds 0, 2, 3);
         # bound 1.3x the seeds' largest (6x the seed-1 figure: Cx spreads more than the lateral stiffness)
-        assert abs(stiffness_errors(r, scenario, "Cx")["mean"]) < 1.5
+        within("Cx abs mean error %", abs(stiffness_errors(r, scenario, "Cx")["mean"]), 1.5,
+               wide="1.3x the seeds' largest: Cx is weakly observable")
     else:
         assert np.isnan(r["Cx"]).all()
 
@@ -91,12 +94,11 @@ def test_paper_sim_tracks_the_surface_change(fmu_paths, tmp_path):
     # 4 s in 2 of the 8, and in 16 of the 100 trials of the paper-sim study, docs/results.md): the bound is the 4 s target,
     # 3x this seed's figure
     for param in ("Cf_y", "Cr_y", "Cx"):
-        assert settling_time(r, param, 30.0) <= 4.0, (param, settling_time(r, param, 30.0))
+        within(f"{param} settling time s", settling_time(r, param, 30.0), 4.0)
     # mean abs error over 5-30 s and 35-60 s: measured 0.34 / 0.51 / 0.80 % (seed 3; seeds 0-7 up to
     # 0.49 / 0.51 / 1.61 %); bound about 3x (lateral 2-3x, Cx 3x)
     for param, tol in (("Cf_y", 1.0), ("Cr_y", 1.0), ("Cx", 2.4)):
-        e = stiffness_errors(r, scenario, param)
-        assert e["mean_abs"] < tol, (param, e)
+        within(f"{param} mean abs error %", stiffness_errors(r, scenario, param)["mean_abs"], tol)
 
 
 def _synthetic_steps(n=300, seed=0):
