@@ -58,10 +58,16 @@ class CompiledStep:
         else:
             noise, noise_scale = wk.no_noise, wk.no_scale
         if self.k_roll is not None:  # the roll gain per particle (`_walk_roll`, `_roll_gains`)
-            if not start:
-                self._walk_roll(dt)
-            np.multiply(self.k_roll, GRAVITY, out=wk.gain)
-            wk.gain += 1.0
+            if start:
+                np.multiply(self.k_roll, GRAVITY, out=wk.gain)
+                wk.gain += 1.0
+            else:  # `_walk_roll`'s draw and walk, the gain with it
+                z_roll = rng.standard_normal(len(self.k_roll))
+                if not (self.k_roll.flags.c_contiguous and self.k_roll.flags.writeable
+                        and self.k_roll.dtype == np.float64):  # (the kernel writes into it)
+                    self.k_roll = np.array(self.k_roll, float)
+                nb.walk_roll(self.k_roll, z_roll, cfg.roll_gradient_rw * math.sqrt(dt), wk.roll_lo, wk.roll_hi,
+                             GRAVITY, wk.gain)
         if math.isfinite(sum(yl)):  # the kernels compiled for this model's sizes (kernels.SIZES_FULL ...)
             a, nc, sizes = wk.avail_all, wk.nc_all, wk.sizes_all
         else:
@@ -72,7 +78,8 @@ class CompiledStep:
         u_prev = uk if start else self.u_prev  # (not read without the propagation)
         self.t_prev, self.u_prev = t, uk
         innovation, ess, count, nu_common = nb.predict_weigh(
-            wk.own, wk.scratch, (u_prev, uk, yk, a, self.w_prev, self.logw, noise, noise_scale, redraw),
+            wk.own, wk.scratch, (u_prev, uk, yk, a, self.w_prev, self.logw, noise, noise_scale, redraw,
+                                 wk.q01 if cfg.state_noise_from_data and weigh else wk.no_q01),
             wk.model[self.linear_region],
             (dt, wk.max_step, float(self.lam), self.nu0, wk.beta, wk.yaw_max, wk.gate_speed),
             wk.flags[self.active] if not start else wk.start_flags[weigh], nc, sizes)
@@ -88,8 +95,10 @@ class CompiledStep:
         if count < cfg.particles:  # some particles left the plausible region (`_plausible`)
             self.logw = normalize_log_weights(np.where(wk.ok, self.logw, -np.inf))
             ess = -1.0
-        if cfg.state_noise_from_data and a.size and weigh:
-            self._match_state_noise(logw_pred, dt)
+        if cfg.state_noise_from_data and a.size and weigh:  # (the scale of this propagation's noise, unless the
+            # surprise that vy_jitter reads has changed since it was drawn)
+            self._match_state_noise(logw_pred, dt, None if start or cfg.vy_jitter > 0 else noise_scale,
+                                    wk.q01 if count == cfg.particles else None)
         if ess < 0:
             ess = float(effective_sample_size(self.logw))
         resample = ess < cfg.resample_threshold * cfg.particles
@@ -145,7 +154,7 @@ class CompiledStep:
             self._sigma2_rel = max(v / c**2 for v, c in zip(s2, self.C_ref.tolist()))
         root, C = _sqrt_or_nan, self._C_nom_list
         f0 = f1 = 1.0
-        k_mean, k_std = self._roll_moments()
+        k_mean, k_std = self._roll_moments(None if dt is None else self._wk.q)
         est = _new_object(Estimate)
         if self.full:  # params Cx, Cf_y, Cr_y; bias ax, ay, yaw rate
             if dt is not None and self._calib is not None:
@@ -257,6 +266,8 @@ class _MPFWork:
         self.predicted_ay = cfg.gate_ay == "predicted"
         self.keep_pred = self.predicted_ay or cfg.state_noise_from_data or mpf._calib is not None
         self.logw_pred, self.q_pred = np.zeros(N), np.zeros(N)
+        # exp of the predictive and the new log-weights from `predict_weigh` (`_match_state_noise`), or none
+        self.q01, self.no_q01 = np.zeros((2, N)), np.zeros((2, 0))
         self.ay_col = mpf.channels.index(1)  # the a^Y column of e when every channel is there
         self.ones2 = np.ones(2)  # `_draw_factors` without the surprise inflation
         self.drift_checked = None  # the drift statistic's array once checked C-contiguous float64
@@ -267,6 +278,7 @@ class _MPFWork:
         self.max_step, self.beta = float(cfg.max_step), float(cfg.plausible_beta)
         self.yaw_max, self.gate_speed = float(cfg.plausible_yaw_rate), float(cfg.gate_speed)
         self.gain = np.full(N, mpf.roll_gain)  # the roll gain per particle (`_roll_gains`)
+        self.roll_lo, self.roll_hi = (float(k) for k in cfg.roll_gradient_prior)  # (`_walk_roll`'s bounds)
         self.model = {linear: (mpf._vp, mpf._jw, mpf._c_floor, mpf.R, mpf.q_bias if linear else mpf.q_bias_nonlinear,
                                self.gain) for linear in (False, True)}
         adaptive = cfg.forgetting_mode == "adaptive"

@@ -12,7 +12,7 @@ from numba import njit
 
 from tirefilter.stats.particles_numba import systematic_into
 
-_JIT = dict(cache=True, nogil=True, no_cfunc_wrapper=True)  # (no C callback is taken of a kernel)
+_JIT = dict(cache=True, nogil=True, no_cfunc_wrapper=True, error_model="numpy")  # (no C callback is taken of a kernel)
 # a helper only kernels call: no wrapper for Python calls either (each wrapper, which unboxes every
 # argument, was compiled and never called: docs/development.md, "How long `make test` takes");
 # called from Python such a helper crashes the interpreter instead of raising (tests/test_kernel_calls.py)
@@ -226,6 +226,87 @@ def _sample(idx, own, scratch, draws, w, learning, flags, qw, ub, n_w, nc):
         nu[i] = nu[i] + 1.0
 
 
+@njit(inline="always", **_JIT)
+def _bias(idx, own, scratch, R, avail, y, n_w, na, mch, every):
+    """Step 4 of `sample_update` (its arguments; n_w, na, mch the sizes, `every`: avail = 0..m-1, every
+    channel there): the bias Kalman update of eq. (30) per particle, in three short loops over the
+    particles (the CPU overlaps the chains of square roots and divisions of successive particles):
+    the innovation and its scale S, the factorisation of S in place, the gain and the update of b and P."""
+    x, b, P, gamma, mu, Lam, nu, a, B, slip = own
+    af, ar, h, D, L11, nu_w, L12, Lc, e, v, ll, ok = scratch
+    n = mu.shape[0]
+    nb = max(na, 1)
+    Sb = np.empty((n, nb, nb))  # S, then its factor in place
+    inn = np.empty((n, nb))
+    DE = np.empty((nb, n_w))
+    Kt = np.empty((nb, mch))
+    Pn = np.empty((mch, mch))
+    for i in range(n):
+        s = idx[i]
+        # 4. bias, eq. (30), with the predicted statistics: S = P_aa + R_aa + D_a E[Sigma] D_a^T and the innovation
+        den = nu[i] - n_w - 1.0
+        for q in range(na):
+            cq = q if every else avail[q]
+            for k in range(n_w):
+                t = 0.0
+                for j in range(n_w):
+                    t += D[s, cq, j] * (Lam[i, j, k] / den)
+                DE[q, k] = t
+        for q in range(na):
+            cq = q if every else avail[q]
+            for q2 in range(q + 1):  # (the lower triangle: all the factorisation reads)
+                c2 = q2 if every else avail[q2]
+                t = 0.0
+                for k in range(n_w):
+                    t += DE[q, k] * D[s, c2, k]
+                Sb[i, q, q2] = P[i, cq, c2] + R[cq, c2] + t
+        for q in range(na):
+            ch = q if every else avail[q]
+            t = 0.0
+            for j in range(n_w):
+                t += D[s, ch, j] * mu[i, j]
+            inn[i, q] = y[ch] - h[s, ch] - t - b[i, ch]
+    for i in range(n):  # chol(S) in place (`_chol`)
+        for j in range(na):
+            Sjj = Sb[i, j, j]
+            d = Sjj
+            for k in range(j):
+                d = d - Sb[i, j, k] * Sb[i, j, k]
+            Ljj = math.sqrt(max(d, abs(Sjj) * 1e-14 + 1e-300))
+            Sb[i, j, j] = Ljj
+            for r in range(j + 1, na):
+                acc = Sb[i, r, j]
+                for k in range(j):
+                    acc = acc - Sb[i, r, k] * Sb[i, j, k]
+                Sb[i, r, j] = acc * (1.0 / Ljj)
+    for i in range(n):
+        for c in range(mch):  # Kt[:, c] = S^-1 P[a, c]
+            for q in range(na):
+                acc = P[i, q if every else avail[q], c]
+                for j in range(q):
+                    acc = acc - Sb[i, q, j] * Kt[j, c]
+                Kt[q, c] = acc / Sb[i, q, q]
+            for q in range(na - 1, -1, -1):
+                acc = Kt[q, c]
+                for j in range(q + 1, na):
+                    acc = acc - Sb[i, j, q] * Kt[j, c]
+                Kt[q, c] = acc / Sb[i, q, q]
+        for c in range(mch):
+            t = 0.0
+            for q in range(na):
+                t += Kt[q, c] * inn[i, q]
+            b[i, c] = b[i, c] + t
+        for c in range(mch):  # Pn = P - P_{:,a} K^T (from the old P), then 0.5 (Pn + Pn^T)
+            for c2 in range(mch):
+                t = 0.0
+                for q in range(na):
+                    t += P[i, q if every else avail[q], c] * Kt[q, c2]
+                Pn[c, c2] = P[i, c, c2] - t
+        for c in range(mch):
+            for c2 in range(mch):
+                P[i, c, c2] = 0.5 * (Pn[c, c2] + Pn[c2, c])
+
+
 @njit(**_JIT)
 def sample_update(idx, own, scratch, draws, w, obs, learning, flags, nc_, out, sizes):
     """Steps 3-5 of `StiffnessMPF.step`, in place, on the workspace of `compiled._MPFWork`:
@@ -263,74 +344,19 @@ def sample_update(idx, own, scratch, draws, w, obs, learning, flags, nc_, out, s
     bound, drift_a, lo, hi = learning
     drift_state, mom, qw = out
     if sizes.ndim == 3:
-        if mu.shape[1] != 3 or nc_ != 2:
-            raise ValueError("sample_update with SIZES_FULL: n_w = 3, nc = 2 only")
-        n_w, nc = 3, 2
+        if mu.shape[1] != 3 or nc_ != 2 or avail.shape[0] != 3 or b.shape[1] != 3:
+            raise ValueError("sample_update with SIZES_FULL: n_w = na = m = 3, nc = 2 only")
+        n_w, nc, na, mch = 3, 2, 3, 3
     elif sizes.ndim == 2:
-        if mu.shape[1] != 2 or nc_ != 1:
-            raise ValueError("sample_update with SIZES_LATERAL: n_w = 2, nc = 1 only")
-        n_w, nc = 2, 1
+        if mu.shape[1] != 2 or nc_ != 1 or avail.shape[0] != 2 or b.shape[1] != 2:
+            raise ValueError("sample_update with SIZES_LATERAL: n_w = na = m = 2, nc = 1 only")
+        n_w, nc, na, mch = 2, 1, 2, 2
     else:
-        n_w, nc = mu.shape[1], nc_
+        n_w, nc, na, mch = mu.shape[1], nc_, avail.shape[0], b.shape[1]
     n = mu.shape[0]
-    na = avail.shape[0]
-    mch = b.shape[1]
-    nb = max(na, 1)
-    S = np.empty((nb, nb))
-    Lb = np.zeros((nb, nb))
-    Kt = np.empty((nb, mch))
-    DE = np.empty((nb, n_w))
-    innov = np.empty(nb)
-    Pn = np.empty((mch, mch))
     ub = np.zeros(n_w)
-    for i in range(n if do_bias else 0):  # (first: it reads the statistics before their update and writes only b, P)
-        s = idx[i]
-        # 4. bias, eq. (30), with the predicted statistics
-        den = nu[i] - n_w - 1.0
-        for q in range(na):
-            for k in range(n_w):
-                t = 0.0
-                for j in range(n_w):
-                    t += D[s, avail[q], j] * (Lam[i, j, k] / den)
-                DE[q, k] = t
-        for q in range(na):
-            for q2 in range(na):
-                t = 0.0
-                for k in range(n_w):
-                    t += DE[q, k] * D[s, avail[q2], k]
-                S[q, q2] = P[i, avail[q], avail[q2]] + R[avail[q], avail[q2]] + t
-        _chol(S, Lb, na)
-        for c in range(mch):  # Kt[:, c] = S^-1 P[a, c]
-            for q in range(na):
-                acc = P[i, avail[q], c]
-                for j in range(q):
-                    acc = acc - Lb[q, j] * Kt[j, c]
-                Kt[q, c] = acc / Lb[q, q]
-            for q in range(na - 1, -1, -1):
-                acc = Kt[q, c]
-                for j in range(q + 1, na):
-                    acc = acc - Lb[j, q] * Kt[j, c]
-                Kt[q, c] = acc / Lb[q, q]
-        for q in range(na):
-            ch = avail[q]
-            t = 0.0
-            for j in range(n_w):
-                t += D[s, ch, j] * mu[i, j]
-            innov[q] = y[ch] - h[s, ch] - t - b[i, ch]
-        for c in range(mch):
-            t = 0.0
-            for q in range(na):
-                t += Kt[q, c] * innov[q]
-            b[i, c] = b[i, c] + t
-        for c in range(mch):  # Pn = P - P_{:,a} K^T (from the old P), then 0.5 (Pn + Pn^T)
-            for c2 in range(mch):
-                t = 0.0
-                for q in range(na):
-                    t += P[i, avail[q], c] * Kt[q, c2]
-                Pn[c, c2] = P[i, c, c2] - t
-        for c in range(mch):
-            for c2 in range(mch):
-                P[i, c, c2] = 0.5 * (Pn[c, c2] + Pn[c2, c])
+    if do_bias:  # (first: it reads the statistics before their update and writes only b, P)
+        _bias(idx, own, scratch, R, avail, y, n_w, na, mch, sizes.ndim > 1)
     # 3. and 5.
     _sample(idx, own, scratch, draws, w, learning, flags, qw, ub, n_w, nc)
     zd = math.nan
@@ -392,3 +418,73 @@ def _moments(q, x, gamma, mu, Lam, nu, b, mom):
     for j in range(n_w):
         vm[j] += spread[j]
         s2[j] += spread[j]
+
+
+# ---- the per-particle parts of the adaptive options (one call each, in place of numpy's dozen) ------
+@njit(**_JIT)
+def match_state_noise(q01, x, scale, dt, a, q_state):
+    """`_match_state_noise` (derivations, "State noise from the data"): the means m-, m+ and spreads P-, P+
+    (nx,) of x (N, nx) under the predictive weights exp(logw_pred) and the weights exp(logw), the rows of
+    q01 (2, N), each normalised by its sum; g = ((m+ - m-)^2 - (P- - P+)) / dt + scale^2 / dt with `scale` (nx,) the
+    state noise's std over the step; when g is finite, q_state (nx,) := max(q_state + a (g - q_state), 0)."""
+    n, nx = x.shape
+    q0 = np.empty(n)
+    q1 = np.empty(n)
+    s0 = s1 = 0.0
+    for i in range(n):
+        q0[i] = q01[0, i]
+        q1[i] = q01[1, i]
+        s0 += q0[i]
+        s1 += q1[i]
+    m0 = np.zeros(nx)
+    m1 = np.zeros(nx)
+    for i in range(n):
+        q0[i] = q0[i] / s0
+        q1[i] = q1[i] / s1
+        for c in range(nx):
+            m0[c] += q0[i] * x[i, c]
+            m1[c] += q1[i] * x[i, c]
+    p0 = np.zeros(nx)
+    p1 = np.zeros(nx)
+    for i in range(n):
+        for c in range(nx):
+            d0 = x[i, c] - m0[c]
+            d1 = x[i, c] - m1[c]
+            p0[c] += q0[i] * (d0 * d0)
+            p1[c] += q1[i] * (d1 * d1)
+    g = np.empty(nx)
+    for c in range(nx):
+        dm = m1[c] - m0[c]
+        g[c] = (dm * dm - (p0[c] - p1[c])) / dt + scale[c] * scale[c] / dt
+        if not math.isfinite(g[c]):
+            return
+    for c in range(nx):
+        q_state[c] = max(q_state[c] + a * (g[c] - q_state[c]), 0.0)
+
+
+@njit(**_JIT)
+def walk_roll(k, z, c, lo, hi, g, gain):
+    """`_walk_roll` in place: k (N,) := k + c z (the caller's normals z (N,), c = roll_gradient_rw sqrt(dt)),
+    reflected at lo and hi and clipped to [lo, hi]; and the roll gain 1 + k g per particle into gain (N,)."""
+    for i in range(k.shape[0]):
+        ki = k[i] + c * z[i]
+        if ki < lo:
+            ki = 2.0 * lo - ki
+        if ki > hi:
+            ki = 2.0 * hi - ki
+        ki = min(max(ki, lo), hi)
+        k[i] = ki
+        gain[i] = ki * g + 1.0
+
+
+@njit(**_JIT)
+def mean_std(q, k):
+    """The mean and std of k (N,) under the weights q (N,) (`_roll_moments`)."""
+    m = 0.0
+    for i in range(k.shape[0]):
+        m += q[i] * k[i]
+    s = 0.0
+    for i in range(k.shape[0]):
+        d = k[i] - m
+        s += q[i] * (d * d)
+    return m, math.sqrt(max(s, 0.0))
