@@ -125,8 +125,7 @@ class Adaptation:
         names = ("vx", "vy", "yaw_rate") if self.full else ("vy", "yaw_rate")
         return {n: math.sqrt(float(q)) for n, q in zip(names, self.q_state)}
 
-    def _match_state_noise(self, logw_pred: np.ndarray, dt: float, scale: np.ndarray | None = None,
-                           q01: np.ndarray | None = None) -> None:
+    def _match_state_noise(self, logw_pred: np.ndarray, dt: float, scale: np.ndarray | None = None) -> None:
         """`state_noise_from_data` (derivations, "State noise from the data"): with the predictive weights logw_pred and
         the weights after this sample's likelihood, both over the propagated particles x, the
         correction of the state's mean d = m+ - m- and the spreads P-, P+ per component give
@@ -134,16 +133,14 @@ class Adaptation:
         under which the corrections have the size the removed spread says (E[d^2] = P- - P+ for a
         consistent filter). g is smoothed over `state_noise_time` into q_state (>= 0). `scale`: q as the std
         over dt (`_state_noise_scale(dt)`) where the caller has it; the compiled step's sums run in
-        `kernels.match_state_noise`, on exp(logw_pred) and exp(logw) as `q01` (2, N) where the caller has them."""
+        `kernels.match_state_noise`."""
         if scale is None:
             scale = self._state_noise_scale(dt)
         a = -math.expm1(-dt / self.cfg.state_noise_time)
         if self._nb is not None:
             if not (self.q_state.flags.writeable and self.q_state.dtype == np.float64):  # (the kernel writes into it)
                 self.q_state = np.array(self.q_state, float)
-            if q01 is None:
-                q01 = np.exp(np.stack([logw_pred, self.logw]))
-            self._nb.match_state_noise(q01, self.x, scale, dt, a, self.q_state)
+            self._nb.match_state_noise(logw_pred, self.logw, self.x, scale, dt, a, self.q_state)
             return
         x = self.x
         q0, q1 = np.exp(logw_pred), np.exp(self.logw)

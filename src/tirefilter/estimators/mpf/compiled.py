@@ -78,8 +78,7 @@ class CompiledStep:
         u_prev = uk if start else self.u_prev  # (not read without the propagation)
         self.t_prev, self.u_prev = t, uk
         innovation, ess, count, nu_common = nb.predict_weigh(
-            wk.own, wk.scratch, (u_prev, uk, yk, a, self.w_prev, self.logw, noise, noise_scale, redraw,
-                                 wk.q01 if cfg.state_noise_from_data and weigh else wk.no_q01),
+            wk.own, wk.scratch, (u_prev, uk, yk, a, self.w_prev, self.logw, noise, noise_scale, redraw),
             wk.model[self.linear_region],
             (dt, wk.max_step, float(self.lam), self.nu0, wk.beta, wk.yaw_max, wk.gate_speed),
             wk.flags[self.active] if not start else wk.start_flags[weigh], nc, sizes)
@@ -97,8 +96,7 @@ class CompiledStep:
             ess = -1.0
         if cfg.state_noise_from_data and a.size and weigh:  # (the scale of this propagation's noise, unless the
             # surprise that vy_jitter reads has changed since it was drawn)
-            self._match_state_noise(logw_pred, dt, None if start or cfg.vy_jitter > 0 else noise_scale,
-                                    wk.q01 if count == cfg.particles else None)
+            self._match_state_noise(logw_pred, dt, None if start or cfg.vy_jitter > 0 else noise_scale)
         if ess < 0:
             ess = float(effective_sample_size(self.logw))
         resample = ess < cfg.resample_threshold * cfg.particles
@@ -130,17 +128,17 @@ class CompiledStep:
             if not (self.drift.flags.c_contiguous and self.drift.dtype == np.float64):
                 self.drift = np.array(self.drift, float)
             wk.drift_checked = self.drift
-        zd = nb.sample_update(
+        zd, k_mean, k_std = nb.sample_update(
             wk.idx, wk.own, wk.scratch, (z, chi, nu_draw, self._draw_factors(wk.ones2)), wk.w, (self.R, a, yk),
             (self._outlier_bound(nc) if use_mask else 0.0, -math.expm1(-dt / cfg.drift_time), wk.lo, wk.hi),
-            (use_mask, bool(a.size and self.bias_on), self.active, drift), nc, (self.drift, wk.mom, wk.q), sizes)
+            (use_mask, bool(a.size and self.bias_on), self.active, drift), nc, (self.drift, wk.mom, wk.q, wk.no_k if self.k_roll is None else self.k_roll), sizes)
         if zd == zd:  # `_track_drift` (the statistic is NaN when not computed)
             self._cap_forgetting(zd)
         if self.full:
             self._excite_cx(float(wk.mom[0, 0]), uk, dt)
-        return self._estimate_fused(ess, wk.mom, dt)
+        return self._estimate_fused(ess, wk.mom, dt, (k_mean, k_std))
 
-    def _estimate_fused(self, ess: float, mom: np.ndarray, dt: float | None = None) -> Estimate:
+    def _estimate_fused(self, ess: float, mom: np.ndarray, dt: float | None = None, roll=None) -> Estimate:
         """`_estimate_from` on the moments that `sample_update` left in the rows of mom, written out
         for the fused step: the same Estimate (tests/test_kernels.py compares every field) in a
         third of the time. With `dt` (the fused step) and `std_calibration = "sandwich"`, the
@@ -148,13 +146,14 @@ class CompiledStep:
         The frozen dataclass's fields are filled directly (every field: its generated __init__
         sets each through object.__setattr__, several us per step); Estimate has no
         __post_init__ and no __slots__ (tests/test_kernels.py checks both and compares the
-        object with the constructor's)."""
+        object with the constructor's). `roll`: the roll gradient's mean and std where `sample_update`
+        returned them."""
         xm, xs, mb, vm, s2, bm = mom.tolist()
         if self.cfg.inflation_prior_bound:  # (`_draw_inflation`'s bound)
             self._sigma2_rel = max(v / c**2 for v, c in zip(s2, self.C_ref.tolist()))
         root, C = _sqrt_or_nan, self._C_nom_list
         f0 = f1 = 1.0
-        k_mean, k_std = self._roll_moments(None if dt is None else self._wk.q)
+        k_mean, k_std = self._roll_moments() if roll is None else roll
         est = _new_object(Estimate)
         if self.full:  # params Cx, Cf_y, Cr_y; bias ax, ay, yaw rate
             if dt is not None and self._calib is not None:
@@ -266,8 +265,6 @@ class _MPFWork:
         self.predicted_ay = cfg.gate_ay == "predicted"
         self.keep_pred = self.predicted_ay or cfg.state_noise_from_data or mpf._calib is not None
         self.logw_pred, self.q_pred = np.zeros(N), np.zeros(N)
-        # exp of the predictive and the new log-weights from `predict_weigh` (`_match_state_noise`), or none
-        self.q01, self.no_q01 = np.zeros((2, N)), np.zeros((2, 0))
         self.ay_col = mpf.channels.index(1)  # the a^Y column of e when every channel is there
         self.ones2 = np.ones(2)  # `_draw_factors` without the surprise inflation
         self.drift_checked = None  # the drift statistic's array once checked C-contiguous float64
@@ -278,6 +275,7 @@ class _MPFWork:
         self.max_step, self.beta = float(cfg.max_step), float(cfg.plausible_beta)
         self.yaw_max, self.gate_speed = float(cfg.plausible_yaw_rate), float(cfg.gate_speed)
         self.gain = np.full(N, mpf.roll_gain)  # the roll gain per particle (`_roll_gains`)
+        self.no_k = np.zeros(0)  # (`sample_update`'s k where the roll gradient is not estimated)
         self.roll_lo, self.roll_hi = (float(k) for k in cfg.roll_gradient_prior)  # (`_walk_roll`'s bounds)
         self.model = {linear: (mpf._vp, mpf._jw, mpf._c_floor, mpf.R, mpf.q_bias if linear else mpf.q_bias_nonlinear,
                                self.gain) for linear in (False, True)}

@@ -205,13 +205,11 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         k = np.where(k < lo, 2.0 * lo - k, k)
         self.k_roll = np.clip(np.where(k > hi, 2.0 * hi - k, k), lo, hi)
 
-    def _roll_moments(self, q: np.ndarray | None = None) -> tuple[float, float]:
-        """The posterior mean and std of k (NaN, NaN where it is not estimated); `q`: the weights exp(logw)
-        (N,) when the compiled step has them (`kernels.mean_std`)."""
+    def _roll_moments(self) -> tuple[float, float]:
+        """The posterior mean and std of k (NaN, NaN where it is not estimated; the compiled step has
+        them from `sample_update`)."""
         if self.k_roll is None:
             return NAN, NAN
-        if q is not None:
-            return self._nb.mean_std(q, self.k_roll)
         q = np.exp(self.logw)
         mean = float(q @ self.k_roll)
         return mean, math.sqrt(max(float(q @ (self.k_roll - mean) ** 2), 0.0))

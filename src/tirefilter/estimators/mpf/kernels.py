@@ -61,9 +61,8 @@ off, resampling, missing samples, sub-steps and restarts). The kernels compile o
 and are cached beside their modules.
 """
 
-from tirefilter.estimators.mpf.kernels_update import (estimate_moments, match_state_noise, mean_std, resample_gate,
+from tirefilter.estimators.mpf.kernels_update import (estimate_moments, match_state_noise, resample_gate,
                                                       sample_update, walk_roll)
 from tirefilter.estimators.mpf.kernels_weigh import SIZES_ANY, SIZES_FULL, SIZES_LATERAL, predict_weigh
 
-__all__ = ["SIZES_ANY", "SIZES_FULL", "SIZES_LATERAL", "estimate_moments", "match_state_noise", "mean_std",
-           "predict_weigh", "resample_gate", "sample_update", "walk_roll"]
+__all__ = ["SIZES_ANY", "SIZES_FULL", "SIZES_LATERAL", "estimate_moments", "match_state_noise", "predict_weigh", "resample_gate", "sample_update", "walk_roll"]

@@ -19,6 +19,19 @@ _JIT = dict(cache=True, nogil=True, no_cfunc_wrapper=True, error_model="numpy") 
 _JIT_IN = dict(_JIT, no_cpython_wrapper=True)
 
 
+@njit(inline="always", **_JIT)
+def _mean_std(q, k):
+    """The mean and std of k (N,) under the weights q (N,) (`_roll_moments`)."""
+    m = 0.0
+    for i in range(k.shape[0]):
+        m += q[i] * k[i]
+    s = 0.0
+    for i in range(k.shape[0]):
+        d = k[i] - m
+        s += q[i] * (d * d)
+    return m, math.sqrt(max(s, 0.0))
+
+
 # ---- small dense helpers ---------------------------------------------------------------------
 @njit(inline="always", **_JIT)
 def _chol(S, L, n):
@@ -315,7 +328,8 @@ def sample_update(idx, own, scratch, draws, w, obs, learning, flags, nc_, out, s
       draws = (z, chi, nu_draw, infl), the caller's random numbers and the draw's std factors;
       w (N, n_w) written; obs = (R, avail, y); learning = (bound, drift_a, lo, hi);
       flags = (use_mask, do_bias, active, drift); nc_ the accelerometer channels;
-      out = (drift_state, mom, qw): the drift statistic (updated), the moments (written), the weights (read).
+      out = (drift_state, mom, qw, k): the drift statistic (updated), the moments (written), the weights (read),
+      the roll gradient k (N,) of each particle (read; shape (0,) where it is not estimated).
     Per particle i (its weighting arrays h, D, L11, nu_w, L12, Lc, v at row idx[i], the ancestor
     when resampled):
     - w_i (into w) from the conditional of w given the first nc (accelerometer) residuals,
@@ -334,7 +348,8 @@ def sample_update(idx, own, scratch, draws, w, obs, learning, flags, nc_, out, s
     (6, >= max(nx, n_w, m)): x mean, x std, mean of mu, posterior variance of the mean,
     sigma^2 of eq. (27b), bias mean. Returns the drift statistic z' of `_track_drift`, NaN
     when not computed (or when the lean is not finite: the reference then keeps its state).
-    The weights exp(logw) are read from qw (N,), as `resample_gate` left them.
+    The weights exp(logw) are read from qw (N,), as `resample_gate` left them. Returns besides the mean and
+    the std of k under them (`_roll_moments`; NaN, NaN without k)
     `sizes` as in `predict_weigh`: 3 dimensions the full model with both accelerometers (n_w = 3,
     nc = 2), 2 the lateral one (n_w = 2, nc = 1), 1 any (n_w = mu.shape[1], the given nc)."""
     x, b, P, gamma, mu, Lam, nu, a, B, slip = own
@@ -342,7 +357,7 @@ def sample_update(idx, own, scratch, draws, w, obs, learning, flags, nc_, out, s
     R, avail, y = obs
     use_mask, do_bias, active, drift = flags
     bound, drift_a, lo, hi = learning
-    drift_state, mom, qw = out
+    drift_state, mom, qw, k_roll = out
     if sizes.ndim == 3:
         if mu.shape[1] != 3 or nc_ != 2 or avail.shape[0] != 3 or b.shape[1] != 3:
             raise ValueError("sample_update with SIZES_FULL: n_w = na = m = 3, nc = 2 only")
@@ -372,7 +387,10 @@ def sample_update(idx, own, scratch, draws, w, obs, learning, flags, nc_, out, s
                 dd += drift_state[j] * drift_state[j]
             zd = dd * (2.0 - drift_a) / (drift_a * n_w)
     _moments(qw, x, gamma, mu, Lam, nu, b, mom)
-    return zd
+    if k_roll.shape[0] == 0:
+        return zd, math.nan, math.nan
+    km, ks = _mean_std(qw, k_roll)
+    return zd, km, ks
 
 
 @njit(**_JIT)
@@ -422,18 +440,18 @@ def _moments(q, x, gamma, mu, Lam, nu, b, mom):
 
 # ---- the per-particle parts of the adaptive options (one call each, in place of numpy's dozen) ------
 @njit(**_JIT)
-def match_state_noise(q01, x, scale, dt, a, q_state):
+def match_state_noise(logw_pred, logw, x, scale, dt, a, q_state):
     """`_match_state_noise` (derivations, "State noise from the data"): the means m-, m+ and spreads P-, P+
-    (nx,) of x (N, nx) under the predictive weights exp(logw_pred) and the weights exp(logw), the rows of
-    q01 (2, N), each normalised by its sum; g = ((m+ - m-)^2 - (P- - P+)) / dt + scale^2 / dt with `scale` (nx,) the
+    (nx,) of x (N, nx) under the predictive weights exp(logw_pred) and the weights exp(logw), each
+    normalised by its sum; g = ((m+ - m-)^2 - (P- - P+)) / dt + scale^2 / dt with `scale` (nx,) the
     state noise's std over the step; when g is finite, q_state (nx,) := max(q_state + a (g - q_state), 0)."""
     n, nx = x.shape
     q0 = np.empty(n)
     q1 = np.empty(n)
     s0 = s1 = 0.0
     for i in range(n):
-        q0[i] = q01[0, i]
-        q1[i] = q01[1, i]
+        q0[i] = math.exp(logw_pred[i])
+        q1[i] = math.exp(logw[i])
         s0 += q0[i]
         s1 += q1[i]
     m0 = np.zeros(nx)
@@ -475,16 +493,3 @@ def walk_roll(k, z, c, lo, hi, g, gain):
         ki = min(max(ki, lo), hi)
         k[i] = ki
         gain[i] = ki * g + 1.0
-
-
-@njit(**_JIT)
-def mean_std(q, k):
-    """The mean and std of k (N,) under the weights q (N,) (`_roll_moments`)."""
-    m = 0.0
-    for i in range(k.shape[0]):
-        m += q[i] * k[i]
-    s = 0.0
-    for i in range(k.shape[0]):
-        d = k[i] - m
-        s += q[i] * (d * d)
-    return m, math.sqrt(max(s, 0.0))

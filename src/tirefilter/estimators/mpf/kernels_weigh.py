@@ -176,8 +176,8 @@ def predict_weigh(own, scratch, inputs, model, scalars, flags, nc, sizes):
     """Steps 1 and 2 of `StiffnessMPF.step`, in place, on the workspace of `compiled._MPFWork`:
       own = (x, b, P, gamma, mu, Lam, nu, a, B, slip), the particles' own arrays (read and written);
       scratch = (af, ar, h, D, L11, nu_w, L12, Lc, e, v, ll, ok), the weighting's arrays (written);
-      inputs = (u_prev, uk, y, avail, w_prev, logw, noise, noise_scale, redraw, q01), this sample's
-      (logw and q01 written); model = (vp, jw, c_floor, R, q, gain), gain (N,) the roll gain per particle;
+      inputs = (u_prev, uk, y, avail, w_prev, logw, noise, noise_scale, redraw), this sample's
+      (logw written); model = (vp, jw, c_floor, R, q, gain), gain (N,) the roll gain per particle;
       scalars = (dt, max_step, lam, nu_min, beta, yaw_max, gate_speed); flags = (heun, interval, bias_on, forget,
       full, rear_drive, want_nis, propagate, weigh); nc the accelerometer channels among `avail`; `sizes` below.
     `propagate` False (the first sample) skips step 1 (propagation, bias prediction, forgetting);
@@ -200,9 +200,7 @@ def predict_weigh(own, scratch, inputs, model, scalars, flags, nc, sizes):
     (`t_logpdf_whitened`; its log-Gamma terms once per distinct nu~).
     Then: the adaptive forgetting's innovation (`_adapt_forgetting`: the predictive-weighted
     normalised |v_acc|^2 over the first nc channels; NaN unless `want_nis` and nc) and
-    logw := normalised logw + ll (when any channel is available); with q01 of shape (2, N) (not (2, 0)),
-    exp of logw before and after into its rows (the predictive and the new weights of
-    `_match_state_noise`).
+    logw := normalised logw + ll (when any channel is available).
     Returns (innovation, ESS (-1: no channel, logw unchanged), number of plausible
     particles, nu~ common to all particles or 0). The caller zeroes the weights of the
     implausible particles when some (not all) are, as `_plausible` does.
@@ -214,7 +212,7 @@ def predict_weigh(own, scratch, inputs, model, scalars, flags, nc, sizes):
     `SIZES_ANY`)."""
     x, b, P, gamma, mu, Lam, nu, a, B, slip = own
     af, ar, h, D, L11, nu_w, L12, Lc, e, v, ll, ok = scratch
-    u_prev, uk, y, avail, w_prev, logw, noise, noise_scale, redraw, q01 = inputs
+    u_prev, uk, y, avail, w_prev, logw, noise, noise_scale, redraw = inputs
     vp, jw, c_floor, R, q, gain = model
     dt, max_step, lam, nu_min, beta, yaw_max, gate_speed = scalars
     heun, interval, bias_on, forget, full, rear_drive, want_nis, propagate, weigh = flags
@@ -326,24 +324,15 @@ def predict_weigh(own, scratch, inputs, model, scalars, flags, nc, sizes):
     # 2. the weights
     _weigh(own, scratch, y, avail, R, gain, vp, full, bias_on, n_w, na)
     innovation = math.nan
-    with_q = q01.shape[1] > 0
     if want_nis and nc:
         innovation = 0.0
         for i in range(n):
             vv = 0.0
             for q in range(nc):
                 vv += v[i, q] * v[i, q]
-            qi = math.exp(logw[i])
-            if with_q:
-                q01[0, i] = qi
-            innovation += qi * (vv * (nu_w[i] - 2.0) / (nu_w[i] * nc))
-    elif with_q:
-        for i in range(n):
-            q01[0, i] = math.exp(logw[i])
+            innovation += math.exp(logw[i]) * (vv * (nu_w[i] - 2.0) / (nu_w[i] * nc))
     if weigh:
         ess = _normalise_into(logw, ll) if na else -1.0
     else:  # the start's weights (`_informed_start`) in logw take the place of the likelihood's
         ess = _normalise_into(logw, np.zeros(n))
-    for i in range(n if with_q else 0):
-        q01[1, i] = math.exp(logw[i])
     return innovation, ess, count, _common_dof(nu_w)
