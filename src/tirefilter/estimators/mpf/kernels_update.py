@@ -320,6 +320,125 @@ def _bias(idx, own, scratch, R, avail, y, n_w, na, mch, every):
                 P[i, c, c2] = 0.5 * (Pn[c, c2] + Pn[c2, c])
 
 
+LANES = 32  # particles of a block of `_bias_lanes` (eight AVX2 vectors of float64)
+
+
+@njit(**_JIT_IN)
+def _bias_lanes(idx, own, scratch, R, y, n_w, m):
+    """`_bias` with every channel there (avail = 0..m-1) in blocks of LANES particles, particles in the
+    inner, contiguous dimension of the block's arrays: each step of the update below is a loop over the
+    lanes that the compiler runs in SIMD registers (the same operations in the same order per particle as
+    `_bias`, bit for bit; the gathers from and scatters to the particles' rows stay scalar)."""
+    x, b, P, gamma, mu, Lam, nu, a, B, slip = own
+    af, ar, h, D, L11, nu_w, L12, Lc, e, v, ll, ok = scratch
+    n = mu.shape[0]
+    L = LANES
+    den = np.empty(L)
+    Dl = np.empty((m, n_w, L))
+    Laml = np.empty((n_w, n_w, L))
+    DE = np.empty((m, n_w, L))
+    S = np.empty((m, m, L))
+    inn = np.empty((m, L))
+    Kt = np.empty((m, m, L))
+    Pl = np.empty((m, m, L))
+    Pn = np.empty((m, m, L))
+    mul = np.empty((n_w, L))
+    inv = np.empty(L)
+    for b0 in range(0, n, L):
+        W = min(L, n - b0)
+        for w in range(W):  # gather
+            i = b0 + w
+            s = idx[i]
+            den[w] = nu[i] - n_w - 1.0
+            for q in range(m):
+                for j in range(n_w):
+                    Dl[q, j, w] = D[s, q, j]
+                for c in range(m):
+                    Pl[q, c, w] = P[i, q, c]
+            for j in range(n_w):
+                mul[j, w] = mu[i, j]
+                for k in range(n_w):
+                    Laml[j, k, w] = Lam[i, j, k]
+        # DE = D E[Sigma] (E[Sigma] = Lam / den), S = P + R + DE D^T (lower triangle), the innovation
+        for q in range(m):
+            for k in range(n_w):
+                for w in range(W):
+                    DE[q, k, w] = 0.0
+                for j in range(n_w):
+                    for w in range(W):
+                        DE[q, k, w] += Dl[q, j, w] * (Laml[j, k, w] / den[w])
+        for q in range(m):
+            for q2 in range(q + 1):
+                for w in range(W):
+                    inv[w] = 0.0
+                for k in range(n_w):
+                    for w in range(W):
+                        inv[w] += DE[q, k, w] * Dl[q2, k, w]
+                r = R[q, q2]
+                for w in range(W):
+                    S[q, q2, w] = Pl[q, q2, w] + r + inv[w]
+        for q in range(m):
+            for w in range(W):
+                inv[w] = 0.0
+            for j in range(n_w):
+                for w in range(W):
+                    inv[w] += Dl[q, j, w] * mul[j, w]
+            for w in range(W):
+                inn[q, w] = y[q] - h[idx[b0 + w], q] - inv[w] - b[b0 + w, q]
+        # chol(S) in place (`_chol`)
+        for j in range(m):
+            for w in range(W):
+                Sjj = S[j, j, w]
+                d = Sjj
+                for k in range(j):
+                    d = d - S[j, k, w] * S[j, k, w]
+                Ljj = math.sqrt(max(d, abs(Sjj) * 1e-14 + 1e-300))
+                S[j, j, w] = Ljj
+                inv[w] = 1.0 / Ljj
+            for r in range(j + 1, m):
+                for w in range(W):
+                    acc = S[r, j, w]
+                    for k in range(j):
+                        acc = acc - S[r, k, w] * S[j, k, w]
+                    S[r, j, w] = acc * inv[w]
+        # Kt[:, c] = S^-1 P[:, c]
+        for c in range(m):
+            for q in range(m):
+                for w in range(W):
+                    acc = Pl[q, c, w]
+                    for j in range(q):
+                        acc = acc - S[q, j, w] * Kt[j, c, w]
+                    Kt[q, c, w] = acc / S[q, q, w]
+            for q in range(m - 1, -1, -1):
+                for w in range(W):
+                    acc = Kt[q, c, w]
+                    for j in range(q + 1, m):
+                        acc = acc - S[j, q, w] * Kt[j, c, w]
+                    Kt[q, c, w] = acc / S[q, q, w]
+        # b += K innovation, P := sym(P - P_{:,a} K^T)
+        for c in range(m):
+            for w in range(W):
+                inv[w] = 0.0
+            for q in range(m):
+                for w in range(W):
+                    inv[w] += Kt[q, c, w] * inn[q, w]
+            for w in range(W):
+                b[b0 + w, c] = b[b0 + w, c] + inv[w]
+            for c2 in range(m):
+                for w in range(W):
+                    inv[w] = 0.0
+                for q in range(m):
+                    for w in range(W):
+                        inv[w] += Pl[q, c, w] * Kt[q, c2, w]
+                for w in range(W):
+                    Pn[c, c2, w] = Pl[c, c2, w] - inv[w]
+        for w in range(W):
+            i = b0 + w
+            for c in range(m):
+                for c2 in range(m):
+                    P[i, c, c2] = 0.5 * (Pn[c, c2, w] + Pn[c2, c, w])
+
+
 @njit(**_JIT)
 def sample_update(idx, own, scratch, draws, w, obs, learning, flags, nc_, out, sizes):
     """Steps 3-5 of `StiffnessMPF.step`, in place, on the workspace of `compiled._MPFWork`:
@@ -371,7 +490,10 @@ def sample_update(idx, own, scratch, draws, w, obs, learning, flags, nc_, out, s
     n = mu.shape[0]
     ub = np.zeros(n_w)
     if do_bias:  # (first: it reads the statistics before their update and writes only b, P)
-        _bias(idx, own, scratch, R, avail, y, n_w, na, mch, sizes.ndim > 1)
+        if sizes.ndim > 1:  # every channel: in lanes
+            _bias_lanes(idx, own, scratch, R, y, n_w, mch)
+        else:
+            _bias(idx, own, scratch, R, avail, y, n_w, na, mch, False)
     # 3. and 5.
     _sample(idx, own, scratch, draws, w, learning, flags, qw, ub, n_w, nc)
     zd = math.nan
