@@ -1,6 +1,5 @@
 """The stiffness MPF's compiled step (a mixin of `StiffnessMPF`, on its attributes): with the
-numba backend, every sample after the first that is not a gap runs as three compiled passes
-over the particles (`kernels`) on arrays allocated once (`_MPFWork`), drawing the random
+numba backend, every sample runs as three compiled passes over the particles (`kernels`) on arrays allocated once (`_MPFWork`), drawing the random
 numbers here with the reference's generator calls in the reference's order, so both backends
 follow the same path (tests/test_kernels.py). The rare branches (restarts) go through the
 reference methods."""
@@ -193,7 +192,7 @@ class CompiledStep:
 
     def _work(self) -> "_MPFWork":
         """The fused step's arrays, the particles' own arrays among them: an array that the
-        reference path replaced (first sample, restart, a loaded state) is copied in."""
+        reference methods replaced (the prior drawn at the start or a restart, a loaded state) is copied in."""
         wk = self.__dict__.get("_wk")
         st = self.stats
         first = self.__dict__.get("_at_x")  # (none before the first sample)
