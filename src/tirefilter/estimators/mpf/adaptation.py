@@ -157,16 +157,17 @@ class Adaptation:
         v^Y also vy_jitter sqrt(z - z_on) sqrt(dt) while the adaptive forgetting's smoothed
         innovation statistic z of the previous sample exceeds z_on, the z that puts lambda at its
         floor `forgetting_min` (a change: docs/results.md, "Options of the MPF")."""
-        cfg, q = self.cfg, self.state_noise
+        cfg = self.cfg
+        q = self.state_noise.tolist()  # (on Python floats: a few numpy calls on 3 values cost more, bit for bit the same)
         if cfg.state_noise_from_data:
-            q = np.sqrt(np.maximum(q * q, self.q_state))
+            q = [math.sqrt(max(a * a, b)) for a, b in zip(q, self.q_state.tolist())]
         # z at which the forgetting reaches its floor, 1 - (1 - lambda) z = lambda_min: the change statistic fires
         z_on = (1.0 - cfg.forgetting_min) / max(1.0 - cfg.forgetting, 1e-12)
         if cfg.vy_jitter > 0 and cfg.forgetting_mode == "adaptive" and self.surprise > z_on:
-            q = q.copy()
             iy = 1 if self.full else 0
-            q[iy] = math.sqrt(q[iy] ** 2 + cfg.vy_jitter**2 * (self.surprise - z_on))
-        return math.sqrt(dt) * q
+            q[iy] = math.sqrt(q[iy] * q[iy] + cfg.vy_jitter**2 * (self.surprise - z_on))
+        root = math.sqrt(dt)
+        return np.array([root * v for v in q])
 
     # ---- calibration of the std of the lateral stiffness (batch-means sandwich) ------------
     def _calibrate(self, est: Estimate, dt: float) -> Estimate:

@@ -135,7 +135,10 @@ class CompiledStep:
             self._cap_forgetting(zd)
         if self.full:
             self._excite_cx(float(wk.mom[0, 0]), uk, dt)
-        return self._estimate_fused(ess, wk.mom, dt, (k_mean, k_std))
+        est = self._estimate_fused(ess, wk.mom, dt, (k_mean, k_std))
+        # the wheel-speed filter's drive at the next sample (`_filter_wheels`): E[b_ax] and E[v^Y r] of these particles
+        self._drive_moments = (float(wk.mom[5, 0]), float(wk.mom[6, 0])) if self.wheels is not None else None
+        return est
 
     def _estimate_fused(self, ess: float, mom: np.ndarray, dt: float | None = None, roll=None) -> Estimate:
         """`_estimate_from` on the moments that `sample_update` left in the rows of mom, written out
@@ -147,7 +150,7 @@ class CompiledStep:
         __post_init__ and no __slots__ (tests/test_kernels.py checks both and compares the
         object with the constructor's). `roll`: the roll gradient's mean and std where `sample_update`
         returned them."""
-        xm, xs, mb, vm, s2, bm = mom.tolist()
+        xm, xs, mb, vm, s2, bm, vyr = mom.tolist()
         if self.cfg.inflation_prior_bound:  # (`_draw_inflation`'s bound)
             self._sigma2_rel = max(v / c**2 for v, c in zip(s2, self.C_ref.tolist()))
         root, C = _sqrt_or_nan, self._C_nom_list
@@ -177,7 +180,7 @@ class CompiledStep:
     def _estimate_compiled(self, ess: float) -> Estimate:
         """`_estimate` by the compiled moments (`kernels.estimate_moments`) and `_estimate_fused`."""
         st = self.stats
-        mom = np.zeros((6, max(self.x.shape[1], self.n_w, len(self.channels))))
+        mom = np.zeros((7, max(self.x.shape[1], self.n_w, len(self.channels))))
         self._nb.estimate_moments(self.logw, self.x, st.gamma, st.mu, st.Lam, st.nu, self.b, mom)
         return self._estimate_fused(ess, mom)
 
@@ -247,7 +250,7 @@ class _MPFWork:
         self.w = np.zeros((N, n_w))
         self.ok = np.zeros(N, bool)
         self.idx = np.arange(N)
-        self.mom = np.zeros((6, max(nx, n_w, m)))
+        self.mom = np.zeros((7, max(nx, n_w, m)))
         self.pin_lo, self.pin_hi = mpf._pin_bounds()
         self.no_noise, self.no_scale = np.zeros((0, nx)), np.zeros(nx)
         self.avail_all = np.arange(m)

@@ -466,8 +466,9 @@ def sample_update(idx, own, scratch, draws, w, obs, learning, flags, nc_, out, s
       (`drift`), then `NiW.update` (eq. (19)) and the projection of mu onto [lo, hi] (Sec. V).
     Then `_track_drift`'s smoothing of the weighted mean lean into drift_state (n_w,) with
     the factor drift_a, and `_estimate`'s moments after the update into the rows of mom
-    (6, >= max(nx, n_w, m)): x mean, x std, mean of mu, posterior variance of the mean,
-    sigma^2 of eq. (27b), bias mean. Returns the drift statistic z' of `_track_drift`, NaN
+    (7, >= max(nx, n_w, m)): x mean, x std, mean of mu, posterior variance of the mean,
+    sigma^2 of eq. (27b), bias mean, and E[v^Y r] in mom[6, 0]. Returns the drift statistic z' of
+    `_track_drift`, NaN
     when not computed (or when the lean is not finite: the reference then keeps its state).
     The weights exp(logw) are read from qw (N,), as `resample_gate` left them. Returns besides the mean and
     the std of k under them (`_roll_moments`; NaN, NaN without k)
@@ -519,9 +520,9 @@ def sample_update(idx, own, scratch, draws, w, obs, learning, flags, nc_, out, s
 
 @njit(**_JIT)
 def estimate_moments(logw, x, gamma, mu, Lam, nu, b, mom):
-    """`_estimate`'s sums into the rows of mom (6, >= max(nx, n_w, m)): x mean and std, the
+    """`_estimate`'s sums into the rows of mom (7, >= max(nx, n_w, m)): x mean and std, the
     mean of mu, the posterior variance of the mean (gamma E[Sigma] plus the spread of the
-    particle means), eq. (27b) sigma^2, bias mean."""
+    particle means), eq. (27b) sigma^2, bias mean; mom[6, 0] E[v^Y r] (the last two state components' product)."""
     q = np.empty(logw.shape[0])
     for i in range(logw.shape[0]):
         q[i] = math.exp(logw[i])
@@ -536,6 +537,7 @@ def _moments(q, x, gamma, mu, Lam, nu, b, mom):
     mch = b.shape[1]
     mom[:] = 0.0
     xm, xs, mbar, vm, s2, bm = mom[0], mom[1], mom[2], mom[3], mom[4], mom[5]
+    vyr = 0.0  # E[v^Y r] (the wheel-speed filter's drive at the next sample, `_filter_wheels`)
     spread = np.zeros(n_w)
     for i in range(n):
         for c in range(nx):
@@ -544,6 +546,8 @@ def _moments(q, x, gamma, mu, Lam, nu, b, mom):
             mbar[j] += q[i] * mu[i, j]
         for c in range(mch):
             bm[c] += q[i] * b[i, c]
+        vyr += q[i] * (x[i, nx - 2] * x[i, nx - 1])
+    mom[6, 0] = vyr
     for i in range(n):
         for c in range(nx):
             d = x[i, c] - xm[c]
