@@ -241,7 +241,7 @@ def _sample(idx, own, scratch, draws, w, learning, flags, qw, ub, n_w, nc):
         nu[i] = nu[i] + 1.0
 
 
-@njit(inline="always", **_JIT)
+@njit(**_JIT_IN)
 def _bias(idx, own, scratch, R, avail, y, n_w, na, mch, every):
     """Step 4 of `sample_update` (its arguments; n_w, na, mch the sizes, `every`: avail = 0..m-1, every
     channel there): the bias Kalman update of eq. (30) per particle, in three short loops over the
