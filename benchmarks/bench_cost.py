@@ -3,6 +3,7 @@
     .venv/bin/python benchmarks/bench_cost.py [--particles 50 100 200 500 1000 2000 5000]
         [--duration 10] [--estimators mpf augpf ekf rls kf bootstrap gpssm-axle gpssm-tensor gpssm-tensor100]
         [--figure benchmarks/figures/stiffness_fig14_cost.png] [--gpssm-max 1000] [--interleave]
+    .venv/bin/python benchmarks/bench_cost.py --replay LOG.csv --vehicle V.toml [--particles 500] [--repeat R]
 
 What is timed: `step()` of each estimator (median wall time and median CPU time of the
 thread after 10 warm-up steps, one process, one BLAS thread), fed the same recorded samples:
@@ -25,9 +26,17 @@ one loop at each N (one MPF step, one peer step, ...), so that a load that comes
 a shared machine falls on both alike: the ratio of their CPU medians printed from that loop
 is the comparison to quote on a busy machine (separate loops can see loads apart by 2x).
 
+`--replay LOG --vehicle V.toml`: instead, the MPF as `tirefilter replay LOG --vehicle V.toml
+--particles N` builds it (every default of a replay: the bias filter with the wandering offsets, the
+state noise from the data, the calibrated band, the wheel-speed filter, the roll gradient, the IMU's
+lever arm; the log's samples as the run loop hands them to `step`, the measurement guard applied) and
+the peer on the same log (the car of the vehicle TOML, the noise figures the MPF assumes, the log's
+median sample period), stepped alternately as with `--interleave`, `--repeat` times at each N; the
+MPF's options are printed with the figures. docs/results.md uses a 66 s peer drive
+(`tirefilter peer-drive --maneuver mixed --duration 66 --seed 0`).
+
 Each estimator's first two calls (numba compilation when the cache is cold, imports; the
-MPF runs its first sample with the numpy reference and compiles its fused step at the
-second) are printed apart: `first call ms` is their sum, the median excludes both. The load
+MPF's first sample compiles or loads its kernels, with the informed start's weights) are printed apart: `first call ms` is their sum, the median excludes both. The load
 average is printed before and after: on a shared machine, compare numbers within one run
 only.
 """
