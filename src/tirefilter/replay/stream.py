@@ -61,29 +61,12 @@ class LogScan:
 
     def release(self) -> None:
         """Drop the sample times and the noise channels (what the estimator's setting is made
-        from): the replay needs nothing of the log's length but `rows` and `duration`; and hand
-        the heap's free pages back to the system (`trim_heap`)."""
+        from): the replay needs nothing of the log's length but `rows` and `duration`."""
         self.t, self.imu = None, {}
-        trim_heap()
 
     def chunks(self):
         """The log again, chunk by chunk."""
         return iter_log_chunks(self.path, self.vehicle, chunk_rows=self.chunk_rows, vehicle_name=self.vehicle_name)
-
-
-def trim_heap() -> None:
-    """The free pages of the C heap back to the system (glibc's malloc_trim; nothing elsewhere). The
-    first pass's arrays of a long log, once freed, stay resident otherwise: after a free of a large
-    mapped block glibc raises its threshold for mapping blocks of their own, so the next large arrays
-    come from the heap, whose freed pages it keeps (a 2-hour log: 12 MB held through the whole replay)."""
-    import ctypes
-    import gc
-
-    gc.collect()
-    try:
-        ctypes.CDLL(None).malloc_trim(0)
-    except (AttributeError, OSError):  # not glibc
-        pass
 
 
 def _join(parts: list[np.ndarray]) -> np.ndarray:
