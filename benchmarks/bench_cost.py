@@ -3,6 +3,7 @@
     .venv/bin/python benchmarks/bench_cost.py [--particles 50 100 200 500 1000 2000 5000]
         [--duration 10] [--estimators mpf augpf ekf rls kf bootstrap gpssm-axle gpssm-tensor gpssm-tensor100]
         [--figure benchmarks/figures/stiffness_fig14_cost.png] [--gpssm-max 1000] [--interleave]
+    .venv/bin/python benchmarks/bench_cost.py --replay LOG.csv --vehicle V.toml [--particles 500] [--repeat R]
 
 What is timed: `step()` of each estimator (median wall time and median CPU time of the
 thread after 10 warm-up steps, one process, one BLAS thread), fed the same recorded samples:
@@ -25,9 +26,17 @@ one loop at each N (one MPF step, one peer step, ...), so that a load that comes
 a shared machine falls on both alike: the ratio of their CPU medians printed from that loop
 is the comparison to quote on a busy machine (separate loops can see loads apart by 2x).
 
+`--replay LOG --vehicle V.toml`: instead, the MPF as `tirefilter replay LOG --vehicle V.toml
+--particles N` builds it (every default of a replay: the bias filter with the wandering offsets, the
+state noise from the data, the calibrated band, the wheel-speed filter, the roll gradient, the IMU's
+lever arm; the log's samples as the run loop hands them to `step`, the measurement guard applied) and
+the peer on the same log (the car of the vehicle TOML, the noise figures the MPF assumes, the log's
+median sample period), stepped alternately as with `--interleave`, `--repeat` times at each N; the
+MPF's options are printed with the figures. docs/results.md uses a 66 s peer drive
+(`tirefilter peer-drive --maneuver mixed --duration 66 --seed 0`).
+
 Each estimator's first two calls (numba compilation when the cache is cold, imports; the
-MPF runs its first sample with the numpy reference and compiles its fused step at the
-second) are printed apart: `first call ms` is their sum, the median excludes both. The load
+MPF's first sample compiles or loads its kernels, with the informed start's weights) are printed apart: `first call ms` is their sum, the median excludes both. The load
 average is printed before and after: on a shared machine, compare numbers within one run
 only.
 """
@@ -102,13 +111,18 @@ def bootstrap_peer(scenario, samples, N: int, seed: int = 1) -> tuple[float, flo
 
 def bootstrap_step(scenario, samples, N: int, seed: int = 1):
     """The peer's step: a function of the sample index k that runs one `next()` of the SMC."""
+    s = scenario.sensor_spec
+    return peer_step(scenario.vehicle, (s.sigma_ax, s.sigma_ay, s.sigma_yaw_rate), scenario.sample_period, samples,
+                     N, seed)
+
+
+def peer_step(v, sigma, Ts: float, samples, N: int, seed: int = 1):
+    """The peer's step for the car `v` (VehicleParams), the measurement noise std `sigma` (a^X, a^Y, yaw rate)
+    and the sample period Ts: a function of the sample index k that runs one `next()` of the SMC."""
     import particles
     from particles import distributions as dists
     from particles import state_space_models as ssm
 
-    v = scenario.vehicle
-    s = scenario.sensor_spec
-    Ts = scenario.sample_period
     drive_front = v.drive != "rear"
     Cx_other = v.Cx if v.Cx_undriven is None else v.Cx_undriven
     Cfx, Crx = (v.Cx, Cx_other) if drive_front else (Cx_other, v.Cx)
@@ -146,8 +160,8 @@ def bootstrap_step(scenario, samples, N: int, seed: int = 1):
 
         def PY(self, t, xp, x):
             ax, ay, _ = accelerations(x, U[t])
-            return dists.IndepProd(dists.Normal(loc=ax, scale=s.sigma_ax), dists.Normal(loc=ay, scale=s.sigma_ay),
-                                   dists.Normal(loc=x[:, 2], scale=s.sigma_yaw_rate))
+            return dists.IndepProd(dists.Normal(loc=ax, scale=sigma[0]), dists.Normal(loc=ay, scale=sigma[1]),
+                                   dists.Normal(loc=x[:, 2], scale=sigma[2]))
 
     np.random.seed(seed)  # particles draws from numpy's global generator (not ours: the peer's way)
     smc = particles.SMC(fk=ssm.Bootstrap(ssm=SingleTrack(), data=Y), N=N, resampling="systematic", ESSrmin=0.5,
@@ -172,6 +186,67 @@ def interleaved(scenario, samples, N: int, seed: int = 1) -> tuple[float, float]
     return float(np.median(cpu["mpf"]) * 1e6), float(np.median(cpu["bootstrap"]) * 1e6)
 
 
+def replay_setting(log_path: Path, vehicle_path: Path, N: int):
+    """The MPF as `tirefilter replay LOG --vehicle V.toml --particles N` builds it (every default of a
+    replay: the bias filter, the wandering offsets, the calibration, the wheel-speed filter, the roll gain,
+    the IMU lever arm) and the log's samples as the run loop hands them to `step` (the measurement guard
+    applied): (estimator, [(t, Inputs, Measurement)], sample period)."""
+    from tirefilter.estimators import build, for_log
+    from tirefilter.replay.run import LogSource
+    from tirefilter.replay.stream import scan_log
+    from tirefilter.vehicle.params import load_vehicle
+
+    vehicle = load_vehicle(vehicle_path)
+    log = scan_log(log_path, vehicle)
+    setting = for_log(vehicle, log.t, log.signals, source=log.path)
+    est = build("mpf", setting, model="auto", particles=N, config={})
+    guard = est.guard
+    guard.reset()
+    samples = [(s.t, s.inputs, guard(s.t, s.meas)) for s in LogSource(log)]
+    return est, samples, setting.sample_period
+
+
+def interleaved_replay(log_path: Path, vehicle_path: Path, N: int, seed: int = 1) -> tuple[float, float, dict]:
+    """The replay's MPF and the peer on the same log at N particles, stepped alternately (one MPF step,
+    one peer step, ...) so that both see the same load: the median CPU us per step of each after the
+    warm-up, and the MPF's options that the comparison is about."""
+    est, samples, Ts = replay_setting(log_path, vehicle_path, N)
+    est.reset(np.random.default_rng(seed))
+    peer = peer_step(est.vehicle, est.sensors.sigma, Ts, samples, N, seed)
+    cpu: dict[str, list[float]] = {"mpf": [], "bootstrap": []}
+    for k, s in enumerate(samples):
+        for name, step in (("mpf", lambda: est.step(*s)), ("bootstrap", lambda: peer(k))):
+            c0 = time.thread_time()
+            step()
+            if k >= WARMUP:
+                cpu[name].append(time.thread_time() - c0)
+    cfg = est.cfg
+    options = {"model": cfg.model, "backend": cfg.backend, "bias filter": est.bias_on,
+               "wandering offsets": bool(np.any(np.asarray(cfg.disturbance_rw) > 0)),
+               "calibration": cfg.std_calibration, "wheel filter": est.wheels is not None,
+               "roll gain": "estimated" if est.k_roll is not None else f"{est.roll_gain:.4g}",
+               "lever arm": tuple(float(c) for c in est._vp[10:12]), "samples": len(samples)}
+    return float(np.median(cpu["mpf"]) * 1e6), float(np.median(cpu["bootstrap"]) * 1e6), options
+
+
+def replay_main(args) -> int:
+    """`--replay LOG --vehicle V.toml`: the replay's MPF against the peer, interleaved, `--repeat` times."""
+    if args.vehicle is None:
+        sys.exit("bench_cost.py: --replay needs --vehicle V.toml")
+    print(f"load average before: {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores; replay of {args.replay}")
+    ratios = []
+    for n in args.particles:
+        for r in range(args.repeat):
+            mpf, peer, options = interleaved_replay(args.replay, args.vehicle, n)
+            if r == 0 and n == args.particles[0]:
+                print("  the MPF of the replay: " + ", ".join(f"{k} {v}" for k, v in options.items()))
+            ratios.append(mpf / peer)
+            print(f"  replay, interleaved N = {n:5d} (run {r + 1}): mpf {mpf:.0f} us CPU, bootstrap {peer:.0f} us CPU, "
+                  f"mpf / bootstrap {mpf / peer:.2f}", flush=True)
+    print(f"load average after: {os.getloadavg()[0]:.2f}")
+    return 0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--particles", type=int, nargs="+", default=[50, 100, 200, 500, 1000, 2000, 5000])
@@ -185,7 +260,19 @@ def main() -> int:
     ap.add_argument("--interleave", action="store_true",
                     help="also step the MPF and the peer alternately in one loop (the same load on both) and print "
                          "their CPU medians and ratio per N")
+    ap.add_argument("--replay", type=Path, metavar="LOG",
+                    help="instead: the MPF as `tirefilter replay LOG --vehicle V.toml` builds it against the peer on "
+                         "that log, interleaved, at each --particles N (e.g. a 66 s `tirefilter peer-drive`)")
+    ap.add_argument("--vehicle", type=Path, help="the vehicle TOML of --replay")
+    ap.add_argument("--repeat", type=int, default=1, help="--replay: runs one after another (default 1)")
     args = ap.parse_args()
+    if args.replay is not None:
+        try:
+            import particles  # noqa: F401
+        except ImportError:
+            sys.exit("bench_cost.py: the peer needs the `particles` library: "
+                     ".venv/bin/pip install --no-deps particles==0.4 && .venv/bin/pip install -e '.[bench]'")
+        return replay_main(args)
     if "bootstrap" in args.estimators or args.interleave:
         try:
             import particles  # noqa: F401

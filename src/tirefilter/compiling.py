@@ -11,6 +11,7 @@ the kernels it calls inside its own event).
 
 from __future__ import annotations
 
+import sys
 import time
 from collections.abc import Callable
 
@@ -21,7 +22,9 @@ ANNOUNCEMENT = ("compiling the estimator's numba kernels: once for this code on 
 class CompileWatch:
     """Context manager: `seconds` of numba compiling (outermost compiles) and `kernels`
     (their number) while entered; `announce(ANNOUNCEMENT)` is called when the first
-    compile starts (None: silent). Without numba it counts nothing."""
+    compile starts (None: silent). It listens only where numba is imported when it is entered
+    (the run after the estimator was built, which imports the kernels' modules and compiles none):
+    without numba it counts nothing."""
 
     def __init__(self, announce: Callable[[str], None] | None = None):
         self.announce = announce
@@ -33,10 +36,9 @@ class CompileWatch:
         self._installed = None
 
     def __enter__(self) -> CompileWatch:
-        try:
-            from numba.core import event
-        except ImportError:  # pragma: no cover - numba is a dependency
-            return self
+        if "numba" not in sys.modules:  # nothing to watch: an estimator without kernels does not import numba
+            return self  # (some 110 MB resident), and one with them has imported it when it was built
+        from numba.core import event
         watch = self
 
         class Listener(event.Listener):

@@ -43,8 +43,9 @@ class WheelSpeedFilter:
         self.r = (wheel_radius * sigma_omega) ** 2  # measurement variance of R_w omega, (m/s)^2
         self.radius = wheel_radius
         self.sigma_ax, self.slip_rw = float(sigma_ax), float(slip_rw)
-        self.s = np.full(2, math.nan)  # rolling speeds of the front and rear axle, m/s
-        self.P = np.full(2, math.nan)  # their variances
+        # (Python floats: two scalar filters cost less on floats than on numpy's scalars, bit for bit the same)
+        self.s = [math.nan, math.nan]  # rolling speeds of the front and rear axle, m/s
+        self.P = [math.nan, math.nan]  # their variances
 
     def process_variance(self, dt: float) -> float:
         """Variance added to each s over a step dt: (sigma_ax dt)^2 + q_s^2 dt."""
@@ -52,33 +53,36 @@ class WheelSpeedFilter:
 
     def reset(self) -> None:
         """Forget the estimates: the next measurement of each axle starts it again."""
-        self.s[:] = math.nan
-        self.P[:] = math.nan
+        self.s = [math.nan, math.nan]
+        self.P = [math.nan, math.nan]
 
-    def step(self, dt: float, omega: np.ndarray, drive: float) -> np.ndarray:
+    def step(self, dt: float, omega, drive: float) -> np.ndarray:
         """The filtered wheel speeds omega (2,) rad/s at this sample, from the measured ones
         `omega` (2,) (NaN: missing, the prediction stands and NaN is returned for it), after a
         step dt (s) from the last sample with the bracket `drive` (m/s^2; NaN: no input, the
         prediction holds s and adds nothing for the acceleration). An axle without an
         estimate yet starts at its measurement with variance r."""
-        out = np.full(2, math.nan)
+        out = [math.nan, math.nan]
         q = self.process_variance(dt)
+        s, P, r = self.s, self.P, self.r
+        step = dt * drive if math.isfinite(drive) else None
         for i in range(2):
             z = self.radius * float(omega[i])
-            if math.isfinite(self.s[i]):
-                if math.isfinite(drive):
-                    self.s[i] += dt * drive
-                self.P[i] += q
-            if not math.isfinite(z):
-                continue
-            if not math.isfinite(self.s[i]):
-                self.s[i], self.P[i] = z, self.r
-            else:
-                k = self.P[i] / (self.P[i] + self.r)
-                self.s[i] += k * (z - self.s[i])
-                self.P[i] *= 1.0 - k
-            out[i] = self.s[i] / self.radius
-        return out
+            si, pi = s[i], P[i]
+            if math.isfinite(si):
+                if step is not None:
+                    si += step
+                pi += q
+            if math.isfinite(z):
+                if not math.isfinite(si):
+                    si, pi = z, r
+                else:
+                    k = pi / (pi + r)
+                    si += k * (z - si)
+                    pi *= 1.0 - k
+                out[i] = si / self.radius
+            s[i], P[i] = si, pi
+        return np.array(out)
 
 
 def steady_state_gain(r: float, q: float) -> float:

@@ -109,7 +109,7 @@ def read_log(path: str | Path, vehicle=None, *, need_steering_ratio: bool = True
                                 vehicle_name=vehicle_name))
 
 
-CHUNK_ROWS = 8192  # rows per chunk of a streamed log
+CHUNK_ROWS = 2048  # rows per chunk of a streamed log (a chunk of text and its parsed columns held at a time)
 
 
 def iter_log_chunks(path: str | Path, vehicle=None, *, chunk_rows: int | None = CHUNK_ROWS,

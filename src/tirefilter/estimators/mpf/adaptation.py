@@ -125,22 +125,31 @@ class Adaptation:
         names = ("vx", "vy", "yaw_rate") if self.full else ("vy", "yaw_rate")
         return {n: math.sqrt(float(q)) for n, q in zip(names, self.q_state)}
 
-    def _match_state_noise(self, logw_pred: np.ndarray, dt: float) -> None:
+    def _match_state_noise(self, logw_pred: np.ndarray, dt: float, scale: np.ndarray | None = None) -> None:
         """`state_noise_from_data` (derivations, "State noise from the data"): with the predictive weights logw_pred and
         the weights after this sample's likelihood, both over the propagated particles x, the
         correction of the state's mean d = m+ - m- and the spreads P-, P+ per component give
         g = (d^2 - (P- - P+)) / dt + q, q the intensity applied in this propagation: the intensity
         under which the corrections have the size the removed spread says (E[d^2] = P- - P+ for a
-        consistent filter). g is smoothed over `state_noise_time` into q_state (>= 0)."""
+        consistent filter). g is smoothed over `state_noise_time` into q_state (>= 0). `scale`: q as the std
+        over dt (`_state_noise_scale(dt)`) where the caller has it; the compiled step's sums run in
+        `kernels.match_state_noise`."""
+        if scale is None:
+            scale = self._state_noise_scale(dt)
+        a = -math.expm1(-dt / self.cfg.state_noise_time)
+        if self._nb is not None:
+            if not (self.q_state.flags.writeable and self.q_state.dtype == np.float64):  # (the kernel writes into it)
+                self.q_state = np.array(self.q_state, float)
+            self._nb.match_state_noise(logw_pred, self.logw, self.x, scale, dt, a, self.q_state)
+            return
         x = self.x
         q0, q1 = np.exp(logw_pred), np.exp(self.logw)
         q0, q1 = q0 / q0.sum(), q1 / q1.sum()
         m0, m1 = q0 @ x, q1 @ x
         p0, p1 = q0 @ (x - m0) ** 2, q1 @ (x - m1) ** 2
-        applied = np.square(self._state_noise_scale(dt)) / dt
+        applied = np.square(scale) / dt
         g = ((m1 - m0) ** 2 - (p0 - p1)) / dt + applied
         if np.all(np.isfinite(g)):
-            a = -math.expm1(-dt / self.cfg.state_noise_time)
             self.q_state = np.maximum(self.q_state + a * (g - self.q_state), 0.0)
 
     def _state_noise_scale(self, dt: float) -> np.ndarray:
@@ -148,16 +157,17 @@ class Adaptation:
         v^Y also vy_jitter sqrt(z - z_on) sqrt(dt) while the adaptive forgetting's smoothed
         innovation statistic z of the previous sample exceeds z_on, the z that puts lambda at its
         floor `forgetting_min` (a change: docs/results.md, "Options of the MPF")."""
-        cfg, q = self.cfg, self.state_noise
+        cfg = self.cfg
+        q = self.state_noise.tolist()  # (on Python floats: a few numpy calls on 3 values cost more, bit for bit the same)
         if cfg.state_noise_from_data:
-            q = np.sqrt(np.maximum(q * q, self.q_state))
+            q = [math.sqrt(max(a * a, b)) for a, b in zip(q, self.q_state.tolist())]
         # z at which the forgetting reaches its floor, 1 - (1 - lambda) z = lambda_min: the change statistic fires
         z_on = (1.0 - cfg.forgetting_min) / max(1.0 - cfg.forgetting, 1e-12)
         if cfg.vy_jitter > 0 and cfg.forgetting_mode == "adaptive" and self.surprise > z_on:
-            q = q.copy()
             iy = 1 if self.full else 0
-            q[iy] = math.sqrt(q[iy] ** 2 + cfg.vy_jitter**2 * (self.surprise - z_on))
-        return math.sqrt(dt) * q
+            q[iy] = math.sqrt(q[iy] * q[iy] + cfg.vy_jitter**2 * (self.surprise - z_on))
+        root = math.sqrt(dt)
+        return np.array([root * v for v in q])
 
     # ---- calibration of the std of the lateral stiffness (batch-means sandwich) ------------
     def _calibrate(self, est: Estimate, dt: float) -> Estimate:

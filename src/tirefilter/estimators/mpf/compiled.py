@@ -1,6 +1,5 @@
 """The stiffness MPF's compiled step (a mixin of `StiffnessMPF`, on its attributes): with the
-numba backend, every sample after the first that is not a gap runs as three compiled passes
-over the particles (`kernels`) on arrays allocated once (`_MPFWork`), drawing the random
+numba backend, every sample runs as three compiled passes over the particles (`kernels`) on arrays allocated once (`_MPFWork`), drawing the random
 numbers here with the reference's generator calls in the reference's order, so both backends
 follow the same path (tests/test_kernels.py). The rare branches (restarts) go through the
 reference methods."""
@@ -58,10 +57,16 @@ class CompiledStep:
         else:
             noise, noise_scale = wk.no_noise, wk.no_scale
         if self.k_roll is not None:  # the roll gain per particle (`_walk_roll`, `_roll_gains`)
-            if not start:
-                self._walk_roll(dt)
-            np.multiply(self.k_roll, GRAVITY, out=wk.gain)
-            wk.gain += 1.0
+            if start:
+                np.multiply(self.k_roll, GRAVITY, out=wk.gain)
+                wk.gain += 1.0
+            else:  # `_walk_roll`'s draw and walk, the gain with it
+                z_roll = rng.standard_normal(len(self.k_roll))
+                if not (self.k_roll.flags.c_contiguous and self.k_roll.flags.writeable
+                        and self.k_roll.dtype == np.float64):  # (the kernel writes into it)
+                    self.k_roll = np.array(self.k_roll, float)
+                nb.walk_roll(self.k_roll, z_roll, cfg.roll_gradient_rw * math.sqrt(dt), wk.roll_lo, wk.roll_hi,
+                             GRAVITY, wk.gain)
         if math.isfinite(sum(yl)):  # the kernels compiled for this model's sizes (kernels.SIZES_FULL ...)
             a, nc, sizes = wk.avail_all, wk.nc_all, wk.sizes_all
         else:
@@ -88,8 +93,9 @@ class CompiledStep:
         if count < cfg.particles:  # some particles left the plausible region (`_plausible`)
             self.logw = normalize_log_weights(np.where(wk.ok, self.logw, -np.inf))
             ess = -1.0
-        if cfg.state_noise_from_data and a.size and weigh:
-            self._match_state_noise(logw_pred, dt)
+        if cfg.state_noise_from_data and a.size and weigh:  # (the scale of this propagation's noise, unless the
+            # surprise that vy_jitter reads has changed since it was drawn)
+            self._match_state_noise(logw_pred, dt, None if start or cfg.vy_jitter > 0 else noise_scale)
         if ess < 0:
             ess = float(effective_sample_size(self.logw))
         resample = ess < cfg.resample_threshold * cfg.particles
@@ -121,17 +127,20 @@ class CompiledStep:
             if not (self.drift.flags.c_contiguous and self.drift.dtype == np.float64):
                 self.drift = np.array(self.drift, float)
             wk.drift_checked = self.drift
-        zd = nb.sample_update(
+        zd, k_mean, k_std = nb.sample_update(
             wk.idx, wk.own, wk.scratch, (z, chi, nu_draw, self._draw_factors(wk.ones2)), wk.w, (self.R, a, yk),
             (self._outlier_bound(nc) if use_mask else 0.0, -math.expm1(-dt / cfg.drift_time), wk.lo, wk.hi),
-            (use_mask, bool(a.size and self.bias_on), self.active, drift), nc, (self.drift, wk.mom, wk.q), sizes)
+            (use_mask, bool(a.size and self.bias_on), self.active, drift), nc, (self.drift, wk.mom, wk.q, wk.no_k if self.k_roll is None else self.k_roll), sizes)
         if zd == zd:  # `_track_drift` (the statistic is NaN when not computed)
             self._cap_forgetting(zd)
         if self.full:
             self._excite_cx(float(wk.mom[0, 0]), uk, dt)
-        return self._estimate_fused(ess, wk.mom, dt)
+        est = self._estimate_fused(ess, wk.mom, dt, (k_mean, k_std))
+        # the wheel-speed filter's drive at the next sample (`_filter_wheels`): E[b_ax] and E[v^Y r] of these particles
+        self._drive_moments = (float(wk.mom[5, 0]), float(wk.mom[6, 0])) if self.wheels is not None else None
+        return est
 
-    def _estimate_fused(self, ess: float, mom: np.ndarray, dt: float | None = None) -> Estimate:
+    def _estimate_fused(self, ess: float, mom: np.ndarray, dt: float | None = None, roll=None) -> Estimate:
         """`_estimate_from` on the moments that `sample_update` left in the rows of mom, written out
         for the fused step: the same Estimate (tests/test_kernels.py compares every field) in a
         third of the time. With `dt` (the fused step) and `std_calibration = "sandwich"`, the
@@ -139,13 +148,14 @@ class CompiledStep:
         The frozen dataclass's fields are filled directly (every field: its generated __init__
         sets each through object.__setattr__, several us per step); Estimate has no
         __post_init__ and no __slots__ (tests/test_kernels.py checks both and compares the
-        object with the constructor's)."""
-        xm, xs, mb, vm, s2, bm = mom.tolist()
+        object with the constructor's). `roll`: the roll gradient's mean and std where `sample_update`
+        returned them."""
+        xm, xs, mb, vm, s2, bm, vyr = mom.tolist()
         if self.cfg.inflation_prior_bound:  # (`_draw_inflation`'s bound)
             self._sigma2_rel = max(v / c**2 for v, c in zip(s2, self.C_ref.tolist()))
         root, C = _sqrt_or_nan, self._C_nom_list
         f0 = f1 = 1.0
-        k_mean, k_std = self._roll_moments()
+        k_mean, k_std = self._roll_moments() if roll is None else roll
         est = _new_object(Estimate)
         if self.full:  # params Cx, Cf_y, Cr_y; bias ax, ay, yaw rate
             if dt is not None and self._calib is not None:
@@ -170,7 +180,7 @@ class CompiledStep:
     def _estimate_compiled(self, ess: float) -> Estimate:
         """`_estimate` by the compiled moments (`kernels.estimate_moments`) and `_estimate_fused`."""
         st = self.stats
-        mom = np.zeros((6, max(self.x.shape[1], self.n_w, len(self.channels))))
+        mom = np.zeros((7, max(self.x.shape[1], self.n_w, len(self.channels))))
         self._nb.estimate_moments(self.logw, self.x, st.gamma, st.mu, st.Lam, st.nu, self.b, mom)
         return self._estimate_fused(ess, mom)
 
@@ -185,7 +195,7 @@ class CompiledStep:
 
     def _work(self) -> "_MPFWork":
         """The fused step's arrays, the particles' own arrays among them: an array that the
-        reference path replaced (first sample, restart, a loaded state) is copied in."""
+        reference methods replaced (the prior drawn at the start or a restart, a loaded state) is copied in."""
         wk = self.__dict__.get("_wk")
         st = self.stats
         first = self.__dict__.get("_at_x")  # (none before the first sample)
@@ -240,7 +250,7 @@ class _MPFWork:
         self.w = np.zeros((N, n_w))
         self.ok = np.zeros(N, bool)
         self.idx = np.arange(N)
-        self.mom = np.zeros((6, max(nx, n_w, m)))
+        self.mom = np.zeros((7, max(nx, n_w, m)))
         self.pin_lo, self.pin_hi = mpf._pin_bounds()
         self.no_noise, self.no_scale = np.zeros((0, nx)), np.zeros(nx)
         self.avail_all = np.arange(m)
@@ -267,6 +277,8 @@ class _MPFWork:
         self.max_step, self.beta = float(cfg.max_step), float(cfg.plausible_beta)
         self.yaw_max, self.gate_speed = float(cfg.plausible_yaw_rate), float(cfg.gate_speed)
         self.gain = np.full(N, mpf.roll_gain)  # the roll gain per particle (`_roll_gains`)
+        self.no_k = np.zeros(0)  # (`sample_update`'s k where the roll gradient is not estimated)
+        self.roll_lo, self.roll_hi = (float(k) for k in cfg.roll_gradient_prior)  # (`_walk_roll`'s bounds)
         self.model = {linear: (mpf._vp, mpf._jw, mpf._c_floor, mpf.R, mpf.q_bias if linear else mpf.q_bias_nonlinear,
                                self.gain) for linear in (False, True)}
         adaptive = cfg.forgetting_mode == "adaptive"

@@ -206,7 +206,8 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         self.k_roll = np.clip(np.where(k > hi, 2.0 * hi - k, k), lo, hi)
 
     def _roll_moments(self) -> tuple[float, float]:
-        """The posterior mean and std of k (NaN, NaN where it is not estimated)."""
+        """The posterior mean and std of k (NaN, NaN where it is not estimated; the compiled step has
+        them from `sample_update`)."""
         if self.k_roll is None:
             return NAN, NAN
         q = np.exp(self.logw)
@@ -404,8 +405,8 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         (`wheel_filter.WheelSpeedFilter`, derivations, "Wheel-speed pre-filter"; a missing one stays missing). Its
         drive over the step from the last sample: that sample's measured a^X minus the posterior
         mean of its bias, plus the posterior mean of v^Y r (the particles as they stand, before
-        this sample's propagation). The first sample and the sample after a gap (`_gap`) start
-        the filter again at the measurements."""
+        this sample's propagation; the compiled step leaves these two means in `_drive_moments`).
+        The first sample and the sample after a gap (`_gap`) start the filter again at the measurements."""
         f = self.wheels
         if self.t_prev is None:
             f.reset()
@@ -417,10 +418,15 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
             if self._gap(dt):
                 f.reset()
         drive = NAN
+        moments, self._drive_moments = self.__dict__.get("_drive_moments"), None
         if self.t_prev is not None and math.isfinite(self._ax_prev):
-            q = np.exp(self.logw)
-            b = float(q @ self.b[:, 0]) if self.bias_on else 0.0
-            drive = self._ax_prev - b + float(q @ (self.x[:, 1] * self.x[:, 2]))
+            if moments is not None:  # (the last compiled step's sums, `kernels.sample_update`)
+                b, vyr = moments
+                drive = self._ax_prev - (b if self.bias_on else 0.0) + vyr
+            else:
+                q = np.exp(self.logw)
+                b = float(q @ self.b[:, 0]) if self.bias_on else 0.0
+                drive = self._ax_prev - b + float(q @ (self.x[:, 1] * self.x[:, 2]))
         self._ax_prev = y.ax
         u_now[1:3] = f.step(dt, u_now[1:3], drive)
 

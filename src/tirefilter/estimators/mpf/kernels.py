@@ -1,5 +1,5 @@
 """Compiled (numba, nopython, cached) kernels of the stiffness MPF: `StiffnessMPF.step` for
-every sample after the first (`CompiledStep._step_compiled`, compiled.py) in three passes over
+every sample (`CompiledStep._step_compiled`, compiled.py) in three passes over
 the particles, each a loop of straight per-particle arithmetic on arrays the caller allocated
 once and reuses from sample to sample. This module gathers them; the code is in
 `kernels_weigh` (predict_weigh) and `kernels_update` (resample_gate, sample_update), the
@@ -18,6 +18,9 @@ vehicle model's per-particle code in its compiled twin `vehicle.single_track_num
                   outlier mask, the bias Kalman update (eq. (30)), the drift of the adaptive
                   forgetting, the NiW update (eq. (19)) with the projection of Sec. V, and the
                   moments of eq. (26)-(27)
+
+and, for the options a replay turns on, `match_state_noise` (the state noise from the data) and
+`walk_roll` (the roll gradient's random walk and the roll gain per particle).
 
 Why three passes and not one kernel per stage: at N = 500 a stage does a few hundred
 nanoseconds of arithmetic per particle, and a dozen numba calls per sample with their
@@ -48,21 +51,26 @@ In `predict_weigh` the propagation evaluates the model on scalars (`_model_t`, `
 model's compiled twin, `vehicle.single_track_numba`: the model's a, B and dx/dt returned, not
 stored in scratch arrays and read back, so that LLVM keeps them in registers; 1.6-2x faster on
 that stage, bit for bit the same numbers); the twin's other kernels keep `_model1`, which
-computes the same expressions into arrays. The loops stay scalar
+computes the same expressions into arrays. `predict_weigh`'s loops stay scalar
 (one particle at a time): LLVM vectorises a loop across particles only over one array per
 component and with numba's internal `noalias` flag, and the transposes into such arrays cost
-more than the vector lanes save (docs/performance.md, "Backends").
+more than the vector lanes save (docs/performance.md, "Backends"). The bias update of
+`sample_update` with every channel runs in blocks of 32 particles instead (`_bias_lanes`): its
+inputs gathered into block arrays with the particle innermost, each step a loop over the lanes
+that LLVM runs in AVX2 registers, the operations per particle those of the scalar code in the
+same order (bit for bit the same numbers).
 
 The numpy methods of `StiffnessMPF` (filter.py) are the readable reference; the kernels compute the
 same expressions in the same order, one particle at a time, and consume random numbers
 drawn by the caller with the reference's generator calls, so both backends follow the same
 path (tests/test_kernels.py: equal to 1e-12 relative, full and lateral models, bias on and
-off, resampling, missing samples, sub-steps and restarts). The kernels compile on first use
+off, resampling, missing samples, sub-steps and restarts; the sums of `match_state_noise` run in
+another order than numpy's, so there the two agree to rounding only). The kernels compile on first use
 and are cached beside their modules.
 """
 
-from tirefilter.estimators.mpf.kernels_update import estimate_moments, resample_gate, sample_update
+from tirefilter.estimators.mpf.kernels_update import (estimate_moments, match_state_noise, resample_gate,
+                                                      sample_update, walk_roll)
 from tirefilter.estimators.mpf.kernels_weigh import SIZES_ANY, SIZES_FULL, SIZES_LATERAL, predict_weigh
 
-__all__ = ["SIZES_ANY", "SIZES_FULL", "SIZES_LATERAL", "estimate_moments", "predict_weigh", "resample_gate",
-           "sample_update"]
+__all__ = ["SIZES_ANY", "SIZES_FULL", "SIZES_LATERAL", "estimate_moments", "match_state_noise", "predict_weigh", "resample_gate", "sample_update", "walk_roll"]

@@ -1,7 +1,9 @@
 """The second and third of the stiffness MPF's three compiled passes (`kernels` tells the whole
 story): `resample_gate` (systematic resampling and the gate's moments) and `sample_update`
 (the conditional draw of w, the bias update, the drift of the adaptive forgetting, the NiW
-update with the projection, the moments of the estimate), with their helpers."""
+update with the projection, the moments of the estimate), with their helpers; and the per-particle
+parts of the replay's options: `match_state_noise` (the state noise from the data) and `walk_roll`
+(the roll gradient's walk)."""
 
 from __future__ import annotations
 
@@ -12,11 +14,24 @@ from numba import njit
 
 from tirefilter.stats.particles_numba import systematic_into
 
-_JIT = dict(cache=True, nogil=True, no_cfunc_wrapper=True)  # (no C callback is taken of a kernel)
+_JIT = dict(cache=True, nogil=True, no_cfunc_wrapper=True, error_model="numpy")  # (no C callback is taken of a kernel)
 # a helper only kernels call: no wrapper for Python calls either (each wrapper, which unboxes every
 # argument, was compiled and never called: docs/development.md, "How long `make test` takes");
 # called from Python such a helper crashes the interpreter instead of raising (tests/test_kernel_calls.py)
 _JIT_IN = dict(_JIT, no_cpython_wrapper=True)
+
+
+@njit(inline="always", **_JIT)
+def _mean_std(q, k):
+    """The mean and std of k (N,) under the weights q (N,) (`_roll_moments`)."""
+    m = 0.0
+    for i in range(k.shape[0]):
+        m += q[i] * k[i]
+    s = 0.0
+    for i in range(k.shape[0]):
+        d = k[i] - m
+        s += q[i] * (d * d)
+    return m, math.sqrt(max(s, 0.0))
 
 
 # ---- small dense helpers ---------------------------------------------------------------------
@@ -226,6 +241,206 @@ def _sample(idx, own, scratch, draws, w, learning, flags, qw, ub, n_w, nc):
         nu[i] = nu[i] + 1.0
 
 
+@njit(**_JIT_IN)
+def _bias(idx, own, scratch, R, avail, y, n_w, na, mch, every):
+    """Step 4 of `sample_update` (its arguments; n_w, na, mch the sizes, `every`: avail = 0..m-1, every
+    channel there): the bias Kalman update of eq. (30) per particle, in three short loops over the
+    particles (the CPU overlaps the chains of square roots and divisions of successive particles):
+    the innovation and its scale S, the factorisation of S in place, the gain and the update of b and P."""
+    x, b, P, gamma, mu, Lam, nu, a, B, slip = own
+    af, ar, h, D, L11, nu_w, L12, Lc, e, v, ll, ok = scratch
+    n = mu.shape[0]
+    nb = max(na, 1)
+    Sb = np.empty((n, nb, nb))  # S, then its factor in place
+    inn = np.empty((n, nb))
+    DE = np.empty((nb, n_w))
+    Kt = np.empty((nb, mch))
+    Pn = np.empty((mch, mch))
+    for i in range(n):
+        s = idx[i]
+        # 4. bias, eq. (30), with the predicted statistics: S = P_aa + R_aa + D_a E[Sigma] D_a^T and the innovation
+        den = nu[i] - n_w - 1.0
+        for q in range(na):
+            cq = q if every else avail[q]
+            for k in range(n_w):
+                t = 0.0
+                for j in range(n_w):
+                    t += D[s, cq, j] * (Lam[i, j, k] / den)
+                DE[q, k] = t
+        for q in range(na):
+            cq = q if every else avail[q]
+            for q2 in range(q + 1):  # (the lower triangle: all the factorisation reads)
+                c2 = q2 if every else avail[q2]
+                t = 0.0
+                for k in range(n_w):
+                    t += DE[q, k] * D[s, c2, k]
+                Sb[i, q, q2] = P[i, cq, c2] + R[cq, c2] + t
+        for q in range(na):
+            ch = q if every else avail[q]
+            t = 0.0
+            for j in range(n_w):
+                t += D[s, ch, j] * mu[i, j]
+            inn[i, q] = y[ch] - h[s, ch] - t - b[i, ch]
+    for i in range(n):  # chol(S) in place (`_chol`)
+        for j in range(na):
+            Sjj = Sb[i, j, j]
+            d = Sjj
+            for k in range(j):
+                d = d - Sb[i, j, k] * Sb[i, j, k]
+            Ljj = math.sqrt(max(d, abs(Sjj) * 1e-14 + 1e-300))
+            Sb[i, j, j] = Ljj
+            for r in range(j + 1, na):
+                acc = Sb[i, r, j]
+                for k in range(j):
+                    acc = acc - Sb[i, r, k] * Sb[i, j, k]
+                Sb[i, r, j] = acc * (1.0 / Ljj)
+    for i in range(n):
+        for c in range(mch):  # Kt[:, c] = S^-1 P[a, c]
+            for q in range(na):
+                acc = P[i, q if every else avail[q], c]
+                for j in range(q):
+                    acc = acc - Sb[i, q, j] * Kt[j, c]
+                Kt[q, c] = acc / Sb[i, q, q]
+            for q in range(na - 1, -1, -1):
+                acc = Kt[q, c]
+                for j in range(q + 1, na):
+                    acc = acc - Sb[i, j, q] * Kt[j, c]
+                Kt[q, c] = acc / Sb[i, q, q]
+        for c in range(mch):
+            t = 0.0
+            for q in range(na):
+                t += Kt[q, c] * inn[i, q]
+            b[i, c] = b[i, c] + t
+        for c in range(mch):  # Pn = P - P_{:,a} K^T (from the old P), then 0.5 (Pn + Pn^T)
+            for c2 in range(mch):
+                t = 0.0
+                for q in range(na):
+                    t += P[i, q if every else avail[q], c] * Kt[q, c2]
+                Pn[c, c2] = P[i, c, c2] - t
+        for c in range(mch):
+            for c2 in range(mch):
+                P[i, c, c2] = 0.5 * (Pn[c, c2] + Pn[c2, c])
+
+
+LANES = 32  # particles of a block of `_bias_lanes` (eight AVX2 vectors of float64)
+
+
+@njit(**_JIT_IN)
+def _bias_lanes(idx, own, scratch, R, y, n_w, m):
+    """`_bias` with every channel there (avail = 0..m-1) in blocks of LANES particles, particles in the
+    inner, contiguous dimension of the block's arrays: each step of the update below is a loop over the
+    lanes that the compiler runs in SIMD registers (the same operations in the same order per particle as
+    `_bias`, bit for bit; the gathers from and scatters to the particles' rows stay scalar)."""
+    x, b, P, gamma, mu, Lam, nu, a, B, slip = own
+    af, ar, h, D, L11, nu_w, L12, Lc, e, v, ll, ok = scratch
+    n = mu.shape[0]
+    L = LANES
+    den = np.empty(L)
+    Dl = np.empty((m, n_w, L))
+    Laml = np.empty((n_w, n_w, L))
+    DE = np.empty((m, n_w, L))
+    S = np.empty((m, m, L))
+    inn = np.empty((m, L))
+    Kt = np.empty((m, m, L))
+    Pl = np.empty((m, m, L))
+    Pn = np.empty((m, m, L))
+    mul = np.empty((n_w, L))
+    inv = np.empty(L)
+    for b0 in range(0, n, L):
+        W = min(L, n - b0)
+        for w in range(W):  # gather
+            i = b0 + w
+            s = idx[i]
+            den[w] = nu[i] - n_w - 1.0
+            for q in range(m):
+                for j in range(n_w):
+                    Dl[q, j, w] = D[s, q, j]
+                for c in range(m):
+                    Pl[q, c, w] = P[i, q, c]
+            for j in range(n_w):
+                mul[j, w] = mu[i, j]
+                for k in range(n_w):
+                    Laml[j, k, w] = Lam[i, j, k]
+        # DE = D E[Sigma] (E[Sigma] = Lam / den), S = P + R + DE D^T (lower triangle), the innovation
+        for q in range(m):
+            for k in range(n_w):
+                for w in range(W):
+                    DE[q, k, w] = 0.0
+                for j in range(n_w):
+                    for w in range(W):
+                        DE[q, k, w] += Dl[q, j, w] * (Laml[j, k, w] / den[w])
+        for q in range(m):
+            for q2 in range(q + 1):
+                for w in range(W):
+                    inv[w] = 0.0
+                for k in range(n_w):
+                    for w in range(W):
+                        inv[w] += DE[q, k, w] * Dl[q2, k, w]
+                r = R[q, q2]
+                for w in range(W):
+                    S[q, q2, w] = Pl[q, q2, w] + r + inv[w]
+        for q in range(m):
+            for w in range(W):
+                inv[w] = 0.0
+            for j in range(n_w):
+                for w in range(W):
+                    inv[w] += Dl[q, j, w] * mul[j, w]
+            for w in range(W):
+                inn[q, w] = y[q] - h[idx[b0 + w], q] - inv[w] - b[b0 + w, q]
+        # chol(S) in place (`_chol`)
+        for j in range(m):
+            for w in range(W):
+                Sjj = S[j, j, w]
+                d = Sjj
+                for k in range(j):
+                    d = d - S[j, k, w] * S[j, k, w]
+                Ljj = math.sqrt(max(d, abs(Sjj) * 1e-14 + 1e-300))
+                S[j, j, w] = Ljj
+                inv[w] = 1.0 / Ljj
+            for r in range(j + 1, m):
+                for w in range(W):
+                    acc = S[r, j, w]
+                    for k in range(j):
+                        acc = acc - S[r, k, w] * S[j, k, w]
+                    S[r, j, w] = acc * inv[w]
+        # Kt[:, c] = S^-1 P[:, c]
+        for c in range(m):
+            for q in range(m):
+                for w in range(W):
+                    acc = Pl[q, c, w]
+                    for j in range(q):
+                        acc = acc - S[q, j, w] * Kt[j, c, w]
+                    Kt[q, c, w] = acc / S[q, q, w]
+            for q in range(m - 1, -1, -1):
+                for w in range(W):
+                    acc = Kt[q, c, w]
+                    for j in range(q + 1, m):
+                        acc = acc - S[j, q, w] * Kt[j, c, w]
+                    Kt[q, c, w] = acc / S[q, q, w]
+        # b += K innovation, P := sym(P - P_{:,a} K^T)
+        for c in range(m):
+            for w in range(W):
+                inv[w] = 0.0
+            for q in range(m):
+                for w in range(W):
+                    inv[w] += Kt[q, c, w] * inn[q, w]
+            for w in range(W):
+                b[b0 + w, c] = b[b0 + w, c] + inv[w]
+            for c2 in range(m):
+                for w in range(W):
+                    inv[w] = 0.0
+                for q in range(m):
+                    for w in range(W):
+                        inv[w] += Pl[q, c, w] * Kt[q, c2, w]
+                for w in range(W):
+                    Pn[c, c2, w] = Pl[c, c2, w] - inv[w]
+        for w in range(W):
+            i = b0 + w
+            for c in range(m):
+                for c2 in range(m):
+                    P[i, c, c2] = 0.5 * (Pn[c, c2, w] + Pn[c2, c, w])
+
+
 @njit(**_JIT)
 def sample_update(idx, own, scratch, draws, w, obs, learning, flags, nc_, out, sizes):
     """Steps 3-5 of `StiffnessMPF.step`, in place, on the workspace of `compiled._MPFWork`:
@@ -234,7 +449,8 @@ def sample_update(idx, own, scratch, draws, w, obs, learning, flags, nc_, out, s
       draws = (z, chi, nu_draw, infl), the caller's random numbers and the draw's std factors;
       w (N, n_w) written; obs = (R, avail, y); learning = (bound, drift_a, lo, hi);
       flags = (use_mask, do_bias, active, drift); nc_ the accelerometer channels;
-      out = (drift_state, mom, qw): the drift statistic (updated), the moments (written), the weights (read).
+      out = (drift_state, mom, qw, k): the drift statistic (updated), the moments (written), the weights (read),
+      the roll gradient k (N,) of each particle (read; shape (0,) where it is not estimated).
     Per particle i (its weighting arrays h, D, L11, nu_w, L12, Lc, v at row idx[i], the ancestor
     when resampled):
     - w_i (into w) from the conditional of w given the first nc (accelerometer) residuals,
@@ -250,10 +466,12 @@ def sample_update(idx, own, scratch, draws, w, obs, learning, flags, nc_, out, s
       (`drift`), then `NiW.update` (eq. (19)) and the projection of mu onto [lo, hi] (Sec. V).
     Then `_track_drift`'s smoothing of the weighted mean lean into drift_state (n_w,) with
     the factor drift_a, and `_estimate`'s moments after the update into the rows of mom
-    (6, >= max(nx, n_w, m)): x mean, x std, mean of mu, posterior variance of the mean,
-    sigma^2 of eq. (27b), bias mean. Returns the drift statistic z' of `_track_drift`, NaN
+    (7, >= max(nx, n_w, m)): x mean, x std, mean of mu, posterior variance of the mean,
+    sigma^2 of eq. (27b), bias mean, and E[v^Y r] in mom[6, 0]. Returns the drift statistic z' of
+    `_track_drift`, NaN
     when not computed (or when the lean is not finite: the reference then keeps its state).
-    The weights exp(logw) are read from qw (N,), as `resample_gate` left them.
+    The weights exp(logw) are read from qw (N,), as `resample_gate` left them. Returns besides the mean and
+    the std of k under them (`_roll_moments`; NaN, NaN without k)
     `sizes` as in `predict_weigh`: 3 dimensions the full model with both accelerometers (n_w = 3,
     nc = 2), 2 the lateral one (n_w = 2, nc = 1), 1 any (n_w = mu.shape[1], the given nc)."""
     x, b, P, gamma, mu, Lam, nu, a, B, slip = own
@@ -261,76 +479,24 @@ def sample_update(idx, own, scratch, draws, w, obs, learning, flags, nc_, out, s
     R, avail, y = obs
     use_mask, do_bias, active, drift = flags
     bound, drift_a, lo, hi = learning
-    drift_state, mom, qw = out
+    drift_state, mom, qw, k_roll = out
     if sizes.ndim == 3:
-        if mu.shape[1] != 3 or nc_ != 2:
-            raise ValueError("sample_update with SIZES_FULL: n_w = 3, nc = 2 only")
-        n_w, nc = 3, 2
+        if mu.shape[1] != 3 or nc_ != 2 or avail.shape[0] != 3 or b.shape[1] != 3:
+            raise ValueError("sample_update with SIZES_FULL: n_w = na = m = 3, nc = 2 only")
+        n_w, nc, na, mch = 3, 2, 3, 3
     elif sizes.ndim == 2:
-        if mu.shape[1] != 2 or nc_ != 1:
-            raise ValueError("sample_update with SIZES_LATERAL: n_w = 2, nc = 1 only")
-        n_w, nc = 2, 1
+        if mu.shape[1] != 2 or nc_ != 1 or avail.shape[0] != 2 or b.shape[1] != 2:
+            raise ValueError("sample_update with SIZES_LATERAL: n_w = na = m = 2, nc = 1 only")
+        n_w, nc, na, mch = 2, 1, 2, 2
     else:
-        n_w, nc = mu.shape[1], nc_
+        n_w, nc, na, mch = mu.shape[1], nc_, avail.shape[0], b.shape[1]
     n = mu.shape[0]
-    na = avail.shape[0]
-    mch = b.shape[1]
-    nb = max(na, 1)
-    S = np.empty((nb, nb))
-    Lb = np.zeros((nb, nb))
-    Kt = np.empty((nb, mch))
-    DE = np.empty((nb, n_w))
-    innov = np.empty(nb)
-    Pn = np.empty((mch, mch))
     ub = np.zeros(n_w)
-    for i in range(n if do_bias else 0):  # (first: it reads the statistics before their update and writes only b, P)
-        s = idx[i]
-        # 4. bias, eq. (30), with the predicted statistics
-        den = nu[i] - n_w - 1.0
-        for q in range(na):
-            for k in range(n_w):
-                t = 0.0
-                for j in range(n_w):
-                    t += D[s, avail[q], j] * (Lam[i, j, k] / den)
-                DE[q, k] = t
-        for q in range(na):
-            for q2 in range(na):
-                t = 0.0
-                for k in range(n_w):
-                    t += DE[q, k] * D[s, avail[q2], k]
-                S[q, q2] = P[i, avail[q], avail[q2]] + R[avail[q], avail[q2]] + t
-        _chol(S, Lb, na)
-        for c in range(mch):  # Kt[:, c] = S^-1 P[a, c]
-            for q in range(na):
-                acc = P[i, avail[q], c]
-                for j in range(q):
-                    acc = acc - Lb[q, j] * Kt[j, c]
-                Kt[q, c] = acc / Lb[q, q]
-            for q in range(na - 1, -1, -1):
-                acc = Kt[q, c]
-                for j in range(q + 1, na):
-                    acc = acc - Lb[j, q] * Kt[j, c]
-                Kt[q, c] = acc / Lb[q, q]
-        for q in range(na):
-            ch = avail[q]
-            t = 0.0
-            for j in range(n_w):
-                t += D[s, ch, j] * mu[i, j]
-            innov[q] = y[ch] - h[s, ch] - t - b[i, ch]
-        for c in range(mch):
-            t = 0.0
-            for q in range(na):
-                t += Kt[q, c] * innov[q]
-            b[i, c] = b[i, c] + t
-        for c in range(mch):  # Pn = P - P_{:,a} K^T (from the old P), then 0.5 (Pn + Pn^T)
-            for c2 in range(mch):
-                t = 0.0
-                for q in range(na):
-                    t += P[i, avail[q], c] * Kt[q, c2]
-                Pn[c, c2] = P[i, c, c2] - t
-        for c in range(mch):
-            for c2 in range(mch):
-                P[i, c, c2] = 0.5 * (Pn[c, c2] + Pn[c2, c])
+    if do_bias:  # (first: it reads the statistics before their update and writes only b, P)
+        if sizes.ndim > 1:  # every channel: in lanes
+            _bias_lanes(idx, own, scratch, R, y, n_w, mch)
+        else:
+            _bias(idx, own, scratch, R, avail, y, n_w, na, mch, False)
     # 3. and 5.
     _sample(idx, own, scratch, draws, w, learning, flags, qw, ub, n_w, nc)
     zd = math.nan
@@ -346,14 +512,17 @@ def sample_update(idx, own, scratch, draws, w, obs, learning, flags, nc_, out, s
                 dd += drift_state[j] * drift_state[j]
             zd = dd * (2.0 - drift_a) / (drift_a * n_w)
     _moments(qw, x, gamma, mu, Lam, nu, b, mom)
-    return zd
+    if k_roll.shape[0] == 0:
+        return zd, math.nan, math.nan
+    km, ks = _mean_std(qw, k_roll)
+    return zd, km, ks
 
 
 @njit(**_JIT)
 def estimate_moments(logw, x, gamma, mu, Lam, nu, b, mom):
-    """`_estimate`'s sums into the rows of mom (6, >= max(nx, n_w, m)): x mean and std, the
+    """`_estimate`'s sums into the rows of mom (7, >= max(nx, n_w, m)): x mean and std, the
     mean of mu, the posterior variance of the mean (gamma E[Sigma] plus the spread of the
-    particle means), eq. (27b) sigma^2, bias mean."""
+    particle means), eq. (27b) sigma^2, bias mean; mom[6, 0] E[v^Y r] (the last two state components' product)."""
     q = np.empty(logw.shape[0])
     for i in range(logw.shape[0]):
         q[i] = math.exp(logw[i])
@@ -368,6 +537,7 @@ def _moments(q, x, gamma, mu, Lam, nu, b, mom):
     mch = b.shape[1]
     mom[:] = 0.0
     xm, xs, mbar, vm, s2, bm = mom[0], mom[1], mom[2], mom[3], mom[4], mom[5]
+    vyr = 0.0  # E[v^Y r] (the wheel-speed filter's drive at the next sample, `_filter_wheels`)
     spread = np.zeros(n_w)
     for i in range(n):
         for c in range(nx):
@@ -376,6 +546,8 @@ def _moments(q, x, gamma, mu, Lam, nu, b, mom):
             mbar[j] += q[i] * mu[i, j]
         for c in range(mch):
             bm[c] += q[i] * b[i, c]
+        vyr += q[i] * (x[i, nx - 2] * x[i, nx - 1])
+    mom[6, 0] = vyr
     for i in range(n):
         for c in range(nx):
             d = x[i, c] - xm[c]
@@ -392,3 +564,60 @@ def _moments(q, x, gamma, mu, Lam, nu, b, mom):
     for j in range(n_w):
         vm[j] += spread[j]
         s2[j] += spread[j]
+
+
+# ---- the per-particle parts of the adaptive options (one call each, in place of numpy's dozen) ------
+@njit(**_JIT)
+def match_state_noise(logw_pred, logw, x, scale, dt, a, q_state):
+    """`_match_state_noise` (derivations, "State noise from the data"): the means m-, m+ and spreads P-, P+
+    (nx,) of x (N, nx) under the predictive weights exp(logw_pred) and the weights exp(logw), each
+    normalised by its sum; g = ((m+ - m-)^2 - (P- - P+)) / dt + scale^2 / dt with `scale` (nx,) the
+    state noise's std over the step; when g is finite, q_state (nx,) := max(q_state + a (g - q_state), 0)."""
+    n, nx = x.shape
+    q0 = np.empty(n)
+    q1 = np.empty(n)
+    s0 = s1 = 0.0
+    for i in range(n):
+        q0[i] = math.exp(logw_pred[i])
+        q1[i] = math.exp(logw[i])
+        s0 += q0[i]
+        s1 += q1[i]
+    m0 = np.zeros(nx)
+    m1 = np.zeros(nx)
+    for i in range(n):
+        q0[i] = q0[i] / s0
+        q1[i] = q1[i] / s1
+        for c in range(nx):
+            m0[c] += q0[i] * x[i, c]
+            m1[c] += q1[i] * x[i, c]
+    p0 = np.zeros(nx)
+    p1 = np.zeros(nx)
+    for i in range(n):
+        for c in range(nx):
+            d0 = x[i, c] - m0[c]
+            d1 = x[i, c] - m1[c]
+            p0[c] += q0[i] * (d0 * d0)
+            p1[c] += q1[i] * (d1 * d1)
+    g = np.empty(nx)
+    for c in range(nx):
+        dm = m1[c] - m0[c]
+        g[c] = (dm * dm - (p0[c] - p1[c])) / dt + scale[c] * scale[c] / dt
+        if not math.isfinite(g[c]):
+            return
+    for c in range(nx):
+        q_state[c] = max(q_state[c] + a * (g[c] - q_state[c]), 0.0)
+
+
+@njit(**_JIT)
+def walk_roll(k, z, c, lo, hi, g, gain):
+    """`_walk_roll` in place: k (N,) := k + c z (the caller's normals z (N,), c = roll_gradient_rw sqrt(dt)),
+    reflected at lo and hi and clipped to [lo, hi]; and the roll gain 1 + k g per particle into gain (N,)."""
+    for i in range(k.shape[0]):
+        ki = k[i] + c * z[i]
+        if ki < lo:
+            ki = 2.0 * lo - ki
+        if ki > hi:
+            ki = 2.0 * hi - ki
+        ki = min(max(ki, lo), hi)
+        k[i] = ki
+        gain[i] = ki * g + 1.0
