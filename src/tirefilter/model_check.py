@@ -68,6 +68,12 @@ def ratio_mean_se(s: np.ndarray, which: str) -> tuple[float, float]:
     return theta, math.sqrt(nb / (nb - 1.0) * ss) / n
 
 
+def effective_batches(s: np.ndarray) -> float:
+    """(sum n_j)^2 / sum n_j^2: the number of equal batches that weigh as the batches of `s` do
+    (J for equal batches, fewer where a few batches hold most samples)."""
+    return s[N] * s[N] / s[SNN] if s[SNN] > 0 else 0.0
+
+
 def t_quantile(p: float, dof: float) -> float:
     """The p-quantile of Student's t with `dof` degrees of freedom."""
     from scipy.special import stdtrit
@@ -90,7 +96,7 @@ class PredictiveCheck:
         self.cur = np.zeros((3, nc, self.nbins))  # the open batch: n, sum of signed z, sum of z^2
         self.t0 = None  # the first sample's time
         self.kb = None  # the open batch's index
-        self.windows: list[list] = []  # [t_from, t_to, sums (nc, NSUM)], in time order
+        self.windows: list[list] = []  # [window index, its last batch, sums (nc, NSUM)], in time order
         self.window_batches = WINDOW_BATCHES
         self.samples = 0
         self.ay_max = 0.0  # the largest predicted |a^Y| checked
@@ -128,35 +134,31 @@ class PredictiveCheck:
                 self.samples += int(ok.sum()) if c == 0 else 0
 
     def _close(self) -> None:
-        """The open batch into the bins' sums and into its time window."""
+        """The open batch into the bins' sums and into its time window (window k holds the
+        batches kb with kb // window_batches = k: integers, so that no rounding moves a batch)."""
         n, x, y = self.cur
         self.bins += _close_batches(n, x, y)
-        t_from = self.t0 + self.kb * self.batch_s
         per_channel = _close_batches(n.sum(axis=1), x.sum(axis=1), y.sum(axis=1))  # (nc, NSUM)
-        w = self.windows[-1] if self.windows else None
-        span = self.window_batches * self.batch_s
-        if w is not None and t_from < w[0] + span:
-            w[1] = t_from + self.batch_s
-            w[2] += per_channel
+        k = self.kb // self.window_batches
+        if self.windows and self.windows[-1][0] == k:
+            self.windows[-1][1] = self.kb
+            self.windows[-1][2] += per_channel
         else:
-            start = self.t0 + math.floor((t_from - self.t0) / span) * span
-            self.windows.append([start, t_from + self.batch_s, per_channel])
+            self.windows.append([k, self.kb, per_channel])
             if len(self.windows) > MAX_WINDOWS:
                 self._merge_windows()
         self.cur[...] = 0.0
 
     def _merge_windows(self) -> None:
-        """Adjacent windows merged in pairs, the window's span doubled (aligned to the start)."""
+        """Adjacent windows merged in pairs: the window's span doubled."""
         self.window_batches *= 2
-        span = self.window_batches * self.batch_s
         merged: list[list] = []
-        for w in self.windows:
-            k = math.floor((w[0] - self.t0) / span + 1e-9)
-            if merged and math.floor((merged[-1][0] - self.t0) / span + 1e-9) == k:
-                merged[-1][1] = w[1]
-                merged[-1][2] = merged[-1][2] + w[2]
+        for k, last, sums in self.windows:
+            if merged and merged[-1][0] == k // 2:
+                merged[-1][1] = last
+                merged[-1][2] = merged[-1][2] + sums
             else:
-                merged.append([self.t0 + k * span, w[1], w[2].copy()])
+                merged.append([k // 2, last, sums.copy()])
         self.windows = merged
 
     def finish(self) -> None:
@@ -175,7 +177,7 @@ class PredictiveCheck:
         b, b_se = ratio_mean_se(s, "x")
         out = {"var_ratio": _r(v), "var_ratio_se": _r(v_se), "bias": _r(b), "bias_se": _r(b_se)}
         if crit_of is not None and self._tested(s):
-            crit = crit_of(s[J] - 1.0)
+            crit = crit_of(effective_batches(s) - 1.0)
             out["flagged"] = bool(v - (1.0 + self.var_tol) > crit * v_se or abs(b) - self.bias_tol > crit * b_se)
         return out
 
@@ -192,6 +194,7 @@ class PredictiveCheck:
         crits: dict[float, float] = {}
 
         def crit_of(dof: float) -> float:
+            dof = round(max(dof, 1.0), 1)
             if dof not in crits:
                 crits[dof] = t_quantile(1.0 - level, dof)
             return crits[dof]
@@ -210,10 +213,11 @@ class PredictiveCheck:
             if any(entry[name].get("flagged") for name in CHANNELS):
                 flagged_bins.append(b)
             bins.append(entry)
-        windows = [{"t_from": _r(w0), "t_to": _r(w1), "samples": int(s[0, N]),
-                    **{name: {k: v for k, v in self._judge(s[c], None).items()} for c, name in enumerate(CHANNELS)}}
-                   for w0, w1, s in self.windows]
-        region = region_text(flagged_bins, [b for b in range(self.nbins) if self.bins[0, b, N] > 0])
+        span = self.window_batches * self.batch_s
+        windows = [{"t_from": round(self.t0 + k * span, 3), "t_to": round(self.t0 + (last + 1) * self.batch_s, 3),
+                    "samples": int(s[0, N]), **{name: self._judge(s[c], None) for c, name in enumerate(CHANNELS)}}
+                   for k, last, s in self.windows]
+        region = region_text(flagged_bins, [b for b in range(self.nbins) if self._tested(self.bins[0, b])])
         worst = None
         if flagged_bins:
             worst = max((e for e in bins if e["ay_abs_from"] / BIN_WIDTH in flagged_bins),
@@ -241,7 +245,8 @@ def _r(x) -> float | None:
 
 def region_text(flagged: list[int], visited: list[int]) -> str | None:
     """The flagged bins as ranges of |a^Y|: "|a^Y| above 4.5 m/s^2" where they reach the highest
-    bin visited, "|a^Y| 2-3 m/s^2" otherwise; None when none is flagged."""
+    bin tested (`visited`; the bins above it have too few samples to judge), "|a^Y| 2-3 m/s^2"
+    otherwise; None when none is flagged."""
     if not flagged:
         return None
     top = max(visited)
