@@ -5,7 +5,7 @@ tyres; the `steps` drives beyond |a^Y| = 4 m/s^2) and the real race-track record
 warning (or none) and, per bin of the predicted |a^Y|, the a^Y and yaw-rate residuals' mean square
 (1 for a calibrated model) and signed mean (0; negative: the data fall short of the prediction).
 
-    .venv/bin/python benchmarks/bench_model_check.py [--cases paper-sim tt-steps real] [--seed 0] [--bins]
+    .venv/bin/python benchmarks/bench_model_check.py [--cases paper-sim tt-steps real] [--seeds 0] [--bins]
 
 `tt-steps` is the peer set's TT drives v3 steps 15 m/s a^Y 5 s2 and v2 steps 20 m/s a^Y 6 s6,
 `tt-sine` its TT v1 sine 20 m/s a^Y 3 s0 (within the linear region); each replayed as `tirefilter
@@ -37,7 +37,8 @@ def paper_sim(seed: int):
     from tirefilter.scenarios import load_scenario
 
     scenario = load_scenario("paper-sim")
-    summary, _ = run_scenario(scenario, estimator=build_estimator("mpf", scenario), seed=seed)
+    est = build_estimator("mpf", scenario, model="auto", particles=None, config={})
+    summary, _ = run_scenario(scenario, estimator=est, seed=seed)
     return [("paper-sim", summary.model_check)]
 
 
@@ -106,14 +107,17 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--cases", nargs="+", default=["paper-sim", "tt-steps", "real"],
                     choices=("paper-sim", "tt-steps", "tt-sine", "real"))
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0], help="the estimator's seeds (and paper-sim's)")
     ap.add_argument("--bins", action="store_true", help="print every bin of the predicted |a^Y|")
     args = ap.parse_args()
+    warned = runs = 0
     for case in args.cases:
-        runs = (paper_sim(args.seed) if case == "paper-sim" else real(args.seed) if case == "real"
-                else peer(TT[case], args.seed))
-        for name, check in runs:
-            print_case(name, check, args.bins)
+        for seed in args.seeds:
+            for name, check in (paper_sim(seed) if case == "paper-sim" else real(seed) if case == "real"
+                                else peer(TT[case], seed)):
+                print_case(f"{name}, seed {seed}", check, args.bins)
+                warned, runs = warned + bool(check["warning"]), runs + 1
+    print(f"warnings: {warned} of {runs} runs")
 
 
 if __name__ == "__main__":

@@ -80,7 +80,7 @@ class CompiledStep:
         if math.isfinite(innovation):  # adaptive forgetting (`_adapt_forgetting`)
             self._smooth_surprise(innovation, dt)
         if self.predictive_wanted and not start and a.size:  # the model check's (`estimators.mpf.predictive`)
-            predictive.keep(self, t, yk, a, wk.e, wk.Lc, wk.nu_w, logw_pred, wk.q_pred)
+            predictive.keep(self, t, yk, a, wk.e, wk.Lc, wk.nu_w, logw_pred, compiled=True)
         if wk.predicted_ay and a.size:  # (the calibration's residual alone waits for the gate: `_ay_residual`)
             self._predict_ay(yk, a, wk.e, logw_pred)
         self.w_prev = wk.w

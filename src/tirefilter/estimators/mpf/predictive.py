@@ -9,7 +9,7 @@ total variance, sum_i w_i S_i,jj nu~_i / (nu~_i - 2) + sum_i w_i (e_ij - e_bar_j
 
 `mixture_moments` is the numpy reference (from S's diagonal); `mixture_moments_chol` the
 compiled step's (from the Cholesky factor of S that the weighting leaves, S_jj = sum_k L_jk^2),
-the same expressions in one pass over the particles.
+in one pass over the particles (tests/test_model_check.py: equal to rounding).
 """
 
 from __future__ import annotations
@@ -33,26 +33,29 @@ def mixture_moments(logw: np.ndarray, e: np.ndarray, s_diag: np.ndarray, nu: np.
     return out
 
 
-def _mixture_moments_chol(q, e, Lc, nu, cols, out):
-    """`mixture_moments` from the predictive weights q (N,) (not their logarithms) and the Cholesky
-    factors Lc (N, m, m) of the scale, into out (2, len(cols))."""
-    n = q.shape[0]
-    for k in range(cols.shape[0]):
-        j = cols[k]
-        em = 0.0
-        for i in range(n):
-            em += q[i] * e[i, j]
-        v = 0.0
-        d = 0.0
-        for i in range(n):
+def _mixture_moments_chol(logw, e, Lc, nu, cols, out):
+    """`mixture_moments` from the log-weights, the residuals e (N, m) and the Cholesky factors Lc
+    (N, m, m) of the scale, in one pass over the particles, into out (2, len(cols)); the spread
+    of the residuals as sum_i w^i e_ij^2 - e_bar_j^2 (one pass: equal to the two-pass reference
+    to rounding, the spread being small against the residual's square only where both are small)."""
+    n, nk = logw.shape[0], cols.shape[0]
+    for k in range(nk):
+        out[0, k] = 0.0
+        out[1, k] = 0.0
+    e2 = np.zeros(nk)
+    for i in range(n):
+        q = math.exp(logw[i])
+        scale = nu[i] / (nu[i] - 2.0)
+        for k in range(nk):
+            j = cols[k]
             s = 0.0
             for c in range(j + 1):
                 s += Lc[i, j, c] * Lc[i, j, c]
-            v += q[i] * (s * nu[i] / (nu[i] - 2.0))
-            r = e[i, j] - em
-            d += q[i] * r * r
-        out[0, k] = em
-        out[1, k] = v + d
+            out[0, k] += q * e[i, j]
+            e2[k] += q * e[i, j] * e[i, j]
+            out[1, k] += q * s * scale
+    for k in range(nk):
+        out[1, k] += max(e2[k] - out[0, k] * out[0, k], 0.0)
 
 
 _COMPILED = []  # the compiled `_mixture_moments_chol`, once (numba imported on first use only)
@@ -79,25 +82,31 @@ def predictive_columns(channels, a) -> tuple[int, int]:
     return ay, yaw
 
 
-def keep(mpf, t: float, yk: np.ndarray, a: np.ndarray, e, scale, nu, logw, q=None) -> None:
+def keep(mpf, t: float, yk: np.ndarray, a: np.ndarray, e, scale, nu, logw, compiled: bool = False) -> None:
     """`mpf._pred` (`one_step_predictive`): (t, the predicted means, variances and the measured
     values of a^Y and the yaw rate), NaN for a missing channel; nothing without an a^Y sample.
-    The numpy step gives the scale matrices S (N, na, na) and the log-weights, the compiled one
-    their Cholesky factors and the weights `q` (a buffer for them)."""
+    The numpy step gives the scale matrices S (N, na, na), the compiled one (`compiled`) their
+    Cholesky factors."""
     cols = predictive_columns(mpf.channels, a)
     if cols[0] < 0:
         return
-    present = [j for j in cols if j >= 0]
-    if q is None:
-        moments = mixture_moments(logw, e, np.diagonal(scale, axis1=1, axis2=2), nu, present)
-    else:
+    present = cols if cols[1] >= 0 else cols[:1]
+    if compiled:
         moments = np.empty((2, len(present)))
-        mixture_moments_chol(np.exp(logw, out=q), e, scale, nu, np.array(present, np.int64), moments)
-    mean, var, meas = np.full(2, math.nan), np.full(2, math.nan), np.full(2, math.nan)
-    k = 0
-    for c, j in enumerate(cols):
-        if j >= 0:
-            y = float(yk[a[j]])
-            meas[c], mean[c], var[c] = y, y - moments[0, k], moments[1, k]
-            k += 1
-    mpf._pred = (t, mean, var, meas)
+        arr = _COL_ARRAYS.get(present)
+        if arr is None:
+            arr = _COL_ARRAYS[present] = np.array(present, np.int64)
+        mixture_moments_chol(logw, e, scale, nu, arr, moments)
+    else:
+        moments = mixture_moments(logw, e, np.diagonal(scale, axis1=1, axis2=2), nu, present)
+    m = moments.tolist()
+    y_ay = float(yk[a[cols[0]]])
+    if cols[1] >= 0:
+        y_r = float(yk[a[cols[1]]])
+        mpf._pred = (t, (y_ay - m[0][0], y_r - m[0][1]), (m[1][0], m[1][1]), (y_ay, y_r))
+    else:
+        mpf._pred = (t, (y_ay - m[0][0], NAN), (m[1][0], NAN), (y_ay, NAN))
+
+
+NAN = math.nan
+_COL_ARRAYS: dict = {}  # the kernel's column arrays, one per set of columns
