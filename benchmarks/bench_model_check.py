@@ -1,11 +1,12 @@
 """The model check (run.json `model_check`; docs/derivations.md, "The model check") of the stiffness
-MPF with its defaults on drives with and without a model that fits: the paper-sim scenario (linear
+MPF (or the EKF: `--estimator ekf`) with its defaults on drives with and without a model that fits: the paper-sim scenario (linear
 tyres, the filter's own model), the peer set's two-track drives (load transfer onto load-sensitive
 tyres; the `steps` drives beyond |a^Y| = 4 m/s^2) and the real race-track recording. Per case the
 warning (or none) and, per bin of the predicted |a^Y|, the a^Y and yaw-rate residuals' mean square
 (1 for a calibrated model) and signed mean (0; negative: the data fall short of the prediction).
 
-    .venv/bin/python benchmarks/bench_model_check.py [--cases paper-sim tt-steps real] [--seeds 0] [--bins]
+    .venv/bin/python benchmarks/bench_model_check.py [--cases paper-sim tt-steps real] [--seeds 0] [--estimator mpf|ekf]
+        [--bins]
 
 `tt-steps` is the peer set's TT drives v3 steps 15 m/s a^Y 5 s2 and v2 steps 20 m/s a^Y 6 s6,
 `tt-sine` its TT v1 sine 20 m/s a^Y 3 s0 (within the linear region); each replayed as `tirefilter
@@ -31,18 +32,18 @@ def _module(name: str, path: Path):
     return module
 
 
-def paper_sim(seed: int):
+def paper_sim(seed: int, name: str = "mpf"):
     from tirefilter.cosim.run import run_scenario
     from tirefilter.estimators import build_estimator
     from tirefilter.scenarios import load_scenario
 
     scenario = load_scenario("paper-sim")
-    est = build_estimator("mpf", scenario, model="auto", particles=None, config={})
+    est = build_estimator(name, scenario, model="auto", particles=None, config={})
     summary, _ = run_scenario(scenario, estimator=est, seed=seed)
     return [("paper-sim", summary.model_check)]
 
 
-def peer(drives, seed: int):
+def peer(drives, seed: int, name: str = "mpf"):
     from tirefilter.estimators import build, for_log
     from tirefilter.peer.drive import DriveSpec, simulate, write_drive
     from tirefilter.replay import replay_log
@@ -59,14 +60,14 @@ def peer(drives, seed: int):
             log = scan_log(log_path, vehicle, vehicle_name=str(vehicle_path))
             setting = for_log(vehicle, log.t, log.signals, source=log.path)
             log.release()
-            est = build("mpf", setting, model="auto", particles=None, config={})
+            est = build(name, setting, model="auto", particles=None, config={})
             summary, _ = replay_log(log, estimator=est, seed=seed)
         out.append((f"{model.upper()} v{vehicle_id} {maneuver} {speed:g} m/s a^Y {ay:g} s{drive_seed}",
                     summary.model_check))
     return out
 
 
-def real(seed: int):
+def real(seed: int, name: str = "mpf"):
     from tirefilter.estimators import build_log_estimator
     from tirefilter.replay import read_log, replay_log
     from tirefilter.vehicle.params import load_vehicle
@@ -78,8 +79,8 @@ def real(seed: int):
     vehicle = load_vehicle(example / "vehicle.toml")
     with tempfile.TemporaryDirectory() as tmp:
         log = read_log(convert.convert(out=Path(tmp) / "log.csv"), vehicle)
-    est = build_log_estimator("mpf", vehicle, log.t, {s: log.signals[s] for s in log.available}, model="lateral",
-                              particles=500, config={}, source=log.path)
+    est = build_log_estimator(name, vehicle, log.t, {s: log.signals[s] for s in log.available}, model="lateral",
+                              particles=None, config={}, source=log.path)
     summary, _ = replay_log(log, estimator=est, seed=seed)
     return [("real recording (mbds-sideslip)", summary.model_check)]
 
@@ -108,13 +109,15 @@ def main() -> None:
     ap.add_argument("--cases", nargs="+", default=["paper-sim", "tt-steps", "real"],
                     choices=("paper-sim", "tt-steps", "tt-sine", "real"))
     ap.add_argument("--seeds", type=int, nargs="+", default=[0], help="the estimator's seeds (and paper-sim's)")
+    ap.add_argument("--estimator", default="mpf", choices=("mpf", "ekf"), help="the estimator (its defaults)")
     ap.add_argument("--bins", action="store_true", help="print every bin of the predicted |a^Y|")
     args = ap.parse_args()
     warned = runs = 0
     for case in args.cases:
         for seed in args.seeds:
-            for name, check in (paper_sim(seed) if case == "paper-sim" else real(seed) if case == "real"
-                                else peer(TT[case], seed)):
+            est = args.estimator
+            for name, check in (paper_sim(seed, est) if case == "paper-sim" else real(seed, est) if case == "real"
+                                else peer(TT[case], seed, est)):
                 print_case(f"{name}, seed {seed}", check, args.bins)
                 warned, runs = warned + bool(check["warning"]), runs + 1
     print(f"warnings: {warned} of {runs} runs")

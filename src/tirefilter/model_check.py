@@ -220,8 +220,8 @@ class PredictiveCheck:
         region = region_text(flagged_bins, [b for b in range(self.nbins) if self._tested(self.bins[0, b])])
         worst = None
         if flagged_bins:
-            worst = max((e for e in bins if e["ay_abs_from"] / BIN_WIDTH in flagged_bins),
-                        key=lambda e: e["ay"]["var_ratio"] or 0.0)
+            worst = max((e for e in bins if round(e["ay_abs_from"] / BIN_WIDTH) in flagged_bins),
+                        key=lambda e: max(e[c]["var_ratio"] or 0.0 for c in CHANNELS))
         return {
             "channels": list(CHANNELS),
             "samples": self.samples,
@@ -268,8 +268,10 @@ def warning_text(region: str, worst: dict | None) -> str:
     how = ""
     if worst is not None:
         ay, r = worst["ay"], worst["yaw_rate"]
-        how = (f" (at |a^Y| {worst['ay_abs_from']:g} m/s^2 and up: a^Y residuals {ay['var_ratio']:.3g}x the predicted"
-               f" variance, bias {ay['bias']:+.2g} std; yaw rate {r['var_ratio']:.3g}x, {r['bias']:+.2g} std)"
+        lo, hi = worst["ay_abs_from"], worst["ay_abs_to"]
+        where = f"above {lo:g}" if hi is None else f"{lo:g}-{hi:g}"
+        how = (f" (worst at |a^Y| {where} m/s^2: a^Y residuals {ay['var_ratio']:.3g}x the predicted variance,"
+               f" bias {ay['bias']:+.2g} std; yaw rate {r['var_ratio']:.3g}x, {r['bias']:+.2g} std)"
                if ay["var_ratio"] is not None and r["var_ratio"] is not None else "")
     return (f"the model stops explaining the data at {region}{how}: figures from there (stiffness, sideslip) "
             "rest on a model that does not fit")
