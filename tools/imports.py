@@ -25,7 +25,7 @@ LAYERS = (
     ("vehicle", "stats", "vehicle_fmu"),  # the models, the probability machinery, the vehicle FMU's sources
     ("scenarios",),  # what a co-simulation plays (vehicle, tires, inputs, sensors)
     ("estimators",),  # the filters, and the registry that builds one by name
-    ("io", "metrics", "viz"),  # what a run writes: the file formats, the scores, the Rerun recording
+    ("io", "metrics", "model_check", "viz"),  # what a run writes: file formats, scores, model check, recording
     ("runs",),  # the run loop: samples -> an estimator -> sinks
     ("cosim", "replay", "peer"),  # the sample sources: the vehicle FMU, a recorded log, a peer drive
     ("study", "fmu_export"),  # Monte-Carlo studies, the estimator and driver FMUs

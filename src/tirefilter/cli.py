@@ -314,13 +314,18 @@ def _print_truth_summary(results: Path) -> None:
 
 def _print_metrics(summary, estimator) -> None:
     """The accuracy and health lines of `metrics.format_metrics` (run.json `metrics`), the
-    yaw rate's error beside the gyro's white noise the estimator assumes."""
+    yaw rate's error beside the gyro's white noise the estimator assumes, and the model check's
+    line (run.json `model_check`: its warning, or that the model explains the data)."""
     from tirefilter.metrics import format_metrics
+    from tirefilter.model_check import summary_line
 
     sensors = getattr(estimator, "sensors", None)
     noise = {"yaw_rate": (float(sensors.sigma[2]), "gyro")} if sensors is not None else None
     if summary.metrics:
         print("\n".join(format_metrics(summary.metrics, noise)))
+    line = summary_line(summary.model_check)
+    if line:
+        print(line)
 
 
 def cmd_scenarios(args) -> int:

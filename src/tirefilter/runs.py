@@ -62,6 +62,7 @@ class StepSummary:
     results: str | None = None  # the Result CSV
     metrics: dict | None = None  # metrics.RunMetrics of the rows written (run.json `metrics`)
     guard: dict | None = None  # samples the measurement guard marked missing (estimators.guard)
+    model_check: dict | None = None  # the posterior-predictive check (model_check.PredictiveCheck.result)
 
 
 class Interrupted(BaseException):
@@ -300,10 +301,12 @@ def output_sinks(columns: tuple[str, ...], estimator, *, results_csv: str | Path
     (`recording`, viz.options.RecordingOptions, or a file-only `rrd`; `context` what it draws
     besides the rows), the Result CSV, the friction CSV of a friction estimator (with
     `friction_truth(alpha, surface)` its truth columns), the run's metrics (`metrics`;
-    scored against the `schedule`'s settled windows), the progress over `total` rows
+    scored against the `schedule`'s settled windows) and, with them, the model check of an
+    estimator with a one-step predictive (`model_check.ModelCheck`), the progress over `total` rows
     (`Progress`: True a bar, "lines" a line every few seconds)."""
     from tirefilter.io.friction import FrictionWriter, is_friction_estimator
     from tirefilter.io.results import ResultWriter
+    from tirefilter.model_check import ModelCheck, has_predictive
     from tirefilter.viz.options import recording_options
 
     sinks: list = []
@@ -319,6 +322,8 @@ def output_sinks(columns: tuple[str, ...], estimator, *, results_csv: str | Path
             sinks.append(FrictionWriter(friction_csv, estimator, truth=friction_truth, columns=columns))
         if metrics and estimator is not None:  # nothing to score without an estimator
             sinks.append(Metrics(columns, estimator, schedule))
+            if has_predictive(estimator):
+                sinks.append(ModelCheck(estimator))
         if progress:
             sinks.append(Progress(total, progress))
     except BaseException:

@@ -240,6 +240,7 @@ class StiffnessEKF:
     """EKF on [vehicle state, stiffness deviations, IMU biases] (module docstring)."""
 
     name = "ekf"
+    predictive_wanted = False  # keep the one-step predictive for the model check (`model_check.ModelCheck` sets it)
 
     def __init__(self, vehicle: VehicleParams, config: EKFConfig = EKFConfig()):
         self.vehicle = vehicle
@@ -284,6 +285,7 @@ class StiffnessEKF:
         self.ay_last = math.nan  # the last finite a^Y of the linear-region test (`held_ay`)
         self.u_prev = None
         self.active = False
+        self._pred = None  # this step's one-step predictive (`one_step_predictive`)
 
     def _process_noise(self, A) -> np.ndarray:
         """Continuous noise intensity Qc (module docstring, tuning)."""
@@ -315,6 +317,8 @@ class StiffnessEKF:
             Ra = Ra + Hc @ self.Sigma_dev @ Hc.T
         PHt = self.P @ H.T
         S = H @ PHt + Ra
+        if self.predictive_wanted and self.t_prev is not None:  # the model check's (h, S: the predictive)
+            self._keep_predictive(yk, a, h[a], S)
         K = small_solve(S, PHt.T).T
         if not self.active:
             K[self.ic] = 0.0  # consider states: frozen stiffness
@@ -330,6 +334,7 @@ class StiffnessEKF:
         if not math.isfinite(t):
             raise ConfigError("inputs", "t", f"time must be finite, got {t!r}")
         uk = np.array([u.delta, u.omega_f, u.omega_r, u.vx], float)
+        self._pred, self._t = None, t
         if self.u_prev is not None:
             uk = np.where(np.isfinite(uk), uk, self.u_prev)  # hold the last finite input
         if not self.full and not math.isfinite(uk[3]):
@@ -358,6 +363,24 @@ class StiffnessEKF:
         self.active = gate_open(cfg, t=t, t_start=self.t_start, vx=vx, delta=uk[0], ay_meas=ay_gate,
                                 alpha=max(abs(af), abs(ar)), vy_std=math.sqrt(max(self.P[self.nx - 2, self.nx - 2], 0.0)))
         return self._estimate(vx)
+
+    def _keep_predictive(self, yk: np.ndarray, a: np.ndarray, h: np.ndarray, S: np.ndarray) -> None:
+        """The Gaussian predictive of the available channels a (mean h, covariance S of the
+        linearisation) kept for `one_step_predictive`: a^Y and the yaw rate."""
+        got = {self.channels[c]: j for j, c in enumerate(a)}
+        if 1 not in got:
+            return
+        j, k = got[1], got.get(2)
+        mean = (float(h[j]), NAN if k is None else float(h[k]))
+        var = (float(S[j, j]), NAN if k is None else float(S[k, k]))
+        meas = (float(yk[a[j]]), NAN if k is None else float(yk[a[k]]))
+        self._pred = (self._t, mean, var, meas)
+
+    def one_step_predictive(self):
+        """This step's one-step predictive of the measurements before the update (with
+        `predictive_wanted`; `model_check`): (t, mean, variance, measured) of a^Y and the yaw rate,
+        NaN for a missing one; None at the first sample or without an a^Y sample."""
+        return self._pred
 
     def _estimate(self, vx) -> Estimate:
         std = np.sqrt(np.maximum(np.diagonal(self.P), 0.0))

@@ -11,6 +11,7 @@ import math
 import numpy as np
 
 from tirefilter.estimators.base import Estimate, Measurement
+from tirefilter.estimators.mpf import predictive
 from tirefilter.stats import effective_sample_size, normalize_log_weights
 from tirefilter.vehicle.single_track import GRAVITY
 
@@ -39,7 +40,7 @@ class CompiledStep:
         # the predictive weights (`_predict_ay`: the gate's a^Y prediction, the residual of `_calibrate`;
         # `_match_state_noise`), into a buffer
         logw_pred = None
-        if wk.keep_pred:
+        if wk.keep_pred or self.predictive_wanted:
             logw_pred = wk.logw_pred
             np.copyto(logw_pred, self.logw)
         redraw, weigh = wk.no_redraw, True
@@ -83,6 +84,8 @@ class CompiledStep:
             wk.flags[self.active] if not start else wk.start_flags[weigh], nc, sizes)
         if math.isfinite(innovation):  # adaptive forgetting (`_adapt_forgetting`)
             self._smooth_surprise(innovation, dt)
+        if self.predictive_wanted and not start and a.size:  # the model check's (`estimators.mpf.predictive`)
+            predictive.keep(self, t, yk, a, wk.e, wk.Lc, wk.nu_w, logw_pred, compiled=True)
         if wk.predicted_ay and a.size:  # (the calibration's residual alone waits for the gate: `_ay_residual`)
             self._predict_ay(yk, a, wk.e, logw_pred)
         self.w_prev = wk.w

@@ -16,6 +16,7 @@ from tirefilter.errors import ConfigError
 from tirefilter.estimators.base import Estimate, Inputs, Measurement, Posterior, particle_estimate
 from tirefilter.estimators.mpf.adaptation import Adaptation
 from tirefilter.estimators.mpf.compiled import NAN, CompiledStep, _sqrt_or_nan
+from tirefilter.estimators.mpf import predictive
 from tirefilter.estimators.mpf.config import MPFConfig
 from tirefilter.estimators.mpf.supervision import Supervision
 from tirefilter.estimators.wheel_filter import WheelSpeedFilter
@@ -32,6 +33,9 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
     """Algorithm 1 of the stiffness paper, vectorised over particles."""
 
     name = "mpf"
+    # the one-step predictive of a^Y and the yaw rate kept at every step for the model check
+    # (`one_step_predictive`; set by `model_check.ModelCheck`)
+    predictive_wanted = False
 
     def __init__(self, vehicle: VehicleParams, config: MPFConfig = MPFConfig()):
         self.vehicle = vehicle
@@ -146,6 +150,7 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         self._calib = (BatchMeansSandwichPair(self.cfg.calibration_batch, math.inf)
                        if self.cfg.std_calibration == "sandwich" else None)
         self._calib_in_step = False  # this step's `_step_compiled` has fed the sandwich (`step` does not)
+        self._pred = None  # this step's one-step predictive (`one_step_predictive`)
 
     def _draw_prior(self, x0_mean) -> None:
         """Particles from the initial distribution: stiffness statistics (or the carried
@@ -253,6 +258,7 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         dt = t - self.t_prev if self.t_prev is not None else self.cfg.sample_period
         self._e_ay = NAN
         self._calib_in_step = False
+        self._pred = None
         est = self._step(t, u, y)
         return est if self._calib is None or self._calib_in_step else self._calibrate(est, dt)
 
@@ -302,7 +308,8 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
                 self.stats.forget(self.lam, nu_min=self.nu0)
         yk = np.array([y.ax, y.ay, y.yaw_rate], float)[list(self.channels)]
         start_logw = None
-        if self.t_prev is None:
+        first = self.t_prev is None
+        if first:
             self.t_start = t
             if cfg.informed_start:
                 start_logw = self._informed_start(uk, yk)
@@ -330,6 +337,8 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
             v = solve_lower(Lc, e)
             self._predict_ay(yk, a, e)
             logw_pred = self.logw
+            if self.predictive_wanted and not first:  # (the model check)
+                predictive.keep(self, t, yk, a, e, S, nu_w, logw_pred)
             if nc and start_logw is None:
                 self._adapt_forgetting(v[:, :nc], nu_w, dt)
             if start_logw is None:
@@ -399,6 +408,13 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         if self.full:
             self._excite_cx(float(np.exp(self.logw) @ self.x[:, 0]), uk, dt)
         return self._estimate(ess)
+
+    def one_step_predictive(self):
+        """This step's one-step predictive of the measurements, before they were weighed (with
+        `predictive_wanted`; `estimators.mpf.predictive`): (t, mean (2,), variance (2,), measured
+        (2,)) of a^Y and the yaw rate, NaN for a missing one; None at the first sample, without an
+        a^Y sample or when not wanted."""
+        return self._pred
 
     def _filter_wheels(self, t: float, u_now: np.ndarray, y: Measurement) -> None:
         """The measured wheel speeds u_now[1:3] replaced in place by the pre-filter's estimates
