@@ -201,3 +201,40 @@ def test_combined_hands_over_the_mpf_slope(fmu_paths):
     # measured +4.7 / +5.4 % (seed 0); seeds 1-3: +1.8 to +6.1 %; bound 2.8x
     assert sf == pytest.approx(true_slope, rel=0.15) and sr == pytest.approx(true_slope, rel=0.15)
     assert est.prior0.slope()[0] < 0.2 * true_slope  # the paper's prior (peak 0.05) is far below
+
+
+def _slip_stretch(force_hold: str, seeds=(0, 1, 3)) -> float:
+    """The posterior-mean slip angles against the truth's over 4-20 s of friction-snow (tensor
+    basis, N = 100): the least-squares factor e = s a_true, averaged over both axles and the seeds."""
+    from tirefilter.cosim.fmu import VehicleFMU
+    from tirefilter.io.results import result_columns
+
+    factors = []
+    for seed in seeds:
+        est = build_estimator("gpssm", SCENARIO, model="auto", particles=100,
+                              config={"gpssm": {"force_hold": force_hold}})
+        slips, step = [], est.step
+
+        def record(t, u, y, step=step, est=est):
+            e = step(t, u, y)
+            slips.append(est.mean_slip)
+            return e
+
+        est.step = record
+        _, rows = run_scenario(replace(SCENARIO, duration=20.0), estimator=est, seed=seed, keep_rows=True)
+        cols = dict(zip(result_columns(VehicleFMU().output_names), rows.T))
+        m = cols["t"] >= 4.0
+        for axle, est_slip in zip("fr", np.array(slips)[m].T):
+            true = cols[f"true_alpha_{axle}"][m]
+            factors.append(float(true @ est_slip / (true @ true)))
+    return float(np.mean(factors))
+
+
+# measured: linear 1.0037 (the seeds' single factors 0.95-1.04), zero (the paper's held forces) 1.063; bound 3x
+def test_the_slip_angles_are_not_stretched(fmu_paths):
+    """The forces interpolated linearly between samples (`force_hold = "linear"`, derivations F4):
+    the filter's slip angles follow the truth's without the stretch of the held forces (the held
+    a^Y lags the sampled one by half a step, and v^Y integrates the lag into a v^Y error in phase
+    with v^Y, 6 % of the slip on this drive)."""
+    assert abs(_slip_stretch("linear") - 1.0) < 0.012
+    assert _slip_stretch("zero") - 1.0 > 0.04

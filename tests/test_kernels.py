@@ -154,16 +154,16 @@ def test_friction_gpssm_backends_equal(kind, symmetry, m, stats, snapshots):
     assert_equal_to_rounding(fa.mu_r_std, fb.mu_r_std, "mu_r_std", rtol)
 
 
-@pytest.mark.parametrize("measurement_friction", ["learned", "prior"])
-def test_friction_gpssm_backends_equal_state_noise_and_prior_measurement(measurement_friction):
+@pytest.mark.parametrize("measurement_friction,force_hold", [("learned", "linear"), ("prior", "zero")])
+def test_friction_gpssm_backends_equal_state_noise_and_prior_measurement(measurement_friction, force_hold):
     """The compiled step's other branches: state noise (drawn between propagation and the
-    slip angles), the paper's prior-only measurement (zeta drawn from the predictive) and
-    missing samples."""
+    slip angles), the paper's prior-only measurement (zeta drawn from the predictive), the
+    paper's held forces and missing samples."""
     vehicle = load_scenario("friction-snow").vehicle
     runs = {}
     for backend in ("numpy", "numba"):
         cfg = GPSSMConfig(particles=37, backend=backend, resample_threshold=1.0, state_noise=(0.02, 0.002),
-                          measurement_friction=measurement_friction)
+                          measurement_friction=measurement_friction, force_hold=force_hold)
         est = FrictionGPSSM(vehicle, cfg)
         runs[backend] = (_drive(est, 20, 6, missing=True), est)
     (a, fast), (b, ref) = runs["numba"], runs["numpy"]

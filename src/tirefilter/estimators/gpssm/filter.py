@@ -12,7 +12,7 @@ replay's slope from the vehicle file); `combined` sets its slope from the stiffn
 One step at sample k (the order of docs/derivations.md, "The filter step": weight with the current predictive, resample,
 then update the statistics with the same sample that drives the state):
   1. propagate x_k = x_{k-1} + T_s f(x_{k-1}, u_{k-1}, mu_{k-1}) (eq. (1), Euler with the
-     friction held, sub-steps of at most `max_step`), forget the statistics (eq. (29));
+     friction held, sub-steps of at most `max_step`: `dynamics`), forget the statistics (eq. (29));
   2. slip angles alpha_k (eq. (4)), clipped to [-L, L] (counted), features phi(alpha_k);
   3. predictive of zeta_k = A phi + w integrating A and Q (eq. (31)-(32), multivariate t);
      measurement y = [a^Y, r] (eq. (8)): a^Y = (F^z_f mu_f cos delta + F^z_r mu_r) / m with
@@ -21,8 +21,10 @@ then update the statistics with the same sample that drives the state):
      yaw-rate likelihood (eq. (22)); normalise, resample when ESS < threshold (Algorithm 1, 6-10);
   5. draw zeta_k from its t conditional given the a^Y residual (the locally optimal
      proposal for the a^Y part; "prior": from the predictive), update the statistics with
-     (zeta_k, phi(alpha_k)) while learning (eq. (27)/(28)); mu_k = mu~(alpha_k) + zeta_k; the
-     bias filters given mu_k and r_k (docs/derivations.md, "F7. IMU bias").
+     (zeta_k, phi(alpha_k)) while learning (eq. (27)/(28)); mu_k = mu~(alpha_k) + zeta_k; with
+     `force_hold = "linear"` x_k gains what the forces' linear growth from mu_{k-1} to mu_k adds
+     over the step (`dynamics.linear_hold_remainder`, docs/derivations.md, "F4. The filter
+     step"); the bias filters given mu_k and r_k (docs/derivations.md, "F7. IMU bias").
 Around the step: v^X from the wheel speeds where there is no vx input (`speed`), and the
 divergence supervision (`supervision`, "F9. Divergence: detection and recovery").
 """
@@ -38,6 +40,7 @@ from scipy.special import gammaln
 
 from tirefilter.errors import ConfigError
 from tirefilter.estimators.base import Estimate, FrictionCurve, Inputs, Measurement, Posterior
+from tirefilter.estimators.gpssm.dynamics import force_rates, linear_hold_remainder, propagate
 from tirefilter.estimators.gpssm.bias import AY, AY_VAR, R, R_VAR, bias_moments, bias_predict, bias_prior, bias_update
 from tirefilter.estimators.gpssm.speed import WheelSpeedVx
 from tirefilter.estimators.gpssm.supervision import CAUSES, Checkpoints, Divergence, DivergenceMonitor
@@ -96,6 +99,9 @@ class GPSSMConfig:
     gate_speed: float = 5.0  # m/s: below this nothing is learned (as the stiffness MPF)
     sample_period: float = 0.04  # s
     max_step: float = 0.01  # s, longest Euler sub-step
+    # the tire forces between two samples: "linear" between the frictions drawn at the two (first-order hold,
+    # derivations, "F4. The filter step"), "zero": the friction drawn at the first held over the step (eq. (7))
+    force_hold: str = "linear"
     # IMU bias of a^Y and the yaw rate (the stiffness MPF's sensor model, derivations, "F7. IMU bias"): prior std
     # and random walk per sqrt(s), a Kalman filter per particle and channel; all zero: no bias model (the paper)
     bias0_std: tuple[float, float] = MEMS_BIAS0_STD[1:]  # a^Y [m/s^2], yaw rate [rad/s]
@@ -140,6 +146,8 @@ class GPSSMConfig:
             bad("backend", f"expected numba or numpy, got {self.backend!r}")
         if self.prior_slope not in ("peak", "vehicle"):
             bad("prior_slope", f"expected peak or vehicle, got {self.prior_slope!r}")
+        if self.force_hold not in ("linear", "zero"):
+            bad("force_hold", f"expected linear or zero, got {self.force_hold!r}")
         if self.band not in ("calibrated", "posterior"):
             bad("band", f"expected calibrated or posterior, got {self.band!r}")
         for key in ("calibration_batch", "calibration_memory"):
@@ -381,23 +389,10 @@ class FrictionGPSSM:
         v = self.vehicle
         return slip_angles(max(vx, 1.0), x[:, 0], x[:, 1], delta, v.lf, v.lr)
 
-    def _propagate(self, x, u, dt):
-        """Eq. (1a)-(1b) with mu^x = 0 and the friction mu_k drawn at this sample held over
-        the step (zero-order hold of the tire forces, as eq. (7)), Euler sub-steps of at most
-        `max_step` for the kinematic term v^X r."""
+    def _rates(self, mu, delta: float) -> np.ndarray:
+        """(N, 2): a^Y and r' of the frictions mu at steering angle delta (`dynamics.force_rates`)."""
         v = self.vehicle
-        delta, vx = u
-        cd = math.cos(delta)
-        n = max(1, math.ceil(dt / self.cfg.max_step - 1e-9))
-        h = dt / n
-        x = x.copy()
-        Ff = self.Fz[0] * self.mu[:, 0] * cd
-        Fr = self.Fz[1] * self.mu[:, 1]
-        ay, rdot = (Ff + Fr) / v.mass, (v.lf * Ff - v.lr * Fr) / v.yaw_inertia
-        for _ in range(n):
-            x[:, 0] += h * (ay - vx * x[:, 1])
-            x[:, 1] += h * rdot
-        return x
+        return force_rates(mu, math.cos(delta), self.Fz, v.mass, v.lf, v.lr, v.yaw_inertia)
 
     def _features(self, af, ar):
         """phi(alpha): tensor (N, size); axle (N, 2, size)."""
@@ -468,6 +463,7 @@ class FrictionGPSSM:
         """The numpy reference step (the module docstring's steps 1-5)."""
         cfg, N, rng = self.cfg, self.cfg.particles, self.rng
         lam = 1.0  # the forgetting factor of this step (1: none)
+        held = None  # the rates a^Y, r' held over the step from k-1 (none at the first sample)
 
         # 1. propagate with the friction drawn at k-1, forget (eq. (29)); the bias's random walk
         if self.t_prev is None:
@@ -477,7 +473,8 @@ class FrictionGPSSM:
             dt = t - self.t_prev
             if dt <= 0:
                 raise ConfigError("inputs", "t", f"time must increase: {t} after {self.t_prev}")
-            self.x = self._propagate(self.x, self.u_prev, dt)
+            held = self._rates(self.mu, self.u_prev[0])  # 1. eq. (1) with the friction mu_{k-1} held
+            self.x = propagate(self.x, held, self.u_prev[1], dt, cfg.max_step)
             sn = np.asarray(cfg.state_noise, float)
             if np.any(sn > 0):
                 self.x = self.x + math.sqrt(dt) * sn * rng.standard_normal(self.x.shape)
@@ -539,6 +536,7 @@ class FrictionGPSSM:
         if ess < cfg.resample_threshold * N:
             idx = systematic_resample(self.logw, rng)
             self.x, self.stats, self.bias = self.x[idx], self.stats.take(idx), self.bias[idx]
+            held = None if held is None else held[idx]
             af, ar, phi, pf, pr, loc, S, dof = (a[idx] for a in (af, ar, phi, pf, pr, loc, S, dof))
             if have_ay and learned:
                 Sc, s_y, e = Sc[idx], s_y[idx], e[idx]
@@ -567,6 +565,8 @@ class FrictionGPSSM:
             self.mean_slip = (mf, mr)
         self.lam_step = lam
         self.mu = np.stack([pf, pr], axis=1) + zeta
+        if held is not None and cfg.force_hold == "linear":  # the forces linear from mu_{k-1} to mu_k over the step
+            self.x += linear_hold_remainder(held, self._rates(self.mu, delta), float(self.u_prev[1]), dt)
         if self.bias_on:
             self._bias_update(y, self.mu @ c if learned else c[0] * pf + c[1] * pr)
         self.t_prev, self.u_prev, self.last_t = t, uk, t
