@@ -328,11 +328,13 @@ class CompiledStep:
         else:  # t_draws' generator calls for a common dof, without its checks
             z, u = rng.standard_normal((N, 2)), rng.chisquare(c, (N,))
         exact_active = active and self.exact
+        r_seen = est.x[:, 1].copy() if est.bias_on else None  # the yaw rate the weights saw (`_bias_update`)
         m0, m1, s0, s1, mf, mr, vf, vr = sample(est.x, work, est.logw, z, u, self.zeta, est.mu, conditional,
                                                 exact_active, self.phi_p,
                                                 (linear, dt, vx_prev, math.cos(delta), self.veh))
         if est.bias_on:  # the bias given the trajectory (`FrictionGPSSM._bias_update`)
-            est._bias_update(y, est.mu @ np.array([c0, c1]) if learned else c0 * work[:, PF] + c1 * work[:, PR])
+            est._bias_update(y, est.mu @ np.array([c0, c1]) if learned else c0 * work[:, PF] + c1 * work[:, PR],
+                             r_seen)
         if active:
             if self.exact:  # applied in the next step's pass over the statistics (or by `flush`)
                 self.pending = True

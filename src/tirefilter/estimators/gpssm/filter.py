@@ -565,21 +565,23 @@ class FrictionGPSSM:
             self.mean_slip = (mf, mr)
         self.lam_step = lam
         self.mu = np.stack([pf, pr], axis=1) + zeta
+        r_seen = self.x[:, 1].copy()  # the yaw rate the weights saw (before the linear hold's remainder)
         if held is not None and cfg.force_hold == "linear":  # the forces linear from mu_{k-1} to mu_k over the step
             self.x += linear_hold_remainder(held, self._rates(self.mu, delta), float(self.u_prev[1]), dt)
         if self.bias_on:
-            self._bias_update(y, self.mu @ c if learned else c[0] * pf + c[1] * pr)
+            self._bias_update(y, self.mu @ c if learned else c[0] * pf + c[1] * pr, r_seen)
         self.t_prev, self.u_prev, self.last_t = t, uk, t
         return self._estimate(ess, vx)
 
-    def _bias_update(self, y: Measurement, h_ay: np.ndarray) -> None:
+    def _bias_update(self, y: Measurement, h_ay: np.ndarray, r: np.ndarray) -> None:
         """The bias's Kalman update given each particle's trajectory (derivations, "F7. IMU
         bias"): a^Y against the particle's h_ay = c . mu_k ("learned": mu~ + zeta_k; "prior":
-        mu~ alone, the measurement the weights used), the yaw rate against its r_k."""
+        mu~ alone, the measurement the weights used), the yaw rate against the r_k the weights
+        used (before the linear hold's remainder, "F4. The filter step")."""
         if math.isfinite(y.ay):
             bias_update(self.bias, AY, y.ay - h_ay, float(self.R[0]))
         if math.isfinite(y.yaw_rate):
-            bias_update(self.bias, R, y.yaw_rate - self.x[:, 1], float(self.R[1]))
+            bias_update(self.bias, R, y.yaw_rate - r, float(self.R[1]))
 
     def _combined_prior(self, t: float) -> None:
         """Combined pipeline: until the handover the prior's slope follows the MPF's current
