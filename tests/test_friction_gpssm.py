@@ -205,13 +205,13 @@ def test_combined_hands_over_the_mpf_slope(fmu_paths):
 
 def _slip_stretch(force_hold: str, seeds=(0, 1, 3)) -> float:
     """The posterior-mean slip angles against the truth's over 4-20 s of friction-snow (tensor
-    basis, N = 100): the least-squares factor e = s a_true, averaged over both axles and the seeds."""
+    basis, N = 200): the least-squares factor e = s a_true, averaged over both axles and the seeds."""
     from tirefilter.cosim.fmu import VehicleFMU
     from tirefilter.io.results import result_columns
 
     factors = []
     for seed in seeds:
-        est = build_estimator("gpssm", SCENARIO, model="auto", particles=100,
+        est = build_estimator("gpssm", SCENARIO, model="auto", particles=200,
                               config={"gpssm": {"force_hold": force_hold}})
         slips, step = [], est.step
 
@@ -230,11 +230,11 @@ def _slip_stretch(force_hold: str, seeds=(0, 1, 3)) -> float:
     return float(np.mean(factors))
 
 
-# measured: linear 1.0037 (the seeds' single factors 0.95-1.04), zero (the paper's held forces) 1.063; bound 3x
+# measured: linear 0.9905 (the seeds' single factors 0.97-1.01), zero (the paper's held forces) 1.062; bound 3x
 def test_the_slip_angles_are_not_stretched(fmu_paths):
-    """The forces interpolated linearly between samples (`force_hold = "linear"`, derivations F4):
-    the filter's slip angles follow the truth's without the stretch of the held forces (the held
-    a^Y lags the sampled one by half a step, and v^Y integrates the lag into a v^Y error in phase
+    """The forces growing linearly over the step (`force_hold = "linear"`, derivations F4): the
+    filter's slip angles follow the truth's without the stretch of the held forces (the held a^Y
+    lags the sampled one by half a step, and v^Y integrates the lag into a v^Y error in phase
     with v^Y, 6 % of the slip on this drive)."""
-    assert abs(_slip_stretch("linear") - 1.0) < 0.012
+    assert abs(_slip_stretch("linear") - 1.0) < 0.03
     assert _slip_stretch("zero") - 1.0 > 0.04

@@ -58,13 +58,13 @@ def _drive(est, steps, *, ay_missing=False, b_ay=0.3, b_r=0.01):
     """A slalom at 15 m/s, 25 Hz, from a linear single track, with the IMU offsets b_ay, b_r;
     returns per step the inputs and each particle's trajectory (the r_k its weights saw and the
     a^Y its friction gives, c_k . mu_k) after the step. With the forces linear between samples
-    (derivations F4) the weights see r_k before the remainder r'-change x T_s / 2, which is
-    taken off the state here (no resampling: each row stays one particle)."""
+    (derivations F4) the weights see the r_k of the held step, r_{k-1} + T_s r'(mu_{k-1}), before
+    the remainder is added (no resampling: each row stays one particle)."""
     rng = np.random.default_rng(7)
     est.reset(np.random.default_rng(3))
     rec = []
     v = VEHICLE
-    rdot_prev = None
+    r_held = None
     for k in range(steps):
         t = 0.04 * k
         delta = 0.03 * math.sin(2 * math.pi * 0.5 * t)
@@ -73,9 +73,9 @@ def _drive(est, steps, *, ay_missing=False, b_ay=0.3, b_r=0.01):
         yr = r + b_r + 0.003 * rng.standard_normal()
         est.step(t, Inputs(delta=delta, vx=15.0), Measurement(ay=ay, yaw_rate=yr))
         c = np.array([est.Fz[0] * math.cos(delta), est.Fz[1]]) / v.mass
+        r_seen = est.x[:, 1].copy() if r_held is None else r_held
         rdot = (v.lf * est.Fz[0] * est.mu[:, 0] * math.cos(delta) - v.lr * est.Fz[1] * est.mu[:, 1]) / v.yaw_inertia
-        r_seen = est.x[:, 1] - (0.0 if rdot_prev is None else 0.5 * 0.04 * (rdot - rdot_prev))
-        rdot_prev = rdot
+        r_held = est.x[:, 1] + 0.04 * rdot  # the next sample's held step
         rec.append((t, ay, yr, r_seen, est.mu @ c, est.logw.copy()))
     return rec
 

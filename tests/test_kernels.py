@@ -757,7 +757,7 @@ def test_friction_gpssm_backends_equal_with_differing_dof(kind):
                 differ += math.isnan(common_dof(est._compiled.work, 0.0)) and np.ptp(dof) > 0
         runs[backend] = (np.array(out), est, differ)
     (a, fast, differ), (b, ref, _) = runs["numba"], runs["numpy"]
-    assert differ >= 5  # the t_draws branch was taken
+    assert differ >= 3  # the t_draws branch was taken (4 of 10 steps with the linear hold)
     assert_equal_to_rounding(a, b, "estimates")
     pa, pb = fast.posterior(), ref.posterior()
     assert_equal_to_rounding(pa.particles, pb.particles, "particles")

@@ -32,7 +32,8 @@ one path:
      `gather_lower` when the statistics are read in between): one pass over K instead of two;
   5. `sample`: the conditional Student-t draw of zeta (the locally optimal proposal), mu = mu~
      + zeta, the forces' linear hold (`force_hold = "linear"`: what their linear growth from the
-     rates `front` held to those of mu adds to x over the step), the weighted moments for the estimate and of the slip angles (the band's slip
+     rates `front` held to those of mu's conditional mean adds to x over the step), the weighted
+     moments for the estimate and of the slip angles (the band's slip
      variance) and, while the exact statistics learn, the features of the pending update; then
      the bias filters' update given mu (numpy, `FrictionGPSSM._bias_update`);
   6. `rank1_update` (rank-one statistics, eq. (27)/(28) as recursive least squares); the exact

@@ -6,8 +6,9 @@ filter step"):
     a^Y = (F^z_f mu_f cos delta + F^z_r mu_r) / m.
 
 `propagate` holds the forces of the friction drawn at the step's first sample (the paper's
-discretisation (7)); `linear_hold_remainder` is what the forces' linear interpolation to the
-friction drawn at the step's last sample adds to that (`force_hold = "linear"`)."""
+discretisation (7)); `linear_hold_remainder` is what forces growing linearly over the step add
+to that (`force_hold = "linear"`: from the friction drawn at the first sample to the
+friction's conditional mean at the last)."""
 
 from __future__ import annotations
 

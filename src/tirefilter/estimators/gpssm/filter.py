@@ -22,9 +22,9 @@ then update the statistics with the same sample that drives the state):
   5. draw zeta_k from its t conditional given the a^Y residual (the locally optimal
      proposal for the a^Y part; "prior": from the predictive), update the statistics with
      (zeta_k, phi(alpha_k)) while learning (eq. (27)/(28)); mu_k = mu~(alpha_k) + zeta_k; with
-     `force_hold = "linear"` x_k gains what the forces' linear growth from mu_{k-1} to mu_k adds
-     over the step (`dynamics.linear_hold_remainder`, docs/derivations.md, "F4. The filter
-     step"); the bias filters given mu_k and r_k (docs/derivations.md, "F7. IMU bias").
+     `force_hold = "linear"` x_k gains what the forces' linear growth from mu_{k-1} to the
+     conditional mean of mu_k adds over the step (`dynamics.linear_hold_remainder`,
+     docs/derivations.md, "F4. The filter step"); the bias filters given mu_k and r_k (docs/derivations.md, "F7. IMU bias").
 Around the step: v^X from the wheel speeds where there is no vx input (`speed`), and the
 divergence supervision (`supervision`, "F9. Divergence: detection and recovery").
 """
@@ -99,8 +99,9 @@ class GPSSMConfig:
     gate_speed: float = 5.0  # m/s: below this nothing is learned (as the stiffness MPF)
     sample_period: float = 0.04  # s
     max_step: float = 0.01  # s, longest Euler sub-step
-    # the tire forces between two samples: "linear" between the frictions drawn at the two (first-order hold,
-    # derivations, "F4. The filter step"), "zero": the friction drawn at the first held over the step (eq. (7))
+    # the tire forces between two samples: "linear" from the friction drawn at the first to the conditional mean of
+    # the friction at the second (derivations, "F4. The filter step"), "zero": the friction drawn at the first held
+    # over the step (eq. (7))
     force_hold: str = "linear"
     # IMU bias of a^Y and the yaw rate (the stiffness MPF's sensor model, derivations, "F7. IMU bias"): prior std
     # and random walk per sqrt(s), a Kalman filter per particle and channel; all zero: no bias model (the paper)
@@ -550,6 +551,7 @@ class FrictionGPSSM:
             scale_c = ((dof + e * e / s_y) / (dof + 1.0))[:, None, None] * (S - Sc[:, :, None] * g[:, None, :])
             zeta = t_sample(loc_c, 0.5 * (scale_c + np.swapaxes(scale_c, 1, 2)), dof + 1.0, rng)
         else:
+            loc_c = loc
             zeta = t_sample(loc, S, dof, rng)
         if self.active:
             self.stats.update(zeta if self.d == 2 else zeta[:, :, None], phi)
@@ -566,8 +568,9 @@ class FrictionGPSSM:
         self.lam_step = lam
         self.mu = np.stack([pf, pr], axis=1) + zeta
         r_seen = self.x[:, 1].copy()  # the yaw rate the weights saw (before the linear hold's remainder)
-        if held is not None and cfg.force_hold == "linear":  # the forces linear from mu_{k-1} to mu_k over the step
-            self.x += linear_hold_remainder(held, self._rates(self.mu, delta), float(self.u_prev[1]), dt)
+        if held is not None and cfg.force_hold == "linear":  # the forces linear from mu_{k-1} to E[mu_k] over the step
+            mean = np.stack([pf, pr], axis=1) + loc_c  # the friction's conditional mean at sample k
+            self.x += linear_hold_remainder(held, self._rates(mean, delta), float(self.u_prev[1]), dt)
         if self.bias_on:
             self._bias_update(y, self.mu @ c if learned else c[0] * pf + c[1] * pr, r_seen)
         self.t_prev, self.u_prev, self.last_t = t, uk, t

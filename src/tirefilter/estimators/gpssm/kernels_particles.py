@@ -206,8 +206,9 @@ def sample(x, work, logw, z, u, zeta, mu, conditional, keep_phi, phi_p, hold):
     """zeta ~ St (the t conditional given the a^Y residual when `conditional`, else the
     predictive) from z ~ N(0, I), u ~ chi2(dof'), as `student_t.t_sample`; mu = mu~ + zeta.
     hold = (linear, dt, vx_prev, cd, veh): with `linear` x gains what the forces' linear growth
-    from the held rates work[:, HELD:HELD + 2] to those of mu (cos delta_k = cd, veh as `front`'s)
-    adds over the step dt (`gpssm.dynamics.linear_hold_remainder`). Returns the weighted means and std of x and the weighted means and variances of the
+    over the step dt from the held rates work[:, HELD:HELD + 2] to those of the friction's
+    conditional mean mu~ + the draw's location (cos delta_k = cd, veh as `front`'s) adds
+    (`gpssm.dynamics.linear_hold_remainder`). Returns the weighted means and std of x and the weighted means and variances of the
     (clipped) slip angles."""
     linear, dt, vx_prev, cd, veh = hold
     Fz0, Fz1, mass, lf, lr, Iz = veh
@@ -234,8 +235,8 @@ def sample(x, work, logw, z, u, zeta, mu, conditional, keep_phi, phi_p, hold):
         mu[i, 0] = work[i, PF] + zeta[i, 0]
         mu[i, 1] = work[i, PR] + zeta[i, 1]
         if linear:
-            Ff = Fz0 * mu[i, 0] * cd
-            Fr = Fz1 * mu[i, 1]
+            Ff = Fz0 * (work[i, PF] + l0) * cd
+            Fr = Fz1 * (work[i, PR] + l1)
             da = (Ff + Fr) / mass - work[i, HELD]
             dr = (lf * Ff - lr * Fr) / Iz - work[i, HELD + 1]
             x[i, 0] += 0.5 * dt * da - vx_prev * dt * dt / 6.0 * dr
