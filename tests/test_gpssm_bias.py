@@ -87,7 +87,8 @@ def test_each_particles_bias_is_the_batch_posterior_given_its_trajectory(backend
     its own trajectory: its bias mean and variance of both channels equal the batch posterior
     of the random walk given the residuals y^Y - c . mu_k and y^r - r_k of that trajectory."""
     cfg = GPSSMConfig(particles=6, basis="axle", basis_functions=8, backend=backend, resample_threshold=0.0,
-                      supervise=False, bias0_std=(0.3, 0.01), bias_rw=(0.002, 1e-4), sigma=(0.05, 0.003))
+                      supervise=False, bias0_std=(0.3, 0.01), bias_rw=(0.002, 1e-4), sigma=(0.05, 0.003),
+                      force_hold="linear")
     est = FrictionGPSSM(VEHICLE, cfg)
     rec = _drive(est, 60)
     assert est.resamples == 0 and est.bias_on
@@ -107,7 +108,8 @@ def test_the_yaw_rate_weights_are_the_marginal_likelihood_with_the_bias_integrat
     resampling the log-weight differences between particles equal those of the batch marginal
     likelihood of each trajectory's residuals y^r - r_k (bias integrated out)."""
     cfg = GPSSMConfig(particles=5, basis="axle", basis_functions=8, backend=backend, resample_threshold=0.0,
-                      supervise=False, bias0_std=(0.3, 0.01), bias_rw=(0.002, 1e-4), sigma=(0.05, 0.003))
+                      supervise=False, bias0_std=(0.3, 0.01), bias_rw=(0.002, 1e-4), sigma=(0.05, 0.003),
+                      force_hold="linear")
     est = FrictionGPSSM(VEHICLE, cfg)
     rec = _drive(est, 30, ay_missing=True)
     t = np.array([r[0] for r in rec])

@@ -99,10 +99,10 @@ class GPSSMConfig:
     gate_speed: float = 5.0  # m/s: below this nothing is learned (as the stiffness MPF)
     sample_period: float = 0.04  # s
     max_step: float = 0.01  # s, longest Euler sub-step
-    # the tire forces between two samples: "linear" from the friction drawn at the first to the conditional mean of
-    # the friction at the second (derivations, "F4. The filter step"), "zero": the friction drawn at the first held
-    # over the step (eq. (7))
-    force_hold: str = "linear"
+    # the tire forces between two samples: "zero": the friction drawn at the first held over the step (eq. (7));
+    # "linear": from the friction drawn at the first to the conditional mean of the friction at the second
+    # (derivations, "F4. The filter step": no stretch of the slips at 25 Hz, worse on the 100 Hz peer drives)
+    force_hold: str = "zero"
     # IMU bias of a^Y and the yaw rate (the stiffness MPF's sensor model, derivations, "F7. IMU bias"): prior std
     # and random walk per sqrt(s), a Kalman filter per particle and channel; all zero: no bias model (the paper)
     bias0_std: tuple[float, float] = MEMS_BIAS0_STD[1:]  # a^Y [m/s^2], yaw rate [rad/s]
