@@ -1,6 +1,6 @@
 """The GP-SSM's dynamics between two samples (`gpssm.dynamics`) against a brute-force
 integration of the same ODE: the held forces (the paper's discretisation (7)) and the forces
-interpolated linearly between the frictions of the two samples (`force_hold = "linear"`)."""
+growing linearly over the step (`force_hold = "linear"`)."""
 
 from __future__ import annotations
 
@@ -70,3 +70,27 @@ def test_remainder_is_linear_in_the_change_and_zero_without_one():
     np.testing.assert_array_equal(linear_hold_remainder(r0, r0, 15.0, 0.04), np.zeros((3, 2)))
     np.testing.assert_allclose(linear_hold_remainder(r0, r0 + 2 * d, 15.0, 0.04),
                                2 * linear_hold_remainder(r0, r0 + d, 15.0, 0.04), rtol=1e-13, atol=1e-16)
+
+
+def test_held_forces_lag_half_a_step_and_the_linear_hold_does_not():
+    """The held forces' lag (derivations F4): with a^Y = A sin(w t) and no
+    yaw (r' = 0), the held forces' v^Y after k steps is the left Riemann sum of a^Y, whose error
+    against the exact integral is -(T_s / 2) (a^Y(t_k) - a^Y(0)) up to the Euler-Maclaurin term
+    (T_s^2 / 12) |a'(t_k) - a'(0)| <= T_s^2 A w / 6 and the next one, T_s^4 A w^3 / 360; the
+    linear hold's is those terms alone."""
+    A, w, T, vx = 1.0, 2 * np.pi / 4.0, 0.04, 12.0
+    t = np.arange(0, 101) * T
+    a = A * np.sin(w * t)
+    rates = np.stack([a, np.zeros_like(a)], axis=1)
+    x_held = np.zeros((1, 2))
+    x_linear = np.zeros((1, 2))
+    bound = T * T * A * w / 6.0 + T**4 * A * w**3 / 360.0
+    for k in range(1, len(t)):
+        x_held = propagate(x_held, rates[k - 1:k], vx, T, T)
+        x_linear = (propagate(x_linear, rates[k - 1:k], vx, T, T)
+                    + linear_hold_remainder(rates[k - 1:k], rates[k:k + 1], vx, T))
+        exact = A / w * (1.0 - np.cos(w * t[k]))
+        assert abs(x_held[0, 0] - exact + 0.5 * T * (a[k] - a[0])) <= bound + 1e-10
+        assert abs(x_linear[0, 0] - exact) <= bound + 1e-10
+    assert 0.5 * T * A > 20 * bound  # the lag is what matters, not the bound
+
