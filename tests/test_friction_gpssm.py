@@ -238,3 +238,52 @@ def test_the_slip_angles_are_not_stretched(fmu_paths):
     with v^Y, 6 % of the slip on this drive)."""
     assert abs(_slip_stretch("linear") - 1.0) < 0.03
     assert _slip_stretch("zero") - 1.0 > 0.04
+
+
+def test_lag_shift_is_the_forgotten_mean_of_the_slip_errors_smoothed():
+    """`lag_shift` against its definition written out: the learning samples' signed held-force
+    slip errors, forgotten with the statistics' factor, per grid bin of the mean slip, smoothed with
+    the kernel's length-scale and divided by the smoothed forgotten count."""
+    est = FrictionGPSSM(SCENARIO.vehicle, GPSSMConfig(particles=4, basis="axle"))
+    est.reset(np.random.default_rng(0))
+    rng = np.random.default_rng(1)
+    G = len(est.grid)
+    W, S = np.zeros((2, G)), np.zeros((2, G))
+    for _ in range(30):
+        lam, jf, jr, e = float(rng.uniform(0.9, 1.0)), int(rng.integers(G)), int(rng.integers(G)), float(rng.normal())
+        est._slip_spread(lam, jf, jr, 0.0, 0.0, e)
+        W *= lam
+        S *= lam
+        W[0, jf] += 1.0
+        W[1, jr] += 1.0
+        S[0, jf] += e
+        S[1, jr] += e
+    k = np.exp(-0.5 * ((est.grid[:, None] - est.grid[None, :]) / est.cfg.lengthscale) ** 2)
+    want = (S @ k.T) / (W @ k.T)
+    np.testing.assert_allclose(est.lag_shift(), want, rtol=1e-12, atol=1e-15)
+
+
+def test_friction_reads_the_learned_curve_at_the_shifted_slip():
+    """With the held forces' slip error recorded, the calibrated curve and its std are the
+    uncorrected ones read at alpha + lag_shift (linear interpolation on the grid); the paper's
+    band (`band = "posterior"`) records none and reads the curve as learned."""
+    for band in ("calibrated", "posterior"):
+        est = FrictionGPSSM(SCENARIO.vehicle, GPSSMConfig(particles=20, basis="axle", band=band))
+        est.reset(np.random.default_rng(2))
+        for k in range(60):
+            d = 0.03 * math.sin(2 * math.pi * 0.5 * 0.04 * k)
+            est.step(0.04 * k, Inputs(delta=d, vx=12.0), Measurement(ay=12.0 * 12.0 * d / 2.8, yaw_rate=12.0 * d / 2.8))
+        fc = est.friction()
+        if band == "posterior":
+            assert not np.any(est._lag)
+            continue
+        shift = est.lag_shift()
+        assert np.max(np.abs(shift)) > 0.01 * DEG
+        lag = est._lag.copy()
+        est._lag[:] = 0.0
+        raw = est.friction()
+        est._lag[:] = lag
+        for mu, sd, raw_mu, raw_sd, sh in ((fc.mu_f, fc.mu_f_std, raw.mu_f, raw.mu_f_std, shift[0]),
+                                           (fc.mu_r, fc.mu_r_std, raw.mu_r, raw.mu_r_std, shift[1])):
+            np.testing.assert_allclose(mu, np.interp(fc.alpha + sh, fc.alpha, raw_mu), rtol=1e-12, atol=1e-15)
+            np.testing.assert_allclose(sd, np.interp(fc.alpha + sh, fc.alpha, raw_sd), rtol=1e-12, atol=1e-15)

@@ -333,6 +333,7 @@ class CompiledStep:
         m0, m1, s0, s1, mf, mr, vf, vr = sample(est.x, work, est.logw, z, u, self.zeta, est.mu, conditional,
                                                 exact_active, self.phi_p,
                                                 (linear, dt, vx_prev, math.cos(delta), self.veh))
+        lag = est._hold_slip_error(t, y, vx) if active else 0.0  # (with the bias before its update, as the reference)
         if est.bias_on:  # the bias given the trajectory (`FrictionGPSSM._bias_update`)
             est._bias_update(y, est.mu @ np.array([c0, c1]) if learned else c0 * work[:, PF] + c1 * work[:, PR],
                              r_seen)
@@ -350,7 +351,7 @@ class CompiledStep:
                 path[0, jf, 1] += mr
                 path[1, jr, 0] += 1.0
                 path[1, jr, 1] += mf
-            est._slip_spread(lam if forget else 1.0, jf, jr, vf, vr)
+            est._slip_spread(lam if forget else 1.0, jf, jr, vf, vr, lag)
             est.mean_slip = (mf, mr)
         est.lam_step = lam if forget else 1.0
         est.t_prev, est.u_prev, est.last_t = t, uk, t

@@ -364,6 +364,8 @@ class FrictionGPSSM:
         # the slip's posterior variance at the learning samples, per axle and grid bin of the mean slip, forgotten
         # as the statistics: [weight, weighted sum of the variance] (`_slip_spread`, `slip_variance`)
         self._spread = np.zeros((2, len(self.grid), 2))
+        # the held forces' signed slip error at the learning samples, per axle and bin, forgotten alike (`lag_shift`)
+        self._lag = np.zeros((2, len(self.grid)))
         self._slope = (NAN, NAN, NAN, NAN)
         self._dphi0 = self._slope_features()
         if cfg.backend == "numba":
@@ -563,7 +565,8 @@ class FrictionGPSSM:
             if self.d == 2:  # the visited path: mean alpha_r per alpha_f bin and vice versa
                 self._path[0, jf] += (1.0, mr)
                 self._path[1, jr] += (1.0, mf)
-            self._slip_spread(lam, jf, jr, float(q @ (af - mf) ** 2), float(q @ (ar - mr) ** 2))
+            self._slip_spread(lam, jf, jr, float(q @ (af - mf) ** 2), float(q @ (ar - mr) ** 2),
+                              self._hold_slip_error(t, y, vx))
             self.mean_slip = (mf, mr)
         self.lam_step = lam
         self.mu = np.stack([pf, pr], axis=1) + zeta
@@ -731,13 +734,27 @@ class FrictionGPSSM:
         g = self._grid_list
         return min(bisect_left(g, a) if a == a else len(g), len(g) - 1)
 
-    def _slip_spread(self, lam: float, jf: int, jr: int, var_f: float, var_r: float) -> None:
+    def _hold_slip_error(self, t: float, y: Measurement, vx: float) -> float:
+        """The held forces' slip error at this sample, (T_s / 2) a^Y / v^X (a^Y the measured one
+        less the mean bias, T_s the step just taken): the held force lags the sampled a^Y by half a
+        step and v^Y integrates the lag into -(T_s / 2) a^Y, so both slips come out (T_s / 2) a^Y
+        / v^X too large (derivations, "F4. The filter step"). 0 with the linear hold, at the first
+        sample, without a^Y and with the paper's band."""
+        if self.cfg.force_hold != "zero" or self.t_prev is None or not math.isfinite(y.ay) or self._calib is None:
+            return 0.0
+        ay = y.ay - (self.bias_mean()[0] if self.bias_on else 0.0)
+        return 0.5 * (t - self.t_prev) * ay / max(vx, 1.0)
+
+    def _slip_spread(self, lam: float, jf: int, jr: int, var_f: float, var_r: float, lag: float = 0.0) -> None:
         """A learning sample's posterior variance of the slip angles (var_f, var_r: over the
         particles, after resampling) into the grid bins jf, jr of their means, the older ones
         forgotten with the statistics' factor lam (derivations, "F5. The friction estimate")."""
         sp = self._spread
         if lam != 1.0:
             sp *= lam
+            self._lag *= lam
+        self._lag[0, jf] += lag
+        self._lag[1, jr] += lag
         sp[0, jf, 0] += 1.0
         sp[0, jf, 1] += var_f
         sp[1, jr, 0] += 1.0
@@ -752,6 +769,14 @@ class FrictionGPSSM:
             d = (self.grid[:, None] - self.grid[None, :]) / self.cfg.lengthscale
             self._smoother = np.exp(-0.5 * d * d)
         num = self._spread[:, :, 1] @ self._smoother.T
+        den = self._spread[:, :, 0] @ self._smoother.T
+        return np.where(den > 1e-12, num / np.maximum(den, 1e-300), 0.0)
+
+    def lag_shift(self) -> np.ndarray:
+        """(2, G): per axle and grid point the mean held-force slip error of the learning samples
+        near it (`_hold_slip_error`), smoothed as `slip_variance` (0 where none is near)."""
+        self.slip_variance()  # (the smoother)
+        num = self._lag @ self._smoother.T
         den = self._spread[:, :, 0] @ self._smoother.T
         return np.where(den > 1e-12, num / np.maximum(den, 1e-300), 0.0)
 
@@ -802,11 +827,16 @@ class FrictionGPSSM:
             slope = np.stack([np.gradient(pf + mbar[:, 0], g), np.gradient(pr + mbar[:, 1], g)], axis=1)
             vbar = vbar + slope**2 * self.slip_variance().T
         std = np.sqrt(np.maximum(vbar, 0.0))
+        mu = np.stack([pf + mbar[:, 0], pr + mbar[:, 1]], axis=1)
+        if calibrated and np.any(self._lag):  # the held forces' slip error: the truth at alpha was learned at alpha + lag
+            shift = self.lag_shift()
+            for a in range(2):
+                mu[:, a], std[:, a] = np.interp(g + shift[a], g, mu[:, a]), np.interp(g + shift[a], g, std[:, a])
         M, _ = self.stats.posterior()
         self._curve_slope(q, M)
         vis = tuple(float(v) if math.isfinite(v) else NAN for v in self.visited)
-        return FrictionCurve(t=float(self.last_t), alpha=g.copy(), mu_f=pf + mbar[:, 0], mu_f_std=std[:, 0],
-                             mu_r=pr + mbar[:, 1], mu_r_std=std[:, 1], visited=vis)
+        return FrictionCurve(t=float(self.last_t), alpha=g.copy(), mu_f=mu[:, 0], mu_f_std=std[:, 0],
+                             mu_r=mu[:, 1], mu_r_std=std[:, 1], visited=vis)
 
     def _calibrated_variance(self, phi_axles, tau) -> np.ndarray:
         """(N, G, 2): per particle and axle a the posterior variance of A phi given the
