@@ -275,14 +275,14 @@ def test_friction_reads_the_learned_curve_at_the_shifted_slip():
             est.step(0.04 * k, Inputs(delta=d, vx=12.0), Measurement(ay=12.0 * 12.0 * d / 2.8, yaw_rate=12.0 * d / 2.8))
         fc = est.friction()
         if band == "posterior":
-            assert not np.any(est._lag)
+            assert not np.any(est.slips.lag)
             continue
         shift = est.lag_shift()
         assert np.max(np.abs(shift)) > 0.01 * DEG
-        lag = est._lag.copy()
-        est._lag[:] = 0.0
+        lag = est.slips.lag.copy()
+        est.slips.lag[:] = 0.0
         raw = est.friction()
-        est._lag[:] = lag
+        est.slips.lag[:] = lag
         for mu, sd, raw_mu, raw_sd, sh in ((fc.mu_f, fc.mu_f_std, raw.mu_f, raw.mu_f_std, shift[0]),
                                            (fc.mu_r, fc.mu_r_std, raw.mu_r, raw.mu_r_std, shift[1])):
             np.testing.assert_allclose(mu, np.interp(fc.alpha + sh, fc.alpha, raw_mu), rtol=1e-12, atol=1e-15)

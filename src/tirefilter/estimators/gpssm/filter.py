@@ -40,8 +40,9 @@ from scipy.special import gammaln
 
 from tirefilter.errors import ConfigError
 from tirefilter.estimators.base import Estimate, FrictionCurve, Inputs, Measurement, Posterior
-from tirefilter.estimators.gpssm.dynamics import force_rates, linear_hold_remainder, propagate
 from tirefilter.estimators.gpssm.bias import AY, AY_VAR, R, R_VAR, bias_moments, bias_predict, bias_prior, bias_update
+from tirefilter.estimators.gpssm.dynamics import force_rates, linear_hold_remainder, propagate
+from tirefilter.estimators.gpssm.slip_record import SlipRecord
 from tirefilter.estimators.gpssm.speed import WheelSpeedVx
 from tirefilter.estimators.gpssm.supervision import CAUSES, Checkpoints, Divergence, DivergenceMonitor
 from tirefilter.estimators.sensors import MEMS_BIAS0_STD, MEMS_BIAS_RW
@@ -361,11 +362,8 @@ class FrictionGPSSM:
         self.last_t = NAN
         self.prediction = (NAN, NAN)  # one-step-ahead (a^Y, r) before the last measurement
         self._path = np.zeros((2, len(self.grid), 2))  # (axle, grid bin, [count, sum of the other slip])
-        # the slip's posterior variance at the learning samples, per axle and grid bin of the mean slip, forgotten
-        # as the statistics: [weight, weighted sum of the variance] (`_slip_spread`, `slip_variance`)
-        self._spread = np.zeros((2, len(self.grid), 2))
-        # the held forces' signed slip error at the learning samples, per axle and bin, forgotten alike (`lag_shift`)
-        self._lag = np.zeros((2, len(self.grid)))
+        # the slips' posterior variance and the held forces' slip error at the learning samples (F5)
+        self.slips = SlipRecord(self.grid, cfg.lengthscale)
         self._slope = (NAN, NAN, NAN, NAN)
         self._dphi0 = self._slope_features()
         if cfg.backend == "numba":
@@ -746,39 +744,17 @@ class FrictionGPSSM:
         return 0.5 * (t - self.t_prev) * ay / max(vx, 1.0)
 
     def _slip_spread(self, lam: float, jf: int, jr: int, var_f: float, var_r: float, lag: float = 0.0) -> None:
-        """A learning sample's posterior variance of the slip angles (var_f, var_r: over the
-        particles, after resampling) into the grid bins jf, jr of their means, the older ones
-        forgotten with the statistics' factor lam (derivations, "F5. The friction estimate")."""
-        sp = self._spread
-        if lam != 1.0:
-            sp *= lam
-            self._lag *= lam
-        self._lag[0, jf] += lag
-        self._lag[1, jr] += lag
-        sp[0, jf, 0] += 1.0
-        sp[0, jf, 1] += var_f
-        sp[1, jr, 0] += 1.0
-        sp[1, jr, 1] += var_r
+        """A learning sample's slip variances and held-force slip error (`slip_record.SlipRecord.add`)."""
+        self.slips.add(lam, jf, jr, var_f, var_r, lag)
 
     def slip_variance(self) -> np.ndarray:
-        """(2, G): per axle and grid point, the posterior variance of the slip angle at the
-        learning samples near it: the forgotten sums of `_slip_spread` smoothed over the
-        grid with the kernel's length-scale, sum_b k(a - a_b) V_b / sum_b k(a - a_b) W_b
-        (0 where no learning sample is near)."""
-        if getattr(self, "_smoother", None) is None:
-            d = (self.grid[:, None] - self.grid[None, :]) / self.cfg.lengthscale
-            self._smoother = np.exp(-0.5 * d * d)
-        num = self._spread[:, :, 1] @ self._smoother.T
-        den = self._spread[:, :, 0] @ self._smoother.T
-        return np.where(den > 1e-12, num / np.maximum(den, 1e-300), 0.0)
+        """(2, G): the slip's posterior variance at the learning samples near each grid point."""
+        return self.slips.variance()
 
     def lag_shift(self) -> np.ndarray:
-        """(2, G): per axle and grid point the mean held-force slip error of the learning samples
-        near it (`_hold_slip_error`), smoothed as `slip_variance` (0 where none is near)."""
-        self.slip_variance()  # (the smoother)
-        num = self._lag @ self._smoother.T
-        den = self._spread[:, :, 0] @ self._smoother.T
-        return np.where(den > 1e-12, num / np.maximum(den, 1e-300), 0.0)
+        """(2, G): the mean held-force slip error (`_hold_slip_error`) of the learning samples near
+        each grid point."""
+        return self.slips.shift()
 
     def path(self) -> tuple[np.ndarray, np.ndarray]:
         """Tensor basis: the other axle's slip along which each axle's curve is evaluated,
@@ -828,7 +804,7 @@ class FrictionGPSSM:
             vbar = vbar + slope**2 * self.slip_variance().T
         std = np.sqrt(np.maximum(vbar, 0.0))
         mu = np.stack([pf + mbar[:, 0], pr + mbar[:, 1]], axis=1)
-        if calibrated and np.any(self._lag):  # the held forces' slip error: the truth at alpha was learned at alpha + lag
+        if calibrated and np.any(self.slips.lag):  # the held forces' slip error: the truth at alpha was learned at alpha + lag
             shift = self.lag_shift()
             for a in range(2):
                 mu[:, a], std[:, a] = np.interp(g + shift[a], g, mu[:, a]), np.interp(g + shift[a], g, std[:, a])
