@@ -2,7 +2,7 @@
 
     PYTHONPATH=src .venv/bin/python benchmarks/bench_friction.py [--parts accuracy combined real cost]
         [--trials 20] [--combined-trials 10] [--particles 200] [--out benchmarks/figures] [--workers 2]
-        [--band calibrated|posterior]
+        [--band calibrated|posterior] [--option KEY=VALUE ...]
 
 1. accuracy: friction-snow, N = 200, Ts = 40 ms, the paper's kernel (L = 30 deg, l = 2 deg,
    s_f = 500), tensor basis (the paper's, 10 x 10 of which the odd 50 are kept) and per-axle
@@ -30,6 +30,7 @@ import importlib.util
 import math
 import tempfile
 import time
+import tomllib
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 from pathlib import Path
@@ -137,7 +138,7 @@ def accuracy(args):
     results = {}
     for basis in args.bases:
         jobs = [dict(surface="snow", estimator="gpssm", particles=args.particles, seed=s,
-                     gpssm={"basis": basis, "band": args.band},
+                     gpssm=dict(args.gpssm, basis=basis, band=args.band),
                      keep_curves=(s == 0), duration=args.duration) for s in range(args.trials)]
         t0 = time.perf_counter()
         results[basis] = _map(jobs, args.workers)
@@ -254,7 +255,8 @@ def combined(args):
         groups = {}
         for name in ("gpssm", "combined"):
             jobs = [dict(surface=surface, estimator=name, particles=args.particles, seed=100 + s,
-                         gpssm={"basis": args.combined_basis, "band": args.band}, duration=args.duration)
+                         gpssm=dict(args.gpssm, basis=args.combined_basis, band=args.band),
+                         duration=args.duration)
                     for s in range(args.combined_trials)]
             res = _map(jobs, args.workers)
             peak = res[0]["peak"]
@@ -452,6 +454,8 @@ def main() -> None:
     ap.add_argument("--combined-basis", default="axle", choices=("tensor", "axle"))
     ap.add_argument("--band", default="calibrated", choices=("calibrated", "posterior"),
                     help="the band of the learned curve ([gpssm] band; posterior: eq. (30) alone)")
+    ap.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
+                    help="a [gpssm] option (TOML value) for the accuracy and combined parts, e.g. force_hold=\"zero\"")
     ap.add_argument("--particles", type=int, default=200)
     ap.add_argument("--duration", type=float, help="shorten the co-simulations to this many seconds")
     ap.add_argument("--workers", type=int, default=1)
@@ -463,6 +467,9 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=REPO / "benchmarks" / "figures")
     ap.add_argument("--no-plots", action="store_true")
     args = ap.parse_args()
+    args.gpssm = tomllib.loads("\n".join(args.option))
+    if args.gpssm:
+        print(f"[gpssm] options: {args.gpssm}")
     if "accuracy" in args.parts:
         accuracy(args)
     if "cost" in args.parts:

@@ -56,11 +56,15 @@ def test_bias_filter_equals_the_batch_posterior():
 
 def _drive(est, steps, *, ay_missing=False, b_ay=0.3, b_r=0.01):
     """A slalom at 15 m/s, 25 Hz, from a linear single track, with the IMU offsets b_ay, b_r;
-    returns per step the inputs and each particle's trajectory (r_k and the a^Y its friction
-    gives, c_k . mu_k) after the step."""
+    returns per step the inputs and each particle's trajectory (the r_k its weights saw and the
+    a^Y its friction gives, c_k . mu_k) after the step. With the forces linear between samples
+    (derivations F4) the weights see the r_k of the held step, r_{k-1} + T_s r'(mu_{k-1}), before
+    the remainder is added (no resampling: each row stays one particle)."""
     rng = np.random.default_rng(7)
     est.reset(np.random.default_rng(3))
     rec = []
+    v = VEHICLE
+    r_held = None
     for k in range(steps):
         t = 0.04 * k
         delta = 0.03 * math.sin(2 * math.pi * 0.5 * t)
@@ -68,8 +72,11 @@ def _drive(est, steps, *, ay_missing=False, b_ay=0.3, b_r=0.01):
         ay = math.nan if ay_missing else 15.0 * r + b_ay + 0.05 * rng.standard_normal()
         yr = r + b_r + 0.003 * rng.standard_normal()
         est.step(t, Inputs(delta=delta, vx=15.0), Measurement(ay=ay, yaw_rate=yr))
-        c = np.array([est.Fz[0] * math.cos(delta), est.Fz[1]]) / VEHICLE.mass
-        rec.append((t, ay, yr, est.x[:, 1].copy(), est.mu @ c, est.logw.copy()))
+        c = np.array([est.Fz[0] * math.cos(delta), est.Fz[1]]) / v.mass
+        r_seen = est.x[:, 1].copy() if r_held is None else r_held
+        rdot = (v.lf * est.Fz[0] * est.mu[:, 0] * math.cos(delta) - v.lr * est.Fz[1] * est.mu[:, 1]) / v.yaw_inertia
+        r_held = est.x[:, 1] + 0.04 * rdot  # the next sample's held step
+        rec.append((t, ay, yr, r_seen, est.mu @ c, est.logw.copy()))
     return rec
 
 
@@ -80,7 +87,8 @@ def test_each_particles_bias_is_the_batch_posterior_given_its_trajectory(backend
     its own trajectory: its bias mean and variance of both channels equal the batch posterior
     of the random walk given the residuals y^Y - c . mu_k and y^r - r_k of that trajectory."""
     cfg = GPSSMConfig(particles=6, basis="axle", basis_functions=8, backend=backend, resample_threshold=0.0,
-                      supervise=False, bias0_std=(0.3, 0.01), bias_rw=(0.002, 1e-4), sigma=(0.05, 0.003))
+                      supervise=False, bias0_std=(0.3, 0.01), bias_rw=(0.002, 1e-4), sigma=(0.05, 0.003),
+                      force_hold="linear")
     est = FrictionGPSSM(VEHICLE, cfg)
     rec = _drive(est, 60)
     assert est.resamples == 0 and est.bias_on
@@ -100,7 +108,8 @@ def test_the_yaw_rate_weights_are_the_marginal_likelihood_with_the_bias_integrat
     resampling the log-weight differences between particles equal those of the batch marginal
     likelihood of each trajectory's residuals y^r - r_k (bias integrated out)."""
     cfg = GPSSMConfig(particles=5, basis="axle", basis_functions=8, backend=backend, resample_threshold=0.0,
-                      supervise=False, bias0_std=(0.3, 0.01), bias_rw=(0.002, 1e-4), sigma=(0.05, 0.003))
+                      supervise=False, bias0_std=(0.3, 0.01), bias_rw=(0.002, 1e-4), sigma=(0.05, 0.003),
+                      force_hold="linear")
     est = FrictionGPSSM(VEHICLE, cfg)
     rec = _drive(est, 30, ay_missing=True)
     t = np.array([r[0] for r in rec])

@@ -132,12 +132,13 @@ def test_friction_gpssm_backends_equal(kind, symmetry, m, stats, snapshots):
     """A whole filter run (25 steps, N = 37: more than one block of the compiled
     factorisation's 32 lanes, the last one partly padding; resampling at every step:
     threshold 1), numba and numpy backends from the same seed: the same estimates, particles
-    and statistics; `snapshots`: friction curves every 4th step."""
+    and statistics; `snapshots`: friction curves every 4th step, and the forces' linear hold
+    (`force_hold = "linear"`; held without snapshots)."""
     vehicle = load_scenario("friction-snow").vehicle
     runs = {}
     for backend in ("numpy", "numba"):
         cfg = GPSSMConfig(particles=37, basis=kind, symmetry=symmetry, basis_functions=m, stats=stats,
-                          backend=backend, resample_threshold=1.0)
+                          backend=backend, resample_threshold=1.0, force_hold="linear" if snapshots else "zero")
         est = FrictionGPSSM(vehicle, cfg)
         runs[backend] = (_drive(est, 25, snapshots), est)
     (a, fast), (b, ref) = runs["numba"], runs["numpy"]
@@ -154,16 +155,16 @@ def test_friction_gpssm_backends_equal(kind, symmetry, m, stats, snapshots):
     assert_equal_to_rounding(fa.mu_r_std, fb.mu_r_std, "mu_r_std", rtol)
 
 
-@pytest.mark.parametrize("measurement_friction", ["learned", "prior"])
-def test_friction_gpssm_backends_equal_state_noise_and_prior_measurement(measurement_friction):
+@pytest.mark.parametrize("measurement_friction,force_hold", [("learned", "linear"), ("prior", "zero")])
+def test_friction_gpssm_backends_equal_state_noise_and_prior_measurement(measurement_friction, force_hold):
     """The compiled step's other branches: state noise (drawn between propagation and the
-    slip angles), the paper's prior-only measurement (zeta drawn from the predictive) and
-    missing samples."""
+    slip angles), the paper's prior-only measurement (zeta drawn from the predictive), the
+    paper's held forces and missing samples."""
     vehicle = load_scenario("friction-snow").vehicle
     runs = {}
     for backend in ("numpy", "numba"):
         cfg = GPSSMConfig(particles=37, backend=backend, resample_threshold=1.0, state_noise=(0.02, 0.002),
-                          measurement_friction=measurement_friction)
+                          measurement_friction=measurement_friction, force_hold=force_hold)
         est = FrictionGPSSM(vehicle, cfg)
         runs[backend] = (_drive(est, 20, 6, missing=True), est)
     (a, fast), (b, ref) = runs["numba"], runs["numpy"]

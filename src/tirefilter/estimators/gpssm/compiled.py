@@ -31,7 +31,9 @@ one path:
      sorted ancestors only, else `resample` copies K itself; `flush` makes the copy with
      `gather_lower` when the statistics are read in between): one pass over K instead of two;
   5. `sample`: the conditional Student-t draw of zeta (the locally optimal proposal), mu = mu~
-     + zeta, the weighted moments for the estimate and of the slip angles (the band's slip
+     + zeta, the forces' linear hold (`force_hold = "linear"`: what their linear growth from the
+     rates `front` held to those of mu's conditional mean adds to x over the step), the weighted
+     moments for the estimate and of the slip angles (the band's slip
      variance) and, while the exact statistics learn, the features of the pending update; then
      the bias filters' update given mu (numpy, `FrictionGPSSM._bias_update`);
   6. `rank1_update` (rank-one statistics, eq. (27)/(28) as recursive least squares); the exact
@@ -146,6 +148,7 @@ class CompiledStep:
                     float(v.yaw_inertia))
         # the configuration's scalars, read once (the configuration is frozen)
         self.max_step = float(cfg.max_step)
+        self.linear_hold = cfg.force_hold == "linear"
         self.sn = np.asarray(cfg.state_noise, float)
         self.noise = bool(cfg.state_noise[0] > 0 or cfg.state_noise[1] > 0)
         self.gate_speed = float(cfg.gate_speed)
@@ -249,8 +252,8 @@ class CompiledStep:
         work, (Fz0, Fz1, mass) = self.work, self.veh[:3]
         _, _, (a1, a2, a3, nu), rows, kcopy, _, _ = self._arrays()
         # 1. propagate with the friction drawn at k-1 (eq. (1)), forget (eq. (29), fused into 2.)
-        forget, lam = False, 1.0
-        propagate, n_sub, h, cd, vx_prev = False, 0, 0.0, 1.0, 0.0
+        forget, lam, linear = False, 1.0, False
+        propagate, n_sub, h, cd, vx_prev, dt = False, 0, 0.0, 1.0, 0.0, 0.0
         if est.t_prev is None:
             if math.isfinite(y.yaw_rate):
                 est.x[:, 1] = y.yaw_rate + self.sqrt_R1 * rng.standard_normal(N)
@@ -262,6 +265,7 @@ class CompiledStep:
             h = dt / n_sub
             u_prev = est.u_prev
             cd, vx_prev, propagate = math.cos(u_prev[0]), float(u_prev[1]), True
+            linear = self.linear_hold  # the forces linear from mu_{k-1} to mu_k (`sample`)
             if est.bias_on:  # the bias's random walk (`gpssm.bias`)
                 bias_predict(est.bias, est.q_bias, dt)
             if self.noise:
@@ -325,10 +329,14 @@ class CompiledStep:
         else:  # t_draws' generator calls for a common dof, without its checks
             z, u = rng.standard_normal((N, 2)), rng.chisquare(c, (N,))
         exact_active = active and self.exact
+        r_seen = est.x[:, 1].copy() if est.bias_on else None  # the yaw rate the weights saw (`_bias_update`)
         m0, m1, s0, s1, mf, mr, vf, vr = sample(est.x, work, est.logw, z, u, self.zeta, est.mu, conditional,
-                                                exact_active, self.phi_p)
+                                                exact_active, self.phi_p,
+                                                (linear, dt, vx_prev, math.cos(delta), self.veh))
+        lag = est._hold_slip_error(t, y, vx) if active else 0.0  # (with the bias before its update, as the reference)
         if est.bias_on:  # the bias given the trajectory (`FrictionGPSSM._bias_update`)
-            est._bias_update(y, est.mu @ np.array([c0, c1]) if learned else c0 * work[:, PF] + c1 * work[:, PR])
+            est._bias_update(y, est.mu @ np.array([c0, c1]) if learned else c0 * work[:, PF] + c1 * work[:, PR],
+                             r_seen)
         if active:
             if self.exact:  # applied in the next step's pass over the statistics (or by `flush`)
                 self.pending = True
@@ -343,7 +351,7 @@ class CompiledStep:
                 path[0, jf, 1] += mr
                 path[1, jr, 0] += 1.0
                 path[1, jr, 1] += mf
-            est._slip_spread(lam if forget else 1.0, jf, jr, vf, vr)
+            est._slip_spread(lam if forget else 1.0, jf, jr, vf, vr, lag)
             est.mean_slip = (mf, mr)
         est.lam_step = lam if forget else 1.0
         est.t_prev, est.u_prev, est.last_t = t, uk, t

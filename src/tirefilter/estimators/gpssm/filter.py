@@ -12,7 +12,7 @@ replay's slope from the vehicle file); `combined` sets its slope from the stiffn
 One step at sample k (the order of docs/derivations.md, "The filter step": weight with the current predictive, resample,
 then update the statistics with the same sample that drives the state):
   1. propagate x_k = x_{k-1} + T_s f(x_{k-1}, u_{k-1}, mu_{k-1}) (eq. (1), Euler with the
-     friction held, sub-steps of at most `max_step`), forget the statistics (eq. (29));
+     friction held, sub-steps of at most `max_step`: `dynamics`), forget the statistics (eq. (29));
   2. slip angles alpha_k (eq. (4)), clipped to [-L, L] (counted), features phi(alpha_k);
   3. predictive of zeta_k = A phi + w integrating A and Q (eq. (31)-(32), multivariate t);
      measurement y = [a^Y, r] (eq. (8)): a^Y = (F^z_f mu_f cos delta + F^z_r mu_r) / m with
@@ -21,8 +21,10 @@ then update the statistics with the same sample that drives the state):
      yaw-rate likelihood (eq. (22)); normalise, resample when ESS < threshold (Algorithm 1, 6-10);
   5. draw zeta_k from its t conditional given the a^Y residual (the locally optimal
      proposal for the a^Y part; "prior": from the predictive), update the statistics with
-     (zeta_k, phi(alpha_k)) while learning (eq. (27)/(28)); mu_k = mu~(alpha_k) + zeta_k; the
-     bias filters given mu_k and r_k (docs/derivations.md, "F7. IMU bias").
+     (zeta_k, phi(alpha_k)) while learning (eq. (27)/(28)); mu_k = mu~(alpha_k) + zeta_k; with
+     `force_hold = "linear"` x_k gains what the forces' linear growth from mu_{k-1} to the
+     conditional mean of mu_k adds over the step (`dynamics.linear_hold_remainder`,
+     docs/derivations.md, "F4. The filter step"); the bias filters given mu_k and r_k (docs/derivations.md, "F7. IMU bias").
 Around the step: v^X from the wheel speeds where there is no vx input (`speed`), and the
 divergence supervision (`supervision`, "F9. Divergence: detection and recovery").
 """
@@ -39,6 +41,8 @@ from scipy.special import gammaln
 from tirefilter.errors import ConfigError
 from tirefilter.estimators.base import Estimate, FrictionCurve, Inputs, Measurement, Posterior
 from tirefilter.estimators.gpssm.bias import AY, AY_VAR, R, R_VAR, bias_moments, bias_predict, bias_prior, bias_update
+from tirefilter.estimators.gpssm.dynamics import force_rates, linear_hold_remainder, propagate
+from tirefilter.estimators.gpssm.slip_record import SlipRecord
 from tirefilter.estimators.gpssm.speed import WheelSpeedVx
 from tirefilter.estimators.gpssm.supervision import CAUSES, Checkpoints, Divergence, DivergenceMonitor
 from tirefilter.estimators.sensors import MEMS_BIAS0_STD, MEMS_BIAS_RW
@@ -96,6 +100,10 @@ class GPSSMConfig:
     gate_speed: float = 5.0  # m/s: below this nothing is learned (as the stiffness MPF)
     sample_period: float = 0.04  # s
     max_step: float = 0.01  # s, longest Euler sub-step
+    # the tire forces between two samples: "zero": the friction drawn at the first held over the step (eq. (7));
+    # "linear": from the friction drawn at the first to the conditional mean of the friction at the second
+    # (derivations, "F4. The filter step": no stretch of the slips at 25 Hz, worse on the 100 Hz peer drives)
+    force_hold: str = "zero"
     # IMU bias of a^Y and the yaw rate (the stiffness MPF's sensor model, derivations, "F7. IMU bias"): prior std
     # and random walk per sqrt(s), a Kalman filter per particle and channel; all zero: no bias model (the paper)
     bias0_std: tuple[float, float] = MEMS_BIAS0_STD[1:]  # a^Y [m/s^2], yaw rate [rad/s]
@@ -140,6 +148,8 @@ class GPSSMConfig:
             bad("backend", f"expected numba or numpy, got {self.backend!r}")
         if self.prior_slope not in ("peak", "vehicle"):
             bad("prior_slope", f"expected peak or vehicle, got {self.prior_slope!r}")
+        if self.force_hold not in ("linear", "zero"):
+            bad("force_hold", f"expected linear or zero, got {self.force_hold!r}")
         if self.band not in ("calibrated", "posterior"):
             bad("band", f"expected calibrated or posterior, got {self.band!r}")
         for key in ("calibration_batch", "calibration_memory"):
@@ -352,9 +362,8 @@ class FrictionGPSSM:
         self.last_t = NAN
         self.prediction = (NAN, NAN)  # one-step-ahead (a^Y, r) before the last measurement
         self._path = np.zeros((2, len(self.grid), 2))  # (axle, grid bin, [count, sum of the other slip])
-        # the slip's posterior variance at the learning samples, per axle and grid bin of the mean slip, forgotten
-        # as the statistics: [weight, weighted sum of the variance] (`_slip_spread`, `slip_variance`)
-        self._spread = np.zeros((2, len(self.grid), 2))
+        # the slips' posterior variance and the held forces' slip error at the learning samples (F5)
+        self.slips = SlipRecord(self.grid, cfg.lengthscale)
         self._slope = (NAN, NAN, NAN, NAN)
         self._dphi0 = self._slope_features()
         if cfg.backend == "numba":
@@ -381,23 +390,10 @@ class FrictionGPSSM:
         v = self.vehicle
         return slip_angles(max(vx, 1.0), x[:, 0], x[:, 1], delta, v.lf, v.lr)
 
-    def _propagate(self, x, u, dt):
-        """Eq. (1a)-(1b) with mu^x = 0 and the friction mu_k drawn at this sample held over
-        the step (zero-order hold of the tire forces, as eq. (7)), Euler sub-steps of at most
-        `max_step` for the kinematic term v^X r."""
+    def _rates(self, mu, delta: float) -> np.ndarray:
+        """(N, 2): a^Y and r' of the frictions mu at steering angle delta (`dynamics.force_rates`)."""
         v = self.vehicle
-        delta, vx = u
-        cd = math.cos(delta)
-        n = max(1, math.ceil(dt / self.cfg.max_step - 1e-9))
-        h = dt / n
-        x = x.copy()
-        Ff = self.Fz[0] * self.mu[:, 0] * cd
-        Fr = self.Fz[1] * self.mu[:, 1]
-        ay, rdot = (Ff + Fr) / v.mass, (v.lf * Ff - v.lr * Fr) / v.yaw_inertia
-        for _ in range(n):
-            x[:, 0] += h * (ay - vx * x[:, 1])
-            x[:, 1] += h * rdot
-        return x
+        return force_rates(mu, math.cos(delta), self.Fz, v.mass, v.lf, v.lr, v.yaw_inertia)
 
     def _features(self, af, ar):
         """phi(alpha): tensor (N, size); axle (N, 2, size)."""
@@ -468,6 +464,7 @@ class FrictionGPSSM:
         """The numpy reference step (the module docstring's steps 1-5)."""
         cfg, N, rng = self.cfg, self.cfg.particles, self.rng
         lam = 1.0  # the forgetting factor of this step (1: none)
+        held = None  # the rates a^Y, r' held over the step from k-1 (none at the first sample)
 
         # 1. propagate with the friction drawn at k-1, forget (eq. (29)); the bias's random walk
         if self.t_prev is None:
@@ -477,7 +474,8 @@ class FrictionGPSSM:
             dt = t - self.t_prev
             if dt <= 0:
                 raise ConfigError("inputs", "t", f"time must increase: {t} after {self.t_prev}")
-            self.x = self._propagate(self.x, self.u_prev, dt)
+            held = self._rates(self.mu, self.u_prev[0])  # 1. eq. (1) with the friction mu_{k-1} held
+            self.x = propagate(self.x, held, self.u_prev[1], dt, cfg.max_step)
             sn = np.asarray(cfg.state_noise, float)
             if np.any(sn > 0):
                 self.x = self.x + math.sqrt(dt) * sn * rng.standard_normal(self.x.shape)
@@ -539,6 +537,7 @@ class FrictionGPSSM:
         if ess < cfg.resample_threshold * N:
             idx = systematic_resample(self.logw, rng)
             self.x, self.stats, self.bias = self.x[idx], self.stats.take(idx), self.bias[idx]
+            held = None if held is None else held[idx]
             af, ar, phi, pf, pr, loc, S, dof = (a[idx] for a in (af, ar, phi, pf, pr, loc, S, dof))
             if have_ay and learned:
                 Sc, s_y, e = Sc[idx], s_y[idx], e[idx]
@@ -552,6 +551,7 @@ class FrictionGPSSM:
             scale_c = ((dof + e * e / s_y) / (dof + 1.0))[:, None, None] * (S - Sc[:, :, None] * g[:, None, :])
             zeta = t_sample(loc_c, 0.5 * (scale_c + np.swapaxes(scale_c, 1, 2)), dof + 1.0, rng)
         else:
+            loc_c = loc
             zeta = t_sample(loc, S, dof, rng)
         if self.active:
             self.stats.update(zeta if self.d == 2 else zeta[:, :, None], phi)
@@ -563,23 +563,29 @@ class FrictionGPSSM:
             if self.d == 2:  # the visited path: mean alpha_r per alpha_f bin and vice versa
                 self._path[0, jf] += (1.0, mr)
                 self._path[1, jr] += (1.0, mf)
-            self._slip_spread(lam, jf, jr, float(q @ (af - mf) ** 2), float(q @ (ar - mr) ** 2))
+            self._slip_spread(lam, jf, jr, float(q @ (af - mf) ** 2), float(q @ (ar - mr) ** 2),
+                              self._hold_slip_error(t, y, vx))
             self.mean_slip = (mf, mr)
         self.lam_step = lam
         self.mu = np.stack([pf, pr], axis=1) + zeta
+        r_seen = self.x[:, 1].copy()  # the yaw rate the weights saw (before the linear hold's remainder)
+        if held is not None and cfg.force_hold == "linear":  # the forces linear from mu_{k-1} to E[mu_k] over the step
+            mean = np.stack([pf, pr], axis=1) + loc_c  # the friction's conditional mean at sample k
+            self.x += linear_hold_remainder(held, self._rates(mean, delta), float(self.u_prev[1]), dt)
         if self.bias_on:
-            self._bias_update(y, self.mu @ c if learned else c[0] * pf + c[1] * pr)
+            self._bias_update(y, self.mu @ c if learned else c[0] * pf + c[1] * pr, r_seen)
         self.t_prev, self.u_prev, self.last_t = t, uk, t
         return self._estimate(ess, vx)
 
-    def _bias_update(self, y: Measurement, h_ay: np.ndarray) -> None:
+    def _bias_update(self, y: Measurement, h_ay: np.ndarray, r: np.ndarray) -> None:
         """The bias's Kalman update given each particle's trajectory (derivations, "F7. IMU
         bias"): a^Y against the particle's h_ay = c . mu_k ("learned": mu~ + zeta_k; "prior":
-        mu~ alone, the measurement the weights used), the yaw rate against its r_k."""
+        mu~ alone, the measurement the weights used), the yaw rate against the r_k the weights
+        used (before the linear hold's remainder, "F4. The filter step")."""
         if math.isfinite(y.ay):
             bias_update(self.bias, AY, y.ay - h_ay, float(self.R[0]))
         if math.isfinite(y.yaw_rate):
-            bias_update(self.bias, R, y.yaw_rate - self.x[:, 1], float(self.R[1]))
+            bias_update(self.bias, R, y.yaw_rate - r, float(self.R[1]))
 
     def _combined_prior(self, t: float) -> None:
         """Combined pipeline: until the handover the prior's slope follows the MPF's current
@@ -726,29 +732,29 @@ class FrictionGPSSM:
         g = self._grid_list
         return min(bisect_left(g, a) if a == a else len(g), len(g) - 1)
 
-    def _slip_spread(self, lam: float, jf: int, jr: int, var_f: float, var_r: float) -> None:
-        """A learning sample's posterior variance of the slip angles (var_f, var_r: over the
-        particles, after resampling) into the grid bins jf, jr of their means, the older ones
-        forgotten with the statistics' factor lam (derivations, "F5. The friction estimate")."""
-        sp = self._spread
-        if lam != 1.0:
-            sp *= lam
-        sp[0, jf, 0] += 1.0
-        sp[0, jf, 1] += var_f
-        sp[1, jr, 0] += 1.0
-        sp[1, jr, 1] += var_r
+    def _hold_slip_error(self, t: float, y: Measurement, vx: float) -> float:
+        """The held forces' slip error at this sample, (T_s / 2) a^Y / v^X (a^Y the measured one
+        less the mean bias, T_s the step just taken): the held force lags the sampled a^Y by half a
+        step and v^Y integrates the lag into -(T_s / 2) a^Y, so both slips come out (T_s / 2) a^Y
+        / v^X too large (derivations, "F4. The filter step"). 0 with the linear hold, at the first
+        sample, without a^Y and with the paper's band."""
+        if self.cfg.force_hold != "zero" or self.t_prev is None or not math.isfinite(y.ay) or self._calib is None:
+            return 0.0
+        ay = y.ay - (self.bias_mean()[0] if self.bias_on else 0.0)
+        return 0.5 * (t - self.t_prev) * ay / max(vx, 1.0)
+
+    def _slip_spread(self, lam: float, jf: int, jr: int, var_f: float, var_r: float, lag: float = 0.0) -> None:
+        """A learning sample's slip variances and held-force slip error (`slip_record.SlipRecord.add`)."""
+        self.slips.add(lam, jf, jr, var_f, var_r, lag)
 
     def slip_variance(self) -> np.ndarray:
-        """(2, G): per axle and grid point, the posterior variance of the slip angle at the
-        learning samples near it: the forgotten sums of `_slip_spread` smoothed over the
-        grid with the kernel's length-scale, sum_b k(a - a_b) V_b / sum_b k(a - a_b) W_b
-        (0 where no learning sample is near)."""
-        if getattr(self, "_smoother", None) is None:
-            d = (self.grid[:, None] - self.grid[None, :]) / self.cfg.lengthscale
-            self._smoother = np.exp(-0.5 * d * d)
-        num = self._spread[:, :, 1] @ self._smoother.T
-        den = self._spread[:, :, 0] @ self._smoother.T
-        return np.where(den > 1e-12, num / np.maximum(den, 1e-300), 0.0)
+        """(2, G): the slip's posterior variance at the learning samples near each grid point."""
+        return self.slips.variance()
+
+    def lag_shift(self) -> np.ndarray:
+        """(2, G): the mean held-force slip error (`_hold_slip_error`) of the learning samples near
+        each grid point."""
+        return self.slips.shift()
 
     def path(self) -> tuple[np.ndarray, np.ndarray]:
         """Tensor basis: the other axle's slip along which each axle's curve is evaluated,
@@ -797,11 +803,16 @@ class FrictionGPSSM:
             slope = np.stack([np.gradient(pf + mbar[:, 0], g), np.gradient(pr + mbar[:, 1], g)], axis=1)
             vbar = vbar + slope**2 * self.slip_variance().T
         std = np.sqrt(np.maximum(vbar, 0.0))
+        mu = np.stack([pf + mbar[:, 0], pr + mbar[:, 1]], axis=1)
+        if calibrated and np.any(self.slips.lag):  # the held forces' slip error: the truth at alpha was learned at alpha + lag
+            shift = self.lag_shift()
+            for a in range(2):
+                mu[:, a], std[:, a] = np.interp(g + shift[a], g, mu[:, a]), np.interp(g + shift[a], g, std[:, a])
         M, _ = self.stats.posterior()
         self._curve_slope(q, M)
         vis = tuple(float(v) if math.isfinite(v) else NAN for v in self.visited)
-        return FrictionCurve(t=float(self.last_t), alpha=g.copy(), mu_f=pf + mbar[:, 0], mu_f_std=std[:, 0],
-                             mu_r=pr + mbar[:, 1], mu_r_std=std[:, 1], visited=vis)
+        return FrictionCurve(t=float(self.last_t), alpha=g.copy(), mu_f=mu[:, 0], mu_f_std=std[:, 0],
+                             mu_r=mu[:, 1], mu_r_std=std[:, 1], visited=vis)
 
     def _calibrated_variance(self, phi_axles, tau) -> np.ndarray:
         """(N, G, 2): per particle and axle a the posterior variance of A phi given the

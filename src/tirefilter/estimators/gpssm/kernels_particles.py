@@ -17,8 +17,8 @@ _JIT = dict(cache=True, nogil=True, no_cfunc_wrapper=True)  # (no C callback is 
 # interpreter instead of raising: tests/test_kernel_calls.py)
 _JIT_IN = dict(_JIT, no_cpython_wrapper=True)
 
-# columns of `work`
-AF, AR, PF, PR, LOC, S, DOF, SC, SY, E, PHI = 0, 1, 2, 3, 4, 6, 10, 11, 13, 14, 15
+# columns of `work` (HELD: a^Y and r' held over the step from the friction of the sample before)
+AF, AR, PF, PR, LOC, S, DOF, SC, SY, E, HELD, PHI = 0, 1, 2, 3, 4, 6, 10, 11, 13, 14, 15, 17
 
 
 # ---- 1. propagation, slip, basis, prior -------------------------------------------------------
@@ -43,7 +43,7 @@ def _phi_next(sf, cf, sf1, cf1, sr, cr, sr1, cr1, n):
 def front(x, mu, work, prop, veh, delta, vx, basis, prior):
     """In place: x propagated (prop = (propagate, n_sub, h, cd, vx_prev): with `propagate`
     n_sub Euler steps of h, eq. (1a)-(1b), friction mu held, cos delta_{k-1} and v^X_{k-1}; veh =
-    (Fz0, Fz1, mass, lf, lr, Iz)), then work[:, AF:PR + 1] = alpha_f, alpha_r (eq. (4), clipped
+    (Fz0, Fz1, mass, lf, lr, Iz); the held a^Y and r' into work[:, HELD:HELD + 2]), then work[:, AF:PR + 1] = alpha_f, alpha_r (eq. (4), clipped
     to [-L, L]), mu~_f, mu~_r (prior = (B_f, B_r, C, D_f, D_r, E)) and work[:, PHI:] the
     features (basis = (L, m, keep, keep_r, tensor); tensor: phi_keep; axle: front then rear
     row; tensor: keep = the front function's index j1, keep_r = the rear one's j2). Returns
@@ -71,6 +71,7 @@ def front(x, mu, work, prop, veh, delta, vx, basis, prior):
             Fr = Fz1 * mu[i, 1]
             ay = (Ff + Fr) / mass
             rdot = (lf * Ff - lr * Fr) / Iz
+            work[i, HELD], work[i, HELD + 1] = ay, rdot
             for _ in range(n_sub):
                 x0 += h * (ay - vx_prev * x1)
                 x1 += h * rdot
@@ -201,11 +202,16 @@ def _chol2_apply(s00, s10, s11, z0, z1):
 
 
 @njit(**_JIT)
-def sample(x, work, logw, z, u, zeta, mu, conditional, keep_phi, phi_p):
+def sample(x, work, logw, z, u, zeta, mu, conditional, keep_phi, phi_p, hold):
     """zeta ~ St (the t conditional given the a^Y residual when `conditional`, else the
     predictive) from z ~ N(0, I), u ~ chi2(dof'), as `student_t.t_sample`; mu = mu~ + zeta.
-    Returns the weighted means and std of x and the weighted means and variances of the
+    hold = (linear, dt, vx_prev, cd, veh): with `linear` x gains what the forces' linear growth
+    over the step dt from the held rates work[:, HELD:HELD + 2] to those of the friction's
+    conditional mean mu~ + the draw's location (cos delta_k = cd, veh as `front`'s) adds
+    (`gpssm.dynamics.linear_hold_remainder`). Returns the weighted means and std of x and the weighted means and variances of the
     (clipped) slip angles."""
+    linear, dt, vx_prev, cd, veh = hold
+    Fz0, Fz1, mass, lf, lr, Iz = veh
     n = x.shape[0]
     for i in range(n):
         l0, l1 = work[i, LOC], work[i, LOC + 1]
@@ -228,6 +234,13 @@ def sample(x, work, logw, z, u, zeta, mu, conditional, keep_phi, phi_p):
         zeta[i, 1] = l1 + a1 * r
         mu[i, 0] = work[i, PF] + zeta[i, 0]
         mu[i, 1] = work[i, PR] + zeta[i, 1]
+        if linear:
+            Ff = Fz0 * (work[i, PF] + l0) * cd
+            Fr = Fz1 * (work[i, PR] + l1)
+            da = (Ff + Fr) / mass - work[i, HELD]
+            dr = (lf * Ff - lr * Fr) / Iz - work[i, HELD + 1]
+            x[i, 0] += 0.5 * dt * da - vx_prev * dt * dt / 6.0 * dr
+            x[i, 1] += 0.5 * dt * dr
     m0 = m1 = mf = mr = 0.0
     qs = np.empty(n)  # the weights, exponentiated once for both sums
     for i in range(n):

@@ -11,7 +11,9 @@ import math
 import numpy as np
 from numba import njit
 
-from tirefilter.estimators.gpssm.kernels_particles import DOF, LOC, PHI, S
+# (the columns of `work` are compiled into these kernels as constants: numba's cache, keyed by this file,
+# does not see a change of them in kernels_particles.py, so a change there goes with an edit here)
+from tirefilter.estimators.gpssm.kernels_particles import DOF, LOC, PHI, S  # features from column 17
 from tirefilter.stats.mniw_numba import _factor, _rank1_forget1, _rank1_update1
 
 _JIT = dict(cache=True, nogil=True, no_cfunc_wrapper=True)  # (no C callback is taken of a kernel)
