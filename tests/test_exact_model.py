@@ -58,6 +58,34 @@ def _accelerations(vx, vy, r, u, w, full, rear_drive, share, slip=None):
     return ax, (Ffy * cd + Ffx * sd + Fry) / M, (LF * (Ffy * cd + Ffx * sd) - LR * Fry) / I
 
 
+@pytest.mark.parametrize("full", [True, False])
+def test_load_gain_scales_the_lateral_axle_forces(full):
+    """With the load-transfer gain g per particle (derivations, "Load transfer") a + B w equals the
+    accelerations of the lateral forces (C_n + w) alpha g (the longitudinal ones unchanged), still
+    linear in w; g = 1 gives the model without it bit for bit."""
+    rng = np.random.default_rng(4)
+    x, w = _particles(rng)
+    u = _inputs(rng)
+    if not full:
+        x, w = x[:, 1:], w[:, 1:]
+    g = rng.uniform(0.5, 1.0, len(x))
+    a, B, *_ = st.accelerations(x, u, P, full, False, load_gain=g)
+    acc = a + np.einsum("nij,nj->ni", B, w)
+    rows = slice(0, 3) if full else slice(1, 3)
+    cd, sd = math.cos(u[0]), math.sin(u[0])
+    for i in range(len(x)):
+        vx, vy, r = (x[i, 0], x[i, 1], x[i, 2]) if full else (u[3], x[i, 0], x[i, 1])
+        _, _, Ffy, Fry, Ffx, Frx = _forces(vx, vy, r, u, w[i], full, False, float(P[st.P_UNDRIVEN_SHARE]))
+        Ffy, Fry = g[i] * Ffy, g[i] * Fry
+        want = ((Ffx * cd - Ffy * sd + Frx) / M if full else 0.0, (Ffy * cd + Ffx * sd + Fry) / M,
+                (LF * (Ffy * cd + Ffx * sd) - LR * Fry) / I)
+        np.testing.assert_allclose(acc[i, rows], np.array(want)[rows], rtol=1e-12, atol=1e-12)
+    plain, ones = st.accelerations(x, u, P, full, False), st.accelerations(x, u, P, full, False,
+                                                                          load_gain=np.ones(len(x)))
+    for p0, p1 in zip(plain[:4], ones[:4]):
+        assert np.array_equal(p0, p1)
+
+
 @pytest.mark.parametrize("full, rear_drive, share", [(True, False, 0.0), (True, False, 0.35), (True, True, 0.0),
                                                       (True, True, 0.35), (False, False, 0.0)])
 def test_accelerations_are_the_equations_and_linear_in_w(full, rear_drive, share):

@@ -534,7 +534,10 @@ OPTIONS = {"outlier-noise-euler": dict(outlier_prob=0.9, state_noise=(0.02, 0.01
            "noise-from-data": dict(state_noise_from_data=True, state_noise_time=0.1),
            # the calibrated *_std ("Batch-means sandwich") with batches short enough to close within the drive: the fused
            # step's update on floats from the moments against the reference's `_calibrate`
-           "calibration-batches": dict(calibration_batch=0.03)}
+           "calibration-batches": dict(calibration_batch=0.03),
+           # the load-transfer gain per particle (derivations, "Load transfer") in the propagation and the weighting
+           "load-sensitivity": dict(load_sensitivity_estimate=True, load_sensitivity_prior=(0.0, 0.03),
+                                    load_sensitivity_rw=1e-3)}
 # the state noise from the data (derivations, "State noise from the data") subtracts two nearly equal spreads each step, which
 # amplifies the backends' rounding differences (6e-12 relative in the statistics after 60 steps)
 OPTION_RTOL = {"noise-from-data": 1e-9}
@@ -563,6 +566,9 @@ def test_stiffness_mpf_backends_equal_options(options, model, monkeypatch):
     if options == "calibration-batches":
         assert ref._calib.batches >= 10 and ref._calib.factor.max() > 1.0
         assert_equal_to_rounding(fast._calib.factor, ref._calib.factor, "std factor")
+    if options == "load-sensitivity":
+        assert np.ptp(ref.k_load) > 0 and abs(ref._ay_step) > 0.5
+        assert_equal_to_rounding(fast.k_load, ref.k_load, "load sensitivity")
     _assert_mpf_runs_equal(a, b, fast, ref)
 
 

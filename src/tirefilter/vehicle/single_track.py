@@ -185,12 +185,14 @@ def vx_from_wheels(u, p: np.ndarray, rear_drive: bool):
     return p[P_WHEEL_RADIUS] * omega
 
 
-def accelerations(x, u, p: np.ndarray, full: bool, rear_drive: bool, slip=None):
+def accelerations(x, u, p: np.ndarray, full: bool, rear_drive: bool, slip=None, load_gain=None):
     """The accelerations of eq. (1) with F = (C_n + w) slip (eq. (2), (7)), split as
     a(x, u) + B(x, u) w: returns a (N, 3) = (a^X, a^Y, r') at w = 0, B = d a / d w
     (N, 3, n_w), the slip angles af, ar (N,) and the wheel slip (2, N) of eq. (3)-(4)
     (small-angle form of the paper; None in the lateral model; `slip` given: held from an
-    earlier evaluation). x (N, 3) full or (N, 2) lateral; u (4,); p from `model_params`."""
+    earlier evaluation). x (N, 3) full or (N, 2) lateral; u (4,); p from `model_params`.
+    `load_gain` (N,) or None: the lateral axle forces (C_n + w) alpha times g = 1 - kappa a^Y^2
+    per particle, the load transfer's effective stiffness (derivations, "Load transfer"; None: 1)."""
     if full:
         vx, vy, r = x[:, 0], x[:, 1], x[:, 2]
     else:
@@ -198,7 +200,9 @@ def accelerations(x, u, p: np.ndarray, full: bool, rear_drive: bool, slip=None):
     m, I, lf, lr = p[P_MASS], p[P_YAW_INERTIA], p[P_LF], p[P_LR]
     af, ar = small_slip_angles(vx, vy, r, u[0], lf, lr)
     cd, sd = math.cos(u[0]), math.sin(u[0])
-    Ffy, Fry = p[P_CF_Y] * af, p[P_CR_Y] * ar
+    # the slips the lateral stiffness multiplies: times the load-transfer gain where there is one
+    sf, sr = (af, ar) if load_gain is None else (af * load_gain, ar * load_gain)
+    Ffy, Fry = p[P_CF_Y] * sf, p[P_CR_Y] * sr
     n_w = 3 if full else 2
     B = np.zeros((len(x), 3, n_w))
     j = 0
@@ -222,11 +226,11 @@ def accelerations(x, u, p: np.ndarray, full: bool, rear_drive: bool, slip=None):
     else:
         Fy_f = Ffy * cd
         aX = np.zeros_like(af)
-    B[:, 0, j] = af * (-sd / m)
-    B[:, 1, j] = af * (cd / m)
-    B[:, 2, j] = af * (lf * cd / I)
-    B[:, 1, j + 1] = ar * (1.0 / m)
-    B[:, 2, j + 1] = ar * (-lr / I)
+    B[:, 0, j] = sf * (-sd / m)
+    B[:, 1, j] = sf * (cd / m)
+    B[:, 2, j] = sf * (lf * cd / I)
+    B[:, 1, j + 1] = sr * (1.0 / m)
+    B[:, 2, j + 1] = sr * (-lr / I)
     a = np.array([aX, (Fy_f + Fry) * (1.0 / m), (lf * Fy_f - lr * Fry) * (1.0 / I)]).T
     return a, B, af, ar, slip
 
@@ -241,27 +245,27 @@ def state_derivative(x, u, a, B, w, full: bool):
 
 
 def propagate(x, u, w, dt: float, first, p: np.ndarray, full: bool, rear_drive: bool, max_step: float,
-              heun: bool):
+              heun: bool, load_gain=None):
     """x_{k+1} = f(x_k) + g(x_k) w_k (eq. (9)): Euler, or Heun (`heun`) with the same w and the
     wheel slip held over the step. `first` = (a, B, af, ar, slip) of `accelerations` at x_k
     (from the measurement step). A step longer than `max_step` (a gap in a log) is split into
-    equal sub-steps with u and w held."""
+    equal sub-steps with u, w and `load_gain` (of `accelerations`) held."""
     n_sub = max(1, math.ceil(dt / max_step - 1e-9))
     h = dt / n_sub
     for i in range(n_sub):
-        a, B, _, _, slip = first if i == 0 else accelerations(x, u, p, full, rear_drive)
+        a, B, _, _, slip = first if i == 0 else accelerations(x, u, p, full, rear_drive, load_gain=load_gain)
         k1 = state_derivative(x, u, a, B, w, full)
         if not heun:
             x = x + h * k1
             continue
         x1 = x + h * k1
-        a2, B2, *_ = accelerations(x1, u, p, full, rear_drive, slip)
+        a2, B2, *_ = accelerations(x1, u, p, full, rear_drive, slip, load_gain)
         x = x + (0.5 * h) * (k1 + state_derivative(x1, u, a2, B2, w, full))
     return x
 
 
 def slip_over_step(x, u0, u1, w, first, dt: float, p: np.ndarray, jw: np.ndarray, c_floor: np.ndarray,
-                   rear_drive: bool):
+                   rear_drive: bool, load_gain=None):
     """The first stage of the propagation from t_k to t_k+1 = t_k + dt with the wheel slip
     averaged over the interval (full model; derivations, "Wheel slip").
 
@@ -274,7 +278,8 @@ def slip_over_step(x, u0, u1, w, first, dt: float, p: np.ndarray, jw: np.ndarray
     tau = J D / (R_w^2 C) per axle (J its spin inertia, D = max(|v^X|, |R_w omega_k|, 1), C its
     stiffness: nominal plus the particle's w where it is estimated, floored at c_floor); the
     mean over the interval is slip_1 + (slip_0 - slip_1) (tau / dt) (1 - exp(-dt / tau)).
-    Returns (a, B, af, ar, slip) at x_k with that slip, which `propagate` then holds."""
+    Returns (a, B, af, ar, slip) at x_k with that slip (and `load_gain` of `accelerations`), which
+    `propagate` then holds."""
     a, B, _, _, slip0 = first
     Rw = p[P_WHEEL_RADIUS]
     vx = x[:, 0]
@@ -288,7 +293,7 @@ def slip_over_step(x, u0, u1, w, first, dt: float, p: np.ndarray, jw: np.ndarray
     tau = np.maximum(jw[:, None] * D / C, 1e-12)
     share = (tau / dt) * -np.expm1(-dt / tau)  # (1 / dt) int_0^dt exp(-t / tau) dt
     slip = slip1 + (slip0 - slip1) * share
-    return accelerations(x, u0, p, True, rear_drive, slip)
+    return accelerations(x, u0, p, True, rear_drive, slip, load_gain)
 
 
 def measurement(a, B, x, roll_gain, full: bool, p: np.ndarray | None = None):

@@ -62,6 +62,8 @@ class CompiledStep:
                 self._walk_roll(dt)
             np.multiply(self.k_roll, GRAVITY, out=wk.gain)
             wk.gain += 1.0
+        if self.k_load is not None:  # the load-transfer gain per particle (`_load_gains`)
+            wk.load_gain[:] = self._load_gains()
         if math.isfinite(sum(yl)):  # the kernels compiled for this model's sizes (kernels.SIZES_FULL ...)
             a, nc, sizes = wk.avail_all, wk.nc_all, wk.sizes_all
         else:
@@ -101,6 +103,8 @@ class CompiledStep:
             self.resamples += 1
             if self.k_roll is not None:
                 self.k_roll = self.k_roll[wk.idx]
+            if self.k_load is not None:
+                self.k_load = self.k_load[wk.idx]
         vx_est = vx_est if self.full else uk[3]
         if self._gate_or_restart(t, uk, y, vx_est, alpha, vy_std, pinned):
             return self._restart(t, uk, y)
@@ -267,8 +271,9 @@ class _MPFWork:
         self.max_step, self.beta = float(cfg.max_step), float(cfg.plausible_beta)
         self.yaw_max, self.gate_speed = float(cfg.plausible_yaw_rate), float(cfg.gate_speed)
         self.gain = np.full(N, mpf.roll_gain)  # the roll gain per particle (`_roll_gains`)
+        self.load_gain = np.ones(N)  # the load-transfer gain per particle (`_load_gains`)
         self.model = {linear: (mpf._vp, mpf._jw, mpf._c_floor, mpf.R, mpf.q_bias if linear else mpf.q_bias_nonlinear,
-                               self.gain) for linear in (False, True)}
+                               self.gain, self.load_gain) for linear in (False, True)}
         adaptive = cfg.forgetting_mode == "adaptive"
         self.flags = {active: (self.heun, self.interval, mpf.bias_on, active, mpf.full, mpf.rear_drive, adaptive,
                                True, True) for active in (False, True)}

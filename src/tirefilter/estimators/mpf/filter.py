@@ -28,6 +28,18 @@ from tirefilter.vehicle.params import VehicleParams
 from tirefilter.vehicle.single_track import GRAVITY
 
 
+LOAD_GAIN_MIN = 0.3  # the floor of the load-transfer gain 1 - kappa a^Y^2 (`_load_gains`)
+
+
+def _reflected_walk(k: np.ndarray, bounds, rw: float, dt: float, rng: np.random.Generator) -> np.ndarray:
+    """k plus a normal step of std rw sqrt(dt), reflected at the bounds (low, high) (which keeps a
+    uniform prior over them invariant) and clipped into them."""
+    lo, hi = bounds
+    k = k + (rw * math.sqrt(dt)) * rng.standard_normal(len(k))
+    k = np.where(k < lo, 2.0 * lo - k, k)
+    return np.clip(np.where(k > hi, 2.0 * hi - k, k), lo, hi)
+
+
 class StiffnessMPF(CompiledStep, Adaptation, Supervision):
     """Algorithm 1 of the stiffness paper, vectorised over particles."""
 
@@ -57,6 +69,10 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         # no roll_gradient in the vehicle file: k a parameter of each particle (`k_roll`, derivations, "The roll gain
         # from the data"), the roll gain 1 + k g per particle
         self.roll_estimated = v.roll_gradient is None and self.cfg.roll_estimate
+        # the load transfer's gain 1 - kappa a^Y^2 on the lateral axle forces, kappa per particle (`k_load`,
+        # derivations, "Load transfer")
+        self.load_estimated = self.cfg.load_sensitivity_estimate
+        self.k_load, self._ay_step = None, 0.0  # (drawn by `reset`)
         sig = np.asarray(self.cfg.sigma)[list(self.channels)]
         self.R = np.diag(sig**2)
         ch = list(self.channels)
@@ -129,6 +145,7 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         self.surprise_level = 1.0  # z smoothed over `inflation_baseline_time` (`_draw_inflation`)
         self.linear_region = True  # |a^Y| below the gate's linear-region bound at the last sample
         self.ay_last = math.nan  # the last finite a^Y of the linear-region test (`gate_ay`)
+        self.ay_load = self._ay_step = 0.0  # the measured a^Y of the load transfer (`_next_ay_load`)
         self.ax_last = math.nan  # the last finite a^X of the linear-region test (`gate_accel` combined)
         self.ay_pred = math.nan  # the one-step prediction of this sample's a^Y (`gate_ay = "predicted"`)
         self.lam = self.cfg.forgetting  # the forgetting factor applied at the next propagation
@@ -191,6 +208,8 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         self.logw = np.full(N, -math.log(N))
         # the roll gradient of each particle, uniform over the prior (None: the vehicle file's, `roll_gain`)
         self.k_roll = rng.uniform(*cfg.roll_gradient_prior, N) if self.roll_estimated else None
+        # the load sensitivity of each particle, uniform over the prior (None: the paper's linear axle)
+        self.k_load = rng.uniform(*cfg.load_sensitivity_prior, N) if self.load_estimated else None
 
     # ---- the roll gain (derivations, "The roll gain from the data") --------------------------
     def _roll_gains(self):
@@ -200,10 +219,43 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
     def _walk_roll(self, dt: float) -> None:
         """The random walk of k over dt (`roll_gradient_rw` per sqrt(s)), reflected at the prior's bounds:
         without it, resampling would leave every particle with the k of a few ancestors."""
-        lo, hi = self.cfg.roll_gradient_prior
-        k = self.k_roll + (self.cfg.roll_gradient_rw * math.sqrt(dt)) * self.rng.standard_normal(len(self.k_roll))
-        k = np.where(k < lo, 2.0 * lo - k, k)
-        self.k_roll = np.clip(np.where(k > hi, 2.0 * hi - k, k), lo, hi)
+        self.k_roll = _reflected_walk(self.k_roll, self.cfg.roll_gradient_prior, self.cfg.roll_gradient_rw, dt,
+                                      self.rng)
+
+    # ---- the load transfer (derivations, "Load transfer") ----------------------------------
+    def _next_ay_load(self, y_ay: float) -> None:
+        """This step's a^Y of the load transfer (`_ay_step`): the last finite measured one before this
+        sample; `ay_load` then takes this sample's (when finite)."""
+        self._ay_step = self.ay_load
+        if math.isfinite(y_ay):
+            self.ay_load = y_ay
+
+    def _load_gains(self):
+        """The gain 1 - kappa (a^Y / (1 + k g))^2 of each particle's lateral axle forces in this step (a^Y
+        the step's `_ay_step`, over the particle's roll gain), floored at `LOAD_GAIN_MIN`; None without
+        the load sensitivity."""
+        if self.k_load is None:
+            return None
+        a2 = (self._ay_step / self._roll_gains()) ** 2
+        return np.maximum(1.0 - self.k_load * a2, LOAD_GAIN_MIN)
+
+    def _load_gains_or_ones(self, n: int):
+        """`_load_gains`, n ones without the load sensitivity (the compiled twin's argument)."""
+        g = self._load_gains()
+        return np.ones(n) if g is None else g
+
+    def _walk_load(self, dt: float) -> None:
+        """The random walk of kappa over dt (`load_sensitivity_rw` per sqrt(s)), reflected at the prior's bounds."""
+        self.k_load = _reflected_walk(self.k_load, self.cfg.load_sensitivity_prior, self.cfg.load_sensitivity_rw, dt,
+                                      self.rng)
+
+    def _load_moments(self) -> tuple[float, float]:
+        """The posterior mean and std of kappa (NaN, NaN where it is not estimated)."""
+        if self.k_load is None:
+            return NAN, NAN
+        q = np.exp(self.logw)
+        mean = float(q @ self.k_load)
+        return mean, math.sqrt(max(float(q @ (self.k_load - mean) ** 2), 0.0))
 
     def _roll_moments(self) -> tuple[float, float]:
         """The posterior mean and std of k (NaN, NaN where it is not estimated)."""
@@ -218,9 +270,10 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         """`single_track.accelerations`: a (N, 3), B (N, 3, n_w), af, ar, the wheel slip (2, N)
         (None in the lateral model; `slip` given: held from an earlier evaluation)."""
         if self._nb is not None and slip is None:
-            a, B, af, ar, slip = self._st.accelerations(x, u, self._vp, self.full, self.rear_drive, self.n_w)
+            a, B, af, ar, slip = self._st.accelerations(x, u, self._vp, self.full, self.rear_drive, self.n_w,
+                                                        self._load_gains_or_ones(len(x)))
             return a, B, af, ar, slip if self.full else None
-        return single_track.accelerations(x, u, self._vp, self.full, self.rear_drive, slip)
+        return single_track.accelerations(x, u, self._vp, self.full, self.rear_drive, slip, self._load_gains())
 
     def _propagate(self, x, u, w, dt, first):
         """`single_track.propagate` (eq. (9)) with `first` = (a, B, af, ar, slip) at x_k."""
@@ -228,9 +281,10 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         if self._nb is not None:
             a, B, _, _, slip = first
             return self._st.propagate(x, u, w, (a, B, np.zeros((2, len(x))) if slip is None else slip), dt,
-                                      self.cfg.max_step, heun, self._vp, self.full, self.rear_drive, self.n_w)
+                                      self.cfg.max_step, heun, self._vp, self.full, self.rear_drive, self.n_w,
+                                      self._load_gains_or_ones(len(x)))
         return single_track.propagate(x, u, w, dt, first, self._vp, self.full, self.rear_drive, self.cfg.max_step,
-                                      heun)
+                                      heun, self._load_gains())
 
     def _slip_over_step(self, x, u0, u1, w, first, dt):
         """`single_track.slip_over_step`: the first stage of the propagation from t_k to t_k + dt
@@ -238,9 +292,9 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         if self._nb is not None:
             a, B, _, _, slip0 = first
             return self._st.slip_over_step(x, u0, u1, w, (a, B, slip0), dt, self._vp, self._jw, self._c_floor,
-                                           self.rear_drive, self.n_w)
+                                           self.rear_drive, self.n_w, self._load_gains_or_ones(len(x)))
         return single_track.slip_over_step(x, u0, u1, w, first, dt, self._vp, self._jw, self._c_floor,
-                                           self.rear_drive)
+                                           self.rear_drive, self._load_gains())
 
     def _measurement(self, a, B, x):
         """`single_track.measurement`: h (N, m) and d (N, m, n_w) of eq. (12), the IMU's lever arm and roll
@@ -282,6 +336,9 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         dt = t - self.t_prev if self.t_prev is not None else cfg.sample_period
         if self.t_prev is not None and dt <= 0:
             raise ConfigError("inputs", "t", f"time must increase: {t} after {self.t_prev}")
+        if self.k_load is not None and self.t_prev is not None:  # kappa's walk, the step's first draw on both paths
+            self._walk_load(dt)
+        self._next_ay_load(y.ay)
         if self._nb is not None:  # every sample by three compiled passes; the numpy code below is the reference
             return self._step_compiled(t, uk, y, dt, u_now)
         if self.t_prev is not None:
@@ -346,6 +403,8 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
             self.x, self.b, self.P = self.x[idx], self.b[idx], self.P[idx]
             if self.k_roll is not None:
                 self.k_roll = self.k_roll[idx]
+            if self.k_load is not None:
+                self.k_load = self.k_load[idx]
             self.stats = self.stats.take(idx)
             h, D, af, ar = h[idx], D[idx], af[idx], ar[idx]
             a_k, B_k, _, _, slip_k = model_k
@@ -517,6 +576,8 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
                  "C_nominal": self.C_nom.copy(), "params": self.params}
         if self.k_roll is not None:
             stats["roll_gradient"] = self.k_roll.copy()
+        if self.k_load is not None:
+            stats["load_sensitivity"] = self.k_load.copy()
         if self._calib is not None:  # the factor of the calibrated lateral *_std ("Batch-means sandwich"), 1 for Cx
             stats["std_factor"] = np.concatenate([np.ones(len(self.params) - 2), self._calib.factor])
         return Posterior(self.x.copy(), self.logw.copy(), stats)
