@@ -64,6 +64,10 @@ class CompiledStep:
             wk.gain += 1.0
         if self.k_load is not None:  # the load-transfer gain per particle (`_load_gains`)
             wk.load_gain[:] = self._load_gains()
+        if self.relaxing:  # the relaxed slip angles (`_keep_relaxed`): the kernel relaxes from them and overwrites them
+            if self.relaxed is not None and self.relaxed is not wk.relaxed:
+                wk.relaxed[...] = self.relaxed
+            self.relaxed = wk.relaxed
         if math.isfinite(sum(yl)):  # the kernels compiled for this model's sizes (kernels.SIZES_FULL ...)
             a, nc, sizes = wk.avail_all, wk.nc_all, wk.sizes_all
         else:
@@ -105,6 +109,8 @@ class CompiledStep:
                 self.k_roll = self.k_roll[wk.idx]
             if self.k_load is not None:
                 self.k_load = self.k_load[wk.idx]
+            if self.relaxing:
+                wk.relaxed[...] = wk.relaxed[:, wk.idx]
         vx_est = vx_est if self.full else uk[3]
         if self._gate_or_restart(t, uk, y, vx_est, alpha, vy_std, pinned):
             return self._restart(t, uk, y)
@@ -272,8 +278,9 @@ class _MPFWork:
         self.yaw_max, self.gate_speed = float(cfg.plausible_yaw_rate), float(cfg.gate_speed)
         self.gain = np.full(N, mpf.roll_gain)  # the roll gain per particle (`_roll_gains`)
         self.load_gain = np.ones(N)  # the load-transfer gain per particle (`_load_gains`)
+        self.relaxed = np.zeros((2, N) if mpf.relaxing else (2, 0))  # the relaxed slip angles (`_keep_relaxed`)
         self.model = {linear: (mpf._vp, mpf._jw, mpf._c_floor, mpf.R, mpf.q_bias if linear else mpf.q_bias_nonlinear,
-                               self.gain, self.load_gain) for linear in (False, True)}
+                               self.gain, self.load_gain, self.relaxed) for linear in (False, True)}
         adaptive = cfg.forgetting_mode == "adaptive"
         self.flags = {active: (self.heun, self.interval, mpf.bias_on, active, mpf.full, mpf.rear_drive, adaptive,
                                True, True) for active in (False, True)}

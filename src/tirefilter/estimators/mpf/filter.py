@@ -28,6 +28,7 @@ from tirefilter.vehicle.params import VehicleParams
 from tirefilter.vehicle.single_track import GRAVITY
 
 
+_NO_RELAX = np.zeros((2, 0))  # the compiled twin's "no relaxed slip angles"
 LOAD_GAIN_MIN = 0.3  # the floor of the load-transfer gain 1 - kappa a^Y^2 (`_load_gains`)
 
 
@@ -73,6 +74,9 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         # derivations, "Load transfer")
         self.load_estimated = self.cfg.load_sensitivity_estimate
         self.k_load, self._ay_step = None, 0.0  # (drawn by `reset`)
+        # the tyres' relaxation (derivations, "Tyre relaxation"): the relaxed slip angles (2, N) at the last sample
+        self.relaxing = v.relaxation_length > 0
+        self.relaxed = None
         sig = np.asarray(self.cfg.sigma)[list(self.channels)]
         self.R = np.diag(sig**2)
         ch = list(self.channels)
@@ -210,6 +214,7 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         self.k_roll = rng.uniform(*cfg.roll_gradient_prior, N) if self.roll_estimated else None
         # the load sensitivity of each particle, uniform over the prior (None: the paper's linear axle)
         self.k_load = rng.uniform(*cfg.load_sensitivity_prior, N) if self.load_estimated else None
+        self.relaxed = None  # (the first model evaluation's kinematic slip angles, `_keep_relaxed`)
 
     # ---- the roll gain (derivations, "The roll gain from the data") --------------------------
     def _roll_gains(self):
@@ -239,6 +244,12 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         a2 = (self._ay_step / self._roll_gains()) ** 2
         return np.maximum(1.0 - self.k_load * a2, LOAD_GAIN_MIN)
 
+    def _keep_relaxed(self, model_k) -> None:
+        """With the tyres' relaxation: the slip angles of the model at this sample (`af`, `ar` of
+        `accelerations`, relaxed), which the next propagation relaxes from."""
+        if self.relaxing:
+            self.relaxed = np.array([model_k[2], model_k[3]])
+
     def _load_gains_or_ones(self, n: int):
         """`_load_gains`, n ones without the load sensitivity (the compiled twin's argument)."""
         g = self._load_gains()
@@ -266,14 +277,16 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         return mean, math.sqrt(max(float(q @ (self.k_roll - mean) ** 2), 0.0))
 
     # ---- model: `vehicle.single_track` (numpy) or its compiled twin ------------------------
-    def _model(self, x, u, slip=None):
+    def _model(self, x, u, slip=None, relax=None):
         """`single_track.accelerations`: a (N, 3), B (N, 3, n_w), af, ar, the wheel slip (2, N)
-        (None in the lateral model; `slip` given: held from an earlier evaluation)."""
+        (None in the lateral model; `slip` given: held from an earlier evaluation; `relax` = (relaxed slip
+        angles, h) with the tyres' relaxation, None: the kinematic slip angles)."""
         if self._nb is not None and slip is None:
+            rel, h = (_NO_RELAX, -1.0) if relax is None else relax
             a, B, af, ar, slip = self._st.accelerations(x, u, self._vp, self.full, self.rear_drive, self.n_w,
-                                                        self._load_gains_or_ones(len(x)))
+                                                        self._load_gains_or_ones(len(x)), rel, h)
             return a, B, af, ar, slip if self.full else None
-        return single_track.accelerations(x, u, self._vp, self.full, self.rear_drive, slip, self._load_gains())
+        return single_track.accelerations(x, u, self._vp, self.full, self.rear_drive, slip, self._load_gains(), relax)
 
     def _propagate(self, x, u, w, dt, first):
         """`single_track.propagate` (eq. (9)) with `first` = (a, B, af, ar, slip) at x_k."""
@@ -282,9 +295,9 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
             a, B, _, _, slip = first
             return self._st.propagate(x, u, w, (a, B, np.zeros((2, len(x))) if slip is None else slip), dt,
                                       self.cfg.max_step, heun, self._vp, self.full, self.rear_drive, self.n_w,
-                                      self._load_gains_or_ones(len(x)))
+                                      self._load_gains_or_ones(len(x)), _NO_RELAX if self.relaxed is None else self.relaxed)
         return single_track.propagate(x, u, w, dt, first, self._vp, self.full, self.rear_drive, self.cfg.max_step,
-                                      heun, self._load_gains())
+                                      heun, self._load_gains(), self.relaxed)
 
     def _slip_over_step(self, x, u0, u1, w, first, dt):
         """`single_track.slip_over_step`: the first stage of the propagation from t_k to t_k + dt
@@ -292,9 +305,10 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         if self._nb is not None:
             a, B, _, _, slip0 = first
             return self._st.slip_over_step(x, u0, u1, w, (a, B, slip0), dt, self._vp, self._jw, self._c_floor,
-                                           self.rear_drive, self.n_w, self._load_gains_or_ones(len(x)))
+                                           self.rear_drive, self.n_w, self._load_gains_or_ones(len(x)),
+                                           _NO_RELAX if self.relaxed is None else self.relaxed)
         return single_track.slip_over_step(x, u0, u1, w, first, dt, self._vp, self._jw, self._c_floor,
-                                           self.rear_drive, self._load_gains())
+                                           self.rear_drive, self._load_gains(), self.relaxed)
 
     def _measurement(self, a, B, x):
         """`single_track.measurement`: h (N, m) and d (N, m, n_w) of eq. (12), the IMU's lever arm and roll
@@ -366,7 +380,8 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
 
         a = np.flatnonzero(np.isfinite(yk))  # available channels, in the order ax, ay, yaw rate
         nc = int(sum(self.channels[j] in (0, 1) for j in a))  # accelerometer channels lead
-        model_k = self._model(self.x, uk)
+        # the model at x_k (with the tyres' relaxation: the slip angles relaxed over dt from the last sample's)
+        model_k = self._model(self.x, uk, relax=None if self.relaxed is None else (self.relaxed, dt))
         af, ar = model_k[2], model_k[3]
         h, D = self._measurement(model_k[0], model_k[1], self.x)
         mu_w, L11, nu_w = self.stats.predictive()
@@ -454,6 +469,7 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
             self.stats.mu = np.clip(self.stats.mu, lo, hi)  # parameter projection (Sec. V)
         self.w_prev = w
         self._at_x = model_k  # the first stage of the next propagation, at this x and u
+        self._keep_relaxed(model_k)
         if self.full:
             self._excite_cx(float(np.exp(self.logw) @ self.x[:, 0]), uk, dt)
         return self._estimate(ess)

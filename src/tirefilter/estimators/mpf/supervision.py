@@ -191,6 +191,7 @@ class Supervision:
         self.learned_time, self._t_gate = 0.0, None  # a new start: the inflation disarmed (`inflation_after`)
         self.ay_pred = math.nan  # (the old cloud's prediction)
         self._at_x = self._model(self.x, uk)
+        self._keep_relaxed(self._at_x)
         self.w_prev = self.stats.mu.copy()  # the next propagation uses the prior means
         if self._nb is not None:  # (the compiled moments)
             return self._estimate_compiled(float(self.cfg.particles))
