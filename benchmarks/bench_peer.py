@@ -17,6 +17,7 @@ STD). Then the mean absolute errors per model and estimator, as markdown tables 
 (docs/results.md, "Peer drives"). The default run is modest (12 drives of 60 s, one worker).
 
     .venv/bin/python benchmarks/bench_peer.py --set [--duration 60] [--workers 2] [--config FILE.toml] [--drives 2 6 ...]
+        [--relaxation]
 
 The peer set (`SET_DRIVES`): 14 drives of the multi-body CommonRoad model (MB, body roll)
 and of the two-track model (TT: load transfer, load-sensitive tyres with relaxation, the IMU
@@ -129,11 +130,11 @@ def run_set_drive(job: tuple) -> dict:
     from tirefilter.peer.drive import DriveSpec, simulate, write_drive
     from tirefilter.peer.score import final_scores, read_columns
 
-    (model, vehicle_id, maneuver, speed, ay, seed), duration, config_path = job
+    (model, vehicle_id, maneuver, speed, ay, seed), duration, config_path, relaxation = job
     config = read_toml(config_path) if config_path else {}
     t0 = time.perf_counter()
     drive = simulate(DriveSpec(model=model, vehicle=vehicle_id, maneuver=maneuver, duration=duration, seed=seed,
-                               speed=speed, ay=ay))
+                               speed=speed, ay=ay, relaxation_in_vehicle=relaxation))
     gen_s = time.perf_counter() - t0
     with tempfile.TemporaryDirectory() as tmp:
         log, vehicle = write_drive(drive, Path(tmp) / "drive.csv", Path(tmp) / "vehicle.toml")
@@ -217,7 +218,7 @@ def set_tables(rows: list[dict]) -> str:
 
 def main_set(args) -> None:
     drives = SET_DRIVES if args.drives is None else [SET_DRIVES[i] for i in args.drives]
-    jobs = [(d, args.duration, args.config) for d in drives]
+    jobs = [(d, args.duration, args.config, args.relaxation) for d in drives]
     t0 = time.perf_counter()
     rows = []
     with ProcessPoolExecutor(max(1, args.workers)) as pool:
@@ -228,7 +229,8 @@ def main_set(args) -> None:
     header = (f"Peer set: {len(jobs)} drives of {args.duration:g} s at 100 Hz (MB: CommonRoad multi-body, camber off; "
               f"TT: two-track, logger dropouts), data-sheet vehicle files, the MPF (N = 500, seed 0) replayed as "
               f"`tirefilter replay` does with "
-              f"{'`--config ' + args.config + '`' if args.config else 'the default settings (no --config)'}; "
+              f"{'`--config ' + args.config + '`' if args.config else 'the default settings (no --config)'}"
+              f"{', TT vehicle files with relaxation_length' if args.relaxation else ''}; "
               f"{args.workers} workers, run time {time.perf_counter() - t0:.0f} s.")
     print(header + "\n\n" + set_tables(rows))
 
@@ -300,6 +302,8 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--set", action="store_true",
                     help="the peer set (SET_DRIVES: MB and TT, the MPF) instead of the grid")
+    ap.add_argument("--relaxation", action="store_true",
+                    help="with --set: the TT drives' vehicle files state the tyres' relaxation length (relaxation_length)")
     ap.add_argument("--drives", nargs="+", type=int, choices=range(len(SET_DRIVES)),
                     help="with --set: only these drives of SET_DRIVES (indices 0-13, in the table's order)")
     args = ap.parse_args()
