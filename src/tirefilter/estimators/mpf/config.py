@@ -133,7 +133,7 @@ class MPFConfig:
     # reported stiffness is then the axle's at a^Y = 0, the static load
     load_sensitivity_estimate: bool = False
     load_sensitivity_prior: tuple[float, float] = (0.0, 0.015)
-    load_sensitivity_rw: float = 2e-4
+    load_sensitivity_rw: float = 1e-3
     # sensors
     sigma: tuple[float, float, float] = (0.05, 0.05, 0.0035)  # ax, ay, yaw rate white noise
     # IMU bias (eq. (29)-(30)): prior std and random walk per sqrt(s) of ax, ay, yaw rate;

@@ -250,6 +250,10 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         if self.relaxing:
             self.relaxed = np.array([model_k[2], model_k[3]])
 
+    def _particle_args(self, n: int):
+        """The compiled twin's per-particle arguments for n particles: (load-transfer gains, relaxed slip angles)."""
+        return self._load_gains_or_ones(n), _NO_RELAX if self.relaxed is None else self.relaxed
+
     def _load_gains_or_ones(self, n: int):
         """`_load_gains`, n ones without the load sensitivity (the compiled twin's argument)."""
         g = self._load_gains()
@@ -295,7 +299,7 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
             a, B, _, _, slip = first
             return self._st.propagate(x, u, w, (a, B, np.zeros((2, len(x))) if slip is None else slip), dt,
                                       self.cfg.max_step, heun, self._vp, self.full, self.rear_drive, self.n_w,
-                                      self._load_gains_or_ones(len(x)), _NO_RELAX if self.relaxed is None else self.relaxed)
+                                      self._particle_args(len(x)))
         return single_track.propagate(x, u, w, dt, first, self._vp, self.full, self.rear_drive, self.cfg.max_step,
                                       heun, self._load_gains(), self.relaxed)
 
@@ -305,8 +309,7 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         if self._nb is not None:
             a, B, _, _, slip0 = first
             return self._st.slip_over_step(x, u0, u1, w, (a, B, slip0), dt, self._vp, self._jw, self._c_floor,
-                                           self.rear_drive, self.n_w, self._load_gains_or_ones(len(x)),
-                                           _NO_RELAX if self.relaxed is None else self.relaxed)
+                                           self.rear_drive, self.n_w, self._particle_args(len(x)))
         return single_track.slip_over_step(x, u0, u1, w, first, dt, self._vp, self._jw, self._c_floor,
                                            self.rear_drive, self._load_gains(), self.relaxed)
 

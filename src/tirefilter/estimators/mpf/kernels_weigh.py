@@ -268,7 +268,7 @@ def predict_weigh(own, scratch, inputs, model, scalars, flags, nc, sizes):
             w2 = w_prev[i, 2] if full else 0.0
             sf, sr = slip[0, i], slip[1, i]
             if interval:
-                m = _model_t((x0, x1, x2), up, kp, True, sf, sr, vp, True, rear_drive, lg, pf, pr, h0)
+                m = _model_t((x0, x1, x2), up, kp, True, sf, sr, vp, True, rear_drive, (lg, pf, pr, h0))
             elif full:
                 m = (a[i, 0], a[i, 1], a[i, 2], B[i, 0, 0], B[i, 0, 1], B[i, 0, 2], B[i, 1, 0], B[i, 1, 1],
                      B[i, 1, 2], B[i, 2, 0], B[i, 2, 1], B[i, 2, 2], 0.0, 0.0, 0.0, 0.0)
@@ -277,8 +277,8 @@ def predict_weigh(own, scratch, inputs, model, scalars, flags, nc, sizes):
                      B[i, 2, 1], 0.0, 0.0, 0.0, 0.0, 0.0)
             for s in range(n_sub):
                 if s > 0:
-                    m = _model_t((x0, x1, x2), up, kp, False, 0.0, 0.0, vp, full, rear_drive, lg, pf, pr,
-                                 s * hs if relaxing else -1.0)
+                    m = _model_t((x0, x1, x2), up, kp, False, 0.0, 0.0, vp, full, rear_drive,
+                                 (lg, pf, pr, s * hs if relaxing else -1.0))
                     sf, sr = m[14], m[15]
                 k10, k11, k12 = _xdot_t(x0, x1, x2, u_prev[3], m, w0, w1, w2, full)
                 if not heun:
@@ -290,8 +290,8 @@ def predict_weigh(own, scratch, inputs, model, scalars, flags, nc, sizes):
                 y0 = x0 + hs * k10
                 y1 = x1 + hs * k11
                 y2 = x2 + hs * k12 if full else 0.0
-                m = _model_t((y0, y1, y2), up, kp, full, sf, sr, vp, full, rear_drive, lg, pf, pr,
-                             (s + 1) * hs if relaxing else -1.0)
+                m = _model_t((y0, y1, y2), up, kp, full, sf, sr, vp, full, rear_drive,
+                             (lg, pf, pr, (s + 1) * hs if relaxing else -1.0))
                 k20, k21, k22 = _xdot_t(y0, y1, y2, u_prev[3], m, w0, w1, w2, full)
                 x0 = x0 + (0.5 * hs) * (k10 + k20)
                 x1 = x1 + (0.5 * hs) * (k11 + k21)
@@ -319,8 +319,8 @@ def predict_weigh(own, scratch, inputs, model, scalars, flags, nc, sizes):
                     for k in range(n_wp):
                         Lam[i, j, k] = Lam[i, j, k] * f
         # the model at x_k, u_k (`_model`) and the plausible region (`_plausible`)
-        m = _model_t((x0, x1, x2), uu, kk, False, 0.0, 0.0, vp, full, rear_drive, lg, pf, pr,
-                     dt if relaxing and propagate else -1.0)
+        m = _model_t((x0, x1, x2), uu, kk, False, 0.0, 0.0, vp, full, rear_drive,
+                     (lg, pf, pr, dt if relaxing and propagate else -1.0))
         if relaxing:  # the relaxed slip angles at x_k, which the next propagation relaxes from
             relaxed[0, i], relaxed[1, i] = m[12], m[13]
         a[i, 0], a[i, 1], a[i, 2] = m[0], m[1], m[2]
