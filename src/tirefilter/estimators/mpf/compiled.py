@@ -160,9 +160,13 @@ class CompiledStep:
         if self.full:  # params Cx, Cf_y, Cr_y; bias ax, ay, yaw rate
             if dt is not None and self._calib is not None:
                 f0, f1 = self._calibrate_moments(xm[0], xm[1], xm[2], dt)
+            sf, sr = root(vm[1]) * f0, root(vm[2]) * f1
+            if dt is not None and self._calib is not None and self.k_load is not None:  # (`_calibrate`)
+                e0, e1 = self._load_band(C[1] + mb[1], C[2] + mb[2])
+                sf, sr = math.hypot(sf, e0), math.hypot(sr, e1)
             est.__dict__.update(active=bool(self.active), vx=xm[0], vy=xm[1], yaw_rate=xm[2], Cf_y=C[1] + mb[1],
-                                Cr_y=C[2] + mb[2], Cx=C[0] + mb[0], Cf_y_std=root(vm[1]) * f0,
-                                Cr_y_std=root(vm[2]) * f1, Cx_std=root(vm[0]), Cf_y_sigma=root(s2[1]),
+                                Cr_y=C[2] + mb[2], Cx=C[0] + mb[0], Cf_y_std=sf,
+                                Cr_y_std=sr, Cx_std=root(vm[0]), Cf_y_sigma=root(s2[1]),
                                 Cr_y_sigma=root(s2[2]), Cx_sigma=root(s2[0]), b_ax=bm[0], b_ay=bm[1], b_yaw_rate=bm[2],
                                 ess=float(ess), state_std=(xs[0], xs[1], xs[2]), roll_gradient=k_mean,
                                 roll_gradient_std=k_std)
@@ -170,8 +174,12 @@ class CompiledStep:
         vx = float(self.u_prev[3])
         if dt is not None and self._calib is not None:
             f0, f1 = self._calibrate_moments(vx, xm[0], xm[1], dt)
+        sf, sr = root(vm[0]) * f0, root(vm[1]) * f1
+        if dt is not None and self._calib is not None and self.k_load is not None:  # (`_calibrate`)
+            e0, e1 = self._load_band(C[0] + mb[0], C[1] + mb[1])
+            sf, sr = math.hypot(sf, e0), math.hypot(sr, e1)
         est.__dict__.update(active=bool(self.active), vx=vx, vy=xm[0], yaw_rate=xm[1], Cf_y=C[0] + mb[0],
-                            Cr_y=C[1] + mb[1], Cx=NAN, Cf_y_std=root(vm[0]) * f0, Cr_y_std=root(vm[1]) * f1, Cx_std=NAN,
+                            Cr_y=C[1] + mb[1], Cx=NAN, Cf_y_std=sf, Cr_y_std=sr, Cx_std=NAN,
                             Cf_y_sigma=root(s2[0]), Cr_y_sigma=root(s2[1]), Cx_sigma=NAN, b_ax=NAN, b_ay=bm[0],
                             b_yaw_rate=bm[1], ess=float(ess), state_std=(0.0, xs[0], xs[1]), roll_gradient=k_mean,
                             roll_gradient_std=k_std)

@@ -167,6 +167,7 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         self._calib = (BatchMeansSandwichPair(self.cfg.calibration_batch, math.inf)
                        if self.cfg.std_calibration == "sandwich" else None)
         self._calib_in_step = False  # this step's `_step_compiled` has fed the sandwich (`step` does not)
+        self._load_level = np.zeros(4)  # (`_track_load_level`)
 
     def _draw_prior(self, x0_mean) -> None:
         """Particles from the initial distribution: stiffness statistics (or the carried

@@ -186,6 +186,7 @@ class Supervision:
         self._reset_cx_excitation()  # the prior again: nothing of Cx learned
         if self._calib is not None:
             self._calib.reset()
+            self._load_level[:] = 0.0
         self.t_start, self.t_prev, self.u_prev, self.active = t, t, uk, False
         self._contradiction_since = self._bound_since = None
         self.learned_time, self._t_gate = 0.0, None  # a new start: the inflation disarmed (`inflation_after`)
