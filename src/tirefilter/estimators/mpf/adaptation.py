@@ -16,6 +16,7 @@ from tirefilter.stats.linalg import chol, solve_lower
 from tirefilter.vehicle import single_track
 
 NAN = math.nan
+LOAD_GAIN_MIN = 0.3  # the floor of the load-transfer gain 1 - kappa a^Y^2 (`StiffnessMPF._load_gains`, `_load_band`)
 
 
 class Adaptation:
@@ -206,7 +207,7 @@ class Adaptation:
         out = []
         for C, num, den in ((Cf, s[0], s[1]), (Cr, s[2], s[3])):
             m = num / den if den > 0 else 0.0
-            out.append(abs(C) * m * k_std / max(1.0 - k * m, 0.3))
+            out.append(abs(C) * m * k_std / max(1.0 - k * m, LOAD_GAIN_MIN))
         return out[0], out[1]
 
     def _calibrate_moments(self, vx: float, vy: float, r: float, dt: float) -> tuple[float, float]:

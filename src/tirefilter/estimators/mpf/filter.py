@@ -14,7 +14,7 @@ import numpy as np
 
 from tirefilter.errors import ConfigError
 from tirefilter.estimators.base import Estimate, Inputs, Measurement, Posterior, particle_estimate
-from tirefilter.estimators.mpf.adaptation import Adaptation
+from tirefilter.estimators.mpf.adaptation import LOAD_GAIN_MIN, Adaptation
 from tirefilter.estimators.mpf.compiled import NAN, CompiledStep, _sqrt_or_nan
 from tirefilter.estimators.mpf.config import MPFConfig
 from tirefilter.estimators.mpf.supervision import Supervision
@@ -29,7 +29,6 @@ from tirefilter.vehicle.single_track import GRAVITY
 
 
 _NO_RELAX = np.zeros((2, 0))  # the compiled twin's "no relaxed slip angles"
-LOAD_GAIN_MIN = 0.3  # the floor of the load-transfer gain 1 - kappa a^Y^2 (`_load_gains`)
 
 
 def _reflected_walk(k: np.ndarray, bounds, rw: float, dt: float, rng: np.random.Generator) -> np.ndarray:
