@@ -27,8 +27,10 @@ replay` does it (`scan_log`, `estimators.for_log`, `estimators.build`; N = 500, 
 the defaults unless `--config`) in `--workers` processes. Per drive and in total
 (`peer.score.final_scores`): the lateral stiffness error at the last row (%) and in
 reported std, the coverage of the truth by the 90 % band over the second half, the
-sideslip RMSE over the drive and over the rows with |a^Y| >= 4 m/s^2, restarts; against
-the targets SET_TARGETS. It measures; it tunes nothing.
+sideslip RMSE over the drive and over the rows with |a^Y| >= 4 m/s^2, the roll gradient and
+(where estimated) the load sensitivity kappa at the last row, restarts; against the targets
+SET_TARGETS. `--relaxation`: the TT drives' vehicle files state their tyres' relaxation length;
+`--drives`: a subset. It measures; it tunes nothing.
 """
 
 from __future__ import annotations
