@@ -16,7 +16,8 @@ largest |a^Y| and the IMU's a^Y gain 1 + g k from body roll (k the roll gradient
 STD). Then the mean absolute errors per model and estimator, as markdown tables on stdout
 (docs/results.md, "Peer drives"). The default run is modest (12 drives of 60 s, one worker).
 
-    .venv/bin/python benchmarks/bench_peer.py --set [--duration 60] [--workers 2] [--config FILE.toml]
+    .venv/bin/python benchmarks/bench_peer.py --set [--duration 60] [--workers 2] [--config FILE.toml] [--drives 2 6 ...]
+        [--relaxation]
 
 The peer set (`SET_DRIVES`): 14 drives of the multi-body CommonRoad model (MB, body roll)
 and of the two-track model (TT: load transfer, load-sensitive tyres with relaxation, the IMU
@@ -26,8 +27,10 @@ replay` does it (`scan_log`, `estimators.for_log`, `estimators.build`; N = 500, 
 the defaults unless `--config`) in `--workers` processes. Per drive and in total
 (`peer.score.final_scores`): the lateral stiffness error at the last row (%) and in
 reported std, the coverage of the truth by the 90 % band over the second half, the
-sideslip RMSE over the drive and over the rows with |a^Y| >= 4 m/s^2, restarts; against
-the targets SET_TARGETS. It measures; it tunes nothing.
+sideslip RMSE over the drive and over the rows with |a^Y| >= 4 m/s^2, the roll gradient and
+(where estimated) the load sensitivity kappa at the last row, restarts; against the targets
+SET_TARGETS. `--relaxation`: the TT drives' vehicle files state their tyres' relaxation length;
+`--drives`: a subset. It measures; it tunes nothing.
 """
 
 from __future__ import annotations
@@ -129,11 +132,11 @@ def run_set_drive(job: tuple) -> dict:
     from tirefilter.peer.drive import DriveSpec, simulate, write_drive
     from tirefilter.peer.score import final_scores, read_columns
 
-    (model, vehicle_id, maneuver, speed, ay, seed), duration, config_path = job
+    (model, vehicle_id, maneuver, speed, ay, seed), duration, config_path, relaxation = job
     config = read_toml(config_path) if config_path else {}
     t0 = time.perf_counter()
     drive = simulate(DriveSpec(model=model, vehicle=vehicle_id, maneuver=maneuver, duration=duration, seed=seed,
-                               speed=speed, ay=ay))
+                               speed=speed, ay=ay, relaxation_in_vehicle=relaxation))
     gen_s = time.perf_counter() - t0
     with tempfile.TemporaryDirectory() as tmp:
         log, vehicle = write_drive(drive, Path(tmp) / "drive.csv", Path(tmp) / "vehicle.toml")
@@ -152,7 +155,8 @@ def run_set_drive(job: tuple) -> dict:
             "eff_r": float(c["Cr_y_eff_true"][0] / c["Cr_y_true"][-1] - 1.0),
             "restarts": getattr(est, "restarts", None), "gen_s": gen_s, "wall_s": wall,
             "k_true": float(drive.roll_gradient), "k_est": float(result["roll_gradient"][-1]),
-            "dropped": drive.dropped}
+            "dropped": drive.dropped,
+            "kappa": est._load_moments()[0] if hasattr(est, "_load_moments") else math.nan}
 
 
 def _ok(value: float, target) -> bool:
@@ -166,8 +170,8 @@ def set_tables(rows: list[dict]) -> str:
     T = SET_TARGETS
     lines = ["| drive | max abs a^Y | eff. / static Cf_y, Cr_y | Cf_y final | Cr_y final | coverage f / r "
              "| final err / std f / r | sideslip RMSE | at abs a^Y >= 4 (rows) | roll gradient est. / true "
-             "| restarts |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| kappa est. (1e-3 s^4/m^2) | restarts |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         hi = ("-" if not math.isfinite(r["beta_rmse_hi_deg"])
               else f"{r['beta_rmse_hi_deg']:.3f} deg ({100 * r['hi_share']:.0f} %)")
@@ -178,6 +182,7 @@ def set_tables(rows: list[dict]) -> str:
             f"{100 * r['Cf_y_cover']:.0f} / {100 * r['Cr_y_cover']:.0f} % | "
             f"{_fmt(r['Cf_y_final_z'], '+.1f')} / {_fmt(r['Cr_y_final_z'], '+.1f')} | "
             f"{_fmt(r['beta_rmse_deg'], '.3f')} deg | {hi} | {_k(r['k_est'])} / {_k(r['k_true'])} | "
+            f"{_k(r['kappa'])} | "
             f"{'-' if r['restarts'] is None else r['restarts']} |")
     lines += ["", f"Totals (targets: final error within {T['final_err']:g} %, coverage {100 * T['cover'][0]:.0f}-"
               f"{100 * T['cover'][1]:.0f} %, final error <= {T['final_z']:g} std, sideslip RMSE <= {T['beta']:g} deg "
@@ -214,7 +219,8 @@ def set_tables(rows: list[dict]) -> str:
 
 
 def main_set(args) -> None:
-    jobs = [(d, args.duration, args.config) for d in SET_DRIVES]
+    drives = SET_DRIVES if args.drives is None else [SET_DRIVES[i] for i in args.drives]
+    jobs = [(d, args.duration, args.config, args.relaxation) for d in drives]
     t0 = time.perf_counter()
     rows = []
     with ProcessPoolExecutor(max(1, args.workers)) as pool:
@@ -225,7 +231,8 @@ def main_set(args) -> None:
     header = (f"Peer set: {len(jobs)} drives of {args.duration:g} s at 100 Hz (MB: CommonRoad multi-body, camber off; "
               f"TT: two-track, logger dropouts), data-sheet vehicle files, the MPF (N = 500, seed 0) replayed as "
               f"`tirefilter replay` does with "
-              f"{'`--config ' + args.config + '`' if args.config else 'the default settings (no --config)'}; "
+              f"{'`--config ' + args.config + '`' if args.config else 'the default settings (no --config)'}"
+              f"{', TT vehicle files with relaxation_length' if args.relaxation else ''}; "
               f"{args.workers} workers, run time {time.perf_counter() - t0:.0f} s.")
     print(header + "\n\n" + set_tables(rows))
 
@@ -297,6 +304,10 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--set", action="store_true",
                     help="the peer set (SET_DRIVES: MB and TT, the MPF) instead of the grid")
+    ap.add_argument("--relaxation", action="store_true",
+                    help="with --set: the TT drives' vehicle files state the tyres' relaxation length (relaxation_length)")
+    ap.add_argument("--drives", nargs="+", type=int, choices=range(len(SET_DRIVES)),
+                    help="with --set: only these drives of SET_DRIVES (indices 0-13, in the table's order)")
     args = ap.parse_args()
     if args.set:
         main_set(args)

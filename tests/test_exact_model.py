@@ -58,6 +58,73 @@ def _accelerations(vx, vy, r, u, w, full, rear_drive, share, slip=None):
     return ax, (Ffy * cd + Ffx * sd + Fry) / M, (LF * (Ffy * cd + Ffx * sd) - LR * Fry) / I
 
 
+@pytest.mark.parametrize("full", [True, False])
+def test_load_gain_scales_the_lateral_axle_forces(full):
+    """With the load-transfer gain g per particle (derivations, "Load transfer") a + B w equals the
+    accelerations of the lateral forces (C_n + w) alpha g (the longitudinal ones unchanged), still
+    linear in w; g = 1 gives the model without it bit for bit."""
+    rng = np.random.default_rng(4)
+    x, w = _particles(rng)
+    u = _inputs(rng)
+    if not full:
+        x, w = x[:, 1:], w[:, 1:]
+    g = rng.uniform(0.5, 1.0, len(x))
+    a, B, *_ = st.accelerations(x, u, P, full, False, load_gain=g)
+    acc = a + np.einsum("nij,nj->ni", B, w)
+    rows = slice(0, 3) if full else slice(1, 3)
+    cd, sd = math.cos(u[0]), math.sin(u[0])
+    for i in range(len(x)):
+        vx, vy, r = (x[i, 0], x[i, 1], x[i, 2]) if full else (u[3], x[i, 0], x[i, 1])
+        _, _, Ffy, Fry, Ffx, Frx = _forces(vx, vy, r, u, w[i], full, False, float(P[st.P_UNDRIVEN_SHARE]))
+        Ffy, Fry = g[i] * Ffy, g[i] * Fry
+        want = ((Ffx * cd - Ffy * sd + Frx) / M if full else 0.0, (Ffy * cd + Ffx * sd + Fry) / M,
+                (LF * (Ffy * cd + Ffx * sd) - LR * Fry) / I)
+        np.testing.assert_allclose(acc[i, rows], np.array(want)[rows], rtol=1e-12, atol=1e-12)
+    plain, ones = st.accelerations(x, u, P, full, False), st.accelerations(x, u, P, full, False,
+                                                                          load_gain=np.ones(len(x)))
+    for p0, p1 in zip(plain[:4], ones[:4]):
+        assert np.array_equal(p0, p1)
+
+
+@pytest.mark.parametrize("full", [True, False])
+def test_relaxed_slip_angles_are_the_first_order_lag(full):
+    """With the relaxation length sigma (derivations, "Tyre relaxation") the slip angles the forces follow
+    solve sigma d alpha' / dt + v alpha' = v alpha with alpha held over h (RK4 of that equation, brute
+    force), v = max(v^X, 1); B's lateral columns and the forces are those of the relaxed angles (a + B w
+    against the kinematic model's, scaled per axle); h = 0 keeps the previous angles exactly, and
+    sigma = 0 or no previous angles give the kinematic model bit for bit."""
+    rng = np.random.default_rng(5)
+    x, w = _particles(rng)
+    u = _inputs(rng)
+    if not full:
+        x, w = x[:, 1:], w[:, 1:]
+    sigma, h = 0.45, 0.013
+    p = np.concatenate([P, [0.0, 0.0, sigma]])
+    kin = st.accelerations(x, u, p, full, False)
+    prev = rng.uniform(-0.05, 0.05, (2, len(x)))
+    a, B, af, ar, _ = st.accelerations(x, u, p, full, False, relax=(prev, h))
+    j = 1 if full else 0  # the column of dCf_y
+    for i in range(len(x)):
+        v = max(x[i, 0] if full else u[3], 1.0)
+        y, n = prev[:, i].copy(), 2000
+        target = np.array([kin[2][i], kin[3][i]])
+        f = lambda z: v / sigma * (target - z)  # noqa: E731
+        for _ in range(n):
+            k1 = f(y)
+            k2 = f(y + 0.5 * h / n * k1)
+            k3 = f(y + 0.5 * h / n * k2)
+            y = y + h / n / 6 * (k1 + 2 * k2 + 2 * k3 + f(y + h / n * k3))
+        np.testing.assert_allclose([af[i], ar[i]], y, rtol=1e-10, atol=1e-14)
+        np.testing.assert_allclose(B[i, :, j], kin[1][i, :, j] * (af[i] / kin[2][i]), rtol=1e-10)
+        np.testing.assert_allclose(B[i, :, j + 1], kin[1][i, :, j + 1] * (ar[i] / kin[3][i]), rtol=1e-10)
+    held = st.accelerations(x, u, p, full, False, relax=(prev, 0.0))
+    assert np.array_equal(held[2], prev[0]) and np.array_equal(held[3], prev[1])
+    for off in (st.accelerations(x, u, np.concatenate([P, [0.0, 0.0, 0.0]]), full, False, relax=(prev, h)),
+                st.accelerations(x, u, p, full, False, relax=None)):
+        for k in range(4):
+            assert np.array_equal(off[k], kin[k])
+
+
 @pytest.mark.parametrize("full, rear_drive, share", [(True, False, 0.0), (True, False, 0.35), (True, True, 0.0),
                                                       (True, True, 0.35), (False, False, 0.0)])
 def test_accelerations_are_the_equations_and_linear_in_w(full, rear_drive, share):

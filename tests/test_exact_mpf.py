@@ -144,3 +144,35 @@ def test_statistics_learn_the_drawn_w_within_the_stiffness_bounds(model):
     u = np.stack([np.linalg.solve(np.linalg.cholesky(L11[i]), w[i] - mu_w[i]) for i in range(len(w))])
     a = -math.expm1(-0.01 / est.cfg.drift_time)
     np.testing.assert_allclose(est.drift, rec["drift"] + a * (np.exp(est.logw) @ u - rec["drift"]), rtol=1e-10)
+
+
+def test_load_band_is_the_batch_level_and_the_derivative_of_c0_in_kappa():
+    """kappa's share of the band (derivations, "Load transfer"): the recursive information-weighted a^Y^2
+    (`_track_load_level`) equals the batch sum with the products of the later forgetting factors,
+    sum_k (prod_{j>k} lam_j) d_k^2 a_k^2 / sum_k (prod_{j>k} lam_j) d_k^2, and the std is |dC_0/dkappa|
+    sigma_kappa with C_0 = C_eff / (1 - kappa m) differentiated numerically at C_eff fixed."""
+    vehicle = load_scenario("paper-sim").vehicle
+    est = StiffnessMPF(vehicle, MPFConfig(particles=50, backend="numpy", load_sensitivity_estimate=True))
+    est.reset(np.random.default_rng(2))
+    rng = np.random.default_rng(3)
+    n = 40
+    d = rng.normal(0.0, 0.02, (n, 2))
+    ay = rng.uniform(-5.0, 5.0, n)
+    lam = rng.uniform(0.97, 1.0, n)
+    for k in range(n):
+        est._ay_step, est._lam_step = ay[k], lam[k]
+        est._track_load_level(d[k, 0], d[k, 1])
+    k_roll = est._roll_moments()[0]  # (NaN where the vehicle file gives the roll gradient: its gain)
+    a2 = (ay / (est.roll_gain if math.isnan(k_roll) else 1.0 + k_roll * 9.80665)) ** 2
+    keep = np.array([np.prod(lam[k + 1:] ** est._calib_power) for k in range(n)])
+    for axle in (0, 1):
+        w = keep * d[:, axle] ** 2
+        want = float(w @ a2 / w.sum())
+        assert est._load_level[2 * axle] / est._load_level[2 * axle + 1] == pytest.approx(want, rel=1e-12)
+    m_f = est._load_level[0] / est._load_level[1]
+    kappa, k_std = est._load_moments()
+    C0 = 1.2e5
+    C_eff = C0 * (1.0 - kappa * m_f)
+    h = 1e-7
+    dC0 = (C_eff / (1.0 - (kappa + h) * m_f) - C_eff / (1.0 - (kappa - h) * m_f)) / (2 * h)
+    assert est._load_band(C0, C0)[0] == pytest.approx(abs(dC0) * k_std, rel=1e-6)

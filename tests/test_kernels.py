@@ -535,7 +535,14 @@ OPTIONS = {"outlier-noise-euler": dict(outlier_prob=0.9, state_noise=(0.02, 0.01
            "noise-from-data": dict(state_noise_from_data=True, state_noise_time=0.1),
            # the calibrated *_std ("Batch-means sandwich") with batches short enough to close within the drive: the fused
            # step's update on floats from the moments against the reference's `_calibrate`
-           "calibration-batches": dict(calibration_batch=0.03)}
+           "calibration-batches": dict(calibration_batch=0.03),
+           # the load-transfer gain per particle (derivations, "Load transfer") in the propagation and the weighting
+           "load-sensitivity": dict(load_sensitivity_estimate=True, load_sensitivity_prior=(0.0, 0.03),
+                                    load_sensitivity_rw=1e-3),
+           # the tyres' relaxation (derivations, "Tyre relaxation"; a key of the vehicle file), sub-stepped and not,
+           # with the load-transfer gain
+           "relaxation": dict(vehicle=dict(relaxation_length=0.5), load_sensitivity_estimate=True),
+           "relaxation-substeps": dict(vehicle=dict(relaxation_length=0.3), max_step=0.004, integrator="euler")}
 # the state noise from the data (derivations, "State noise from the data") subtracts two nearly equal spreads each step, which
 # amplifies the backends' rounding differences (6e-12 relative in the statistics after 60 steps)
 OPTION_RTOL = {"noise-from-data": 1e-9}
@@ -550,12 +557,15 @@ def test_stiffness_mpf_backends_equal_options(options, model, monkeypatch):
     (`max_step` 4 ms at 10 ms samples). The backends stay equal to rounding."""
     fused = _count_fused_steps(monkeypatch)
     monkeypatch.setattr(sys.modules[__name__], "RTOL", OPTION_RTOL.get(options, RTOL))
-    vehicle = load_scenario("paper-sim").vehicle
+    import dataclasses
+
+    opts = dict(OPTIONS[options])
+    vehicle = dataclasses.replace(load_scenario("paper-sim").vehicle, **opts.pop("vehicle", {}))
     runs = {}
     for backend in ("numpy", "numba"):
         cfg = MPFConfig(particles=24, model=model, backend=backend, resample_threshold=1.0, gate_warmup=0.05,
                         gate_vy_std=10.0, gate_steer=0.0, bias_rw=(0.01, 0.01, 0.001), bias0_std=(0.1, 0.1, 0.01),
-                        **OPTIONS[options])
+                        **opts)
         est = StiffnessMPF(vehicle, cfg)
         runs[backend] = (_mpf_drive(est, 60), est)
     (a, fast), (b, ref) = runs["numba"], runs["numpy"]
@@ -564,6 +574,12 @@ def test_stiffness_mpf_backends_equal_options(options, model, monkeypatch):
     if options == "calibration-batches":
         assert ref._calib.batches >= 10 and ref._calib.factor.max() > 1.0
         assert_equal_to_rounding(fast._calib.factor, ref._calib.factor, "std factor")
+    if options.startswith("relaxation"):
+        assert ref.relaxed is not None and np.ptp(ref.relaxed) > 0
+        assert_equal_to_rounding(fast.relaxed, ref.relaxed, "relaxed slip angles")
+    if options == "load-sensitivity":
+        assert np.ptp(ref.k_load) > 0 and abs(ref._ay_step) > 0.5
+        assert_equal_to_rounding(fast.k_load, ref.k_load, "load sensitivity")
     _assert_mpf_runs_equal(a, b, fast, ref)
 
 

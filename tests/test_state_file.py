@@ -101,3 +101,15 @@ def test_state_file_errors(tmp_path):
     (tmp_path / "shape.json").write_text(json.dumps(rec | {"nu": rec["nu"][:3]}))
     with pytest.raises(ConfigError, match="shapes do not match"):
         load_state(est, tmp_path / "shape.json")
+
+
+def test_a_state_saved_before_a_vehicle_key_existed_loads_when_the_key_is_at_its_default(tmp_path):
+    """A vehicle key added since the state was saved (relaxation_length) counts as its default."""
+    vehicle = load_scenario("paper-sim").vehicle
+    est = StiffnessMPF(vehicle, MPFConfig(particles=8, backend="numpy"))
+    est.reset(np.random.default_rng(0))
+    path = save_state(est, tmp_path / "state.json")
+    record = json.loads(path.read_text())
+    del record["vehicle"]["relaxation_length"]
+    path.write_text(json.dumps(record))
+    load_state(est, path)

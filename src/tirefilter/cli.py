@@ -134,7 +134,7 @@ def cmd_peer_drive(args) -> int:
                      seed=args.seed, speed=args.speed, ay=args.ay, cornering_per_deg=args.cornering_per_deg,
                      sensors=SensorSpec().scaled(noise=args.noise_scale, bias=args.bias_scale),
                      roll_gradient_in_vehicle=args.with_roll_gradient, camber=args.camber, dropouts=args.dropouts,
-                     imu_x=args.imu_x, imu_y=args.imu_y)
+                     imu_x=args.imu_x, imu_y=args.imu_y, relaxation_in_vehicle=args.with_relaxation)
     drive = simulate(spec)
     log, vehicle = write_drive(drive, args.out, args.vehicle_toml)
     print(describe(drive))
@@ -499,6 +499,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "Magic Formula's camber terms), peer (as published: offsets that switch sign with the camber)")
     pd.add_argument("--with-roll-gradient", action="store_true",
                     help="also write the MB drive's measured roll gradient (tt: the model's) into the vehicle TOML")
+    pd.add_argument("--with-relaxation", action="store_true",
+                    help="tt only: also write the tyres' relaxation length (relaxation_length) into the vehicle TOML")
     pd.add_argument("--dropouts", default="auto", choices=("auto", "on", "off"),
                     help="logger dropouts: empty cells, missing rows and one 0.5-1 s gap (auto: on for tt only)")
     pd.add_argument("--imu-x", type=float, help="tt only: IMU position ahead of the CG in m (default the car's, 0.4)")

@@ -209,7 +209,8 @@ class AugmentedPF:
     def _model(self, x, u):
         """`single_track.accelerations`: a, B, af, ar, the wheel slip (None in the lateral model)."""
         if self._st is not None:
-            a, B, af, ar, slip = self._st.accelerations(x, u, self._vp, self.full, self.rear_drive, self.n_w)
+            a, B, af, ar, slip = self._st.accelerations(x, u, self._vp, self.full, self.rear_drive, self.n_w,
+                                                        np.ones(len(x)), np.zeros((2, 0)), -1.0)
             return a, B, af, ar, slip if self.full else None
         return single_track.accelerations(x, u, self._vp, self.full, self.rear_drive)
 
@@ -219,7 +220,8 @@ class AugmentedPF:
         if self._st is not None:
             a, B, _, _, slip = first
             return self._st.propagate(x, u, w, (a, B, np.zeros((2, len(x))) if slip is None else slip), dt,
-                                      self.cfg.max_step, heun, self._vp, self.full, self.rear_drive, self.n_w)
+                                      self.cfg.max_step, heun, self._vp, self.full, self.rear_drive, self.n_w,
+                                      (np.ones(len(x)), np.zeros((2, 0))))
         return single_track.propagate(x, u, w, dt, first, self._vp, self.full, self.rear_drive, self.cfg.max_step,
                                       heun)
 

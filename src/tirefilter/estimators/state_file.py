@@ -57,7 +57,10 @@ def load_state(estimator, path: str | Path) -> None:
     saved, current = record.get("vehicle", {}), _vehicle_record(estimator.vehicle)
     if not isinstance(saved, dict):
         raise ConfigError(path, "vehicle", f"expected a table of the vehicle's parameters, got {saved!r}")
-    differ = sorted(k for k in set(saved) | set(current) if saved.get(k) != current.get(k))
+    # a key the saved file predates counts as its default (a vehicle key added since, e.g. relaxation_length)
+    defaults = {f.name: f.default for f in dataclasses.fields(estimator.vehicle)
+                if f.default is not dataclasses.MISSING}
+    differ = sorted(k for k in set(saved) | set(current) if saved.get(k, defaults.get(k)) != current.get(k))
     if differ:
         detail = ", ".join(f"{k}: saved {saved.get(k)!r}, now {current.get(k)!r}" for k in differ[:6])
         raise ConfigError(path, "vehicle", f"saved for a different vehicle ({detail})")

@@ -21,8 +21,9 @@ MAGIC = b"TIREFILTER-FMU-STATE\x00"
 # the kernels' sizes (`sizes_all`, `sizes_any`), not entry points. 4: the MPF's classes in the
 # package `estimators.mpf`, its model parameters and kernel modules (`_vp`, `_st`), its work arrays'
 # workspace tuples (`own`, `scratch`); the AUGPF's model without a borrowed MPF. 5: the MPF's roll gradient per
-# particle (`k_roll`, `roll_estimated`) and the work arrays' roll gain (`gain`).
-FORMAT = 5
+# particle (`k_roll`, `roll_estimated`) and the work arrays' roll gain (`gain`). 6: the MPF's load sensitivity per
+# particle (`k_load`, `load_estimated`, `ay_load`, `_ay_step`) and the work arrays' `load_gain`.
+FORMAT = 6
 
 _NUMPY_ALLOWED = {
     ("numpy", "ndarray"), ("numpy", "dtype"),

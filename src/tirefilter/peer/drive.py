@@ -74,6 +74,7 @@ class DriveSpec:
     dropouts: str = "auto"  # logger dropouts (sensors.DropoutSpec): "on" | "off" | "auto" (on for tt only)
     imu_x: float | None = None  # m, tt only: the IMU ahead of the CG (None: the car's, two_track.VEHICLES_TT)
     imu_y: float | None = None  # m, tt only: the IMU left of the CG
+    relaxation_in_vehicle: bool = False  # tt only: write the tyres' relaxation length into the vehicle TOML
 
 
 @dataclass
@@ -265,6 +266,8 @@ def _vehicle_values_tt(model, spec: DriveSpec, roll_gradient: float) -> dict:
               "wheel_radius": float(p.wheel_radius), "cg_height": float(p.cg_height), "drive": p.drive,
               "Cf_y": round(k * Ff, -2), "Cr_y": round(k * Fr, -2), "Cx": round(LONGITUDINAL_PER_LOAD * driven, -2),
               "imu_x": float(p.imu_x), "imu_y": float(p.imu_y)}
+    if spec.relaxation_in_vehicle:
+        values["relaxation_length"] = float(np.max(p.tyre_f.sigma_alpha))
     if spec.roll_gradient_in_vehicle and roll_gradient > 0:
         values["roll_gradient"] = round(roll_gradient, 5)
     return values
@@ -317,6 +320,9 @@ def _vehicle_toml_tt(drive: PeerDrive) -> str:
              'static load',
              f'imu_x = {v["imu_x"]!r}  # m, IMU mounting position ahead of the CG',
              f'imu_y = {v["imu_y"]!r}  # m, IMU mounting position left of the CG']
+    if "relaxation_length" in v:
+        lines.append(f'relaxation_length = {v["relaxation_length"]!r}  # m, the tyres\' lateral relaxation length '
+                     '(tyre data)')
     if "roll_gradient" in v:
         lines.append(f'roll_gradient = {v["roll_gradient"]!r}  # rad per m/s^2, the model\'s (not a data-sheet '
                      'value)')

@@ -30,6 +30,9 @@ class VehicleParams:
     roll_gradient: float | None = None
     imu_x: float = 0.0  # m, IMU ahead of the CG
     imu_y: float = 0.0  # m, IMU left of the CG
+    # m, the tyres' lateral relaxation length: the slip the force follows lags the kinematic one by
+    # relaxation_length / v^X (derivations, "Tyre relaxation"); 0: at once, the paper's model
+    relaxation_length: float = 0.0
     # IMU white-noise std; None (absent): estimated from the data (estimators.sensors)
     sigma_ax: float | None = None  # m/s^2
     sigma_ay: float | None = None  # m/s^2
@@ -136,12 +139,15 @@ def vehicle_from_dict(data: dict, path) -> VehicleParams:
         lo, lo_open, hi = None, False, None
         if f.name in _POSITIVE or f.name in ("steering_ratio", "Cx_undriven") or f.name.startswith("sigma"):
             lo, lo_open = 0.0, True
-        elif f.name in ("cg_height", "rolling_resistance", "drag_coefficient", "roll_gradient") or f.name.startswith(
+        elif f.name in ("cg_height", "rolling_resistance", "drag_coefficient", "roll_gradient",
+                        "relaxation_length") or f.name.startswith(
                 "bias"):
             lo = 0.0
         if f.name in ("brake_front_share", "awd_front_share"):
             lo, hi = 0.0, 1.0
         if f.name == "roll_gradient":
             hi = 0.05
+        if f.name == "relaxation_length":
+            hi = 5.0
         values[f.name] = get_number(data, f.name, path, lo=lo, lo_open=lo_open, hi=hi, **kwargs)
     return VehicleParams(**values)

@@ -10,7 +10,7 @@ The estimators' model (`accelerations`, `state_derivative`, `propagate`, `slip_o
 stiffness is nominal plus the deviations w, the accelerations split as a(x, u) + B(x, u) w.
 State x (N, 3) = [vx, vy, r] (full model) or (N, 2) = [vy, r] (lateral model, vx an input);
 inputs u (4,) = [delta, omega_f, omega_r, vx]; w (N, n_w) = [dC_x, dCf_y, dCr_y] (full) or
-[dCf_y, dCr_y] (lateral); params p (12,) packed by `model_params` (the compiled twin,
+[dCf_y, dCr_y] (lateral); params p (13,) packed by `model_params` (the compiled twin,
 `single_track_numba`, reads the same array). Particles lie on the leading axis.
 """
 
@@ -144,22 +144,23 @@ def steady_state_cornering(vehicle: VehicleParams, vx: float, delta: float):
 # ---- the estimators' model -------------------------------------------------------------------
 # the packed parameters p of the estimators' model (`model_params`; the compiled twin reads the same)
 (P_MASS, P_YAW_INERTIA, P_LF, P_LR, P_CF_Y, P_CR_Y, P_CX_F, P_CX_R, P_WHEEL_RADIUS, P_UNDRIVEN_SHARE, P_IMU_X,
- P_IMU_Y) = range(12)
+ P_IMU_Y, P_RELAX) = range(13)
 
 
 def model_params(vehicle: VehicleParams, undriven_share: float = 0.0) -> np.ndarray:
-    """The packed parameters p (12,) of the estimators' model: mass (kg), yaw inertia (kg m^2),
+    """The packed parameters p (13,) of the estimators' model: mass (kg), yaw inertia (kg m^2),
     lf, lr (m), nominal Cf_y, Cr_y (N/rad), nominal longitudinal stiffness front, rear (N,
     `longitudinal_stiffness`), wheel radius (m), the undriven axle's share of the driven
     axle's deviation dC_x (d F_undriven / d w_x per unit slip, relative to the driven axle's:
     0 keeps the undriven axle at its nominal stiffness), and the IMU's position imu_x, imu_y (m,
-    ahead of and left of the centre of gravity: the lever arm of `measurement`). An array, not a
+    ahead of and left of the centre of gravity: the lever arm of `measurement`), and the tyres' lateral
+    relaxation length (m, 0: none; `accelerations`' relax). An array, not a
     dataclass, so that a filter can update the share in place and the compiled kernels read it as
     it is."""
     v = vehicle
     c_fx, c_rx = longitudinal_stiffness(v)
     return np.array([v.mass, v.yaw_inertia, v.lf, v.lr, v.Cf_y, v.Cr_y, c_fx, c_rx, v.wheel_radius, undriven_share,
-                     v.imu_x, v.imu_y], float)
+                     v.imu_x, v.imu_y, v.relaxation_length], float)
 
 
 def small_slip_angles(vx, vy, r, delta, lf, lr, vx_min: float = 1.0):
@@ -185,20 +186,33 @@ def vx_from_wheels(u, p: np.ndarray, rear_drive: bool):
     return p[P_WHEEL_RADIUS] * omega
 
 
-def accelerations(x, u, p: np.ndarray, full: bool, rear_drive: bool, slip=None):
+def accelerations(x, u, p: np.ndarray, full: bool, rear_drive: bool, slip=None, load_gain=None, relax=None):
     """The accelerations of eq. (1) with F = (C_n + w) slip (eq. (2), (7)), split as
     a(x, u) + B(x, u) w: returns a (N, 3) = (a^X, a^Y, r') at w = 0, B = d a / d w
     (N, 3, n_w), the slip angles af, ar (N,) and the wheel slip (2, N) of eq. (3)-(4)
     (small-angle form of the paper; None in the lateral model; `slip` given: held from an
-    earlier evaluation). x (N, 3) full or (N, 2) lateral; u (4,); p from `model_params`."""
+    earlier evaluation). x (N, 3) full or (N, 2) lateral; u (4,); p from `model_params`.
+    `load_gain` (N,) or None: the lateral axle forces (C_n + w) alpha times g = 1 - kappa a^Y^2
+    per particle, the load transfer's effective stiffness (derivations, "Load transfer"; None: 1).
+    `relax` = (prev (2, N), h) with a relaxation length sigma = p[P_RELAX] > 0: the slip angles the forces
+    follow, relaxed from prev (their values h seconds earlier) towards the kinematic ones,
+    prev + (1 - exp(-max(v^X, 1) h / sigma)) (alpha - prev) (derivations, "Tyre relaxation"); af, ar
+    returned are these. None, or sigma = 0: the kinematic slip angles."""
     if full:
         vx, vy, r = x[:, 0], x[:, 1], x[:, 2]
     else:
         vx, vy, r = u[3], x[:, 0], x[:, 1]
     m, I, lf, lr = p[P_MASS], p[P_YAW_INERTIA], p[P_LF], p[P_LR]
     af, ar = small_slip_angles(vx, vy, r, u[0], lf, lr)
+    if relax is not None and p[P_RELAX] > 0:
+        prev, h = relax
+        share = -np.expm1(-(np.maximum(vx, 1.0) * (h / p[P_RELAX])))
+        af = prev[0] + share * (af - prev[0])
+        ar = prev[1] + share * (ar - prev[1])
     cd, sd = math.cos(u[0]), math.sin(u[0])
-    Ffy, Fry = p[P_CF_Y] * af, p[P_CR_Y] * ar
+    # the slips the lateral stiffness multiplies: times the load-transfer gain where there is one
+    sf, sr = (af, ar) if load_gain is None else (af * load_gain, ar * load_gain)
+    Ffy, Fry = p[P_CF_Y] * sf, p[P_CR_Y] * sr
     n_w = 3 if full else 2
     B = np.zeros((len(x), 3, n_w))
     j = 0
@@ -222,11 +236,11 @@ def accelerations(x, u, p: np.ndarray, full: bool, rear_drive: bool, slip=None):
     else:
         Fy_f = Ffy * cd
         aX = np.zeros_like(af)
-    B[:, 0, j] = af * (-sd / m)
-    B[:, 1, j] = af * (cd / m)
-    B[:, 2, j] = af * (lf * cd / I)
-    B[:, 1, j + 1] = ar * (1.0 / m)
-    B[:, 2, j + 1] = ar * (-lr / I)
+    B[:, 0, j] = sf * (-sd / m)
+    B[:, 1, j] = sf * (cd / m)
+    B[:, 2, j] = sf * (lf * cd / I)
+    B[:, 1, j + 1] = sr * (1.0 / m)
+    B[:, 2, j + 1] = sr * (-lr / I)
     a = np.array([aX, (Fy_f + Fry) * (1.0 / m), (lf * Fy_f - lr * Fry) * (1.0 / I)]).T
     return a, B, af, ar, slip
 
@@ -241,27 +255,35 @@ def state_derivative(x, u, a, B, w, full: bool):
 
 
 def propagate(x, u, w, dt: float, first, p: np.ndarray, full: bool, rear_drive: bool, max_step: float,
-              heun: bool):
+              heun: bool, load_gain=None, relaxed=None):
     """x_{k+1} = f(x_k) + g(x_k) w_k (eq. (9)): Euler, or Heun (`heun`) with the same w and the
     wheel slip held over the step. `first` = (a, B, af, ar, slip) of `accelerations` at x_k
     (from the measurement step). A step longer than `max_step` (a gap in a log) is split into
-    equal sub-steps with u and w held."""
+    equal sub-steps with u, w and `load_gain` (of `accelerations`) held. `relaxed` (2, N): the relaxed
+    slip angles at x_k, which every later stage relaxes from over the time since t_k (`accelerations`'
+    relax)."""
     n_sub = max(1, math.ceil(dt / max_step - 1e-9))
     h = dt / n_sub
     for i in range(n_sub):
-        a, B, _, _, slip = first if i == 0 else accelerations(x, u, p, full, rear_drive)
+        a, B, _, _, slip = first if i == 0 else accelerations(x, u, p, full, rear_drive, load_gain=load_gain,
+                                                              relax=_since(relaxed, i * h))
         k1 = state_derivative(x, u, a, B, w, full)
         if not heun:
             x = x + h * k1
             continue
         x1 = x + h * k1
-        a2, B2, *_ = accelerations(x1, u, p, full, rear_drive, slip)
+        a2, B2, *_ = accelerations(x1, u, p, full, rear_drive, slip, load_gain, _since(relaxed, (i + 1) * h))
         x = x + (0.5 * h) * (k1 + state_derivative(x1, u, a2, B2, w, full))
     return x
 
 
+def _since(relaxed, h: float):
+    """`accelerations`' relax from the relaxed slips at the step's start (None: none), h s later."""
+    return None if relaxed is None else (relaxed, h)
+
+
 def slip_over_step(x, u0, u1, w, first, dt: float, p: np.ndarray, jw: np.ndarray, c_floor: np.ndarray,
-                   rear_drive: bool):
+                   rear_drive: bool, load_gain=None, relaxed=None):
     """The first stage of the propagation from t_k to t_k+1 = t_k + dt with the wheel slip
     averaged over the interval (full model; derivations, "Wheel slip").
 
@@ -274,7 +296,8 @@ def slip_over_step(x, u0, u1, w, first, dt: float, p: np.ndarray, jw: np.ndarray
     tau = J D / (R_w^2 C) per axle (J its spin inertia, D = max(|v^X|, |R_w omega_k|, 1), C its
     stiffness: nominal plus the particle's w where it is estimated, floored at c_floor); the
     mean over the interval is slip_1 + (slip_0 - slip_1) (tau / dt) (1 - exp(-dt / tau)).
-    Returns (a, B, af, ar, slip) at x_k with that slip, which `propagate` then holds."""
+    Returns (a, B, af, ar, slip) at x_k with that slip (and `load_gain` of `accelerations`; the slip
+    angles `relaxed` (2, N) at x_k where the tyres relax), which `propagate` then holds."""
     a, B, _, _, slip0 = first
     Rw = p[P_WHEEL_RADIUS]
     vx = x[:, 0]
@@ -288,7 +311,7 @@ def slip_over_step(x, u0, u1, w, first, dt: float, p: np.ndarray, jw: np.ndarray
     tau = np.maximum(jw[:, None] * D / C, 1e-12)
     share = (tau / dt) * -np.expm1(-dt / tau)  # (1 / dt) int_0^dt exp(-t / tau) dt
     slip = slip1 + (slip0 - slip1) * share
-    return accelerations(x, u0, p, True, rear_drive, slip)
+    return accelerations(x, u0, p, True, rear_drive, slip, load_gain, _since(relaxed, 0.0))
 
 
 def measurement(a, B, x, roll_gain, full: bool, p: np.ndarray | None = None):

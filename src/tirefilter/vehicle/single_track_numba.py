@@ -44,11 +44,12 @@ def _steer_consts(u0, vp):
 
 
 @njit(inline="always", **_JIT)
-def _model1(xs, us, k, held, sf, sr, a, B, vp, full, rear_drive, n_w):
-    """One particle of `accelerations`: `_model_t` stored, a (3,) and B (3, n_w) filled; returns (af, ar,
-    lam_f, lam_r). xs, us, k as in `_model_t`; vp = (m, I, lf, lr, Cf_y, Cr_y, C_nom_fx, C_nom_rx,
-    R_w, undriven_share)."""
-    m = _model_t(xs, us, k, held, sf, sr, vp, full, rear_drive)
+def _model1(xs, us, k, held, sf, sr, out, vp, full, rear_drive, n_w, per):
+    """One particle of `accelerations`: `_model_t` stored, out = (a (3,), B (3, n_w)) filled; returns (af,
+    ar, lam_f, lam_r). xs, us, k, per as in `_model_t`; vp = (m, I, lf, lr, Cf_y, Cr_y, C_nom_fx,
+    C_nom_rx, R_w, undriven_share, imu_x, imu_y, relaxation_length)."""
+    a, B = out
+    m = _model_t(xs, us, k, held, sf, sr, vp, full, rear_drive, per)
     a[0], a[1], a[2] = m[0], m[1], m[2]
     for i in range(3):
         for j in range(n_w):
@@ -57,17 +58,21 @@ def _model1(xs, us, k, held, sf, sr, a, B, vp, full, rear_drive, n_w):
 
 
 @njit(**_JIT_IN)
-def _model_t(xs, us, k, held, sf, sr, vp, full, rear_drive):
+def _model_t(xs, us, k, held, sf, sr, vp, full, rear_drive, per):
     """One particle's model (`single_track.accelerations`) on scalars, returned, not stored: the
     propagation of the MPF's `predict_weigh` keeps the values in registers this way (stored in
     scratch arrays and read back, they cannot stay there: docs/performance.md, "Backends");
     `_model1` stores them for the other kernels. xs = (x0, x1, x2) the state ([vx, vy, r], or
     [vy, r, 0] in the lateral model), us = (u0, u1, u2, u3) the inputs [delta, omega_f, omega_r,
     vx], k = `_steer_consts(u0, vp)`; `held`: the wheel slip (sf, sr) held, not computed;
-    vp = (m, I, lf, lr, Cf_y, Cr_y, C_nom_fx, C_nom_rx, R_w, undriven_share).
+    vp = (m, I, lf, lr, Cf_y, Cr_y, C_nom_fx, C_nom_rx, R_w, undriven_share); per = (lg, pf, pr, hr) the
+    particle's: lg its load-transfer gain on the lateral axle forces (`single_track.accelerations`'
+    load_gain; 1.0: none), pf, pr its relaxed slip angles hr seconds earlier, which the slip angles relax
+    from with the relaxation length vp[12] > 0 (`single_track.accelerations`' relax; hr < 0: none).
     Returns (a0, a1, a2, b00, b01, b02, b10, b11, b12, b20, b21, b22, af, ar, lam_f, lam_r), b_rc the
     entries of B (3, 3) in the full model; in the lateral model B is (3, 2): b_r0, b_r1, and b_r2 = 0."""
     lf, lr, Cfy, Cry, Cfx, Crx, Rw = vp[2], vp[3], vp[4], vp[5], vp[6], vp[7], vp[8]
+    lg, pf, pr, hr = per
     s = vp[9]
     x0, x1, x2 = xs
     u0, u1, u2, u3 = us
@@ -79,7 +84,12 @@ def _model_t(xs, us, k, held, sf, sr, vp, full, rear_drive):
     inv_vx = 1.0 / max(vx, 1.0)
     af = u0 - (vy + lf * r) * inv_vx
     ar = (lr * r - vy) * inv_vx
-    Ffy, Fry = Cfy * af, Cry * ar
+    if hr >= 0.0 and vp[12] > 0.0:
+        share = -math.expm1(-(max(vx, 1.0) * (hr / vp[12])))
+        af = pf + share * (af - pf)
+        ar = pr + share * (ar - pr)
+    gf, gr = af * lg, ar * lg  # (the reference's sf, sr)
+    Ffy, Fry = Cfy * gf, Cry * gr
     lam_f = lam_r = 0.0
     g0 = g1 = g2 = 0.0
     if full:
@@ -103,8 +113,8 @@ def _model_t(xs, us, k, held, sf, sr, vp, full, rear_drive):
     else:
         Fy_f = Ffy * cd
         aX = 0.0
-    f0, f1, f2 = af * msd_m, af * cd_m, af * lf_cd_I
-    r1, r2 = ar * inv_m, ar * mlr_I
+    f0, f1, f2 = gf * msd_m, gf * cd_m, gf * lf_cd_I
+    r1, r2 = gr * inv_m, gr * mlr_I
     a1 = (Fy_f + Fry) * inv_m
     a2 = (lf * Fy_f - lr * Fry) * inv_I
     if full:
@@ -161,14 +171,16 @@ def _interval_slip1(xs, acc0, wx, slips, u0, u1, dt, vp, jw, c_floor, rear_drive
 
 
 @njit(**_JIT)
-def slip_over_step(x, u0, u1, w, first, dt, vp, jw, c_floor, rear_drive, n_w):
+def slip_over_step(x, u0, u1, w, first, dt, vp, jw, c_floor, rear_drive, n_w, particle):
     """`single_track.slip_over_step` (full model): the first stage of the propagation from t_k
     to t_k + dt with the wheel slip averaged over the interval (derivations, "Wheel slip").
 
     x (N, 3) at t_k; u0, u1 (4,) the inputs at t_k and t_k+1; w (N, n_w) held over the step;
     first = (a (N, 3), B (N, 3, n_w), slip (2, N)) of `accelerations(x, u0)`; vp as in `_model1`; jw (2,) the
     front and rear spin inertia over R_w^2; c_floor (2,) the lowest axle stiffness in the time
-    constant. Returns (a, B, af, ar, slip) (new arrays) at x with the interval slip. The same
+    constant; particle = (lg (N,) the load-transfer gain per particle (`_model_t`), rel (2, N) the relaxed
+    slip angles at x (shape (2, 0): none)). Returns (a, B, af, ar, slip) (new
+    arrays) at x with the interval slip. The same
     per-particle arithmetic as the first stage in the MPF's `predict_weigh`; for the reference path and
     tests/test_kernels.py."""
     a, B, slip = first
@@ -180,7 +192,10 @@ def slip_over_step(x, u0, u1, w, first, dt, vp, jw, c_floor, rear_drive, n_w):
     af = np.empty(n)
     ar = np.empty(n)
     out = np.empty((2, n))
+    lg, rel = particle
+    relaxing = rel.shape[1] == n
     for i in range(n):
+        pf, pr, hr = (rel[0, i], rel[1, i], 0.0) if relaxing else (0.0, 0.0, -1.0)
         acc0 = 0.0
         for j in range(n_w):
             acc0 += B[i, 0, j] * w[i, j]
@@ -188,7 +203,8 @@ def slip_over_step(x, u0, u1, w, first, dt, vp, jw, c_floor, rear_drive, n_w):
         xs = (x[i, 0], x[i, 1], x[i, 2])
         out[0, i], out[1, i] = _interval_slip1(xs, acc0, w[i, 0], (slip[0, i], slip[1, i]), u0, u1, dt, vp, jw,
                                                c_floor, rear_drive)
-        af[i], ar[i], _, _ = _model1(xs, us, k0, True, out[0, i], out[1, i], a2[i], B2[i], vp, True, rear_drive, n_w)
+        af[i], ar[i], _, _ = _model1(xs, us, k0, True, out[0, i], out[1, i], (a2[i], B2[i]), vp, True, rear_drive,
+                                     n_w, (lg[i], pf, pr, hr))
     return a2, B2, af, ar, out
 
 
@@ -259,8 +275,10 @@ def _xdot1(x, u3, a, B, w, out, full, n_w):
 
 
 @njit(**_JIT)
-def accelerations(x, u, vp, full, rear_drive, n_w):
-    """`single_track.accelerations(x, u)` for all particles: a (N, 3), B (N, 3, n_w), af, ar (N,),
+def accelerations(x, u, vp, full, rear_drive, n_w, lg, rel, h):
+    """`single_track.accelerations(x, u, load_gain=lg)` for all particles (lg (N,) the load-transfer gain
+    per particle, ones: none; `relax=(rel, h)`, rel (2, N) the relaxed slip angles h seconds earlier, shape
+    (2, 0): none): a (N, 3), B (N, 3, n_w), af, ar (N,),
     slip (2, N) (zeros in the lateral model, where the reference returns None). For the
     reference path's compiled model (the first sample, restarts, gaps) and the AUGPF."""
     n = x.shape[0]
@@ -271,16 +289,19 @@ def accelerations(x, u, vp, full, rear_drive, n_w):
     af = np.empty(n)
     ar = np.empty(n)
     slip = np.zeros((2, n))
+    relaxing = rel.shape[1] == n
     for i in range(n):
         x2 = x[i, 2] if full else 0.0
-        af[i], ar[i], slip[0, i], slip[1, i] = _model1((x[i, 0], x[i, 1], x2), us, ku, False, 0.0, 0.0, a[i], B[i], vp,
-                                                       full, rear_drive, n_w)
+        pf, pr, hr = (rel[0, i], rel[1, i], h) if relaxing else (0.0, 0.0, -1.0)
+        af[i], ar[i], slip[0, i], slip[1, i] = _model1((x[i, 0], x[i, 1], x2), us, ku, False, 0.0, 0.0, (a[i], B[i]),
+                                                       vp, full, rear_drive, n_w, (lg[i], pf, pr, hr))
     return a, B, af, ar, slip
 
 
 @njit(**_JIT)
-def propagate(x, u, w, first, dt, max_step, heun, vp, full, rear_drive, n_w):
-    """`single_track.propagate`: x_{k+1} from x_k (N, nx) with w (N, n_w) held, the first
+def propagate(x, u, w, first, dt, max_step, heun, vp, full, rear_drive, n_w, particle):
+    """`single_track.propagate`: x_{k+1} from x_k (N, nx) with w (N, n_w) and particle = (lg (N,) the
+    load-transfer gain, held; rel (2, N) the relaxed slip angles at x_k, shape (2, 0): none), the first
     stage first = (a, B, slip) evaluated at x_k; a step longer than max_step is split into equal
     sub-steps (the model re-evaluated, slip recomputed). The same loop as the propagation
     in the MPF's `predict_weigh`; for the reference path and the AUGPF."""
@@ -297,10 +318,13 @@ def propagate(x, u, w, first, dt, max_step, heun, vp, full, rear_drive, n_w):
     k2 = np.empty(nx)
     ai = np.empty(3)
     Bi = np.empty((3, n_w))
+    lg, rel = particle
+    relaxing = rel.shape[1] == n
     for i in range(n):
         for c in range(nx):
             xi[c] = x[i, c]
         sf, sr = slip[0, i], slip[1, i]
+        pf, pr = (rel[0, i], rel[1, i]) if relaxing else (0.0, 0.0)
         for s in range(n_sub):
             if s == 0:
                 for c in range(3):
@@ -309,7 +333,8 @@ def propagate(x, u, w, first, dt, max_step, heun, vp, full, rear_drive, n_w):
                         Bi[c, j] = B[i, c, j]
             else:
                 xs2 = xi[2] if full else 0.0
-                _, _, sf, sr = _model1((xi[0], xi[1], xs2), us, ku, False, 0.0, 0.0, ai, Bi, vp, full, rear_drive, n_w)
+                _, _, sf, sr = _model1((xi[0], xi[1], xs2), us, ku, False, 0.0, 0.0, (ai, Bi), vp, full, rear_drive,
+                                       n_w, (lg[i], pf, pr, s * hs if relaxing else -1.0))
             _xdot1(xi, u[3], ai, Bi, w[i], k1, full, n_w)
             if not heun:
                 for c in range(nx):
@@ -318,7 +343,8 @@ def propagate(x, u, w, first, dt, max_step, heun, vp, full, rear_drive, n_w):
             for c in range(nx):
                 x1[c] = xi[c] + hs * k1[c]
             xs2 = x1[2] if full else 0.0
-            _model1((x1[0], x1[1], xs2), us, ku, full, sf, sr, ai, Bi, vp, full, rear_drive, n_w)
+            _model1((x1[0], x1[1], xs2), us, ku, full, sf, sr, (ai, Bi), vp, full, rear_drive, n_w,
+                    (lg[i], pf, pr, (s + 1) * hs if relaxing else -1.0))
             _xdot1(x1, u[3], ai, Bi, w[i], k2, full, n_w)
             for c in range(nx):
                 xi[c] = xi[c] + (0.5 * hs) * (k1[c] + k2[c])

@@ -16,6 +16,7 @@ from tirefilter.stats.linalg import chol, solve_lower
 from tirefilter.vehicle import single_track
 
 NAN = math.nan
+LOAD_GAIN_MIN = 0.3  # the floor of the load-transfer gain 1 - kappa a^Y^2 (`StiffnessMPF._load_gains`, `_load_band`)
 
 
 class Adaptation:
@@ -184,10 +185,40 @@ class Adaptation:
             d = np.array([af * math.cos(delta), ar])
             # forgotten with the statistics' factor (eq. (20)), over calibration_memory times their memory
             cal.update(d * self._e_ay, d, dt, self._lam_step ** self._calib_power)
+            self._track_load_level(float(d[0]), ar)
         f = cal.factor
+        if self.k_load is not None:  # kappa's share of the band ("Load transfer", the band)
+            e0, e1 = self._load_band(est.Cf_y, est.Cr_y)
+            return replace(est, Cf_y_std=math.hypot(est.Cf_y_std * float(f[0]), e0),
+                           Cr_y_std=math.hypot(est.Cr_y_std * float(f[1]), e1))
         if f[0] == 1.0 and f[1] == 1.0:
             return est
         return replace(est, Cf_y_std=est.Cf_y_std * float(f[0]), Cr_y_std=est.Cr_y_std * float(f[1]))
+
+    def _track_load_level(self, d0: float, d1: float) -> None:
+        """With the load sensitivity: the information-weighted a^Y^2 of the statistics' memory per axle,
+        m = sum lambda^.. d^2 a^2 / sum lambda^.. d^2 (d the axle's slip regressor of the sandwich, a^Y the
+        step's over the mean roll gain), forgotten as the sandwich is."""
+        if self.k_load is None:
+            return
+        k = self._roll_moments()[0]
+        a2 = (self._ay_step / (self.roll_gain if k != k else 1.0 + k * single_track.GRAVITY)) ** 2
+        lam = self._lam_step ** self._calib_power
+        s = self._load_level
+        w0, w1 = d0 * d0, d1 * d1
+        s[:] = (lam * s[0] + w0 * a2, lam * s[1] + w0, lam * s[2] + w1 * a2, lam * s[3] + w1)
+
+    def _load_band(self, Cf: float, Cr: float) -> tuple[float, float]:
+        """kappa's share of the std of the stiffness at a^Y = 0: the data fix C_0 (1 - kappa m) (m the
+        information-weighted a^Y^2, `_track_load_level`), so C_0 moves by C_0 m / (1 - kappa m) per unit of
+        kappa; times kappa's posterior std over the particles (derivations, "Load transfer")."""
+        k, k_std = self._load_moments()
+        s = self._load_level
+        out = []
+        for C, num, den in ((Cf, s[0], s[1]), (Cr, s[2], s[3])):
+            m = num / den if den > 0 else 0.0
+            out.append(abs(C) * m * k_std / max(1.0 - k * m, LOAD_GAIN_MIN))
+        return out[0], out[1]
 
     def _calibrate_moments(self, vx: float, vy: float, r: float, dt: float) -> tuple[float, float]:
         """`_calibrate` for the fused step, on the posterior-mean state (floats) before the Estimate
@@ -200,6 +231,7 @@ class Adaptation:
             af, ar = single_track.small_slip_angles(vx, vy, r, delta, self._lf, self._lr)
             d0, e = af * math.cos(delta), self._e_ay
             cal.update_pair(d0 * e, ar * e, d0, ar, dt, self._lam_step ** self._calib_power)
+            self._track_load_level(d0, ar)
         return cal.factor_pair
 
     # ---- the undriven axle's share of the learned Cx (undriven_stiffness = "learned") ------

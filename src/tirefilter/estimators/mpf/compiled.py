@@ -68,6 +68,12 @@ class CompiledStep:
                     self.k_roll = np.array(self.k_roll, float)
                 nb.walk_roll(self.k_roll, z_roll, cfg.roll_gradient_rw * math.sqrt(dt), wk.roll_lo, wk.roll_hi,
                              GRAVITY, wk.gain)
+        if self.k_load is not None:  # the load-transfer gain per particle (`_load_gains`)
+            wk.load_gain[:] = self._load_gains()
+        if self.relaxing:  # the relaxed slip angles (`_keep_relaxed`): the kernel relaxes from them and overwrites them
+            if self.relaxed is not None and self.relaxed is not wk.relaxed:
+                wk.relaxed[...] = self.relaxed
+            self.relaxed = wk.relaxed
         if math.isfinite(sum(yl)):  # the kernels compiled for this model's sizes (kernels.SIZES_FULL ...)
             a, nc, sizes = wk.avail_all, wk.nc_all, wk.sizes_all
         else:
@@ -110,6 +116,10 @@ class CompiledStep:
             self.resamples += 1
             if self.k_roll is not None:
                 self.k_roll = self.k_roll[wk.idx]
+            if self.k_load is not None:
+                self.k_load = self.k_load[wk.idx]
+            if self.relaxing:
+                wk.relaxed[...] = wk.relaxed[:, wk.idx]
         vx_est = vx_est if self.full else uk[3]
         if self._gate_or_restart(t, uk, y, vx_est, alpha, vy_std, pinned):
             return self._restart(t, uk, y)
@@ -163,9 +173,13 @@ class CompiledStep:
         if self.full:  # params Cx, Cf_y, Cr_y; bias ax, ay, yaw rate
             if dt is not None and self._calib is not None:
                 f0, f1 = self._calibrate_moments(xm[0], xm[1], xm[2], dt)
+            sf, sr = root(vm[1]) * f0, root(vm[2]) * f1
+            if dt is not None and self._calib is not None and self.k_load is not None:  # (`_calibrate`)
+                e0, e1 = self._load_band(C[1] + mb[1], C[2] + mb[2])
+                sf, sr = math.hypot(sf, e0), math.hypot(sr, e1)
             est.__dict__.update(active=bool(self.active), vx=xm[0], vy=xm[1], yaw_rate=xm[2], Cf_y=C[1] + mb[1],
-                                Cr_y=C[2] + mb[2], Cx=C[0] + mb[0], Cf_y_std=root(vm[1]) * f0,
-                                Cr_y_std=root(vm[2]) * f1, Cx_std=root(vm[0]), Cf_y_sigma=root(s2[1]),
+                                Cr_y=C[2] + mb[2], Cx=C[0] + mb[0], Cf_y_std=sf,
+                                Cr_y_std=sr, Cx_std=root(vm[0]), Cf_y_sigma=root(s2[1]),
                                 Cr_y_sigma=root(s2[2]), Cx_sigma=root(s2[0]), b_ax=bm[0], b_ay=bm[1], b_yaw_rate=bm[2],
                                 ess=float(ess), state_std=(xs[0], xs[1], xs[2]), roll_gradient=k_mean,
                                 roll_gradient_std=k_std)
@@ -173,8 +187,12 @@ class CompiledStep:
         vx = float(self.u_prev[3])
         if dt is not None and self._calib is not None:
             f0, f1 = self._calibrate_moments(vx, xm[0], xm[1], dt)
+        sf, sr = root(vm[0]) * f0, root(vm[1]) * f1
+        if dt is not None and self._calib is not None and self.k_load is not None:  # (`_calibrate`)
+            e0, e1 = self._load_band(C[0] + mb[0], C[1] + mb[1])
+            sf, sr = math.hypot(sf, e0), math.hypot(sr, e1)
         est.__dict__.update(active=bool(self.active), vx=vx, vy=xm[0], yaw_rate=xm[1], Cf_y=C[0] + mb[0],
-                            Cr_y=C[1] + mb[1], Cx=NAN, Cf_y_std=root(vm[0]) * f0, Cr_y_std=root(vm[1]) * f1, Cx_std=NAN,
+                            Cr_y=C[1] + mb[1], Cx=NAN, Cf_y_std=sf, Cr_y_std=sr, Cx_std=NAN,
                             Cf_y_sigma=root(s2[0]), Cr_y_sigma=root(s2[1]), Cx_sigma=NAN, b_ax=NAN, b_ay=bm[0],
                             b_yaw_rate=bm[1], ess=float(ess), state_std=(0.0, xs[0], xs[1]), roll_gradient=k_mean,
                             roll_gradient_std=k_std)
@@ -282,8 +300,10 @@ class _MPFWork:
         self.gain = np.full(N, mpf.roll_gain)  # the roll gain per particle (`_roll_gains`)
         self.no_k = np.zeros(0)  # (`sample_update`'s k where the roll gradient is not estimated)
         self.roll_lo, self.roll_hi = (float(k) for k in cfg.roll_gradient_prior)  # (`_walk_roll`'s bounds)
+        self.load_gain = np.ones(N)  # the load-transfer gain per particle (`_load_gains`)
+        self.relaxed = np.zeros((2, N) if mpf.relaxing else (2, 0))  # the relaxed slip angles (`_keep_relaxed`)
         self.model = {linear: (mpf._vp, mpf._jw, mpf._c_floor, mpf.R, mpf.q_bias if linear else mpf.q_bias_nonlinear,
-                               self.gain) for linear in (False, True)}
+                               self.gain, self.load_gain, self.relaxed) for linear in (False, True)}
         adaptive = cfg.forgetting_mode == "adaptive"
         self.flags = {active: (self.heun, self.interval, mpf.bias_on, active, mpf.full, mpf.rear_drive, adaptive,
                                True, True) for active in (False, True)}

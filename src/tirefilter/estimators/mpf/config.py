@@ -126,6 +126,14 @@ class MPFConfig:
     roll_estimate: bool = True
     roll_gradient_prior: tuple[float, float] = (0.0, 0.02)
     roll_gradient_rw: float = 5e-4
+    # the load transfer's effective axle stiffness (derivations, "Load transfer"): the lateral axle forces
+    # (C_n + w) alpha (1 - kappa a^Y^2), a^Y the last measured one over the roll gain, kappa (s^4/m^2) a
+    # parameter of each particle (True; False: the paper's linear axle, kappa = 0) drawn uniform over
+    # load_sensitivity_prior and walking by load_sensitivity_rw per sqrt(s), reflected at the bounds; the
+    # reported stiffness is then the axle's at a^Y = 0, the static load
+    load_sensitivity_estimate: bool = False
+    load_sensitivity_prior: tuple[float, float] = (0.0, 0.015)
+    load_sensitivity_rw: float = 1e-3
     # sensors
     sigma: tuple[float, float, float] = (0.05, 0.05, 0.0035)  # ax, ay, yaw rate white noise
     # IMU bias (eq. (29)-(30)): prior std and random walk per sqrt(s) of ax, ay, yaw rate;
@@ -223,6 +231,12 @@ class MPFConfig:
                 f"{self.roll_gradient_prior!r}")
         if not (self.roll_gradient_rw >= 0 and math.isfinite(self.roll_gradient_rw)):
             bad("roll_gradient_rw", f"must be finite and >= 0, got {self.roll_gradient_rw!r}")
+        prior = tuple(self.load_sensitivity_prior)
+        if len(prior) != 2 or not 0.0 <= prior[0] <= prior[1] <= 0.05:
+            bad("load_sensitivity_prior", f"needs (low, high) with 0 <= low <= high <= 0.05 s^4/m^2, got "
+                f"{self.load_sensitivity_prior!r}")
+        if not (self.load_sensitivity_rw >= 0 and math.isfinite(self.load_sensitivity_rw)):
+            bad("load_sensitivity_rw", f"must be finite and >= 0, got {self.load_sensitivity_rw!r}")
         if self.backend not in ("numba", "numpy"):
             bad("backend", f"expected numba or numpy, got {self.backend!r}")
         if not (self.calibration_memory > 0 and math.isfinite(self.calibration_memory)):

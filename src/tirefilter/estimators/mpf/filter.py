@@ -14,7 +14,7 @@ import numpy as np
 
 from tirefilter.errors import ConfigError
 from tirefilter.estimators.base import Estimate, Inputs, Measurement, Posterior, particle_estimate
-from tirefilter.estimators.mpf.adaptation import Adaptation
+from tirefilter.estimators.mpf.adaptation import LOAD_GAIN_MIN, Adaptation
 from tirefilter.estimators.mpf.compiled import NAN, CompiledStep, _sqrt_or_nan
 from tirefilter.estimators.mpf import predictive
 from tirefilter.estimators.mpf.config import MPFConfig
@@ -27,6 +27,18 @@ from tirefilter.stats.student_t import t_conditional, t_logpdf_whitened, t_sampl
 from tirefilter.vehicle import single_track
 from tirefilter.vehicle.params import VehicleParams
 from tirefilter.vehicle.single_track import GRAVITY
+
+
+_NO_RELAX = np.zeros((2, 0))  # the compiled twin's "no relaxed slip angles"
+
+
+def _reflected_walk(k: np.ndarray, bounds, rw: float, dt: float, rng: np.random.Generator) -> np.ndarray:
+    """k plus a normal step of std rw sqrt(dt), reflected at the bounds (low, high) (which keeps a
+    uniform prior over them invariant) and clipped into them."""
+    lo, hi = bounds
+    k = k + (rw * math.sqrt(dt)) * rng.standard_normal(len(k))
+    k = np.where(k < lo, 2.0 * lo - k, k)
+    return np.clip(np.where(k > hi, 2.0 * hi - k, k), lo, hi)
 
 
 class StiffnessMPF(CompiledStep, Adaptation, Supervision):
@@ -61,6 +73,13 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         # no roll_gradient in the vehicle file: k a parameter of each particle (`k_roll`, derivations, "The roll gain
         # from the data"), the roll gain 1 + k g per particle
         self.roll_estimated = v.roll_gradient is None and self.cfg.roll_estimate
+        # the load transfer's gain 1 - kappa a^Y^2 on the lateral axle forces, kappa per particle (`k_load`,
+        # derivations, "Load transfer")
+        self.load_estimated = self.cfg.load_sensitivity_estimate
+        self.k_load, self._ay_step = None, 0.0  # (drawn by `reset`)
+        # the tyres' relaxation (derivations, "Tyre relaxation"): the relaxed slip angles (2, N) at the last sample
+        self.relaxing = v.relaxation_length > 0
+        self.relaxed = None
         sig = np.asarray(self.cfg.sigma)[list(self.channels)]
         self.R = np.diag(sig**2)
         ch = list(self.channels)
@@ -133,6 +152,7 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         self.surprise_level = 1.0  # z smoothed over `inflation_baseline_time` (`_draw_inflation`)
         self.linear_region = True  # |a^Y| below the gate's linear-region bound at the last sample
         self.ay_last = math.nan  # the last finite a^Y of the linear-region test (`gate_ay`)
+        self.ay_load = self._ay_step = 0.0  # the measured a^Y of the load transfer (`_next_ay_load`)
         self.ax_last = math.nan  # the last finite a^X of the linear-region test (`gate_accel` combined)
         self.ay_pred = math.nan  # the one-step prediction of this sample's a^Y (`gate_ay = "predicted"`)
         self.lam = self.cfg.forgetting  # the forgetting factor applied at the next propagation
@@ -151,6 +171,7 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
                        if self.cfg.std_calibration == "sandwich" else None)
         self._calib_in_step = False  # this step's `_step_compiled` has fed the sandwich (`step` does not)
         self._pred = None  # this step's one-step predictive (`one_step_predictive`)
+        self._load_level = np.zeros(4)  # (`_track_load_level`)
 
     def _draw_prior(self, x0_mean) -> None:
         """Particles from the initial distribution: stiffness statistics (or the carried
@@ -196,6 +217,9 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         self.logw = np.full(N, -math.log(N))
         # the roll gradient of each particle, uniform over the prior (None: the vehicle file's, `roll_gain`)
         self.k_roll = rng.uniform(*cfg.roll_gradient_prior, N) if self.roll_estimated else None
+        # the load sensitivity of each particle, uniform over the prior (None: the paper's linear axle)
+        self.k_load = rng.uniform(*cfg.load_sensitivity_prior, N) if self.load_estimated else None
+        self.relaxed = None  # (the first model evaluation's kinematic slip angles, `_keep_relaxed`)
 
     # ---- the roll gain (derivations, "The roll gain from the data") --------------------------
     def _roll_gains(self):
@@ -205,10 +229,53 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
     def _walk_roll(self, dt: float) -> None:
         """The random walk of k over dt (`roll_gradient_rw` per sqrt(s)), reflected at the prior's bounds:
         without it, resampling would leave every particle with the k of a few ancestors."""
-        lo, hi = self.cfg.roll_gradient_prior
-        k = self.k_roll + (self.cfg.roll_gradient_rw * math.sqrt(dt)) * self.rng.standard_normal(len(self.k_roll))
-        k = np.where(k < lo, 2.0 * lo - k, k)
-        self.k_roll = np.clip(np.where(k > hi, 2.0 * hi - k, k), lo, hi)
+        self.k_roll = _reflected_walk(self.k_roll, self.cfg.roll_gradient_prior, self.cfg.roll_gradient_rw, dt,
+                                      self.rng)
+
+    # ---- the load transfer (derivations, "Load transfer") ----------------------------------
+    def _next_ay_load(self, y_ay: float) -> None:
+        """This step's a^Y of the load transfer (`_ay_step`): the last finite measured one before this
+        sample; `ay_load` then takes this sample's (when finite)."""
+        self._ay_step = self.ay_load
+        if math.isfinite(y_ay):
+            self.ay_load = y_ay
+
+    def _load_gains(self):
+        """The gain 1 - kappa (a^Y / (1 + k g))^2 of each particle's lateral axle forces in this step (a^Y
+        the step's `_ay_step`, over the particle's roll gain), floored at `LOAD_GAIN_MIN`; None without
+        the load sensitivity."""
+        if self.k_load is None:
+            return None
+        a2 = (self._ay_step / self._roll_gains()) ** 2
+        return np.maximum(1.0 - self.k_load * a2, LOAD_GAIN_MIN)
+
+    def _keep_relaxed(self, model_k) -> None:
+        """With the tyres' relaxation: the slip angles of the model at this sample (`af`, `ar` of
+        `accelerations`, relaxed), which the next propagation relaxes from."""
+        if self.relaxing:
+            self.relaxed = np.array([model_k[2], model_k[3]])
+
+    def _particle_args(self, n: int):
+        """The compiled twin's per-particle arguments for n particles: (load-transfer gains, relaxed slip angles)."""
+        return self._load_gains_or_ones(n), _NO_RELAX if self.relaxed is None else self.relaxed
+
+    def _load_gains_or_ones(self, n: int):
+        """`_load_gains`, n ones without the load sensitivity (the compiled twin's argument)."""
+        g = self._load_gains()
+        return np.ones(n) if g is None else g
+
+    def _walk_load(self, dt: float) -> None:
+        """The random walk of kappa over dt (`load_sensitivity_rw` per sqrt(s)), reflected at the prior's bounds."""
+        self.k_load = _reflected_walk(self.k_load, self.cfg.load_sensitivity_prior, self.cfg.load_sensitivity_rw, dt,
+                                      self.rng)
+
+    def _load_moments(self) -> tuple[float, float]:
+        """The posterior mean and std of kappa (NaN, NaN where it is not estimated)."""
+        if self.k_load is None:
+            return NAN, NAN
+        q = np.exp(self.logw)
+        mean = float(q @ self.k_load)
+        return mean, math.sqrt(max(float(q @ (self.k_load - mean) ** 2), 0.0))
 
     def _roll_moments(self) -> tuple[float, float]:
         """The posterior mean and std of k (NaN, NaN where it is not estimated; the compiled step has
@@ -220,13 +287,16 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         return mean, math.sqrt(max(float(q @ (self.k_roll - mean) ** 2), 0.0))
 
     # ---- model: `vehicle.single_track` (numpy) or its compiled twin ------------------------
-    def _model(self, x, u, slip=None):
+    def _model(self, x, u, slip=None, relax=None):
         """`single_track.accelerations`: a (N, 3), B (N, 3, n_w), af, ar, the wheel slip (2, N)
-        (None in the lateral model; `slip` given: held from an earlier evaluation)."""
+        (None in the lateral model; `slip` given: held from an earlier evaluation; `relax` = (relaxed slip
+        angles, h) with the tyres' relaxation, None: the kinematic slip angles)."""
         if self._nb is not None and slip is None:
-            a, B, af, ar, slip = self._st.accelerations(x, u, self._vp, self.full, self.rear_drive, self.n_w)
+            rel, h = (_NO_RELAX, -1.0) if relax is None else relax
+            a, B, af, ar, slip = self._st.accelerations(x, u, self._vp, self.full, self.rear_drive, self.n_w,
+                                                        self._load_gains_or_ones(len(x)), rel, h)
             return a, B, af, ar, slip if self.full else None
-        return single_track.accelerations(x, u, self._vp, self.full, self.rear_drive, slip)
+        return single_track.accelerations(x, u, self._vp, self.full, self.rear_drive, slip, self._load_gains(), relax)
 
     def _propagate(self, x, u, w, dt, first):
         """`single_track.propagate` (eq. (9)) with `first` = (a, B, af, ar, slip) at x_k."""
@@ -234,9 +304,10 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         if self._nb is not None:
             a, B, _, _, slip = first
             return self._st.propagate(x, u, w, (a, B, np.zeros((2, len(x))) if slip is None else slip), dt,
-                                      self.cfg.max_step, heun, self._vp, self.full, self.rear_drive, self.n_w)
+                                      self.cfg.max_step, heun, self._vp, self.full, self.rear_drive, self.n_w,
+                                      self._particle_args(len(x)))
         return single_track.propagate(x, u, w, dt, first, self._vp, self.full, self.rear_drive, self.cfg.max_step,
-                                      heun)
+                                      heun, self._load_gains(), self.relaxed)
 
     def _slip_over_step(self, x, u0, u1, w, first, dt):
         """`single_track.slip_over_step`: the first stage of the propagation from t_k to t_k + dt
@@ -244,9 +315,9 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         if self._nb is not None:
             a, B, _, _, slip0 = first
             return self._st.slip_over_step(x, u0, u1, w, (a, B, slip0), dt, self._vp, self._jw, self._c_floor,
-                                           self.rear_drive, self.n_w)
+                                           self.rear_drive, self.n_w, self._particle_args(len(x)))
         return single_track.slip_over_step(x, u0, u1, w, first, dt, self._vp, self._jw, self._c_floor,
-                                           self.rear_drive)
+                                           self.rear_drive, self._load_gains(), self.relaxed)
 
     def _measurement(self, a, B, x):
         """`single_track.measurement`: h (N, m) and d (N, m, n_w) of eq. (12), the IMU's lever arm and roll
@@ -289,6 +360,9 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         dt = t - self.t_prev if self.t_prev is not None else cfg.sample_period
         if self.t_prev is not None and dt <= 0:
             raise ConfigError("inputs", "t", f"time must increase: {t} after {self.t_prev}")
+        if self.k_load is not None and self.t_prev is not None:  # kappa's walk, the step's first draw on both paths
+            self._walk_load(dt)
+        self._next_ay_load(y.ay)
         if self._nb is not None:  # every sample by three compiled passes; the numpy code below is the reference
             return self._step_compiled(t, uk, y, dt, u_now)
         if self.t_prev is not None:
@@ -317,7 +391,8 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
 
         a = np.flatnonzero(np.isfinite(yk))  # available channels, in the order ax, ay, yaw rate
         nc = int(sum(self.channels[j] in (0, 1) for j in a))  # accelerometer channels lead
-        model_k = self._model(self.x, uk)
+        # the model at x_k (with the tyres' relaxation: the slip angles relaxed over dt from the last sample's)
+        model_k = self._model(self.x, uk, relax=None if self.relaxed is None else (self.relaxed, dt))
         af, ar = model_k[2], model_k[3]
         h, D = self._measurement(model_k[0], model_k[1], self.x)
         mu_w, L11, nu_w = self.stats.predictive()
@@ -356,6 +431,8 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
             self.x, self.b, self.P = self.x[idx], self.b[idx], self.P[idx]
             if self.k_roll is not None:
                 self.k_roll = self.k_roll[idx]
+            if self.k_load is not None:
+                self.k_load = self.k_load[idx]
             self.stats = self.stats.take(idx)
             h, D, af, ar = h[idx], D[idx], af[idx], ar[idx]
             a_k, B_k, _, _, slip_k = model_k
@@ -405,6 +482,7 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
             self.stats.mu = np.clip(self.stats.mu, lo, hi)  # parameter projection (Sec. V)
         self.w_prev = w
         self._at_x = model_k  # the first stage of the next propagation, at this x and u
+        self._keep_relaxed(model_k)
         if self.full:
             self._excite_cx(float(np.exp(self.logw) @ self.x[:, 0]), uk, dt)
         return self._estimate(ess)
@@ -539,6 +617,8 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
                  "C_nominal": self.C_nom.copy(), "params": self.params}
         if self.k_roll is not None:
             stats["roll_gradient"] = self.k_roll.copy()
+        if self.k_load is not None:
+            stats["load_sensitivity"] = self.k_load.copy()
         if self._calib is not None:  # the factor of the calibrated lateral *_std ("Batch-means sandwich"), 1 for Cx
             stats["std_factor"] = np.concatenate([np.ones(len(self.params) - 2), self._calib.factor])
         return Posterior(self.x.copy(), self.logw.copy(), stats)

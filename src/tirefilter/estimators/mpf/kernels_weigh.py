@@ -177,7 +177,10 @@ def predict_weigh(own, scratch, inputs, model, scalars, flags, nc, sizes):
       own = (x, b, P, gamma, mu, Lam, nu, a, B, slip), the particles' own arrays (read and written);
       scratch = (af, ar, h, D, L11, nu_w, L12, Lc, e, v, ll, ok), the weighting's arrays (written);
       inputs = (u_prev, uk, y, avail, w_prev, logw, noise, noise_scale, redraw), this sample's
-      (logw written); model = (vp, jw, c_floor, R, q, gain), gain (N,) the roll gain per particle;
+      (logw written); model = (vp, jw, c_floor, R, q, gain, load_gain), gain (N,) the roll gain per particle,
+      load_gain (N,) the load-transfer gain on the lateral axle forces per particle (`_model_t`'s lg), relaxed
+      (2, N) the relaxed slip angles at the last sample, overwritten by this sample's (shape (2, 0): no
+      relaxation; `_model_t`'s pf, pr);
       scalars = (dt, max_step, lam, nu_min, beta, yaw_max, gate_speed); flags = (heun, interval, bias_on, forget,
       full, rear_drive, want_nis, propagate, weigh); nc the accelerometer channels among `avail`; `sizes` below.
     `propagate` False (the first sample) skips step 1 (propagation, bias prediction, forgetting);
@@ -213,7 +216,7 @@ def predict_weigh(own, scratch, inputs, model, scalars, flags, nc, sizes):
     x, b, P, gamma, mu, Lam, nu, a, B, slip = own
     af, ar, h, D, L11, nu_w, L12, Lc, e, v, ll, ok = scratch
     u_prev, uk, y, avail, w_prev, logw, noise, noise_scale, redraw = inputs
-    vp, jw, c_floor, R, q, gain = model
+    vp, jw, c_floor, R, q, gain, load_gain, relaxed = model
     dt, max_step, lam, nu_min, beta, yaw_max, gate_speed = scalars
     heun, interval, bias_on, forget, full, rear_drive, want_nis, propagate, weigh = flags
     if sizes.ndim == 3:
@@ -249,7 +252,11 @@ def predict_weigh(own, scratch, inputs, model, scalars, flags, nc, sizes):
             slip[0, i], slip[1, i] = _interval_slip1((x[i, 0], x[i, 1], x[i, 2]), acc0, w_prev[i, 0],
                                                      (slip[0, i], slip[1, i]), u_prev, uk, dt, vp, jw, c_floor,
                                                      rear_drive)
+    relaxing = relaxed.shape[1] == n
+    h0 = 0.0 if relaxing else -1.0
     for i in range(n):
+        lg = load_gain[i]
+        pf, pr = (relaxed[0, i], relaxed[1, i]) if relaxing else (0.0, 0.0)
         x0 = x[i, 0]
         x1 = x[i, 1]
         x2 = x[i, 2] if full else 0.0
@@ -261,7 +268,7 @@ def predict_weigh(own, scratch, inputs, model, scalars, flags, nc, sizes):
             w2 = w_prev[i, 2] if full else 0.0
             sf, sr = slip[0, i], slip[1, i]
             if interval:
-                m = _model_t((x0, x1, x2), up, kp, True, sf, sr, vp, True, rear_drive)
+                m = _model_t((x0, x1, x2), up, kp, True, sf, sr, vp, True, rear_drive, (lg, pf, pr, h0))
             elif full:
                 m = (a[i, 0], a[i, 1], a[i, 2], B[i, 0, 0], B[i, 0, 1], B[i, 0, 2], B[i, 1, 0], B[i, 1, 1],
                      B[i, 1, 2], B[i, 2, 0], B[i, 2, 1], B[i, 2, 2], 0.0, 0.0, 0.0, 0.0)
@@ -270,7 +277,8 @@ def predict_weigh(own, scratch, inputs, model, scalars, flags, nc, sizes):
                      B[i, 2, 1], 0.0, 0.0, 0.0, 0.0, 0.0)
             for s in range(n_sub):
                 if s > 0:
-                    m = _model_t((x0, x1, x2), up, kp, False, 0.0, 0.0, vp, full, rear_drive)
+                    m = _model_t((x0, x1, x2), up, kp, False, 0.0, 0.0, vp, full, rear_drive,
+                                 (lg, pf, pr, s * hs if relaxing else -1.0))
                     sf, sr = m[14], m[15]
                 k10, k11, k12 = _xdot_t(x0, x1, x2, u_prev[3], m, w0, w1, w2, full)
                 if not heun:
@@ -282,7 +290,8 @@ def predict_weigh(own, scratch, inputs, model, scalars, flags, nc, sizes):
                 y0 = x0 + hs * k10
                 y1 = x1 + hs * k11
                 y2 = x2 + hs * k12 if full else 0.0
-                m = _model_t((y0, y1, y2), up, kp, full, sf, sr, vp, full, rear_drive)
+                m = _model_t((y0, y1, y2), up, kp, full, sf, sr, vp, full, rear_drive,
+                             (lg, pf, pr, (s + 1) * hs if relaxing else -1.0))
                 k20, k21, k22 = _xdot_t(y0, y1, y2, u_prev[3], m, w0, w1, w2, full)
                 x0 = x0 + (0.5 * hs) * (k10 + k20)
                 x1 = x1 + (0.5 * hs) * (k11 + k21)
@@ -310,7 +319,10 @@ def predict_weigh(own, scratch, inputs, model, scalars, flags, nc, sizes):
                     for k in range(n_wp):
                         Lam[i, j, k] = Lam[i, j, k] * f
         # the model at x_k, u_k (`_model`) and the plausible region (`_plausible`)
-        m = _model_t((x0, x1, x2), uu, kk, False, 0.0, 0.0, vp, full, rear_drive)
+        m = _model_t((x0, x1, x2), uu, kk, False, 0.0, 0.0, vp, full, rear_drive,
+                     (lg, pf, pr, dt if relaxing and propagate else -1.0))
+        if relaxing:  # the relaxed slip angles at x_k, which the next propagation relaxes from
+            relaxed[0, i], relaxed[1, i] = m[12], m[13]
         a[i, 0], a[i, 1], a[i, 2] = m[0], m[1], m[2]
         B[i, 0, 0], B[i, 0, 1] = m[3], m[4]
         B[i, 1, 0], B[i, 1, 1] = m[6], m[7]

@@ -186,11 +186,13 @@ class Supervision:
         self._reset_cx_excitation()  # the prior again: nothing of Cx learned
         if self._calib is not None:
             self._calib.reset()
+            self._load_level[:] = 0.0
         self.t_start, self.t_prev, self.u_prev, self.active = t, t, uk, False
         self._contradiction_since = self._bound_since = None
         self.learned_time, self._t_gate = 0.0, None  # a new start: the inflation disarmed (`inflation_after`)
         self.ay_pred = math.nan  # (the old cloud's prediction)
         self._at_x = self._model(self.x, uk)
+        self._keep_relaxed(self._at_x)
         self.w_prev = self.stats.mu.copy()  # the next propagation uses the prior means
         if self._nb is not None:  # (the compiled moments)
             return self._estimate_compiled(float(self.cfg.particles))
