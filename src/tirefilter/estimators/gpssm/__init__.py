@@ -1,8 +1,8 @@
 """The friction GP-SSM (Berntorp, "Online Bayesian tire-friction learning by Gaussian-process
 state-space models", IFAC 2020), one concern per module:
 
-  filter.py             GPSSMConfig (the `[gpssm]` table of --config), the Pacejka prior and
-                        FrictionGPSSM: the particles, the numpy reference step, the estimate,
+  config.py             GPSSMConfig (the `[gpssm]` table of --config) and the Pacejka prior
+  filter.py             FrictionGPSSM: the particles, the numpy reference step, the estimate,
                         the friction curve and the posterior
   compiled.py           the compiled step (the numba backend's path), `CompiledStep`
   kernels_particles.py  its per-particle kernels: propagation, slip, basis and prior (`front`),
@@ -15,6 +15,7 @@ state-space models", IFAC 2020), one concern per module:
   supervision.py        divergence: its symptoms, the checkpoints of the statistics
 """
 
-from tirefilter.estimators.gpssm.filter import FrictionGPSSM, GPSSMConfig
+from tirefilter.estimators.gpssm.config import GPSSMConfig
+from tirefilter.estimators.gpssm.filter import FrictionGPSSM
 
 __all__ = ["FrictionGPSSM", "GPSSMConfig"]
