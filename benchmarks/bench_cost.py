@@ -169,13 +169,9 @@ def peer_step(v, sigma, Ts: float, samples, N: int, seed: int = 1):
     return lambda k: next(smc)
 
 
-def interleaved(scenario, samples, N: int, seed: int = 1) -> tuple[float, float]:
-    """The MPF (as `tirefilter run` builds it) and the peer at N particles, stepped alternately
-    through the same samples in one process, so that both see the same load: the median CPU
-    us per step of each after the warm-up."""
-    est = build_estimator("mpf", scenario, model="auto", particles=N, config={})
-    est.reset(np.random.default_rng(seed))
-    peer = bootstrap_step(scenario, samples, N, seed)
+def alternate(est, peer, samples) -> tuple[float, float]:
+    """One MPF step, one peer step, ... through the samples: the median CPU us per step of each after
+    the warm-up (`WARMUP` samples)."""
     cpu: dict[str, list[float]] = {"mpf": [], "bootstrap": []}
     for k, s in enumerate(samples):
         for name, step in (("mpf", lambda: est.step(*s)), ("bootstrap", lambda: peer(k))):
@@ -184,6 +180,16 @@ def interleaved(scenario, samples, N: int, seed: int = 1) -> tuple[float, float]
             if k >= WARMUP:
                 cpu[name].append(time.thread_time() - c0)
     return float(np.median(cpu["mpf"]) * 1e6), float(np.median(cpu["bootstrap"]) * 1e6)
+
+
+def interleaved(scenario, samples, N: int, seed: int = 1) -> tuple[float, float]:
+    """The MPF (as `tirefilter run` builds it) and the peer at N particles, stepped alternately
+    through the same samples in one process, so that both see the same load: the median CPU
+    us per step of each after the warm-up."""
+    est = build_estimator("mpf", scenario, model="auto", particles=N, config={})
+    est.reset(np.random.default_rng(seed))
+    peer = bootstrap_step(scenario, samples, N, seed)
+    return alternate(est, peer, samples)
 
 
 def replay_setting(log_path: Path, vehicle_path: Path, N: int):
@@ -213,20 +219,14 @@ def interleaved_replay(log_path: Path, vehicle_path: Path, N: int, seed: int = 1
     est, samples, Ts = replay_setting(log_path, vehicle_path, N)
     est.reset(np.random.default_rng(seed))
     peer = peer_step(est.vehicle, est.sensors.sigma, Ts, samples, N, seed)
-    cpu: dict[str, list[float]] = {"mpf": [], "bootstrap": []}
-    for k, s in enumerate(samples):
-        for name, step in (("mpf", lambda: est.step(*s)), ("bootstrap", lambda: peer(k))):
-            c0 = time.thread_time()
-            step()
-            if k >= WARMUP:
-                cpu[name].append(time.thread_time() - c0)
+    mpf_us, peer_us = alternate(est, peer, samples)
     cfg = est.cfg
     options = {"model": cfg.model, "backend": cfg.backend, "bias filter": est.bias_on,
                "wandering offsets": bool(np.any(np.asarray(cfg.disturbance_rw) > 0)),
                "calibration": cfg.std_calibration, "wheel filter": est.wheels is not None,
                "roll gain": "estimated" if est.k_roll is not None else f"{est.roll_gain:.4g}",
                "lever arm": tuple(float(c) for c in est._vp[10:12]), "samples": len(samples)}
-    return float(np.median(cpu["mpf"]) * 1e6), float(np.median(cpu["bootstrap"]) * 1e6), options
+    return mpf_us, peer_us, options
 
 
 def replay_main(args) -> int:
