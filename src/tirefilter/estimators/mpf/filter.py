@@ -271,20 +271,20 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
 
     def _load_moments(self) -> tuple[float, float]:
         """The posterior mean and std of kappa (NaN, NaN where it is not estimated)."""
-        if self.k_load is None:
-            return NAN, NAN
-        q = np.exp(self.logw)
-        mean = float(q @ self.k_load)
-        return mean, math.sqrt(max(float(q @ (self.k_load - mean) ** 2), 0.0))
+        return self._weighted_moments(self.k_load)
 
     def _roll_moments(self) -> tuple[float, float]:
         """The posterior mean and std of k (NaN, NaN where it is not estimated; the compiled step has
         them from `sample_update`)."""
-        if self.k_roll is None:
+        return self._weighted_moments(self.k_roll)
+
+    def _weighted_moments(self, k) -> tuple[float, float]:
+        """The mean and std of a per-particle parameter k (N,) under the weights (NaN, NaN for None)."""
+        if k is None:
             return NAN, NAN
         q = np.exp(self.logw)
-        mean = float(q @ self.k_roll)
-        return mean, math.sqrt(max(float(q @ (self.k_roll - mean) ** 2), 0.0))
+        mean = float(q @ k)
+        return mean, math.sqrt(max(float(q @ (k - mean) ** 2), 0.0))
 
     # ---- model: `vehicle.single_track` (numpy) or its compiled twin ------------------------
     def _model(self, x, u, slip=None, relax=None):
