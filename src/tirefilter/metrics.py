@@ -414,7 +414,7 @@ def format_metrics(m: dict, sensor_noise: dict | None = None) -> list[str]:
         lines.append(f"{'stiffness error':16s}{'mean |err|':>12s}{'mean |err|':>12s}{'error':>10s}"
                      f"{'truth in the':>19s}  reference")
         lines.append(f"{'':16s}{'whole run':>12s}{'settled':>12s}{'at end':>10s}"
-                     f"{'90% band, ' + cov_window:>19s}")
+                     f"{'  90% band, ' + cov_window:>19s}")  # (the whole run's label overflows the column)
         for p, s in m["stiffness"].items():
             cov = s.get("settled_coverage90", s["coverage90"])
             lines.append(f"{p:16s}{_pct(s['mean_abs_pct']):>12s}{_pct(s.get('settled_mean_abs_pct')):>12s}"
