@@ -223,13 +223,19 @@ SSP_STOP = 21.5  # s: 20 s straight, then the sine steering starts and the speed
 
 
 @pytest.fixture(scope="module")
-def ssp_run(fmu_paths, tmp_path_factory):
-    from tirefilter.cosim.run import run_scenario
-    from tirefilter.fmu_export.ssp import build_ssp, run_ssp
+def ssp_path(fmu_paths, tmp_path_factory):
+    from tirefilter.fmu_export.ssp import build_ssp
 
-    path = build_ssp("snow-sine", tmp_path_factory.mktemp("ssp") / "snow-sine.ssp", seed=SEED, particles=N,
+    return build_ssp("snow-sine", tmp_path_factory.mktemp("ssp") / "snow-sine.ssp", seed=SEED, particles=N,
                      stop_time=SSP_STOP)
-    r = run_ssp(path)
+
+
+@pytest.fixture(scope="module")
+def ssp_run(ssp_path):
+    from tirefilter.cosim.run import run_scenario
+    from tirefilter.fmu_export.ssp import run_ssp
+
+    r = run_ssp(ssp_path)
     sc = load_scenario("snow-sine")
     _, rows = run_scenario(dataclasses.replace(sc, duration=SSP_STOP), seed=SEED, keep_rows=True)
     from tirefilter.cosim.fmu import VehicleFMU
@@ -259,6 +265,16 @@ def test_ssp_estimates_equal_python_estimator_on_its_samples(ssp_run):
                                                        "Cf_y_std")])
     assert len(got) == round(SSP_STOP / h) - 1
     np.testing.assert_allclose(np.array(got), np.array(want), rtol=1e-9, atol=0)
+
+
+def test_ssp_runs_without_its_parameter_set(ssp_path):
+    """fmpy's simulate_ssp on its own (no parameter set, as a user runs an SSP first): the estimator's
+    first step gets the unconnected zeros, skips them with a warning and then estimates."""
+    from fmpy.ssp.simulation import simulate_ssp
+
+    r = simulate_ssp(str(ssp_path), stop_time=0.3, step_size=0.01)
+    assert r["estimator.samples"][0] == 0 and r["estimator.samples"][-1] == len(r) - 1
+    assert np.all(np.isfinite(r["estimator.Cf_y"])) and np.all(r["estimator.vx"][1:] > 1.0)
 
 
 def test_ssp_driver_plays_the_profile(ssp_run):

@@ -93,17 +93,45 @@ def test_outputs_at_the_start_time_are_the_prior(python_fmu, snow, fmi):  # noqa
 
 @pytest.mark.parametrize("fmi", ["2", "3"])
 @pytest.mark.parametrize("params, inputs, expect", [
-    ({"model": 2}, {"u.vx": 0.0, "y.ay": 0.1}, "input u.vx = 0.0 m/s at t = 0 s: the lateral model needs a positive"),
-    ({"model": 2}, {"u.vx": -3.0}, "input u.vx = -3.0 m/s"),
-    ({}, {}, "input u.omega_f = 0.0 rad/s and u.omega_r = 0.0 rad/s at t = 0 s: the full model needs a positive"),
+    ({"model": 2}, {"u.vx": -3.0}, "input u.vx = -3.0 m/s at t = 0 s: the lateral model needs a forward speed"),
+    ({}, {"u.omega_f": 60.0, "u.omega_r": -1.0}, "input u.omega_r = -1.0 rad/s at t = 0 s: the full model"),
     ({"model": 2}, {"u.vx": 20.0, "y.ay": math.inf}, "input y.ay = inf m/s2 at t = 0 s is not finite"),
 ])
 def test_impossible_inputs_are_refused_naming_the_variable(python_fmu, fmi, params, inputs, expect):
+    """An impossible input: the step is refused (Discard: pythonfmu returns no Error from a step) with
+    the state unchanged and the reason in the log; the master may go on with possible inputs."""
     with FMUHost(python_fmu("mpf", fmi)) as host:
         host.initialize(params)
-        with pytest.raises(FMICallException):
+        before = host.get(["samples", "Cf_y", "vy"])
+        with pytest.raises(FMICallException, match="status 2"):
             host.step(0.01, inputs)
         assert any(expect in m for m in host.errors()), host.messages
+        assert host.get(["samples", "Cf_y", "vy"]) == before
+
+
+@pytest.mark.parametrize("fmi", ["2", "3"])
+@pytest.mark.parametrize("params, zeros", [({}, {}), ({"model": 2}, {"u.vx": 0.0, "y.ay": 0.1})])
+def test_unconnected_zero_speeds_are_skipped_with_one_warning(python_fmu, fmi, params, zeros):
+    """A master's first steps before its connectors carry values send zeros: those samples are
+    skipped (outputs hold the prior), one warning names the inputs, and the first sample with a
+    speed is processed as the first sample of an instance that never saw the zeros."""
+    sample = {"u.vx": 20.0, "u.omega_f": 60.0, "u.omega_r": 60.0, "y.ay": 0.1, "y.yaw_rate": 0.01}
+    names = ["samples", "Cf_y", "Cr_y", "vy", "yaw_rate"]
+    with FMUHost(python_fmu("mpf", fmi)) as fresh:
+        fresh.initialize(params)
+        prior = fresh.get(names)
+        fresh.time = 0.03  # its first step starts where the other's zeros end
+        fresh.step(0.01, sample)
+        want = fresh.get(names)
+    with FMUHost(python_fmu("mpf", fmi)) as host:
+        host.initialize(params)
+        for _ in range(3):
+            host.step(0.01, zeros)
+            assert host.get(names) == prior
+        warnings = [m for s, m in host.messages if s == 1]
+        assert len(warnings) == 1 and "samples from t = 0 s skipped" in warnings[0], host.messages
+        host.step(0.01, sample)  # the zeros left no trace
+        assert host.get(names) == want
 
 
 @pytest.mark.parametrize("fmi", ["2", "3"])

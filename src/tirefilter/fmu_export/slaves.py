@@ -199,6 +199,7 @@ class _EstimatorLogic(_Slave):
         self._output(I, "samples", 0, "samples processed so far")
         self._est = None
         self._run = None  # runs.Run: the estimator's steps and the recording
+        self._skipping = False  # the last sample was skipped (its speeds all zero): warned once per stretch
         self._start_time = 0.0
 
     def _default_config(self) -> str:
@@ -326,14 +327,19 @@ class _EstimatorLogic(_Slave):
         if self._est is None:
             self._fail(f"{self.instance_name}: doStep before initialisation")
         v = self._values
+        # the inputs hold over the communication step: judged once, before any sample is processed
+        problem = self._impossible_input(current_time)
+        if problem:  # refused with the state unchanged: fmi2Discard / fmi3Discard (pythonfmu has no Error here)
+            self.log(problem, self._T.status.error)
+            return False
+        skip = self._unconnected(current_time)
         eps = 1e-9 * self.Ts
         end = current_time + step_size - eps
         while self._n * self.Ts < end:
             s = self._n * self.Ts  # the in-process runs' sample time k h (same double for h = Ts)
             self._n += 1
-            if s < current_time - eps:
-                continue  # an instant the master stepped over (start time inside a period)
-            self._check_inputs(s)
+            if s < current_time - eps or skip:
+                continue  # an instant the master stepped over (start time inside a period), or a skipped one
             u = Inputs(delta=v["u.delta"], omega_f=v["u.omega_f"], omega_r=v["u.omega_r"], vx=v["u.vx"])
             y = Measurement(ax=v["y.ax"], ay=v["y.ay"], yaw_rate=v["y.yaw_rate"])
             self._run.step(Sample(self._n - 1, s, u, y))
@@ -348,23 +354,38 @@ class _EstimatorLogic(_Slave):
         self.log(message, self._T.status.error)
         return RuntimeError(message)
 
-    def _check_inputs(self, s: float) -> None:
-        """Refuse physically impossible samples (NaN is a missing sample, allowed): an
-        infinite value, or a speed the model uses (u.vx for the lateral model, the wheel
-        speeds for the full one) that is not positive: the models are not valid at
-        standstill, and a master that never connected the inputs sends zeros."""
+    def _speeds(self) -> tuple[str, ...]:
+        """The inputs that carry the longitudinal speed the model uses: u.vx for the lateral model, the
+        wheel speeds for the full one."""
+        return ("u.vx",) if MODELS[self._values["model"]] == "lateral" else ("u.omega_f", "u.omega_r")
+
+    def _impossible_input(self, s: float) -> str | None:
+        """The error message for physically impossible inputs at `s` (NaN is a missing sample, allowed):
+        an infinite value, or a negative speed the model uses; None when they are possible."""
         v = self._values
         for name, (unit, _) in ESTIMATOR_INPUTS.items():
             if math.isinf(v[name]):
-                self._fail(f"{self.instance_name}: input {name} = {v[name]!r} {unit} at t = {s:.6g} s is not finite "
-                           "(NaN marks a missing sample)")
-        speeds = ("u.vx",) if MODELS[self._values["model"]] == "lateral" else ("u.omega_f", "u.omega_r")
-        given = [n for n in speeds if not math.isnan(v[n])]
-        if given and all(v[n] <= 0.0 for n in given):
-            what = " and ".join(f"{n} = {v[n]!r} {ESTIMATOR_INPUTS[n][0]}" for n in given)
-            self._fail(f"{self.instance_name}: input {what} at t = {s:.6g} s: the {MODELS[self._values['model']]} "
-                       "model needs a positive longitudinal speed (the vehicle is not moving forward, or the input "
-                       "is not connected)")
+                return (f"{self.instance_name}: input {name} = {v[name]!r} {unit} at t = {s:.6g} s is not finite "
+                        "(NaN marks a missing sample)")
+        for name in self._speeds():
+            if v[name] < 0.0:
+                return (f"{self.instance_name}: input {name} = {v[name]!r} {ESTIMATOR_INPUTS[name][0]} at "
+                        f"t = {s:.6g} s: the {MODELS[v['model']]} model needs a forward speed (>= 0)")
+        return None
+
+    def _unconnected(self, s: float) -> bool:
+        """Whether the samples of the step from `s` are skipped: every speed the model uses is zero, as a
+        master sends before it has connected the inputs (or the vehicle stands, where the models do not
+        hold). The first step of each such stretch is logged as a warning."""
+        v = self._values
+        given = [n for n in self._speeds() if not math.isnan(v[n])]
+        skip = bool(given) and all(v[n] == 0.0 for n in given)
+        if skip and not self._skipping:
+            self.log(f"{self.instance_name}: samples from t = {s:.6g} s skipped: {' and '.join(given)} = 0 (the "
+                     "input is not connected yet, or the vehicle stands; the models need a forward speed)",
+                     self._T.status.warning)
+        self._skipping = skip
+        return skip
 
     def _publish_prior(self) -> None:
         """Outputs at the start time: the estimator's prior (no sample processed yet)."""
