@@ -31,7 +31,7 @@ import shutil
 import subprocess
 import tempfile
 import time
-from ctypes import POINTER, Structure, c_double, c_int32, c_int64, c_void_p
+from ctypes import POINTER, Structure, c_double, c_int32, c_int64, c_void_p, py_object
 from pathlib import Path
 
 import numpy as np
@@ -39,10 +39,10 @@ import numpy as np
 from tirefilter.errors import TirefilterError
 
 SOURCE_DIR = Path(__file__).resolve().parent / "native"
-SOURCES = ("mpf_weigh.c", "mpf_update.c", "single_track.c")
+SOURCES = ("mpf_weigh.c", "mpf_update.c", "single_track.c", "mpf_numpy.c")
 HEADERS = ("mpf_core.h", "single_track.h")
 # no FMA contraction and no fast-math: the numba kernels' roundings, operation for operation
-CFLAGS = ("-std=c99", "-O2", "-ffp-contract=off", "-fno-fast-math", "-fPIC", "-shared")
+CFLAGS = ("-std=c99", "-O3", "-march=native", "-ffp-contract=off", "-fno-fast-math", "-fPIC", "-shared")
 MAX_DIM = 4  # MPF_MAX_DIM of mpf_core.h: n_w and m at most this
 SIZES_FULL, SIZES_LATERAL, SIZES_ANY = np.empty((0, 0, 0)), np.empty((0, 0)), np.empty(0)  # (as `kernels`')
 
@@ -123,37 +123,63 @@ class _Dims(Structure):
     _fields_ = [("n", c_int64), ("nx", c_int64), ("n_w", c_int64), ("m", c_int64)]
 
 
-_P, _D, _I, _I32 = c_void_p, c_double, c_int64, c_int32
-_SIGNATURES = {
-    "mpf_predict_weigh": [POINTER(_Dims), POINTER(_Own), POINTER(_Scratch), _P, _P, _P, _P, _I, _P, _P, _P, _P, _P,
-                          POINTER(_Model), _P, _P, _I, _P],
-    "mpf_resample_gate": [POINTER(_Dims), _P, _D, _I32, _P, POINTER(_Own), POINTER(_Own), _P, _P, _I32, _P, _P, _P,
-                          _P],
-    "mpf_sample_update": [POINTER(_Dims), _P, POINTER(_Own), POINTER(_Scratch), _P, _P, _P, _P, _P, _P, _P, _I, _P,
-                          _D, _D, _P, _P, _P, _I, _P, _P, _I, _P, _P, _P],
-    "mpf_estimate_moments": [POINTER(_Dims), _P, _P, _P, _P, _P, _P, _P, _P, _I],
-    "mpf_match_state_noise": [_I, _I, _P, _P, _P, _P, _D, _D, _P],
-    "mpf_walk_roll": [_I, _P, _P, _D, _D, _D, _D, _P],
-    "st_accelerations": [_I, _I, _I, _P, _P, _P, _I32, _I32, _P, _P, _D, _P, _P, _P, _P, _P],
-    "st_propagate": [_I, _I, _I, _P, _P, _P, _P, _P, _P, _D, _D, _I32, _P, _I32, _I32, _P, _P, _P],
-    "st_slip_over_step": [_I, _I, _P, _P, _P, _P, _P, _P, _P, _D, _P, _P, _P, _I32, _P, _P, _P, _P, _P, _P, _P],
+_P, _D, _I, _I32, _O = c_void_p, c_double, c_int64, c_int32, py_object
+_DIMS, _OWN, _SCRATCH, _MODEL = POINTER(_Dims), POINTER(_Own), POINTER(_Scratch), POINTER(_Model)
+_SIGNATURES = {  # name: (argument types, result type); *_np: the arrays as objects (mpf_numpy.c)
+    "mpf_predict_weigh_np": ([_DIMS, _OWN, _SCRATCH, _O, _O, _O, _O, _O, _O, _O, _O, _O, _MODEL, _P, _P, _I, _P],
+                             c_int32),
+    "mpf_resample_gate_np": ([_DIMS, _O, _D, _I32, _O, _OWN, _OWN, _O, _O, _I32, _O, _O, _O, _P], c_int32),
+    "mpf_sample_update_np": ([_DIMS, _O, _OWN, _SCRATCH, _O, _O, _O, _O, _O, _O, _O, _O, _D, _D, _O, _O, _P, _I, _O,
+                              _O, _O, _O, _P], c_int32),
+    "mpf_match_state_noise_np": ([_O, _O, _O, _O, _D, _D, _O], c_int32),
+    "mpf_walk_roll_np": ([_O, _O, _D, _D, _D, _D, _O], c_int32),
+    "mpf_np_probe": ([_O, _P], None),
+    "mpf_np_set_type": ([_P], None),
+    "mpf_estimate_moments": ([_DIMS, _P, _P, _P, _P, _P, _P, _P, _P, _I], None),
+    "st_accelerations": ([_I, _I, _I, _P, _P, _P, _I32, _I32, _P, _P, _D, _P, _P, _P, _P, _P], None),
+    "st_propagate": ([_I, _I, _I, _P, _P, _P, _P, _P, _P, _D, _D, _I32, _P, _I32, _I32, _P, _P, _P], None),
+    "st_slip_over_step": ([_I, _I, _P, _P, _P, _P, _P, _P, _P, _D, _P, _P, _P, _I32, _P, _P, _P, _P, _P, _P, _P],
+                          None),
 }
 _LIB: list = []
 
 
 def library() -> ctypes.CDLL:
-    """The built library, loaded once per process."""
+    """The built library, loaded once per process and checked (`_probe`)."""
     if not _LIB:
         path = build()
         try:
             lib = ctypes.CDLL(str(path))
         except OSError as exc:
             raise NativeBuildError(f"the MPF's C core {path} could not be loaded: {exc}") from exc
-        for name, argtypes in _SIGNATURES.items():
+        for name, (argtypes, restype) in _SIGNATURES.items():
             fn = getattr(lib, name)
-            fn.argtypes, fn.restype = argtypes, None
+            fn.argtypes, fn.restype = argtypes, restype
+        _probe(lib)
         _LIB.append(lib)
     return _LIB[0]
+
+
+def _probe(lib) -> None:
+    """mpf_numpy.c reads numpy arrays' data pointer, shape, dtype and flags from the objects: check that
+    it reads what numpy says for arrays of each kind the kernels take."""
+    lib.mpf_np_set_type(id(np.ndarray))  # (CPython: id is the object's address)
+    out = np.zeros(5, np.int64)
+    for a in (np.arange(6.0).reshape(3, 2), np.arange(4), np.zeros(3, bool), np.zeros((2, 0)),
+              np.arange(6.0).reshape(2, 3).T):
+        lib.mpf_np_probe(a, out.ctypes.data)
+        want = [a.ctypes.data, a.ndim, a.shape[0], ord(a.dtype.char), None]
+        if out[:4].tolist() != want[:4] or bool(out[4] & 1) != a.flags.c_contiguous:
+            raise NativeBuildError("the MPF's C core reads numpy arrays other than this Python and numpy lay them "
+                                   f"out (read {out.tolist()} of an array with {want[:4]}): use backend = \"numba\"")
+
+
+def _check(status: int, fn: str, names: str) -> None:
+    """A kernel's status: 0, else the position (1-based) of the array among `names` that is not as it takes it."""
+    if status:
+        name = names.split()[status - 1]
+        raise TypeError(f"the MPF's C core ({fn}) takes {name} as a C-contiguous numpy array of float64 (int64 "
+                        "for indices), writeable where it writes into it: got another")
 
 
 def _addr(a: np.ndarray, dtype=_F64) -> int:
@@ -216,13 +242,12 @@ def predict_weigh(own, scratch, inputs, model, scalars, flags, nc, sizes):
     unrolled bodies by the sizes themselves)."""
     lib = library()
     u_prev, uk, y, avail, w_prev, logw, noise, noise_scale, redraw = inputs
-    st_own = _cached(own, _own_struct)
     dims = _cached(own[0], lambda x: _dims(x, own[4], own[1]))
-    sc = (c_double * 7)(*scalars)  # (each temporary bound to a name: alive during the call)
-    lib.mpf_predict_weigh(dims, st_own, _cached(scratch, _scratch_struct), _addr(u_prev), _addr(uk), _addr(y),
-                          _addr(avail, _I64), avail.shape[0], _addr(w_prev), _addr(logw), _addr_or_null(noise),
-                          _addr(noise_scale), _addr_or_null(redraw), _cached(model, _model_struct),
-                          sc, _cached(flags, _int32s), nc, _OUT)
+    sc = (c_double * 7)(*scalars)  # (bound to a name: alive during the call)
+    _check(lib.mpf_predict_weigh_np(dims, _cached(own, _own_struct), _cached(scratch, _scratch_struct), u_prev, uk, y,
+                                    avail, w_prev, logw, noise, noise_scale, redraw, _cached(model, _model_struct),
+                                    sc, _cached(flags, _int32s), nc, _OUT),
+           "predict_weigh", "u_prev uk y avail w_prev logw noise noise_scale redraw")
     return _OUT[0], _OUT[1], int(_OUT[2]), _OUT[3]
 
 
@@ -230,9 +255,9 @@ def resample_gate(logw, u0, resample, idx, own, spares, af, ar, full, pin_lo, pi
     """`kernels.resample_gate` in C."""
     lib = library()
     dims = _cached(own[0], lambda x: _dims(x, own[4], own[1]))
-    lib.mpf_resample_gate(dims, _addr(logw), u0, bool(resample), _addr(idx, _I64), _cached(own, _own_struct),
-                          _cached(spares, _own_struct), _addr(af), _addr(ar), bool(full), _addr(pin_lo),
-                          _addr(pin_hi), _addr(qw), _OUT)
+    _check(lib.mpf_resample_gate_np(dims, logw, u0, bool(resample), idx, _cached(own, _own_struct),
+                                    _cached(spares, _own_struct), af, ar, bool(full), pin_lo, pin_hi, qw, _OUT),
+           "resample_gate", "logw idx af ar pin_lo pin_hi . . qw")
     return _OUT[0], _OUT[1], _OUT[2], bool(_OUT[3])
 
 
@@ -244,14 +269,11 @@ def sample_update(idx, own, scratch, draws, w, obs, learning, flags, nc_, out, s
     bound, drift_a, lo, hi = learning
     drift_state, mom, qw, k_roll = out
     dims = _cached(own[0], lambda x: _dims(x, own[4], own[1]))
-    use_mask, do_bias, active, drift = flags
-    fl = (c_int32 * 4)(bool(use_mask), bool(do_bias), bool(active), bool(drift))
-    lib.mpf_sample_update(dims, _addr(idx, _I64), _cached(own, _own_struct), _cached(scratch, _scratch_struct),
-                          _addr(z), _addr(chi), _addr(nu_draw), _addr(infl), _addr(w), _addr(R),
-                          _addr(avail, _I64), avail.shape[0], _addr(y), bound, drift_a, _addr(lo), _addr(hi),
-                          fl, nc_,
-                          _addr(drift_state) if active and drift else None, _addr(mom), mom.shape[1], _addr(qw),
-                          _addr_or_null(k_roll), _OUT)
+    fl = (c_int32 * 4)(*(bool(f) for f in flags))
+    _check(lib.mpf_sample_update_np(dims, idx, _cached(own, _own_struct), _cached(scratch, _scratch_struct), z, chi,
+                                    nu_draw, infl, w, R, avail, y, bound, drift_a, lo, hi, fl, nc_, drift_state, mom,
+                                    qw, k_roll, _OUT),
+           "sample_update", "idx z chi nu_draw infl w R avail y lo hi drift_state mom qw k_roll")
     return _OUT[0], _OUT[1], _OUT[2]
 
 
@@ -262,18 +284,15 @@ def estimate_moments(logw, x, gamma, mu, Lam, nu, b, mom):
 
 
 def match_state_noise(logw_pred, logw, x, scale, dt, a, q_state):
-    """`kernels.match_state_noise` in C."""
-    n, nx = x.shape
-    if nx > 8:
-        raise ValueError("match_state_noise in C: at most 8 states")
+    """`kernels.match_state_noise` in C (at most 8 states)."""
     scale = _c(scale)
-    library().mpf_match_state_noise(n, nx, _addr(logw_pred), _addr(logw), _addr(x), _addr(scale),
-                                    dt, a, _addr(q_state))
+    _check(library().mpf_match_state_noise_np(logw_pred, logw, x, scale, dt, a, q_state), "match_state_noise",
+           "logw_pred logw x scale q_state")
 
 
 def walk_roll(k, z, c, lo, hi, g, gain):
     """`kernels.walk_roll` in C."""
-    library().mpf_walk_roll(k.shape[0], _addr(k), _addr(z), c, lo, hi, g, _addr(gain))
+    _check(library().mpf_walk_roll_np(k, z, c, lo, hi, g, gain), "walk_roll", "k z gain")
 
 
 # ---- `vehicle.single_track_numba`'s model kernels (the filter's reference path) -----------------------------

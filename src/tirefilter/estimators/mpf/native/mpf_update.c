@@ -102,13 +102,14 @@ void mpf_resample_gate(const mpf_dims *dm, double *logw, double u0, int32_t resa
 }
 
 /* `_bias`: step 4, the bias Kalman update of eq. (30) per particle, in three short loops */
-static void bias_update(const mpf_dims *dm, const int64_t *idx, const mpf_own *own, const mpf_scratch *sc,
-                        const double *R, const int64_t *avail, int64_t na, const double *y)
+INLINE void bias_update(const mpf_dims *dm, const int64_t *idx, const mpf_own *own, const mpf_scratch *sc,
+                        const double *R, const int64_t *avail, const int na, const double *y, const int n_w,
+                        const int mch)
 {
-    const int64_t n = dm->n, n_w = dm->n_w, mch = dm->m, m = dm->m;
+    const int64_t n = dm->n, m = mch;
     double *b = own->b, *P = own->P;
     const double *Lam = own->Lam, *nu = own->nu, *mu = own->mu, *D = sc->D, *h = sc->h;
-    const int64_t nb = na > 1 ? na : 1;
+    const int nb = na > 1 ? na : 1;
     double *Sb = malloc((size_t)(n * nb * nb) * sizeof(double));
     double *inn = malloc((size_t)(n * nb) * sizeof(double));
     double DE[MPF_MAX_DIM][MPF_MAX_DIM], Kt[MPF_MAX_DIM][MPF_MAX_DIM], Pn[MPF_MAX_DIM][MPF_MAX_DIM];
@@ -118,80 +119,80 @@ static void bias_update(const mpf_dims *dm, const int64_t *idx, const mpf_own *o
     for (int64_t i = 0; i < n; i++) {
         const int64_t s = idx[i];
         const double den = nu[i] - n_w - 1.0;
-        for (int64_t q = 0; q < na; q++) {
+        for (int q = 0; q < na; q++) {
             const int64_t cq = avail[q];
-            for (int64_t k = 0; k < n_w; k++) {
+            for (int k = 0; k < n_w; k++) {
                 double t = 0.0;
-                for (int64_t j = 0; j < n_w; j++)
+                for (int j = 0; j < n_w; j++)
                     t += Dx(s, cq, j) * (Lam[(i * n_w + j) * n_w + k] / den);
                 DE[q][k] = t;
             }
         }
-        for (int64_t q = 0; q < na; q++) {
+        for (int q = 0; q < na; q++) {
             const int64_t cq = avail[q];
-            for (int64_t q2 = 0; q2 <= q; q2++) {
+            for (int q2 = 0; q2 <= q; q2++) {
                 const int64_t c2 = avail[q2];
                 double t = 0.0;
-                for (int64_t k = 0; k < n_w; k++)
+                for (int k = 0; k < n_w; k++)
                     t += DE[q][k] * Dx(s, c2, k);
                 Sx(i, q, q2) = Px(i, cq, c2) + R[cq * m + c2] + t;
             }
         }
-        for (int64_t q = 0; q < na; q++) {
+        for (int q = 0; q < na; q++) {
             const int64_t ch = avail[q];
             double t = 0.0;
-            for (int64_t j = 0; j < n_w; j++)
+            for (int j = 0; j < n_w; j++)
                 t += Dx(s, ch, j) * mu[i * n_w + j];
             inn[i * nb + q] = y[ch] - h[s * m + ch] - t - b[i * mch + ch];
         }
     }
     for (int64_t i = 0; i < n; i++) { /* chol(S) in place */
-        for (int64_t j = 0; j < na; j++) {
+        for (int j = 0; j < na; j++) {
             const double Sjj = Sx(i, j, j);
             double d = Sjj;
-            for (int64_t k = 0; k < j; k++)
+            for (int k = 0; k < j; k++)
                 d = d - Sx(i, j, k) * Sx(i, j, k);
             const double Ljj = sqrt(py_max(d, fabs(Sjj) * 1e-14 + 1e-300));
             Sx(i, j, j) = Ljj;
-            for (int64_t r = j + 1; r < na; r++) {
+            for (int r = j + 1; r < na; r++) {
                 double acc = Sx(i, r, j);
-                for (int64_t k = 0; k < j; k++)
+                for (int k = 0; k < j; k++)
                     acc = acc - Sx(i, r, k) * Sx(i, j, k);
                 Sx(i, r, j) = acc * (1.0 / Ljj);
             }
         }
     }
     for (int64_t i = 0; i < n; i++) {
-        for (int64_t c = 0; c < mch; c++) { /* Kt[:, c] = S^-1 P[a, c] */
-            for (int64_t q = 0; q < na; q++) {
+        for (int c = 0; c < mch; c++) { /* Kt[:, c] = S^-1 P[a, c] */
+            for (int q = 0; q < na; q++) {
                 double acc = Px(i, avail[q], c);
-                for (int64_t j = 0; j < q; j++)
+                for (int j = 0; j < q; j++)
                     acc = acc - Sx(i, q, j) * Kt[j][c];
                 Kt[q][c] = acc / Sx(i, q, q);
             }
-            for (int64_t q = na - 1; q >= 0; q--) {
+            for (int q = na - 1; q >= 0; q--) {
                 double acc = Kt[q][c];
-                for (int64_t j = q + 1; j < na; j++)
+                for (int j = q + 1; j < na; j++)
                     acc = acc - Sx(i, j, q) * Kt[j][c];
                 Kt[q][c] = acc / Sx(i, q, q);
             }
         }
-        for (int64_t c = 0; c < mch; c++) {
+        for (int c = 0; c < mch; c++) {
             double t = 0.0;
-            for (int64_t q = 0; q < na; q++)
+            for (int q = 0; q < na; q++)
                 t += Kt[q][c] * inn[i * nb + q];
             b[i * mch + c] = b[i * mch + c] + t;
         }
-        for (int64_t c = 0; c < mch; c++) { /* Pn = P - P_{:,a} K^T, then 0.5 (Pn + Pn^T) */
-            for (int64_t c2 = 0; c2 < mch; c2++) {
+        for (int c = 0; c < mch; c++) { /* Pn = P - P_{:,a} K^T, then 0.5 (Pn + Pn^T) */
+            for (int c2 = 0; c2 < mch; c2++) {
                 double t = 0.0;
-                for (int64_t q = 0; q < na; q++)
+                for (int q = 0; q < na; q++)
                     t += Px(i, avail[q], c) * Kt[q][c2];
                 Pn[c][c2] = Px(i, c, c2) - t;
             }
         }
-        for (int64_t c = 0; c < mch; c++)
-            for (int64_t c2 = 0; c2 < mch; c2++)
+        for (int c = 0; c < mch; c++)
+            for (int c2 = 0; c2 < mch; c2++)
                 Px(i, c, c2) = 0.5 * (Pn[c][c2] + Pn[c2][c]);
     }
 #undef Dx
@@ -384,8 +385,14 @@ void mpf_sample_update(const mpf_dims *dm, const int64_t *idx, const mpf_own *ow
     const int64_t n = dm->n, n_w = dm->n_w;
     const int do_bias = flags[1], active = flags[2], drift = flags[3];
     double ub[MPF_MAX_DIM] = {0.0};
-    if (do_bias) /* first: it reads the statistics before their update and writes only b, P */
-        bias_update(dm, idx, own, sc, R, avail, na, y);
+    if (do_bias) { /* first: it reads the statistics before their update and writes only b, P */
+        if (n_w == 3 && na == 3 && dm->m == 3)
+            bias_update(dm, idx, own, sc, R, avail, 3, y, 3, 3);
+        else if (n_w == 2 && na == 2 && dm->m == 2)
+            bias_update(dm, idx, own, sc, R, avail, 2, y, 2, 2);
+        else
+            bias_update(dm, idx, own, sc, R, avail, (int)na, y, (int)n_w, (int)dm->m);
+    }
     double *Lw = malloc((size_t)(n * n_w * n_w) * sizeof(double));
     uint8_t *learn = malloc((size_t)n);
     double *wl = infl[0] == infl[1] ? NULL : malloc((size_t)(n * n_w) * sizeof(double));
