@@ -1,7 +1,8 @@
 """The stiffness MPF's per-particle work in C (`backend = "c"`): the C99 sources in `native/`
 (package data) built on first use with the system C compiler into a per-user cache and loaded
 with ctypes. This module is the C twin of `kernels` (the three passes `predict_weigh`,
-`resample_gate`, `sample_update`, and `estimate_moments`, `match_state_noise`, `walk_roll`) and of
+`resample_gate`, `sample_update`, and `estimate_moments`, `match_state_noise`, `walk_roll`), of the model
+check's `predictive.mixture_moments_chol`, and of
 the model kernels of `vehicle.single_track_numba` that the filter's reference path calls
 (`accelerations`, `propagate`, `slip_over_step`): the same functions with the same arguments, so
 that `CompiledStep._step_compiled` (compiled.py) runs either unchanged. The C code computes the
@@ -11,7 +12,9 @@ FMA contraction and without fast-math for that.
 
 The library is built once per version of the sources: `$XDG_CACHE_HOME/tirefilter/mpf-c/`
 (`~/.cache/tirefilter/mpf-c/` when XDG_CACHE_HOME is unset or not absolute) keeps
-`mpf_core-<hash>.so`, the hash over the sources, the compiler and its flags. The compiler is
+`mpf_core-<hash>.so`, the hash over the sources, the compiler and its flags and the processor (the library
+is built for this processor's instruction sets, -march=native; without FMA contraction its numbers do not
+depend on them). The compiler is
 `$CC`, else gcc, cc or clang; `NativeBuildError` names it when none is found or the build fails.
 numba is not imported on this path.
 
@@ -29,6 +32,7 @@ import os
 import platform
 import shutil
 import subprocess
+import sys
 import tempfile
 import time
 from ctypes import POINTER, Structure, c_double, c_int32, c_int64, c_void_p, py_object
@@ -73,8 +77,19 @@ def library_path(cc: str | None = None) -> Path:
     h = hashlib.sha256()
     for name in (*SOURCES, *HEADERS):
         h.update(name.encode() + b"\0" + (SOURCE_DIR / name).read_bytes())
-    h.update(" ".join((shutil.which(cc) or cc, *CFLAGS, platform.machine())).encode())
+    h.update(" ".join((shutil.which(cc) or cc, *CFLAGS, platform.machine(), _cpu())).encode())
     return cache_dir() / f"mpf_core-{h.hexdigest()[:16]}.so"
+
+
+def _cpu() -> str:
+    """The processor's model and instruction sets (-march=native builds for them: a cache shared by several
+    machines keeps one library per kind of processor)."""
+    try:
+        with open("/proc/cpuinfo") as f:
+            lines = [ln for ln in f if ln.startswith(("model name", "flags"))][:2]
+        return "".join(lines) or platform.processor()
+    except OSError:
+        return platform.processor()
 
 
 def build(force: bool = False) -> Path:
@@ -89,6 +104,8 @@ def build(force: bool = False) -> Path:
     if lib.is_file() and not force:
         return lib
     t0 = time.perf_counter()
+    print(f"building the stiffness MPF's C core with {cc} into {lib.parent} (once per version of its sources, "
+          "a few seconds) ...", file=sys.stderr, flush=True)
     lib.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(suffix=".so.part", dir=lib.parent)
     os.close(fd)
@@ -136,6 +153,7 @@ _SIGNATURES = {  # name: (argument types, result type); *_np: the arrays as obje
     "mpf_np_probe": ([_O, _P], None),
     "mpf_np_set_type": ([_P], None),
     "mpf_estimate_moments": ([_DIMS, _P, _P, _P, _P, _P, _P, _P, _P, _I], None),
+    "mpf_mixture_moments_chol": ([_I, _I, _P, _P, _P, _P, _P, _I, _P], None),
     "st_accelerations": ([_I, _I, _I, _P, _P, _P, _I32, _I32, _P, _P, _D, _P, _P, _P, _P, _P], None),
     "st_propagate": ([_I, _I, _I, _P, _P, _P, _P, _P, _P, _D, _D, _I32, _P, _I32, _I32, _P, _P, _P], None),
     "st_slip_over_step": ([_I, _I, _P, _P, _P, _P, _P, _P, _P, _D, _P, _P, _P, _I32, _P, _P, _P, _P, _P, _P, _P],
@@ -288,6 +306,15 @@ def match_state_noise(logw_pred, logw, x, scale, dt, a, q_state):
     scale = _c(scale)
     _check(library().mpf_match_state_noise_np(logw_pred, logw, x, scale, dt, a, q_state), "match_state_noise",
            "logw_pred logw x scale q_state")
+
+
+def mixture_moments_chol(logw, e, Lc, nu, cols, out):
+    """`predictive.mixture_moments_chol` in C (the model check's one-step predictive)."""
+    n, m = e.shape
+    if cols.shape[0] > MAX_DIM or out.shape != (2, cols.shape[0]):
+        raise ValueError("mixture_moments_chol: at most 4 columns, out (2, columns)")
+    library().mpf_mixture_moments_chol(n, m, _addr(logw), _addr(e), _addr(Lc), _addr(nu), _addr(cols, _I64),
+                                       cols.shape[0], _addr(out))
 
 
 def walk_roll(k, z, c, lo, hi, g, gain):

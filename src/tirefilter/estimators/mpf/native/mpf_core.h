@@ -69,6 +69,11 @@ void mpf_estimate_moments(const mpf_dims *dm, const double *logw, const double *
 void mpf_match_state_noise(int64_t n, int64_t nx, const double *logw_pred, const double *logw, const double *x,
                            const double *scale, double dt, double a, double *q_state);
 
+/* predictive._mixture_moments_chol (the model check's one-step predictive): e (N, m), Lc (N, m, m),
+ * cols (nk,) with nk <= MPF_MAX_DIM, out (2, nk) */
+void mpf_mixture_moments_chol(int64_t n, int64_t m, const double *logw, const double *e, const double *Lc,
+                              const double *nu, const int64_t *cols, int64_t nk, double *out);
+
 /* kernels_update.walk_roll */
 void mpf_walk_roll(int64_t n, double *k, const double *z, double c, double lo, double hi, double g, double *gain);
 

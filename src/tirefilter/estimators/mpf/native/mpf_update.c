@@ -500,3 +500,28 @@ void mpf_walk_roll(int64_t n, double *k, const double *z, double c, double lo, d
         gain[i] = ki * g + 1.0;
     }
 }
+
+void mpf_mixture_moments_chol(int64_t n, int64_t m, const double *logw, const double *e, const double *Lc,
+                              const double *nu, const int64_t *cols, int64_t nk, double *out)
+{
+    double e2[MPF_MAX_DIM] = {0.0};
+    for (int64_t k = 0; k < nk; k++) {
+        out[k] = 0.0;
+        out[nk + k] = 0.0;
+    }
+    for (int64_t i = 0; i < n; i++) {
+        const double q = exp(logw[i]);
+        const double scale = nu[i] / (nu[i] - 2.0);
+        for (int64_t k = 0; k < nk; k++) {
+            const int64_t j = cols[k];
+            double s = 0.0;
+            for (int64_t c = 0; c <= j; c++)
+                s += Lc[(i * m + j) * m + c] * Lc[(i * m + j) * m + c];
+            out[k] += q * e[i * m + j];
+            e2[k] += q * e[i * m + j] * e[i * m + j];
+            out[nk + k] += q * s * scale;
+        }
+    }
+    for (int64_t k = 0; k < nk; k++)
+        out[nk + k] += py_max(e2[k] - out[k] * out[k], 0.0);
+}
