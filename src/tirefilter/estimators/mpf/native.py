@@ -212,9 +212,11 @@ def _addr_or_null(a: np.ndarray) -> int | None:
     return _addr(a) if a.size else None
 
 
-_OUT = (c_double * 4)()  # the entry points' returned scalars
+_OUT4 = c_double * 4  # the entry points' returned scalars: one per call (ctypes releases the GIL during it)
 _CACHE: dict = {}  # id(tuple) -> (tuple, its ctypes struct): the work arrays' addresses, looked up once
-_CACHE_MAX = 256
+# (about a dozen entries a filter; the entries keep their arrays alive until they are forgotten, so the
+# cache holds a few filters' worth: filters run one after another in a process)
+_CACHE_MAX = 48
 
 
 def _cached(key_obj, make):
@@ -261,22 +263,22 @@ def predict_weigh(own, scratch, inputs, model, scalars, flags, nc, sizes):
     lib = library()
     u_prev, uk, y, avail, w_prev, logw, noise, noise_scale, redraw = inputs
     dims = _cached(own[0], lambda x: _dims(x, own[4], own[1]))
-    sc = (c_double * 7)(*scalars)  # (bound to a name: alive during the call)
+    sc, out = (c_double * 7)(*scalars), _OUT4()  # (bound to names: alive during the call)
     _check(lib.mpf_predict_weigh_np(dims, _cached(own, _own_struct), _cached(scratch, _scratch_struct), u_prev, uk, y,
                                     avail, w_prev, logw, noise, noise_scale, redraw, _cached(model, _model_struct),
-                                    sc, _cached(flags, _int32s), nc, _OUT),
+                                    sc, _cached(flags, _int32s), nc, out),
            "predict_weigh", "u_prev uk y avail w_prev logw noise noise_scale redraw")
-    return _OUT[0], _OUT[1], int(_OUT[2]), _OUT[3]
+    return out[0], out[1], int(out[2]), out[3]
 
 
 def resample_gate(logw, u0, resample, idx, own, spares, af, ar, full, pin_lo, pin_hi, qw):
     """`kernels.resample_gate` in C."""
     lib = library()
-    dims = _cached(own[0], lambda x: _dims(x, own[4], own[1]))
+    dims, out = _cached(own[0], lambda x: _dims(x, own[4], own[1])), _OUT4()
     _check(lib.mpf_resample_gate_np(dims, logw, u0, bool(resample), idx, _cached(own, _own_struct),
-                                    _cached(spares, _own_struct), af, ar, bool(full), pin_lo, pin_hi, qw, _OUT),
+                                    _cached(spares, _own_struct), af, ar, bool(full), pin_lo, pin_hi, qw, out),
            "resample_gate", "logw idx af ar pin_lo pin_hi . . qw")
-    return _OUT[0], _OUT[1], _OUT[2], bool(_OUT[3])
+    return out[0], out[1], out[2], bool(out[3])
 
 
 def sample_update(idx, own, scratch, draws, w, obs, learning, flags, nc_, out, sizes):
@@ -287,12 +289,12 @@ def sample_update(idx, own, scratch, draws, w, obs, learning, flags, nc_, out, s
     bound, drift_a, lo, hi = learning
     drift_state, mom, qw, k_roll = out
     dims = _cached(own[0], lambda x: _dims(x, own[4], own[1]))
-    fl = (c_int32 * 4)(*(bool(f) for f in flags))
+    fl, res = (c_int32 * 4)(*(bool(f) for f in flags)), _OUT4()
     _check(lib.mpf_sample_update_np(dims, idx, _cached(own, _own_struct), _cached(scratch, _scratch_struct), z, chi,
                                     nu_draw, infl, w, R, avail, y, bound, drift_a, lo, hi, fl, nc_, drift_state, mom,
-                                    qw, k_roll, _OUT),
+                                    qw, k_roll, res),
            "sample_update", "idx z chi nu_draw infl w R avail y lo hi drift_state mom qw k_roll")
-    return _OUT[0], _OUT[1], _OUT[2]
+    return res[0], res[1], res[2]
 
 
 def estimate_moments(logw, x, gamma, mu, Lam, nu, b, mom):
