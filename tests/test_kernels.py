@@ -450,6 +450,16 @@ def test_c_backend_without_a_compiler_names_it(monkeypatch):
         native.compiler()
 
 
+def test_c_backend_with_an_unwritable_cache_names_it(monkeypatch, tmp_path):
+    from tirefilter.estimators.mpf import native
+
+    blocked = tmp_path / "not-a-folder"
+    blocked.write_text("")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(blocked))
+    with pytest.raises(native.NativeBuildError, match="not-a-folder.*XDG_CACHE_HOME"):
+        native.build()
+
+
 # the paper's wheel slip and undriven axle (the other variant: the interval slip and the surface-scaled
 # undriven axle); x0_vx_wheel_std the earlier default: with 0.02 this drive
 # amplifies the rounding differences of the two backends to 1e-10 of v^Y by step 80 (same path, not a

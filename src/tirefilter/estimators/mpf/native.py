@@ -106,8 +106,12 @@ def build(force: bool = False) -> Path:
     t0 = time.perf_counter()
     print(f"building the stiffness MPF's C core with {cc} into {lib.parent} (once per version of its sources, "
           "a few seconds) ...", file=sys.stderr, flush=True)
-    lib.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(suffix=".so.part", dir=lib.parent)
+    try:
+        lib.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(suffix=".so.part", dir=lib.parent)
+    except OSError as exc:
+        raise NativeBuildError(f"the MPF's C core cannot be built into {lib.parent} ({exc}): set XDG_CACHE_HOME to a "
+                               "writable folder") from exc
     os.close(fd)
     cmd = [cc, *CFLAGS, "-o", tmp, *(str(SOURCE_DIR / f) for f in SOURCES), "-lm"]
     try:
