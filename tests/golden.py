@@ -17,8 +17,8 @@ Commands (run from the repository root):
     .venv/bin/python tests/golden.py --check   # compare with the committed masters (1e-9)
     .venv/bin/python tests/golden.py --write   # rewrite tests/data/golden/ (only when an
                                                # output changes on purpose: say why in the commit)
-    .venv/bin/python tests/golden.py --hash --backend c   # the MPF's cases on its C backend
-                                               # ([mpf] backend = "c"): the same hashes as numba's
+    .venv/bin/python tests/golden.py --hash --backend numba   # the MPF's cases on its numba
+                                               # backend: the same hashes as the default C core's
 
 The committed masters keep every EVERY-th row with all estimate columns in `repr` precision,
 so they stay small while any change of the filter shows within a few steps. tests/test_golden.py

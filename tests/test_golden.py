@@ -20,10 +20,11 @@ def test_outputs_equal_golden_master(case, tmp_path):
 
 
 @pytest.mark.parametrize("case", [c for c in golden.CASES if c != "friction-snow"])
-def test_c_backend_outputs_equal_golden_master(case, tmp_path):
-    """The MPF's cases on its C backend ([mpf] backend = "c"): the masters of the default backend (the C
-    core computes the numba kernels' numbers; `golden.py --hash --backend c` prints the same hashes)."""
-    problems = golden.compare(case, golden.run_case(case, tmp_path, backend="c"))
+def test_numba_backend_outputs_equal_golden_master(case, tmp_path):
+    """The MPF's cases on its numba backend ([mpf] backend = "numba"): the masters of the default backend,
+    the C core, which computes the numba kernels' numbers (`golden.py --hash --backend numba` prints the
+    same hashes)."""
+    problems = golden.compare(case, golden.run_case(case, tmp_path, backend="numba"))
     assert not problems, "\n".join(problems)
 
 
