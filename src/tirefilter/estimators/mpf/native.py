@@ -19,10 +19,11 @@ depend on them). The compiler is
 numba is not imported on this path.
 
 The arrays go to C by address: those of the filter's work arrays (`compiled._MPFWork`), which live
-as long as the filter, are looked up once per tuple (`own`, `spares`, `scratch`, `model`) and
-kept in a small cache; the others (this sample's inputs and draws) are checked C-contiguous
-float64 (int64 for indices) per call. An array the kernel writes into must already be so (it is
-never copied)."""
+as long as the filter, are looked up once per tuple (`own`, `spares`, `scratch`, `model`) into C
+structs kept in a small cache; the others (this sample's inputs and draws) go as numpy objects whose
+data pointers `native/mpf_numpy.c` reads, checking each one's type, dtype, C-contiguity and, where the
+kernel writes into it, writeability (an array that fails is named in a TypeError, never copied). The
+rare calls (the model for all particles, the moments) take addresses from Python."""
 
 from __future__ import annotations
 
@@ -48,7 +49,6 @@ HEADERS = ("mpf_core.h", "single_track.h")
 # no FMA contraction and no fast-math: the numba kernels' roundings, operation for operation
 CFLAGS = ("-std=c99", "-O3", "-march=native", "-ffp-contract=off", "-fno-fast-math", "-fPIC", "-shared")
 MAX_DIM = 4  # MPF_MAX_DIM of mpf_core.h: n_w and m at most this
-SIZES_FULL, SIZES_LATERAL, SIZES_ANY = np.empty((0, 0, 0)), np.empty((0, 0)), np.empty(0)  # (as `kernels`')
 
 _F64, _I64 = np.dtype(np.float64), np.dtype(np.int64)
 build_seconds = 0.0  # the time this process spent building the library (0 when it was in the cache)
