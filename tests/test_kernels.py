@@ -388,20 +388,23 @@ def test_slip_over_step_kernel_equal(drive, undriven):
         assert 1e-4 < tau < dt  # the settling is fast: the interval mean lies near the end slip
 
 
+@pytest.mark.parametrize("drive", ["front", "rear"])
 @pytest.mark.parametrize("relax", [0.0, 0.4], ids=["", "relaxation"])
 @pytest.mark.parametrize("model", ["full", "lateral"])
-def test_c_model_kernels_equal_numba(model, relax):
+def test_c_model_kernels_equal_numba(model, relax, drive):
     """The C core's model for all particles (`native.accelerations`, `propagate`, `slip_over_step`: the
     filter's reference path with backend "c", the first sample, restarts) equals the numba twin's bit for
-    bit: load-transfer gains per particle, relaxed slip angles, Heun and Euler with sub-steps."""
+    bit: front and rear drive, load-transfer gains per particle, relaxed slip angles, Heun and Euler with
+    sub-steps."""
     import dataclasses
 
     from tirefilter.estimators.mpf import native
     from tirefilter.vehicle import single_track_numba as stn
 
-    vehicle = dataclasses.replace(load_scenario("paper-sim").vehicle, relaxation_length=relax)
+    vehicle = dataclasses.replace(load_scenario("paper-sim").vehicle, relaxation_length=relax, drive=drive)
     est = StiffnessMPF(vehicle, MPFConfig(model=model, backend="c"))
-    full, n_w, vp = est.full, est.n_w, est._vp
+    full, n_w, vp = est.full, est.n_w, est._vp.copy()
+    vp[9] = 0.4  # the undriven axle's share of the driven axle's deviation
     rng = np.random.default_rng(4)
     n, Rw = 33, vehicle.wheel_radius
     x = np.column_stack([20 + rng.normal(0, 0.5, n), rng.normal(0, 0.3, n), rng.normal(0, 0.1, n)])[:, 0 if full else 1:]
