@@ -597,6 +597,24 @@ def test_stiffness_mpf_gap_step_takes_the_compiled_path(monkeypatch):
     _assert_mpf_runs_equal(a, b, fast, ref)
 
 
+def test_stiffness_mpf_backends_equal_rear_drive():
+    """A rear-driven car (the driven axle's stiffness deviation on the rear wheel slip, the undriven share on
+    the front) on a drive whose front slip swings: the three backends equal (C and numba bit for bit)."""
+    import dataclasses
+
+    vehicle = dataclasses.replace(load_scenario("paper-sim").vehicle, drive="rear")
+    runs = {}
+    for backend in ("numpy", "numba", "c"):
+        cfg = MPFConfig(particles=24, backend=backend, resample_threshold=1.0, gate_warmup=0.05, gate_vy_std=10.0,
+                        gate_steer=0.0, bias_rw=(0.01, 0.01, 0.001), bias0_std=(0.1, 0.1, 0.01))
+        est = StiffnessMPF(vehicle, cfg)
+        runs[backend] = (_mpf_drive(est, 60, slip_wave=0.005), est)
+    (a, fast), (b, ref) = runs["numba"], runs["numpy"]
+    _assert_c_is_numba(runs)
+    assert fast.rear_drive and fast.resamples == ref.resamples >= 20
+    _assert_mpf_runs_equal(a, b, fast, ref)
+
+
 def test_stiffness_mpf_backends_equal_with_the_wheel_filter(monkeypatch):
     """The wheel-speed pre-filter on (sigma_omega > 0, derivations, "Wheel-speed pre-filter"): it works on the
     inputs before either backend's step, so the fused step and the reference stay equal to
