@@ -4,6 +4,7 @@
         [--duration 10] [--estimators mpf augpf ekf rls kf bootstrap gpssm-axle gpssm-tensor gpssm-tensor100]
         [--figure benchmarks/figures/stiffness_fig14_cost.png] [--gpssm-max 1000] [--interleave]
     .venv/bin/python benchmarks/bench_cost.py --replay LOG.csv --vehicle V.toml [--particles 500] [--repeat R]
+        [--backends numba c]
 
 What is timed: `step()` of each estimator (median wall time and median CPU time of the
 thread after 10 warm-up steps, one process, one BLAS thread), fed the same recorded samples:
@@ -31,8 +32,8 @@ is the comparison to quote on a busy machine (separate loops can see loads apart
 state noise from the data, the calibrated band, the wheel-speed filter, the roll gradient, the IMU's
 lever arm; the log's samples as the run loop hands them to `step`, the measurement guard applied) and
 the peer on the same log (the car of the vehicle TOML, the noise figures the MPF assumes, the log's
-median sample period), stepped alternately as with `--interleave`, `--repeat` times at each N; the
-MPF's options are printed with the figures. docs/results.md uses a 66 s peer drive
+median sample period), stepped alternately as with `--interleave`, `--repeat` times at each N, one MPF per
+backend of `--backends` (default numba and c) in the same loop; the MPF's options are printed with the figures. docs/results.md uses a 66 s peer drive
 (`tirefilter peer-drive --maneuver mixed --duration 66 --seed 0`).
 
 Each estimator's first two calls (numba compilation when the cache is cold, imports; the
@@ -169,17 +170,20 @@ def peer_step(v, sigma, Ts: float, samples, N: int, seed: int = 1):
     return lambda k: next(smc)
 
 
-def alternate(est, peer, samples) -> tuple[float, float]:
+def alternate(est, peer, samples, others=()) -> tuple[float, ...]:
     """One MPF step, one peer step, ... through the samples: the median CPU us per step of each after
-    the warm-up (`WARMUP` samples)."""
-    cpu: dict[str, list[float]] = {"mpf": [], "bootstrap": []}
+    the warm-up (`WARMUP` samples). `others`: more estimators stepped in the same loop (after the MPF), their
+    medians returned after the peer's."""
+    steppers = [est, *others]
+    cpu: list[list[float]] = [[] for _ in range(len(steppers) + 1)]
     for k, s in enumerate(samples):
-        for name, step in (("mpf", lambda: est.step(*s)), ("bootstrap", lambda: peer(k))):
+        for j, step in enumerate([*(e.step for e in steppers), None]):
             c0 = time.thread_time()
-            step()
+            step(*s) if step is not None else peer(k)
             if k >= WARMUP:
-                cpu[name].append(time.thread_time() - c0)
-    return float(np.median(cpu["mpf"]) * 1e6), float(np.median(cpu["bootstrap"]) * 1e6)
+                cpu[j].append(time.thread_time() - c0)
+    med = [float(np.median(c) * 1e6) for c in cpu]
+    return (med[0], med[-1], *med[1:-1])
 
 
 def interleaved(scenario, samples, N: int, seed: int = 1) -> tuple[float, float]:
@@ -192,11 +196,12 @@ def interleaved(scenario, samples, N: int, seed: int = 1) -> tuple[float, float]
     return alternate(est, peer, samples)
 
 
-def replay_setting(log_path: Path, vehicle_path: Path, N: int):
+def replay_setting(log_path: Path, vehicle_path: Path, N: int, backend: str | None = None):
     """The MPF as `tirefilter replay LOG --vehicle V.toml --particles N` builds it (every default of a
     replay: the bias filter, the wandering offsets, the calibration, the wheel-speed filter, the roll gain,
-    the IMU lever arm) and the log's samples as the run loop hands them to `step` (the measurement guard
-    applied): (estimator, [(t, Inputs, Measurement)], sample period)."""
+    the IMU lever arm; `backend`: the MPF's backend, None its default) and the log's samples as the run loop
+    hands them to `step` (the measurement guard applied): (estimator, [(t, Inputs, Measurement)], sample
+    period)."""
     from tirefilter.estimators import build, for_log
     from tirefilter.replay.run import LogSource
     from tirefilter.replay.stream import scan_log
@@ -205,44 +210,50 @@ def replay_setting(log_path: Path, vehicle_path: Path, N: int):
     vehicle = load_vehicle(vehicle_path)
     log = scan_log(log_path, vehicle)
     setting = for_log(vehicle, log.t, log.signals, source=log.path)
-    est = build("mpf", setting, model="auto", particles=N, config={})
+    est = build("mpf", setting, model="auto", particles=N, config={} if backend is None else {"mpf": {"backend": backend}})
     guard = est.guard
     guard.reset()
     samples = [(s.t, s.inputs, guard(s.t, s.meas)) for s in LogSource(log)]
     return est, samples, setting.sample_period
 
 
-def interleaved_replay(log_path: Path, vehicle_path: Path, N: int, seed: int = 1) -> tuple[float, float, dict]:
-    """The replay's MPF and the peer on the same log at N particles, stepped alternately (one MPF step,
-    one peer step, ...) so that both see the same load: the median CPU us per step of each after the
-    warm-up, and the MPF's options that the comparison is about."""
-    est, samples, Ts = replay_setting(log_path, vehicle_path, N)
-    est.reset(np.random.default_rng(seed))
+def interleaved_replay(log_path: Path, vehicle_path: Path, N: int, seed: int = 1,
+                       backends: tuple[str, ...] = ("numba",)) -> tuple[list[float], float, dict]:
+    """The replay's MPF (one per backend) and the peer on the same log at N particles, stepped alternately
+    (one step of each MPF, one peer step, ...) so that all see the same load: the median CPU us per step of
+    each MPF and of the peer after the warm-up, and the MPF's options that the comparison is about."""
+    ests = []
+    for b in backends:
+        est, samples, Ts = replay_setting(log_path, vehicle_path, N, b)
+        est.reset(np.random.default_rng(seed))
+        ests.append(est)
     peer = peer_step(est.vehicle, est.sensors.sigma, Ts, samples, N, seed)
-    mpf_us, peer_us = alternate(est, peer, samples)
+    mpf_us, peer_us, *more = alternate(ests[0], peer, samples, ests[1:])
     cfg = est.cfg
-    options = {"model": cfg.model, "backend": cfg.backend, "bias filter": est.bias_on,
+    options = {"model": cfg.model, "bias filter": est.bias_on,
                "wandering offsets": bool(np.any(np.asarray(cfg.disturbance_rw) > 0)),
                "calibration": cfg.std_calibration, "wheel filter": est.wheels is not None,
                "roll gain": "estimated" if est.k_roll is not None else f"{est.roll_gain:.4g}",
                "lever arm": tuple(float(c) for c in est._vp[10:12]), "samples": len(samples)}
-    return mpf_us, peer_us, options
+    return [mpf_us, *more], peer_us, options
 
 
 def replay_main(args) -> int:
-    """`--replay LOG --vehicle V.toml`: the replay's MPF against the peer, interleaved, `--repeat` times."""
+    """`--replay LOG --vehicle V.toml`: the replay's MPF (each of `--backends`) against the peer, interleaved,
+    `--repeat` times."""
     if args.vehicle is None:
         sys.exit("bench_cost.py: --replay needs --vehicle V.toml")
     print(f"load average before: {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores; replay of {args.replay}")
-    ratios = []
+    backends = tuple(args.backends)
     for n in args.particles:
         for r in range(args.repeat):
-            mpf, peer, options = interleaved_replay(args.replay, args.vehicle, n)
+            mpfs, peer, options = interleaved_replay(args.replay, args.vehicle, n, backends=backends)
             if r == 0 and n == args.particles[0]:
                 print("  the MPF of the replay: " + ", ".join(f"{k} {v}" for k, v in options.items()))
-            ratios.append(mpf / peer)
-            print(f"  replay, interleaved N = {n:5d} (run {r + 1}): mpf {mpf:.0f} us CPU, bootstrap {peer:.0f} us CPU, "
-                  f"mpf / bootstrap {mpf / peer:.2f}", flush=True)
+            cells = ", ".join(f"mpf ({b}) {m:.0f} us CPU" for b, m in zip(backends, mpfs))
+            ratios = ", ".join(f"mpf ({b}) / bootstrap {m / peer:.2f}" for b, m in zip(backends, mpfs))
+            print(f"  replay, interleaved N = {n:5d} (run {r + 1}): {cells}, bootstrap {peer:.0f} us CPU; {ratios}",
+                  flush=True)
     print(f"load average after: {os.getloadavg()[0]:.2f}")
     return 0
 
@@ -265,6 +276,8 @@ def main() -> int:
                          "that log, interleaved, at each --particles N (e.g. a 66 s `tirefilter peer-drive`)")
     ap.add_argument("--vehicle", type=Path, help="the vehicle TOML of --replay")
     ap.add_argument("--repeat", type=int, default=1, help="--replay: runs one after another (default 1)")
+    ap.add_argument("--backends", nargs="+", default=["numba", "c"], choices=["numba", "c", "numpy"],
+                    help="--replay: the MPF's backends, each stepped in the same loop (default numba c)")
     args = ap.parse_args()
     if args.replay is not None:
         try:

@@ -3,8 +3,8 @@ its peak memory does not grow with the drive's length; a long co-simulation with
 does not grow either.
 
     .venv/bin/python benchmarks/bench_memory.py replay [--minutes 120] [--estimators none kf mpf ...]
-                                                       [--backend numba|numpy] [--peer] [--particles N]
-    .venv/bin/python benchmarks/bench_memory.py soak [--minutes 60] [--particles 500] [--backend numba|numpy]
+                                                       [--backend numba|c|numpy] [--peer] [--particles N]
+    .venv/bin/python benchmarks/bench_memory.py soak [--minutes 60] [--particles 500] [--backend numba|c|numpy]
     .venv/bin/python benchmarks/bench_memory.py numba
 
 `replay` writes a synthetic Log CSV of the given length at 100 Hz (a sine-steered drive,
@@ -20,10 +20,12 @@ particle filters' N.
 `soak` co-simulates paper-sim stretched to the given length (its square-wave inputs
 repeat) with the MPF, samples the resident memory every second, and prints its value at
 10 % of the wall time, its maximum after that, the difference and the MPF's restarts.
-`--backend` sets `backend` of the [mpf] and [augpf] tables (default: each estimator's own).
-`numba` prints the resident memory a fresh process adds by importing numba and loading the
-MPF's compiled kernels (from the cache, compiling them first if there is none): the part
-of an MPF run's peak that does not depend on the run.
+`--backend` sets `backend` of the [mpf] and [augpf] tables (default: each estimator's own; "c", the MPF's
+C core, the [mpf] table only).
+`numba` prints the resident memory a fresh process adds by running the MPF on its C core (loading the
+library, building it first if there is none) and then by importing numba and loading the MPF's compiled
+kernels (from the cache, compiling them first if there is none): the part of an MPF run's peak that does
+not depend on the run.
 """
 
 from __future__ import annotations
@@ -134,7 +136,8 @@ def backend_config(path: Path, backend: str | None) -> list[str]:
     """`--config FILE` setting the backend of the particle filters ([] for their defaults)."""
     if backend is None:
         return []
-    path.write_text(f'[mpf]\nbackend = "{backend}"\n\n[augpf]\nbackend = "{backend}"\n')
+    augpf = f'\n[augpf]\nbackend = "{backend}"\n' if backend != "c" else ""  # (the AUGPF has no C core)
+    path.write_text(f'[mpf]\nbackend = "{backend}"\n{augpf}')
     return ["--config", str(path)]
 
 
@@ -216,18 +219,21 @@ def cmd_numba(args) -> None:
             "        est.step(t, Inputs(delta=d, omega_f=73.0, omega_r=73.0, vx=22.0),\n"
             "                 Measurement(ax=0.0, ay=22.0 * 22.0 * d / 2.9, yaw_rate=22.0 * d / 2.9))\n"
             "run('numpy')\n"
-            "a = rss_mb(); assert 'numba' not in sys.modules\n"
+            "a = rss_mb()\n"
+            "run('c')\n"
+            "a_c = rss_mb(); assert 'numba' not in sys.modules\n"
             "import numba\n"
             "b = rss_mb()\n"
             "run('numba')\n"
             "c = rss_mb()\n"
-            "print(json.dumps([a, b, c, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0]))\n")
+            "print(json.dumps([a, a_c, b, c, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0]))\n")
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
                          cwd=Path(__file__).parent)
-    a, b, c, peak = json.loads(res.stdout.strip().splitlines()[-1])
-    print(f"RSS after 300 steps of the MPF (N = 500, numpy backend): {a:.1f} MB; after `import numba`: {b:.1f} MB "
-          f"(+{b - a:.1f}); after 300 steps with the numba backend (its kernels loaded): {c:.1f} MB "
-          f"(+{c - a:.1f} in all); peak {peak:.1f} MB")
+    a, a_c, b, c, peak = json.loads(res.stdout.strip().splitlines()[-1])
+    print(f"RSS after 300 steps of the MPF (N = 500, numpy backend): {a:.1f} MB; after 300 more with the C backend "
+          f"(its library loaded): {a_c:.1f} MB (+{a_c - a:.1f}); after `import numba`: {b:.1f} MB (+{b - a_c:.1f}); "
+          f"after 300 steps with the numba backend (its kernels loaded): {c:.1f} MB (+{c - a_c:.1f} in all); "
+          f"peak {peak:.1f} MB")
 
 
 def main(argv=None) -> int:
@@ -240,13 +246,14 @@ def main(argv=None) -> int:
     rp = sub.add_parser("replay")
     rp.add_argument("--minutes", type=float, default=120.0)
     rp.add_argument("--estimators", nargs="+", default=["none", "kf", "mpf"])
-    rp.add_argument("--backend", choices=["numba", "numpy"], help="backend of mpf and augpf (default: theirs)")
+    rp.add_argument("--backend", choices=["numba", "c", "numpy"],
+                    help="backend of mpf and augpf (default: theirs; c: the MPF's only)")
     rp.add_argument("--peer", action="store_true", help="a mixed-maneuver peer drive (repeated 10 minutes)")
     rp.add_argument("--particles", type=int, help="N of the particle filters (default: theirs)")
     sk = sub.add_parser("soak")
     sk.add_argument("--minutes", type=float, default=60.0)
     sk.add_argument("--particles", type=int)
-    sk.add_argument("--backend", choices=["numba", "numpy"], help="the MPF's backend (default: its own)")
+    sk.add_argument("--backend", choices=["numba", "c", "numpy"], help="the MPF's backend (default: its own)")
     sub.add_parser("numba")
     args = p.parse_args(argv)
     {"replay": cmd_replay, "soak": cmd_soak, "numba": cmd_numba}[args.cmd](args)

@@ -1,10 +1,10 @@
 """Shared fixtures: the vehicle FMUs are built once (into fmu/build) if missing; the Python
 FMUs (estimator, driver; FMI 2.0 and 3.0) once per session, on first use; under xdist, the
-compiled kernels compiled once for all workers, before the first test (`warm_up_kernels`)."""
+compiled kernels compiled (the MPF's C core built) once for all workers, before the first test
+(`warm_up_kernels`)."""
 
 from __future__ import annotations
 
-import math
 import os
 import subprocess
 import sys
@@ -36,8 +36,8 @@ NOISE_OFF = {
 # each under a file lock shared by the workers: a task the other worker holds is skipped and
 # come back to last, when its kernels are on disk and load in a fraction of a second; a task
 # done by either worker is marked done. The two workers so compile disjoint halves, in parallel.
-# The order (the MPF first on one worker, the GP-SSM first on the other) keeps them from
-# compiling the same helper kernels at the same time. Each worker runs its tasks in one fresh
+# The order (the MPF's C core first on one worker, the GP-SSM's largest task first on the other) keeps
+# them from building the same thing at the same time. Each worker runs its tasks in one fresh
 # interpreter (`python tests/conftest.py --warm-up LOCK_DIR [--reverse]`) that writes the disk
 # cache; the tests then load the kernels from it: inside a pytest process the same compile took
 # 1.6 times the CPU (page faults, system time; docs/development.md, "How long `make test` takes").
@@ -47,27 +47,11 @@ NOISE_OFF = {
 # set off (mostly full ones) took a tenth of the compile's CPU.
 
 
-def _warm_mpf(model: str, missing: bool = False, gap: bool = False) -> None:
-    from tirefilter.estimators.base import Inputs, Measurement
-    from tirefilter.estimators.mpf import MPFConfig, StiffnessMPF
-    from tirefilter.scenarios import load_scenario
+def _warm_mpf_c() -> None:
+    """The MPF's C core (its default backend) built into the user's cache, once for both workers."""
+    from tirefilter.estimators.mpf import native
 
-    vehicle = load_scenario("paper-sim").vehicle
-    omega = 20.0 / vehicle.wheel_radius
-    est = StiffnessMPF(vehicle, MPFConfig(particles=8, model=model))
-    est.reset(np.random.default_rng(0))
-    # missing: two compiled steps with a^Y missing: the passes' signatures with the sizes as variables
-    # (`SIZES_ANY`), not the full model's (another worker may be compiling those)
-    # gap: after the first sample, the model's compiled propagation across a 1 s gap (the model twin's
-    # `propagate`, `slip_over_step`: the AUGPF and the tests' reference calls reach them, and both workers'
-    # tests did, each compiling them; the filter's own step across a gap runs the passes of mpf-full)
-    for k in range(1 if gap else 2 if missing else 6):
-        ay = math.nan if missing else 0.5
-        est.step(0.01 * k, Inputs(delta=0.01, omega_f=omega, omega_r=omega, vx=20.0),
-                 Measurement(ax=0.0, ay=ay, yaw_rate=0.03))
-    if gap:
-        first = est._slip_over_step(est.x, est.u_prev, est.u_prev, est.w_prev, est._at_x, 1.0)
-        est._propagate(est.x, est.u_prev, est.w_prev, 1.0, first)
+    native.library()
 
 
 def _warm_gpssm(**config) -> None:
@@ -84,16 +68,11 @@ def _warm_gpssm(**config) -> None:
 
 
 # The order: one worker takes them first to last, the other last to first, each skipping what the
-# other holds; with the tasks' compile CPU (docs/development.md, "How long `make test` takes": mpf-full 21, mpf-missing 18,
-# mpf-lateral 14, mpf-gap 5, the GP-SSM 48 s) the first
-# worker runs mpf-full, mpf-missing and mpf-lateral (54 s), the second the GP-SSM and mpf-gap
-# (53 s), so the two end within a few seconds of each other; the MPF's tasks after mpf-full load
-# the kernels it compiled that they share (`resample_gate`, `_model_t`, ...) from the cache.
-WARM_UP = {  # name: task; the MPF's tasks and the GP-SSM's share no large kernel
-    "mpf-full": lambda: _warm_mpf("full"),
-    "mpf-missing": lambda: _warm_mpf("full", missing=True),
-    "mpf-lateral": lambda: _warm_mpf("lateral"),
-    "mpf-gap": lambda: _warm_mpf("full", gap=True),
+# other holds. The MPF's default backend is its C core (estimators/mpf/native.py): one build of a few
+# seconds, no numba kernels to compile; the tests that run its numba backend on purpose (the equality
+# tests) compile those kernels on their first call.
+WARM_UP = {  # name: task
+    "mpf-c": _warm_mpf_c,
     "gpssm-axle-exact": lambda: _warm_gpssm(basis="axle"),
     "gpssm-tensor-rank1": lambda: _warm_gpssm(stats="rank1"),
     "gpssm-tensor-exact": lambda: _warm_gpssm(),

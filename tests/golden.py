@@ -17,6 +17,8 @@ Commands (run from the repository root):
     .venv/bin/python tests/golden.py --check   # compare with the committed masters (1e-9)
     .venv/bin/python tests/golden.py --write   # rewrite tests/data/golden/ (only when an
                                                # output changes on purpose: say why in the commit)
+    .venv/bin/python tests/golden.py --hash --backend numba   # the MPF's cases on its numba
+                                               # backend: the same hashes as the default C core's
 
 The committed masters keep every EVERY-th row with all estimate columns in `repr` precision,
 so they stay small while any change of the filter shows within a few steps. tests/test_golden.py
@@ -83,18 +85,25 @@ def _gap_log(directory: Path) -> tuple[Path, Path]:
     return write_log(directory / "peer.csv", {k: v[keep] for k, v in columns.items()}), vehicle
 
 
-def run_case(name: str, directory: Path, printed: list[str] | None = None) -> dict[str, np.ndarray]:
+def run_case(name: str, directory: Path, printed: list[str] | None = None,
+             backend: str | None = None) -> dict[str, np.ndarray]:
     """Run one case in `directory`; return its outputs as {file: 2-D array of the kept columns}
-    (and append what the command printed to `printed`, when given)."""
+    (and append what the command printed to `printed`, when given). `backend`: the MPF's backend
+    (an [mpf] table passed with --config; None: the default; the GP-SSM case ignores it)."""
     directory = Path(directory)
+    config = []
+    if backend is not None and name != "friction-snow":
+        (directory / "backend.toml").write_text(f'[mpf]\nbackend = "{backend}"\n')
+        config = ["--config", str(directory / "backend.toml")]
     if name == "replay-gaps":
         log, vehicle = _gap_log(directory)
         result = directory / "result.csv"
-        text = _cli(["replay", str(log), "--vehicle", str(vehicle), "--seed", "0", "--out", str(result), "--quiet"])
+        text = _cli(["replay", str(log), "--vehicle", str(vehicle), "--seed", "0", "--out", str(result), "--quiet",
+                     *config])
         if printed is not None:
             printed.append(text)
         return {"results": _estimates(result)}
-    argv = ["run", "--scenario", name, "--seed", "0", "--out", str(directory), "--quiet"]
+    argv = ["run", "--scenario", name, "--seed", "0", "--out", str(directory), "--quiet", *config]
     if name == "friction-snow":
         argv[3:3] = ["--estimator", "gpssm"]
     text = _cli(argv)
@@ -194,11 +203,12 @@ def main(argv=None) -> int:
     mode.add_argument("--check", action="store_true", help="compare each case with its committed master")
     mode.add_argument("--write", action="store_true", help="rewrite the committed masters")
     parser.add_argument("cases", nargs="*", default=list(CASES), help=f"cases (default: all of {', '.join(CASES)})")
+    parser.add_argument("--backend", choices=["numba", "c", "numpy"], help="the MPF's backend (default: its default)")
     args = parser.parse_args(argv)
     failed = False
     for name in args.cases:
         with tempfile.TemporaryDirectory() as tmp:
-            outputs = run_case(name, Path(tmp))
+            outputs = run_case(name, Path(tmp), backend=args.backend)
         if args.hash:
             print(f"{name:14s} {digest(outputs)}")
         elif args.write:

@@ -19,6 +19,15 @@ def test_outputs_equal_golden_master(case, tmp_path):
     assert not problems, "\n".join(problems) + "\n(an intended change: rewrite with `python tests/golden.py --write`)"
 
 
+@pytest.mark.parametrize("case", [c for c in golden.CASES if c != "friction-snow"])
+def test_numba_backend_outputs_equal_golden_master(case, tmp_path):
+    """The MPF's cases on its numba backend ([mpf] backend = "numba"): the masters of the default backend,
+    the C core, which computes the numba kernels' numbers (`golden.py --hash --backend numba` prints the
+    same hashes)."""
+    problems = golden.compare(case, golden.run_case(case, tmp_path, backend="numba"))
+    assert not problems, "\n".join(problems)
+
+
 def test_comparison_notices_a_relative_change_of_1e_8():
     master, total = golden.read_master("paper-sim", "results")
     run = np.zeros((total, master.shape[1]))

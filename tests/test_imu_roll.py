@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from figures import within
 
-from test_kernels import _assert_mpf_runs_equal, _mpf_drive, assert_equal_to_rounding
+from test_kernels import _assert_c_is_numba, _assert_mpf_runs_equal, _mpf_drive, assert_equal_to_rounding
 
 from tirefilter.estimators.base import Inputs, Measurement
 from tirefilter.estimators.mpf import MPFConfig, StiffnessMPF
@@ -168,12 +168,13 @@ def test_mpf_backends_equal_with_the_lever_arm_and_the_estimated_roll_gradient(m
     of the particles and their estimate."""
     vehicle = _imu_vehicle()
     runs = {}
-    for backend in ("numpy", "numba"):
+    for backend in ("numpy", "numba", "c"):
         cfg = MPFConfig(particles=24, model=model, backend=backend, resample_threshold=1.0, gate_warmup=0.05,
                         gate_vy_std=10.0, gate_steer=0.0, bias_rw=(0.01, 0.01, 0.001), bias0_std=(0.1, 0.1, 0.01))
         est = StiffnessMPF(vehicle, cfg)
         runs[backend] = (_mpf_drive(est, 60), est)
     (a, fast), (b, ref) = runs["numba"], runs["numpy"]
+    _assert_c_is_numba(runs)
     assert ref.roll_estimated and ref.resamples >= 20 and fast.resamples == ref.resamples
     _assert_mpf_runs_equal(a, b, fast, ref)
     k_fast, k_ref = fast.posterior().stats["roll_gradient"], ref.posterior().stats["roll_gradient"]

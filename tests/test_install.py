@@ -132,6 +132,18 @@ def test_installed_wheel_builds_the_fmu_and_runs_a_scenario(wheel, tmp_path):
     assert (tmp_path / "checkout_run" / "results.csv").read_text() == results
 
 
+def test_the_wheel_ships_the_mpf_c_core(wheel):
+    """The MPF's default backend builds its C core from the package's sources on first use: the wheel
+    carries them (package data)."""
+    import zipfile
+
+    from tirefilter.estimators.mpf import native
+
+    names = set(zipfile.ZipFile(wheel).namelist())
+    for f in (*native.SOURCES, *native.HEADERS):
+        assert f"tirefilter/estimators/mpf/native/{f}" in names, f
+
+
 def test_the_build_folder_is_overridden_by_the_environment(monkeypatch, tmp_path):
     monkeypatch.setenv("TIREFILTER_FMU_DIR", str(tmp_path))
     assert build.default_out_dir() == tmp_path

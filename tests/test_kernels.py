@@ -2,9 +2,10 @@
 same random generator, equal to 1e-12 relative (to each array's largest magnitude, so
 entries near zero are compared on the array's scale).
 
-Stiffness MPF: whole filter runs, both backends from one seed, full and lateral models,
+Stiffness MPF: whole filter runs, the backends from one seed, full and lateral models,
 bias estimation on and off, resampling at every step, missing samples, a gap that is
-sub-stepped, and restarts.
+sub-stepped, and restarts. The C backend (estimators/mpf/native) runs each of these drives
+too and equals the numba backend bit for bit (`_assert_c_is_numba`).
 
 Friction GP-SSM: the basis, the MNIW predictive / update / forgetting (exact and rank-one
 statistics) and whole filter runs with resampling, over the per-axle basis, the default
@@ -387,6 +388,81 @@ def test_slip_over_step_kernel_equal(drive, undriven):
         assert 1e-4 < tau < dt  # the settling is fast: the interval mean lies near the end slip
 
 
+@pytest.mark.parametrize("drive", ["front", "rear"])
+@pytest.mark.parametrize("relax", [0.0, 0.4], ids=["", "relaxation"])
+@pytest.mark.parametrize("model", ["full", "lateral"])
+def test_c_model_kernels_equal_numba(model, relax, drive):
+    """The C core's model for all particles (`native.accelerations`, `propagate`, `slip_over_step`: the
+    filter's reference path with backend "c", the first sample, restarts) equals the numba twin's bit for
+    bit: front and rear drive, load-transfer gains per particle, relaxed slip angles, Heun and Euler with
+    sub-steps."""
+    import dataclasses
+
+    from tirefilter.estimators.mpf import native
+    from tirefilter.vehicle import single_track_numba as stn
+
+    vehicle = dataclasses.replace(load_scenario("paper-sim").vehicle, relaxation_length=relax, drive=drive)
+    est = StiffnessMPF(vehicle, MPFConfig(model=model, backend="c"))
+    full, n_w, vp = est.full, est.n_w, est._vp.copy()
+    vp[9] = 0.4  # the undriven axle's share of the driven axle's deviation
+    rng = np.random.default_rng(4)
+    n, Rw = 33, vehicle.wheel_radius
+    x = np.column_stack([20 + rng.normal(0, 0.5, n), rng.normal(0, 0.3, n), rng.normal(0, 0.1, n)])[:, 0 if full else 1:]
+    w = rng.normal(0, 3e4, (n, n_w))
+    u0 = np.array([0.02, 20.3 / Rw, 19.9 / Rw, 20.0])
+    u1 = np.array([0.021, 20.25 / Rw, 19.95 / Rw, 20.0])
+    lg = 1.0 + rng.normal(0, 0.05, n)
+    rel = rng.normal(0, 0.01, (2, n)) if relax else np.zeros((2, 0))
+    first = [native.accelerations(x, u0, vp, full, est.rear_drive, n_w, lg, rel, 0.01),
+             stn.accelerations(x, u0, vp, full, est.rear_drive, n_w, lg, rel, 0.01)]
+    for c, b in zip(*first):
+        assert np.array_equal(c, b)
+    a, B, _, _, slip = first[1]
+    for heun, max_step in ((True, 0.02), (True, 0.004), (False, 0.004)):
+        args = (x, u0, w, (a, B, slip), 0.01, max_step, heun, vp, full, est.rear_drive, n_w, (lg, rel))
+        assert np.array_equal(native.propagate(*args), stn.propagate(*args))
+    if full:
+        args = (x, u0, u1, w, (a, B, slip), 0.01, vp, est._jw, est._c_floor, est.rear_drive, n_w, (lg, rel))
+        for c, b in zip(native.slip_over_step(*args), stn.slip_over_step(*args)):
+            assert np.array_equal(c, b)
+
+
+def test_c_core_refuses_what_it_cannot_read():
+    """The C core names the array it cannot take (not C-contiguous, not float64, not an array) and computes
+    nothing; without a C compiler the backend's error names the compiler it looked for."""
+    from tirefilter.estimators.mpf import native
+
+    k, z, gain = np.zeros(4), np.ones(4), np.zeros(4)
+    native.walk_roll(k, z, 0.1, -1.0, 1.0, 9.81, gain)
+    assert np.allclose(gain, 1.0 + 0.1 * 9.81)
+    for bad_z in (np.ones(8)[::2], np.ones(4, np.float32), [1.0, 1.0, 1.0, 1.0]):
+        with pytest.raises(TypeError, match="walk_roll.* z "):
+            native.walk_roll(k, bad_z, 0.1, -1.0, 1.0, 9.81, gain)
+    frozen = np.zeros(4)
+    frozen.flags.writeable = False
+    with pytest.raises(TypeError, match="gain"):
+        native.walk_roll(k, z, 0.1, -1.0, 1.0, 9.81, frozen)
+
+
+def test_c_backend_without_a_compiler_names_it(monkeypatch):
+    from tirefilter.estimators.mpf import native
+
+    monkeypatch.setenv("CC", "no-such-cc")
+    monkeypatch.setenv("PATH", "/nonexistent")
+    with pytest.raises(native.NativeBuildError, match="C compiler.*gcc"):
+        native.compiler()
+
+
+def test_c_backend_with_an_unwritable_cache_names_it(monkeypatch, tmp_path):
+    from tirefilter.estimators.mpf import native
+
+    blocked = tmp_path / "not-a-folder"
+    blocked.write_text("")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(blocked))
+    with pytest.raises(native.NativeBuildError, match="not-a-folder.*XDG_CACHE_HOME"):
+        native.build()
+
+
 # the paper's wheel slip and undriven axle (the other variant: the interval slip and the surface-scaled
 # undriven axle); x0_vx_wheel_std the earlier default: with 0.02 this drive
 # amplifies the rounding differences of the two backends to 1e-10 of v^Y by step 80 (same path, not a
@@ -448,13 +524,14 @@ def test_stiffness_mpf_backends_equal(model, bias, restarts, paper, monkeypatch)
     noise = dict(bias_rw=(0.01, 0.01, 0.001), bias0_std=(0.1, 0.1, 0.01)) if bias else dict(
         bias_rw=(0.0, 0.0, 0.0), bias0_std=(0.0, 0.0, 0.0))
     runs = {}
-    for backend in ("numpy", "numba"):
+    for backend in ("numpy", "numba", "c"):
         cfg = MPFConfig(particles=24, model=model, backend=backend, resample_threshold=1.0, gate_warmup=0.05,
                         gate_vy_std=10.0, gate_steer=0.0, plausible_yaw_rate=0.02 if restarts else 2.0, **noise,
                         **variant)
         est = StiffnessMPF(vehicle, cfg)
         runs[backend] = (_mpf_drive(est, 80, slip_wave=0.005 if paper == "learned" else 0.0), est)
     (a, fast), (b, ref) = runs["numba"], runs["numpy"]
+    _assert_c_is_numba(runs)
     if paper == "learned" and not restarts:  # the weight has grown: the undriven axle's share moved
         assert b[-1, -2] > 0.5 and b[-1, -1] == pytest.approx(b[-1, -2] * ref.full_share)
     assert fused[id(ref)] == 0 and fused[id(fast)] == 80  # (a restart is decided inside the fused step)
@@ -473,6 +550,18 @@ def _assert_mpf_runs_equal(a: np.ndarray, b: np.ndarray, fast: StiffnessMPF, ref
     assert_equal_to_rounding(pa.log_weights, pb.log_weights, "log-weights")
     for key in ("gamma", "mu", "Lam", "nu", "bias", "bias_cov"):
         assert_equal_to_rounding(pa.stats[key], pb.stats[key], key)
+
+
+def _assert_c_is_numba(runs: dict) -> None:
+    """The C backend's run (runs["c"]: outputs, filter, ...) equals the numba backend's bit for bit: the
+    outputs, the particles, the log-weights, the statistics, the counters."""
+    (a, fast, *_), (c, native, *_) = runs["numba"], runs["c"]
+    assert np.array_equal(c, a, equal_nan=True)
+    assert (native.resamples, native.restarts, native.gap_redraws) == (fast.resamples, fast.restarts, fast.gap_redraws)
+    pa, pc = fast.posterior(), native.posterior()
+    assert np.array_equal(pc.particles, pa.particles) and np.array_equal(pc.log_weights, pa.log_weights)
+    for key in ("gamma", "mu", "Lam", "nu", "bias", "bias_cov"):
+        assert np.array_equal(pc.stats[key], pa.stats[key], equal_nan=True), key
 
 
 def _count_fused_steps(monkeypatch) -> dict:
@@ -496,14 +585,33 @@ def test_stiffness_mpf_gap_step_takes_the_compiled_path(monkeypatch):
     fused = _count_fused_steps(monkeypatch)
     vehicle = load_scenario("paper-sim").vehicle
     runs = {}
-    for backend in ("numpy", "numba"):
+    for backend in ("numpy", "numba", "c"):
         cfg = MPFConfig(particles=24, backend=backend, resample_threshold=1.0, gate_warmup=0.05, gate_vy_std=10.0,
                         gate_steer=0.0, bias_rw=(0.01, 0.01, 0.001), bias0_std=(0.1, 0.1, 0.01))
         est = StiffnessMPF(vehicle, cfg)
         runs[backend] = (_mpf_drive(est, 60, gap=0.6), est)
     (a, fast), (b, ref) = runs["numba"], runs["numpy"]
+    _assert_c_is_numba(runs)
     assert ref.gap_redraws == fast.gap_redraws == 1 and ref.restarts == fast.restarts == 0
     assert fused[id(ref)] == 0 and fused[id(fast)] == 60  # the first sample and the gap among them
+    _assert_mpf_runs_equal(a, b, fast, ref)
+
+
+def test_stiffness_mpf_backends_equal_rear_drive():
+    """A rear-driven car (the driven axle's stiffness deviation on the rear wheel slip, the undriven share on
+    the front) on a drive whose front slip swings: the three backends equal (C and numba bit for bit)."""
+    import dataclasses
+
+    vehicle = dataclasses.replace(load_scenario("paper-sim").vehicle, drive="rear")
+    runs = {}
+    for backend in ("numpy", "numba", "c"):
+        cfg = MPFConfig(particles=24, backend=backend, resample_threshold=1.0, gate_warmup=0.05, gate_vy_std=10.0,
+                        gate_steer=0.0, bias_rw=(0.01, 0.01, 0.001), bias0_std=(0.1, 0.1, 0.01))
+        est = StiffnessMPF(vehicle, cfg)
+        runs[backend] = (_mpf_drive(est, 60, slip_wave=0.005), est)
+    (a, fast), (b, ref) = runs["numba"], runs["numpy"]
+    _assert_c_is_numba(runs)
+    assert fast.rear_drive and fast.resamples == ref.resamples >= 20
     _assert_mpf_runs_equal(a, b, fast, ref)
 
 
@@ -515,12 +623,13 @@ def test_stiffness_mpf_backends_equal_with_the_wheel_filter(monkeypatch):
     fused = _count_fused_steps(monkeypatch)
     vehicle = load_scenario("paper-sim").vehicle
     runs = {}
-    for backend in ("numpy", "numba"):
+    for backend in ("numpy", "numba", "c"):
         cfg = MPFConfig(particles=24, backend=backend, resample_threshold=1.0, gate_warmup=0.05, gate_vy_std=10.0,
                         gate_steer=0.0, bias_rw=(0.01, 0.01, 0.001), bias0_std=(0.1, 0.1, 0.01), sigma_omega=0.03)
         est = StiffnessMPF(vehicle, cfg)
         runs[backend] = (_mpf_drive(est, 60, gap=0.6, slip_wave=0.005), est)
     (a, fast), (b, ref) = runs["numba"], runs["numpy"]
+    _assert_c_is_numba(runs)
     assert ref.wheels is not None and fast.wheels is not None
     assert fused[id(fast)] == 60 and ref.gap_redraws == fast.gap_redraws == 1
     assert_equal_to_rounding(fast.wheels.s, ref.wheels.s, "filtered wheel speeds")
@@ -562,13 +671,14 @@ def test_stiffness_mpf_backends_equal_options(options, model, monkeypatch):
     opts = dict(OPTIONS[options])
     vehicle = dataclasses.replace(load_scenario("paper-sim").vehicle, **opts.pop("vehicle", {}))
     runs = {}
-    for backend in ("numpy", "numba"):
+    for backend in ("numpy", "numba", "c"):
         cfg = MPFConfig(particles=24, model=model, backend=backend, resample_threshold=1.0, gate_warmup=0.05,
                         gate_vy_std=10.0, gate_steer=0.0, bias_rw=(0.01, 0.01, 0.001), bias0_std=(0.1, 0.1, 0.01),
                         **opts)
         est = StiffnessMPF(vehicle, cfg)
         runs[backend] = (_mpf_drive(est, 60), est)
     (a, fast), (b, ref) = runs["numba"], runs["numpy"]
+    _assert_c_is_numba(runs)
     assert fused[id(fast)] == 60 and fast.resamples == ref.resamples >= 20
     assert np.isfinite(b[:, :7]).all()
     if options == "calibration-batches":
@@ -621,12 +731,13 @@ def test_stiffness_mpf_bound_restart_in_the_fused_step_equal(monkeypatch):
     fused = _count_fused_steps(monkeypatch)
     vehicle = load_scenario("paper-sim").vehicle
     runs = {}
-    for backend in ("numpy", "numba"):
+    for backend in ("numpy", "numba", "c"):
         cfg = MPFConfig(particles=24, backend=backend, resample_threshold=1.0, gate_warmup=0.05, gate_vy_std=10.0,
                         gate_steer=0.0, bound_low=0.97, bound_high=1.03, restart_at_bound_after=0.05)
         est = StiffnessMPF(vehicle, cfg)
         runs[backend] = (_mpf_drive(est, 60), est)
     (a, fast), (b, ref) = runs["numba"], runs["numpy"]
+    _assert_c_is_numba(runs)
     assert ref.restarts >= 2 and fast.restarts == ref.restarts and fused[id(fast)] == 60
     _assert_mpf_runs_equal(a, b, fast, ref)
 
@@ -796,7 +907,7 @@ def test_stiffness_mpf_backends_equal_with_surprise_inflation(model, in_stats, m
     vehicle = load_scenario("paper-sim").vehicle
     after = 0.0 if in_stats else 0.1
     runs = {}
-    for backend in ("numpy", "numba"):
+    for backend in ("numpy", "numba", "c"):
         cfg = MPFConfig(particles=24, model=model, backend=backend, resample_threshold=1.0, gate_warmup=0.05,
                         gate_vy_std=10.0, gate_steer=0.0, bias_rw=(0.01, 0.01, 0.001), bias0_std=(0.1, 0.1, 0.01),
                         surprise_inflation=1.0, init_std=3.0,  # (a wide prior: c is not held by its bound)
@@ -812,6 +923,7 @@ def test_stiffness_mpf_backends_equal_with_surprise_inflation(model, in_stats, m
             rows.append(_mpf_outputs(est.step(t, u, y)))
         runs[backend] = (np.array(rows), est, c_max, c_disarmed)
     (a, fast, c_fast, off_fast), (b, ref, c_ref, off_ref) = runs["numba"], runs["numpy"]
+    _assert_c_is_numba(runs)
     assert fused[id(fast)] == 60 and c_ref > 2.5 and c_fast == pytest.approx(c_ref, rel=1e-9)
     assert fast.learned_time == pytest.approx(ref.learned_time, abs=1e-12) and ref.learned_time > after + 0.2
     if after > 0:  # disarmed while the gate had been open less than `after`, though z was above 1

@@ -3,7 +3,7 @@ JSON, its CPU and wall time, the time under numba's LLVM lock (LLVM's optimisati
 generation), and the time per kernel (`numba:compile` events) and per compiler pass and kernel
 (`numba:run_pass`), each exclusive of the nested compiles or passes:
 
-    NUMBA_CACHE_DIR=$(mktemp -d) .venv/bin/python tools/compile_profile.py mpf-full
+    NUMBA_CACHE_DIR=$(mktemp -d) .venv/bin/python tools/compile_profile.py gpssm-tensor-exact
 
 Use an empty cache: with it filled nothing compiles."""
 

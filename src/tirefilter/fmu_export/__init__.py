@@ -24,7 +24,8 @@ The target machine needs:
     interpreter; rerun-sdk (>= 0.41, < 0.42) only when the parameter `rrd` is set;
     numba (>= 0.61) only when the `config` parameter sets `backend = "numba"` in its [mpf]
     or [gpssm] table (compiled kernels, 3-4x faster steps; the first instantiation in a
-    fresh unpacking compiles them, 10-30 s).
+    fresh unpacking compiles them, 10-30 s); a C compiler only when it sets `backend = "c"`
+    in its [mpf] table (the MPF's C core, built into the user's cache on first use, ~10 s).
     The tirefilter package itself ships inside the FMU (resources/tirefilter).
   - Linux binaries: x86_64 (FMI 2.0: binaries/linux64, FMI 3.0: binaries/x86_64-linux).
 How to provide them:

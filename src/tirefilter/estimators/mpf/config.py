@@ -152,7 +152,8 @@ class MPFConfig:
     sample_period: float = 0.01  # s, used for the first step and as the bias-RW time base
     max_step: float = 0.02  # s, longest propagation step: longer sample intervals are sub-stepped
     gap_after: float = 0.5  # s: a longer time step is a gap: v^X drawn again from the wheel speeds (0: never)
-    backend: str = "numba"  # "numba": the compiled step (compiled.py, kernels.py) | "numpy": the reference
+    backend: str = "c"  # "c": the compiled step (compiled.py) on the C core (native.py, native/*.c, built on first
+    # use with the system C compiler) | "numba": the same step on the numba kernels (kernels.py) | "numpy": the reference
     # the posterior std of the lateral stiffness means (derivations, "Batch-means sandwich"): "sandwich": `*_std` of eq. (27)
     # times the batch-means sandwich factor of the scores of the a^Y residual, sqrt of their integrated
     # autocorrelation time (the misfit that a linear tire leaves over the visited slips is correlated in
@@ -237,8 +238,8 @@ class MPFConfig:
                 f"{self.load_sensitivity_prior!r}")
         if not (self.load_sensitivity_rw >= 0 and math.isfinite(self.load_sensitivity_rw)):
             bad("load_sensitivity_rw", f"must be finite and >= 0, got {self.load_sensitivity_rw!r}")
-        if self.backend not in ("numba", "numpy"):
-            bad("backend", f"expected numba or numpy, got {self.backend!r}")
+        if self.backend not in ("numba", "c", "numpy"):
+            bad("backend", f"expected numba, c or numpy, got {self.backend!r}")
         if not (self.calibration_memory > 0 and math.isfinite(self.calibration_memory)):
             bad("calibration_memory", f"must be finite and > 0, got {self.calibration_memory!r}")
         if self.std_calibration not in ("sandwich", "off"):

@@ -108,10 +108,17 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         # floor of the axle stiffness in its time constant (the lower projection bound)
         self._jw = np.array([v.wheel_inertia_f, v.wheel_inertia_r], float) / v.wheel_radius**2
         self._c_floor = self.cfg.bound_low * np.array([self.C_nom_fx, self.C_nom_rx], float)
-        if self.cfg.backend == "numba":  # the compiled stages; the numpy methods stay the reference
+        if self.cfg.backend != "numpy":  # the compiled stages; the numpy methods stay the reference
             self._load_kernels()
 
     def _load_kernels(self) -> None:
+        """The compiled stages: the numba kernels, or their C twin (`native`, which does not import numba)."""
+        if self.cfg.backend == "c":
+            from tirefilter.estimators.mpf import native
+
+            native.library()  # (built on first use: a missing compiler is reported here, at construction)
+            self._nb = self._st = native
+            return
         from tirefilter.estimators.mpf import kernels
         from tirefilter.vehicle import single_track_numba
 
@@ -122,7 +129,7 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
 
     def __setstate__(self, state):
         self.__dict__.update(state)
-        if self.cfg.backend == "numba":
+        if self.cfg.backend != "numpy":
             self._load_kernels()
 
     def config_dict(self) -> dict:

@@ -96,7 +96,8 @@ def keep(mpf, t: float, yk: np.ndarray, a: np.ndarray, e, scale, nu, logw, compi
         arr = _COL_ARRAYS.get(present)
         if arr is None:
             arr = _COL_ARRAYS[present] = np.array(present, np.int64)
-        mixture_moments_chol(logw, e, scale, nu, arr, moments)
+        (mpf._nb.mixture_moments_chol if mpf.cfg.backend == "c" else mixture_moments_chol)(logw, e, scale, nu, arr,
+                                                                                          moments)
     else:
         moments = mixture_moments(logw, e, np.diagonal(scale, axis1=1, axis2=2), nu, present)
     m = moments.tolist()
