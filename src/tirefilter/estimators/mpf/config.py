@@ -24,6 +24,9 @@ OPTIONS = {
     "gate and bounds": ("gate_speed", "gate_ay_max", "bound_low", "bound_high"),
 }
 USER_OPTIONS = tuple(key for group in OPTIONS.values() for key in group)
+# what a scenario tells the filter about its start, beyond the options (set by `mpf_config_for_scenario`; the
+# estimator FMU of an SSP takes them from its config's `[mpf_start]` table)
+START_FIELDS = ("x0_mean", "x0_given", "init_center", "init_reference", "init_distribution", "init_half_width")
 
 
 @dataclass(frozen=True)
