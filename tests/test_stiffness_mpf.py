@@ -15,6 +15,7 @@ from tirefilter.errors import ConfigError
 from tirefilter.estimators import build_estimator
 from tirefilter.estimators.base import Inputs, Measurement
 from tirefilter.estimators.mpf import MPFConfig, StiffnessMPF
+from tirefilter.estimators.mpf.adaptation import CX_EXCITATION_TIME
 from tirefilter.metrics import settling_time, stiffness_errors
 from tirefilter.scenarios import load_scenario
 
@@ -242,8 +243,6 @@ def test_a_gap_draws_vx_again_from_the_undriven_wheels(backend):
 @pytest.mark.parametrize("options,match", [
     ({"slip_hold": "end"}, "expected interval or start"),
     ({"undriven_stiffness": "surface"}, "expected learned or nominal"),
-    ({"cx_excitation_time": 0.0}, "cx_excitation_time"),
-    ({"cx_excitation_time": math.inf}, "cx_excitation_time"),
     ({"restart_at_bound_after": -1.0}, "must be >= 0"),
     ({"x0_vx_wheel_std": -0.1}, "must be >= 0"),
 ])
@@ -257,8 +256,8 @@ def test_defaults_and_the_papers_variant():
     scaled by the excitation weight of Cx (nominal until Cx is excited) are the defaults; the
     paper's eq. (9) (slip of t_k held) and its nominal undriven axle are its switches."""
     cfg = MPFConfig()
-    assert (cfg.slip_hold, cfg.undriven_stiffness, cfg.x0_vx_wheel_std, cfg.restart_at_bound_after,
-            cfg.cx_excitation_time) == ("interval", "learned", 0.02, 2.0, 1.0)
+    assert (cfg.slip_hold, cfg.undriven_stiffness, cfg.x0_vx_wheel_std, cfg.restart_at_bound_after) == (
+        "interval", "learned", 0.02, 2.0)
     vehicle = load_scenario("paper-sim").vehicle
     est = StiffnessMPF(vehicle)
     est.reset(np.random.default_rng(0))
@@ -303,7 +302,7 @@ def test_cx_excitation_counts_the_changes_of_the_slip_only():
     assert est.cx_info == 0.0 and est.cx_weight == 0.0 and est.undriven_share == 0.0
     for _ in range(3000):  # 30 s: (1 - a)^6000 is nothing
         est._excite_cx(vx, np.array([0.0, omega(0.02), vx / vehicle.wheel_radius, vx]), dt)
-    q = math.exp(-dt / est.cfg.cx_excitation_time)  # 1 - a
+    q = math.exp(-dt / CX_EXCITATION_TIME)  # 1 - a
     want = (0.01 / vehicle.mass) ** 2 * q * q / (1 - q * q) / est.cfg.sigma[0] ** 2
     assert est.cx_info == pytest.approx(want, rel=1e-9)
     rho = want * est._cx_prior_var() / (1 + want * est._cx_prior_var())

@@ -17,6 +17,14 @@ from tirefilter.vehicle import single_track
 
 NAN = math.nan
 LOAD_GAIN_MIN = 0.3  # the floor of the load-transfer gain 1 - kappa a^Y^2 (`StiffnessMPF._load_gains`, `_load_band`)
+# adaptive forgetting (derivations, "Adaptive forgetting"): lambda_k within [FORGETTING_MIN, FORGETTING_MAX]
+FORGETTING_MIN = 0.97  # a memory of 0.33 s at 100 Hz after a surface change
+FORGETTING_MAX = 0.999  # a memory of 10 s at 100 Hz on a drive that fits
+SURPRISE_TIME = 0.15  # s, smoothing of z_k: a step change shows within a tenth of a second
+DRIFT_TIME = 1.0  # s, smoothing of z'_k (the lean of the sampled w): a stale mean leans for seconds
+# s: a driven-axle slip level held longer than this is confounded with the a^X bias and v^X errors; only its
+# changes within it count as excitation of Cx (derivations, "The undriven axle")
+CX_EXCITATION_TIME = 1.0
 
 
 class Adaptation:
@@ -39,7 +47,7 @@ class Adaptation:
         fit the predictive (derivations, "Adaptive forgetting"). `v` (N, nc) are the whitened residuals of
         the weighting, Student-t with nu (N,) dof: E[v^T v] = nc nu / (nu - 2). Their
         normalised square, averaged with the predictive weights (before this sample's
-        likelihood), is smoothed over `surprise_time` into z_k; lambda_k = 1 - (1 - lambda) z_k,
+        likelihood), is smoothed over `SURPRISE_TIME` into z_k; lambda_k = 1 - (1 - lambda) z_k,
         clipped: z = 1 gives the configured lambda, a surface change (z >> 1) forgets fast,
         a drive that fits better than its noise figures (z < 1) forgets slowly."""
         cfg = self.cfg
@@ -51,15 +59,14 @@ class Adaptation:
             self._smooth_surprise(s_k, dt)
 
     def _smooth_surprise(self, s_k: float, dt: float) -> None:
-        """z_k: s_k smoothed over `surprise_time`; lambda_k = 1 - (1 - lambda) z_k, clipped."""
-        cfg = self.cfg
-        self.surprise += -math.expm1(-dt / cfg.surprise_time) * (s_k - self.surprise)
-        self.lam = min(max(1.0 - (1.0 - cfg.forgetting) * self.surprise, cfg.forgetting_min), cfg.forgetting_max)
+        """z_k: s_k smoothed over `SURPRISE_TIME`; lambda_k = 1 - (1 - lambda) z_k, clipped."""
+        self.surprise += -math.expm1(-dt / SURPRISE_TIME) * (s_k - self.surprise)
+        self.lam = min(max(1.0 - (1.0 - self.cfg.forgetting) * self.surprise, FORGETTING_MIN), FORGETTING_MAX)
 
     def _cap_forgetting(self, z: float) -> None:
         """lambda_k no larger than 1 - (1 - lambda) z (the drift statistic z, `_track_drift`)."""
         cfg = self.cfg
-        self.lam = min(self.lam, max(1.0 - (1.0 - cfg.forgetting) * z, cfg.forgetting_min))
+        self.lam = min(self.lam, max(1.0 - (1.0 - cfg.forgetting) * z, FORGETTING_MIN))
 
     def _track_drift(self, dw: np.ndarray, L11: np.ndarray, dt: float) -> None:
         """The second surprise statistic of the adaptive forgetting (derivations, "Adaptive forgetting"):
@@ -67,7 +74,7 @@ class Adaptation:
         mean zero while the statistics' mean is right, whatever the deviation spread; a
         stale mean makes it lean one way sample after sample. Its weighted mean over the
         particles is smoothed into `drift` (n_w,), whose square, scaled by (2 - a) / a for
-        the smoothing a = 1 - exp(-dt / drift_time), is about 1 per component under the
+        the smoothing a = 1 - exp(-dt / DRIFT_TIME), is about 1 per component under the
         model (the per-sample whitened values have unit variance up to nu / (nu - 2))."""
         cfg = self.cfg
         if cfg.forgetting_mode == "fixed":
@@ -76,7 +83,7 @@ class Adaptation:
         ubar = np.exp(self.logw) @ u
         if not np.all(np.isfinite(ubar)):
             return
-        a = -math.expm1(-dt / cfg.drift_time)
+        a = -math.expm1(-dt / DRIFT_TIME)
         self.drift = self.drift + a * (ubar - self.drift)
         self._cap_forgetting(float(self.drift @ self.drift) * (2.0 - a) / (a * len(ubar)))
 
@@ -195,7 +202,7 @@ class Adaptation:
         its nominal stiffness), the slip level unknown."""
         self.cx_info = 0.0  # I_k, information on dC_x from the changes of the driven axle's slip, 1/N^2
         self.cx_weight = 0.0  # rho_k = cx_excitation_weight(I_k, prior variance)
-        self._slip_level = NAN  # the slip smoothed over cx_excitation_time
+        self._slip_level = NAN  # the slip smoothed over CX_EXCITATION_TIME
         self._set_undriven_share()
 
     def _cx_prior_var(self) -> float:
@@ -214,7 +221,7 @@ class Adaptation:
         """The excitation weight of Cx after sample k (derivations, "The undriven axle"), full model.
 
         The driven axle's slip at the posterior-mean v^X, lambda_k, minus its level smoothed over
-        `cx_excitation_time` T (a level held longer is confounded with the a^X bias and v^X
+        `CX_EXCITATION_TIME` T (a level held longer is confounded with the a^X bias and v^X
         errors) is the regressor of dC_x in a^X, b_k = (lambda_k - level_k) / m. While the gate is
         open its information accumulates with the statistics' forgetting factor lambda_k (eq. (20)),
         I_k = lambda_k I_{k-1} + b_k^2 / sigma_ax^2, frozen while the gate is closed, and
@@ -228,7 +235,7 @@ class Adaptation:
             return
         if not math.isfinite(self._slip_level):
             self._slip_level = slip
-        self._slip_level += -math.expm1(-dt / self.cfg.cx_excitation_time) * (slip - self._slip_level)
+        self._slip_level += -math.expm1(-dt / CX_EXCITATION_TIME) * (slip - self._slip_level)
         if self.active:
             b = (slip - self._slip_level) / self.vehicle.mass
             self.cx_info = self._lam_step * self.cx_info + b * b / self.R[0, 0]

@@ -12,6 +12,7 @@ import numpy as np
 
 from tirefilter.estimators.base import Estimate, Measurement
 from tirefilter.estimators.mpf import predictive
+from tirefilter.estimators.mpf.adaptation import DRIFT_TIME
 from tirefilter.stats import effective_sample_size, normalize_log_weights
 from tirefilter.vehicle.single_track import GRAVITY
 
@@ -138,7 +139,7 @@ class CompiledStep:
             wk.drift_checked = self.drift
         zd, k_mean, k_std = nb.sample_update(
             wk.idx, wk.own, wk.scratch, (z, chi, nu_draw, wk.ones2), wk.w, (self.R, a, yk),
-            (0.0, -math.expm1(-dt / cfg.drift_time), wk.lo, wk.hi),
+            (0.0, -math.expm1(-dt / DRIFT_TIME), wk.lo, wk.hi),
             (False, bool(a.size and self.bias_on), self.active, drift), nc, (self.drift, wk.mom, wk.q, wk.no_k if self.k_roll is None else self.k_roll), sizes)
         if zd == zd:  # `_track_drift` (the statistic is NaN when not computed)
             self._cap_forgetting(zd)

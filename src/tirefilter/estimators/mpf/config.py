@@ -41,7 +41,7 @@ class MPFConfig:
     # ---- [mpf] options: switches back to the paper's model ---------------------------------------
     forgetting: float = 0.99  # lambda of eq. (20); with adaptive forgetting its value when the data fit
     # adaptive forgetting (derivations, "Adaptive forgetting"): lambda_k = clip(1 - (1 - forgetting) z_k,
-    # FORGETTING_MIN, FORGETTING_MAX), z_k the smoothed normalised innovation of the accelerometers (1 when the
+    # adaptation.FORGETTING_MIN, FORGETTING_MAX), z_k the smoothed normalised innovation of the accelerometers (1 when the
     # data fit the predictive): a surface change forgets fast, a drive that fits keeps a long memory. "fixed": the paper's
     forgetting_mode: str = "adaptive"  # "adaptive" | "fixed"
     integrator: str = "heun"  # "euler" (the paper) | "heun" (same w, wheel slip held)
@@ -116,17 +116,7 @@ class MPFConfig:
     sample_period: float = 0.01  # s, used for the first step and as the bias-RW time base
 
     # ---- the method's fixed values (not options) ------------------------------------------------
-    forgetting_min: float = 0.97  # lambda's floor: a memory of 0.33 s at 100 Hz after a surface change
-    forgetting_max: float = 0.999  # lambda's cap: a memory of 10 s at 100 Hz on a drive that fits
-    surprise_time: float = 0.15  # s, smoothing of z_k: a step change shows within a tenth of a second
-    drift_time: float = 1.0  # s, smoothing of z'_k (the lean of the sampled w): a slow drift of a few seconds
-    # "learned": a driven-axle slip level held longer than this (s) is confounded with the a^X bias and v^X
-    # errors; only its changes within this time count as excitation of Cx (derivations, "The undriven axle")
-    cx_excitation_time: float = 1.0
     resample_threshold: float = 0.5  # resample when ESS < threshold * N (the usual half)
-    init_sigma: float = 0.1  # prior guess of the deviation spread (relative), sets Lambda_0
-    within_share: float = 0.25  # share of the prior variance of the mean inside each particle
-    nu0_margin: float = 4.0  # nu_0 = n_w + 1 + margin (> n_w + 1: finite inverse-Wishart mean)
     state_noise_time: float = 10.0  # s, smoothing of the state noise from the data: 1000 corrections at 100 Hz
     x0_vx_wheel_std: float = 0.02  # m/s, spread of the initial v^X around R_w omega (the free-rolling wheel's slip)
     gate_steer: float = 0.0035  # rad (0.2 deg): below it the stiffness is not observable (Sec. V)
@@ -139,8 +129,7 @@ class MPFConfig:
     # gets weight zero; when every particle has left it the filter restarts from its prior
     plausible_beta: float = 0.35  # rad (20 deg; the linear tire model ends far earlier)
     plausible_yaw_rate: float = 2.0  # rad/s
-    restart_alpha: float = 0.15  # rad: estimated slip beyond this while |a^Y| < gate_ay_max ...
-    restart_after: float = 0.5  # s: ... for this long also restarts (0 disables)
+    restart_after: float = 0.5  # s: a slip beyond supervision.RESTART_ALPHA with a small |a^Y| this long restarts (0: never)
     # a posterior mean pinned at a stiffness bound (within 1% of the reference) for this long restarts
     # too: the cloud locked onto a wrong start and the projection holds it there (0 disables)
     restart_at_bound_after: float = 2.0  # s
@@ -165,11 +154,6 @@ class MPFConfig:
             bad("forgetting", f"lambda must be in (0, 1], got {self.forgetting!r}")
         if self.forgetting_mode not in ("adaptive", "fixed"):
             bad("forgetting_mode", f"expected adaptive or fixed, got {self.forgetting_mode!r}")
-        if not 0.0 < self.forgetting_min <= self.forgetting_max <= 1.0:
-            bad("forgetting_min", "need 0 < forgetting_min <= forgetting_max <= 1")
-        for key in ("surprise_time", "drift_time"):
-            if not getattr(self, key) > 0:
-                bad(key, f"must be > 0, got {getattr(self, key)!r}")
         if self.model not in ("full", "lateral"):
             bad("model", f"expected full or lateral, got {self.model!r}")
         if self.integrator not in ("euler", "heun"):
@@ -178,13 +162,11 @@ class MPFConfig:
             bad("slip_hold", f"expected interval or start, got {self.slip_hold!r}")
         if self.undriven_stiffness not in ("learned", "nominal"):
             bad("undriven_stiffness", f"expected learned or nominal, got {self.undriven_stiffness!r}")
-        if not (self.cx_excitation_time > 0 and math.isfinite(self.cx_excitation_time)):
-            bad("cx_excitation_time", f"must be finite and > 0, got {self.cx_excitation_time!r}")
         if self.init_distribution not in ("normal", "uniform"):
             bad("init_distribution", f"expected normal or uniform, got {self.init_distribution!r}")
-        for key in ("init_std", "init_half_width", "init_sigma", "gate_speed", "gate_steer", "gate_ay_max",
-                    "gate_alpha_max", "gate_vy_std", "gate_warmup", "nu0_margin", "plausible_beta",
-                    "plausible_yaw_rate", "restart_alpha", "restart_after", "restart_at_bound_after",
+        for key in ("init_std", "init_half_width", "gate_speed", "gate_steer", "gate_ay_max",
+                    "gate_alpha_max", "gate_vy_std", "gate_warmup", "plausible_beta",
+                    "plausible_yaw_rate", "restart_after", "restart_at_bound_after",
                     "x0_vx_wheel_std", "wheel_slip_rw", "state_noise_time"):
             if not getattr(self, key) >= 0:
                 bad(key, f"must be >= 0, got {getattr(self, key)!r}")
@@ -193,10 +175,6 @@ class MPFConfig:
                 bad(key, f"noise values must be >= 0, got {getattr(self, key)!r}")
         if min(self.sigma) <= 0:
             bad("sigma", f"sensor noise must be > 0, got {self.sigma!r}")
-        if not 0 < self.within_share < 1:
-            bad("within_share", f"must be in (0, 1), got {self.within_share!r}")
-        if self.init_sigma <= 0:
-            bad("init_sigma", "must be > 0")
         if not 0 < self.bound_low < self.bound_high:
             bad("bound_low", "need 0 < bound_low < bound_high")
         if not (self.sigma_omega >= 0 and math.isfinite(self.sigma_omega)):

@@ -30,6 +30,10 @@ from tirefilter.vehicle.single_track import GRAVITY
 
 
 _NO_RELAX = np.zeros((2, 0))  # the compiled twin's "no relaxed slip angles"
+# the prior of the stiffness statistics (derivations, "Initialisation"):
+INIT_SIGMA = 0.1  # relative prior guess of the deviation spread (Lambda_0): twice paper-sim's true 5%, so it does not bind
+WITHIN_SHARE = 0.25  # share of the prior variance of the mean inside each particle's NiW; the particles' means carry the rest
+NU0_MARGIN = 4.0  # nu_0 = n_w + 1 + this: > 0 for a finite inverse-Wishart mean, small so the prior weighs a few samples
 
 
 def _reflected_walk(k: np.ndarray, bounds, rw: float, dt: float, rng: np.random.Generator) -> np.ndarray:
@@ -181,13 +185,13 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         else:
             s = cfg.init_half_width / math.sqrt(3.0)
             u = rng.uniform(-cfg.init_half_width, cfg.init_half_width, (N, n))
-        share = cfg.within_share if s > 0 else 0.0
+        share = WITHIN_SHARE if s > 0 else 0.0
         means = self.C_center + np.sqrt(1.0 - share) * u * self.C_ref
-        sigma0 = cfg.init_sigma * self.C_ref  # prior guess of the deviation std
-        nu0 = n + 1.0 + cfg.nu0_margin
+        sigma0 = INIT_SIGMA * self.C_ref  # prior guess of the deviation std
+        nu0 = n + 1.0 + NU0_MARGIN
         self.nu0 = nu0
         Lam0 = np.diag(sigma0**2) * (nu0 - n - 1.0)  # so that E[Sigma] = diag(sigma0^2)
-        gamma0 = max(share * s * s / cfg.init_sigma**2, 1e-6)  # gamma E[Sigma] = share s^2 C_ref^2
+        gamma0 = max(share * s * s / INIT_SIGMA**2, 1e-6)  # gamma E[Sigma] = share s^2 C_ref^2
         self.stats = NiW(np.full(N, gamma0), means - self.C_nom, np.broadcast_to(Lam0, (N, n, n)).copy(),
                          np.full(N, nu0))
         if self._carried is not None:  # statistics learned on an earlier drive replace the prior

@@ -15,6 +15,8 @@ from tirefilter.estimators.baseline_common import gate_open, held_ay
 from tirefilter.stats import normalize_log_weights
 from tirefilter.vehicle import single_track
 
+RESTART_ALPHA = 0.15  # rad: an estimated slip angle beyond this with |a^Y| below gate_ay_max is no tyre's (restart test)
+
 
 class Supervision:
     """Gate, restarts, plausibility, gaps and the informed start of `StiffnessMPF`."""
@@ -42,7 +44,7 @@ class Supervision:
                                 vy_std=vy_std)
         # (the measured a^Y: a state locked onto a wrong slip predicts the large a^Y of that slip)
         ay_y = y.ay if math.isfinite(y.ay) else 0.0
-        contradiction = cfg.restart_alpha > 0 and alpha > cfg.restart_alpha and abs(ay_y) < cfg.gate_ay_max
+        contradiction = alpha > RESTART_ALPHA and abs(ay_y) < cfg.gate_ay_max
         self._contradiction_since = (self._contradiction_since or t) if contradiction else None
         if contradiction and t - self._contradiction_since >= cfg.restart_after:
             return True
