@@ -62,7 +62,8 @@ def mpf_config_for_log(vehicle, t, signals: dict, *, model: str, particles: int 
     speeds), `sample_period` is the median time step of
     the log, and the initial state mean is taken from the log's first finite samples:
     full model (v^X, 0, r) with v^X from `vx` or else from the undriven axle's wheel speed
-    (R_w omega), lateral model (0, r); r is the first yaw-rate sample (0 if none).
+    (R_w omega), lateral model (0, r); r is the first yaw-rate sample (0 if none). The log gives
+    no v^Y: `x0_given` is False (the stiffness statistics drawn again once the gate first opens).
     `t` (n,) are the sample times, `signals` maps log signal names to (n,) arrays (NaN =
     missing sample).
     """
