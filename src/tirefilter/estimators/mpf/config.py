@@ -41,8 +41,9 @@ class MPFConfig:
     # ---- [mpf] options: switches back to the paper's model ---------------------------------------
     forgetting: float = 0.99  # lambda of eq. (20); with adaptive forgetting its value when the data fit
     # adaptive forgetting (derivations, "Adaptive forgetting"): lambda_k = clip(1 - (1 - forgetting) z_k,
-    # adaptation.FORGETTING_MIN, FORGETTING_MAX), z_k the smoothed normalised innovation of the accelerometers (1 when the
-    # data fit the predictive): a surface change forgets fast, a drive that fits keeps a long memory. "fixed": the paper's
+    # adaptation.FORGETTING_MIN, FORGETTING_MAX), z_k the smoothed normalised innovation of the accelerometers (1
+    # when the data fit the predictive): a surface change forgets fast, a drive that fits keeps a long memory.
+    # "fixed": the paper's
     forgetting_mode: str = "adaptive"  # "adaptive" | "fixed"
     integrator: str = "heun"  # "euler" (the paper) | "heun" (same w, wheel slip held)
     # wheel slip in the propagation from t_k to t_k+1 (derivations, "Wheel slip"): "interval": its mean over
@@ -129,7 +130,8 @@ class MPFConfig:
     # gets weight zero; when every particle has left it the filter restarts from its prior
     plausible_beta: float = 0.35  # rad (20 deg; the linear tire model ends far earlier)
     plausible_yaw_rate: float = 2.0  # rad/s
-    restart_after: float = 0.5  # s: a slip beyond supervision.RESTART_ALPHA with a small |a^Y| this long restarts (0: never)
+    # s: a slip beyond supervision.RESTART_ALPHA with a small |a^Y| for this long restarts (0: never)
+    restart_after: float = 0.5
     # a posterior mean pinned at a stiffness bound (within 1% of the reference) for this long restarts
     # too: the cloud locked onto a wrong start and the projection holds it there (0 disables)
     restart_at_bound_after: float = 2.0  # s

@@ -31,9 +31,9 @@ from tirefilter.vehicle.single_track import GRAVITY
 
 _NO_RELAX = np.zeros((2, 0))  # the compiled twin's "no relaxed slip angles"
 # the prior of the stiffness statistics (derivations, "Initialisation"):
-INIT_SIGMA = 0.1  # relative prior guess of the deviation spread (Lambda_0): twice paper-sim's true 5%, so it does not bind
-WITHIN_SHARE = 0.25  # share of the prior variance of the mean inside each particle's NiW; the particles' means carry the rest
-NU0_MARGIN = 4.0  # nu_0 = n_w + 1 + this: > 0 for a finite inverse-Wishart mean, small so the prior weighs a few samples
+INIT_SIGMA = 0.1  # relative prior guess of the deviation spread (Lambda_0): twice paper-sim's true 5%
+WITHIN_SHARE = 0.25  # share of the prior variance of the mean inside each particle's NiW (the means carry the rest)
+NU0_MARGIN = 4.0  # nu_0 = n_w + 1 + this: > 0 for a finite inverse-Wishart mean, small: the prior weighs a few samples
 
 
 def _reflected_walk(k: np.ndarray, bounds, rw: float, dt: float, rng: np.random.Generator) -> np.ndarray:
