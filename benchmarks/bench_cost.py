@@ -29,7 +29,7 @@ is the comparison to quote on a busy machine (separate loops can see loads apart
 
 `--replay LOG --vehicle V.toml`: instead, the MPF as `tirefilter replay LOG --vehicle V.toml
 --particles N` builds it (every default of a replay: the bias filter with the wandering offsets, the
-state noise from the data, the calibrated band, the wheel-speed filter, the roll gradient, the IMU's
+calibrated band, the wheel-speed filter, the roll gradient, the IMU's
 lever arm; the log's samples as the run loop hands them to `step`, the measurement guard applied) and
 the peer on the same log (the car of the vehicle TOML, the noise figures the MPF assumes, the log's
 median sample period), stepped alternately as with `--interleave`, `--repeat` times at each N, one MPF per

@@ -4,7 +4,7 @@
                                              [--duration 60] [--option KEY=VALUE ...] [--skip-cost]
 
 `--duration` shortens the run (below 30 s there is no surface change and no settling
-time); `--option` sets an `[mpf]` option, e.g. `--option informed_start=false`.
+time); `--option` sets an `[mpf]` option, e.g. `--option roll_estimate=false`.
 
 Per stiffness parameter, over the seeds:
 - the signed mean steady-state error and each trial's time-averaged absolute error;

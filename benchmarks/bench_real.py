@@ -9,9 +9,9 @@ and the lateral stiffness the MPF converges to.
 
 Everything runs with default settings: the vehicle file holds the publishers' values only, so
 the sensor noise is estimated from the log and the IMU bias model is the MEMS default (the
-kf and ekf baselines use the same noise), and the MPF runs with a replay's settings (the state's
-process noise from the data, the stiffness statistics drawn again after the gate first opens:
-derivations, "State noise from the data"); `--config` applies an estimator configuration TOML
+kf and ekf baselines use the same noise), and the MPF runs with a replay's defaults (the stiffness
+statistics drawn again after the gate first opens, the log giving no initial v^Y: derivations,
+"State noise from the data"); `--config` applies an estimator configuration TOML
 (its [mpf] table, say) to the MPF runs; `--mpf-only` leaves out the kf and ekf rows (which no
 [mpf] setting changes); `--vehicle` replaces examples/mbds-sideslip/vehicle.toml (for a
 diagnosis: the target is scored with the publishers' values). Sideslip RMSE in degrees over all samples and over

@@ -18,6 +18,7 @@ from scipy.special import logsumexp
 
 from tirefilter.estimators.base import Inputs, Measurement
 from tirefilter.estimators.mpf import MPFConfig, StiffnessMPF
+from tirefilter.estimators.mpf.adaptation import DRIFT_TIME
 from tirefilter.scenarios import load_scenario
 from tirefilter.stats.niw import NiW
 
@@ -127,7 +128,7 @@ def test_statistics_learn_the_drawn_w_within_the_stiffness_bounds(model):
     """Eq. (19) with the w_k the step drew (the conjugate update of the particle's NiW
     statistics), then the projection of Sec. V: the stiffness C_nom + mu kept within
     [0.97, 1.03] C_ref (narrow bounds, so that some particles are projected and some not);
-    and the drift statistic z' (derivations Sec. 17) moves by a = 1 - exp(-dt / drift_time)
+    and the drift statistic z' (derivations Sec. 17) moves by a = 1 - exp(-dt / DRIFT_TIME)
     towards the weighted mean of L^-1 (w - mu), L the Cholesky factor of the predictive scale."""
     est, rec, _ = _step_checked(model, False, bound_low=0.6, bound_high=1.4, restart_at_bound_after=0.0)
     w = est.w_prev
@@ -142,7 +143,7 @@ def test_statistics_learn_the_drawn_w_within_the_stiffness_bounds(model):
     for got, exp in ((est.stats.gamma, want.gamma), (est.stats.Lam, want.Lam), (est.stats.nu, want.nu)):
         np.testing.assert_allclose(got, exp, rtol=1e-12)
     u = np.stack([np.linalg.solve(np.linalg.cholesky(L11[i]), w[i] - mu_w[i]) for i in range(len(w))])
-    a = -math.expm1(-0.01 / est.cfg.drift_time)
+    a = -math.expm1(-0.01 / DRIFT_TIME)
     np.testing.assert_allclose(est.drift, rec["drift"] + a * (np.exp(est.logw) @ u - rec["drift"]), rtol=1e-10)
 
 

@@ -347,16 +347,23 @@ def test_backend_is_checked():
         MPFConfig(backend="fortran").validated()
 
 
-@pytest.mark.parametrize("undriven", ["surface", "nominal"])
+@pytest.mark.parametrize("undriven", ["excited", "nominal"])
 @pytest.mark.parametrize("drive", ["front", "rear"])
 def test_slip_over_step_kernel_equal(drive, undriven):
     """`single_track_numba.slip_over_step` against `single_track.slip_over_step` on a spread of
     particles (traction and braking slips, a driven stiffness deviation below the floor),
-    and the reference's interval slip between the slips at the two ends of the step."""
+    and the reference's interval slip between the slips at the two ends of the step; the
+    undriven axle at its nominal stiffness or following the driven axle's deviation in full
+    ("learned" with Cx fully excited, rho = 1)."""
     import dataclasses
 
     vehicle = dataclasses.replace(load_scenario("paper-sim").vehicle, drive=drive)
-    ests = {b: StiffnessMPF(vehicle, MPFConfig(backend=b, undriven_stiffness=undriven)) for b in ("numpy", "numba")}
+    mode = "nominal" if undriven == "nominal" else "learned"
+    ests = {b: StiffnessMPF(vehicle, MPFConfig(backend=b, undriven_stiffness=mode)) for b in ("numpy", "numba")}
+    if undriven == "excited":
+        for est in ests.values():
+            est.cx_weight = 1.0
+            est._set_undriven_share()
     rng = np.random.default_rng(3)
     n, Rw = 40, vehicle.wheel_radius
     x = np.column_stack([20 + rng.normal(0, 0.5, n), rng.normal(0, 0.3, n), rng.normal(0, 0.1, n)])
@@ -510,15 +517,13 @@ def test_stiffness_mpf_backends_equal(model, bias, restarts, paper, monkeypatch)
     fifth sample: numba and numpy give the same estimates, particles, bias and statistics.
     `restarts`: a plausible yaw rate so small that the cloud leaves it now and then.
     `paper`: the paper's wheel slip (held from the start of the step) and undriven axle;
-    False: the surface-scaled undriven axle; "learned": the undriven axle scaled by the excitation
-    weight of Cx (the default), on a drive whose front slip swings by 0.5% (the weight grows), and
-    the v^Y noise of the adaptive forgetting's innovation statistic (`vy_jitter`).
+    False: the defaults; "learned": the undriven axle scaled by the excitation weight of Cx (the
+    default) on a drive whose front slip swings by 0.5% (the weight grows).
     The numba filter runs its fused step (`_step_compiled`) on every sample, the first among them
     (a restart is decided inside it); the numpy filter never does."""
     if paper == "learned" and model == "lateral":
         pytest.skip("the lateral model has no Cx")
-    variant = PAPER_SLIP if paper is True else dict(undriven_stiffness="learned", vy_jitter=0.2) if paper else dict(
-        undriven_stiffness="surface")
+    variant = PAPER_SLIP if paper is True else {}
     fused = _count_fused_steps(monkeypatch)
     vehicle = load_scenario("paper-sim").vehicle
     noise = dict(bias_rw=(0.01, 0.01, 0.001), bias0_std=(0.1, 0.1, 0.01)) if bias else dict(
@@ -636,11 +641,10 @@ def test_stiffness_mpf_backends_equal_with_the_wheel_filter(monkeypatch):
     _assert_mpf_runs_equal(a, b, fast, ref)
 
 
-OPTIONS = {"outlier-noise-euler": dict(outlier_prob=0.9, state_noise=(0.02, 0.01, 0.002), integrator="euler"),
-           "fixed-forgetting-subgap": dict(forgetting_mode="fixed", max_step=0.004, outlier_prob=0.99),
-           # derivations, "State noise from the data": the state noise from the data, the combined linear-region test, the statistics
-           # drawn again after the gate's first open sample
-           "redraw-combined-gate": dict(warmup_redraw="gate", gate_accel="combined"),
+OPTIONS = {"noise-euler": dict(state_noise=(0.02, 0.01, 0.002), integrator="euler"),
+           "fixed-forgetting-subgap": dict(forgetting_mode="fixed", max_step=0.004),
+           # derivations, "State noise from the data": the statistics drawn again after the gate's first open sample
+           "redraw-gate": dict(x0_given=False),
            "noise-from-data": dict(state_noise_from_data=True, state_noise_time=0.1),
            # the calibrated *_std ("Batch-means sandwich") with batches short enough to close within the drive: the fused
            # step's update on floats from the moments against the reference's `_calibrate`
@@ -661,9 +665,8 @@ OPTION_RTOL = {"noise-from-data": 1e-9}
 @pytest.mark.parametrize("options", list(OPTIONS))
 def test_stiffness_mpf_backends_equal_options(options, model, monkeypatch):
     """The options the runs above leave at their defaults, through the fused step's loops:
-    the per-particle outlier mask (`outlier_prob` < 1), the state noise and the Euler
-    propagation; fixed forgetting (no drift statistic) with every step sub-stepped
-    (`max_step` 4 ms at 10 ms samples). The backends stay equal to rounding."""
+    the state noise and the Euler propagation; fixed forgetting (no drift statistic) with every
+    step sub-stepped (`max_step` 4 ms at 10 ms samples). The backends stay equal to rounding."""
     fused = _count_fused_steps(monkeypatch)
     monkeypatch.setattr(sys.modules[__name__], "RTOL", OPTION_RTOL.get(options, RTOL))
     import dataclasses
@@ -891,151 +894,3 @@ def test_friction_gpssm_backends_equal_with_differing_dof(kind):
     assert_equal_to_rounding(pa.particles, pb.particles, "particles")
     for key in ("M", "Lam", "nu", "mu"):
         assert_equal_to_rounding(pa.stats[key], pb.stats[key], key)
-
-
-@pytest.mark.parametrize("in_stats", [True, False], ids=["inflated-statistics", "plain-statistics"])
-@pytest.mark.parametrize("model", ["full", "lateral"])
-def test_stiffness_mpf_backends_equal_with_surprise_inflation(model, in_stats, monkeypatch):
-    """The surprise inflation of the draw of w_k (`surprise_inflation`, derivations, "Surprise inflation") through
-    the fused step: on this drive, whose truth is no single track with the nominal stiffness, the
-    innovation statistic z passes 2 (the draw's scale inflated by c = z, or by the bound of the
-    prior's spread), and the backends stay equal to rounding, with the statistics learning from the
-    inflated draw or from its twin at c = 1 (`inflation_in_statistics`). With the plain statistics
-    the inflation is armed only after 0.1 s of open gate (`inflation_after`, derivations, "Surprise inflation"):
-    c = 1 before, in both backends."""
-    fused = _count_fused_steps(monkeypatch)
-    vehicle = load_scenario("paper-sim").vehicle
-    after = 0.0 if in_stats else 0.1
-    runs = {}
-    for backend in ("numpy", "numba", "c"):
-        cfg = MPFConfig(particles=24, model=model, backend=backend, resample_threshold=1.0, gate_warmup=0.05,
-                        gate_vy_std=10.0, gate_steer=0.0, bias_rw=(0.01, 0.01, 0.001), bias0_std=(0.1, 0.1, 0.01),
-                        surprise_inflation=1.0, init_std=3.0,  # (a wide prior: c is not held by its bound)
-                        inflation_in_statistics=in_stats, inflation_after=after)
-        est = StiffnessMPF(vehicle, cfg)
-        est.reset(np.random.default_rng(9))
-        rows, c_max, c_disarmed = [], 1.0, []
-        for t, u, y in _mpf_samples(vehicle, 60):
-            c = est._draw_inflation()  # the factor the previous step drew with
-            c_max = max(c_max, c)
-            if est.learned_time < after:
-                c_disarmed.append((c, est.surprise))
-            rows.append(_mpf_outputs(est.step(t, u, y)))
-        runs[backend] = (np.array(rows), est, c_max, c_disarmed)
-    (a, fast, c_fast, off_fast), (b, ref, c_ref, off_ref) = runs["numba"], runs["numpy"]
-    _assert_c_is_numba(runs)
-    assert fused[id(fast)] == 60 and c_ref > 2.5 and c_fast == pytest.approx(c_ref, rel=1e-9)
-    assert fast.learned_time == pytest.approx(ref.learned_time, abs=1e-12) and ref.learned_time > after + 0.2
-    if after > 0:  # disarmed while the gate had been open less than `after`, though z was above 1
-        assert len(off_ref) == len(off_fast) > 10 and all(c == 1.0 for c, _ in off_ref + off_fast)
-        assert max(z for _, z in off_ref) > 1.5
-    assert np.isfinite(b[:, :7]).all()
-    _assert_mpf_runs_equal(a, b, fast, ref)
-
-
-@pytest.mark.parametrize("backend", ["numpy", "numba"])
-def test_surprise_inflation_scales_the_draw_about_the_conditional_mean(backend, monkeypatch):
-    """The draw with the conditional scale times c is mu_c + sqrt(c) (draw at c = 1 - mu_c) for the
-    same random numbers: from one filter state, one step with c = 1, 4 and 9 gives w(9) - w(1) =
-    2 (w(4) - w(1)) exactly (to rounding), in both backends."""
-    import copy
-
-    vehicle = load_scenario("paper-sim").vehicle
-    cfg = MPFConfig(particles=16, backend=backend, resample_threshold=0.0, gate_warmup=0.05, gate_vy_std=10.0,
-                    gate_steer=0.0, surprise_inflation=1.0)
-    est = StiffnessMPF(vehicle, cfg)
-    est.reset(np.random.default_rng(3))
-    samples = list(_mpf_samples(vehicle, 25))
-    for t, u, y in samples[:20]:
-        est.step(t, u, y)
-    w = {}
-    for c in (1.0, 4.0, 9.0):
-        e = copy.deepcopy(est)
-        monkeypatch.setattr(StiffnessMPF, "_draw_inflation", lambda self, c=c: c)
-        e.step(*samples[20])
-        w[c] = np.array(e.w_prev)
-    assert np.ptp(w[1.0], axis=0).min() > 0
-    # c reaches the draw (without this, a c that does nothing passes the equality below as 0 == 0)
-    assert np.abs(w[4.0] - w[1.0]).max() > 1e-3 * np.abs(w[1.0]).max()
-    assert_equal_to_rounding(w[9.0] - w[1.0], 2.0 * (w[4.0] - w[1.0]), "w")
-
-
-def test_surprise_inflation_factor():
-    """c = max(1, min(1 + k (z - 1), (s^2 + init_sigma^2) / sigma_rel^2)): 1 while the data fit (z <= 1),
-    with k = 0 and with fixed forgetting; with `inflation_prior_bound` at most the prior's relative
-    variance of the stiffness over the last estimate's relative deviation spread (without it, the
-    default, not bounded: derivations, "Surprise inflation")."""
-    vehicle = load_scenario("paper-sim").vehicle
-    for k, z, c in ((1.0, 0.5, 1.0), (1.0, 1.0, 1.0), (1.0, 7.0, 7.0), (0.5, 7.0, 4.0), (0.0, 7.0, 1.0)):
-        free = StiffnessMPF(vehicle, MPFConfig(particles=4, surprise_inflation=k, inflation_after=0.0))
-        free.reset(np.random.default_rng(0))
-        free.surprise, free._sigma2_rel = z, 0.01
-        assert free._draw_inflation() == pytest.approx(c)
-        est = StiffnessMPF(vehicle, MPFConfig(particles=4, surprise_inflation=k, inflation_after=2.0,
-                                              inflation_prior_bound=True))
-        est.reset(np.random.default_rng(0))
-        est.surprise = z
-        est.learned_time = 1.99  # (`inflation_after`: not armed yet)
-        assert est._draw_inflation() == 1.0
-        est.learned_time = 2.0
-        assert est._draw_inflation() == pytest.approx(c)
-        est._sigma2_rel = 0.01  # a deviation spread of 10%: c at most (0.3^2 + 0.1^2) / 0.1^2 = 10
-        assert est._draw_inflation() == pytest.approx(min(c, 10.0))
-        est.surprise = 50.0
-        assert est._draw_inflation() == pytest.approx(10.0 if k >= 0.5 else 1.0)
-    est = StiffnessMPF(vehicle, MPFConfig(particles=4, surprise_inflation=1.0, forgetting_mode="fixed",
-                                          inflation_after=0.0))
-    est.reset(np.random.default_rng(0))
-    est.surprise = 7.0
-    assert est._draw_inflation() == 1.0
-
-
-def test_inflation_against_the_surprise_level():
-    """`inflation_baseline_time` T > 0: c from z_k / max(1, zbar_k), zbar the normalised squared residual
-    smoothed over T (exactly: zbar += (1 - exp(-dt / T)) (s_k - zbar)), so a persistent surprise (zbar = z)
-    gives c = 1 and a jump over the level inflates by the ratio (derivations, "Surprise inflation")."""
-    vehicle = load_scenario("paper-sim").vehicle
-    est = StiffnessMPF(vehicle, MPFConfig(particles=4, surprise_inflation=1.0, inflation_after=0.0,
-                                          inflation_baseline_time=2.0))
-    est.reset(np.random.default_rng(0))
-    est.surprise, est.surprise_level = 3.0, 3.0
-    assert est._draw_inflation() == 1.0
-    est.surprise, est.surprise_level = 6.0, 1.5
-    assert est._draw_inflation() == pytest.approx(4.0)
-    est.surprise_level = 0.5  # (a level below 1 does not sharpen it)
-    assert est._draw_inflation() == pytest.approx(6.0)
-    z0, zbar0 = est.surprise, est.surprise_level
-    est._smooth_surprise(20.0, 0.01)
-    assert est.surprise_level == pytest.approx(zbar0 + (1 - math.exp(-0.01 / 2.0)) * (20.0 - zbar0))
-    assert est.surprise == pytest.approx(z0 + (1 - math.exp(-0.01 / 0.15)) * (20.0 - z0))
-    off = StiffnessMPF(vehicle, MPFConfig(particles=4, surprise_inflation=1.0, inflation_after=0.0))
-    off.reset(np.random.default_rng(0))
-    off._smooth_surprise(20.0, 0.01)
-    assert off.surprise_level == 1.0  # (not tracked when off)
-
-
-@pytest.mark.parametrize("backend", ["numpy", "numba"])
-def test_inflation_armed_after_open_gate_time_and_disarmed_by_a_restart(backend):
-    """`learned_time` adds up the time steps with the learning gate open (here 10 ms each after
-    the warm-up, the gap of 50 ms before sample 30 too) and a restart sets it back to 0, so a new
-    start is no change either (`inflation_after`, derivations, "Surprise inflation")."""
-    vehicle = load_scenario("paper-sim").vehicle
-    cfg = MPFConfig(particles=16, backend=backend, gate_warmup=0.05, gate_vy_std=10.0, gate_steer=0.0,
-                    surprise_inflation=1.0, inflation_after=0.3)
-    est = StiffnessMPF(vehicle, cfg)
-    est.reset(np.random.default_rng(4))
-    open_time, t_last = 0.0, None
-    samples = list(_mpf_samples(vehicle, 60))
-    for t, u, y in samples[:50]:
-        est.step(t, u, y)
-        if est.active and t_last is not None:
-            open_time += t - t_last
-        t_last = t
-        # (a surprise as large as a change's and a converged deviation spread of 10%, whose bound by the
-        # prior, "Surprise inflation", is 10: the next draw's c is 5 once armed)
-        est.surprise, est._sigma2_rel = 5.0, 0.01
-        assert est._draw_inflation() == (1.0 if est.learned_time < 0.3 else pytest.approx(5.0))
-    assert est.learned_time == pytest.approx(open_time, abs=1e-9) and 0.3 < open_time < 0.5
-    t, u, y = samples[50]
-    est._restart(t, est.u_prev, y)  # (the input vector of the last sample)
-    assert est.learned_time == 0.0 and est._draw_inflation() == 1.0

@@ -68,11 +68,17 @@ def test_the_defaults_that_differ_between_a_scenario_and_a_log():
     assert g_log.cfg.particles == type(g_log.cfg)().particles
     assert g_log.cfg.sample_period == pytest.approx(0.02, rel=1e-12)
     assert g_log.cfg.sigma == log.sensors.sigma[1:] and g_log.cfg.x0_mean == (0.0, 0.0)
-    # the MPF: a log's process noise comes from the data and the statistics are drawn again at the gate
+    # the MPF: the same filter; a log gives no initial state (v^Y unknown: the statistics are drawn again at the
+    # gate), the scenario does
     m_sim = build("mpf", sim, model="lateral", particles=50, config={})
     m_log = build("mpf", log, model="lateral", particles=50, config={})
-    assert (m_sim.cfg.state_noise_from_data, m_log.cfg.state_noise_from_data) == (False, True)
-    assert (m_sim.cfg.warmup_redraw, m_log.cfg.warmup_redraw) == (type(m_sim.cfg)().warmup_redraw, "gate")
+    assert (m_sim.cfg.x0_given, m_log.cfg.x0_given) == (True, False)
+    same = [f.name for f in dataclasses.fields(m_sim.cfg) if f.name not in ("x0_given", "x0_mean", "init_center",
+                                                                           "init_reference", "init_distribution",
+                                                                           "init_half_width", "sample_period",
+                                                                           "sigma", "bias0_std", "bias_rw",
+                                                                           "disturbance_rw", "sigma_omega")]
+    assert [getattr(m_sim.cfg, k) for k in same] == [getattr(m_log.cfg, k) for k in same]
     # the kf: the scenario's noise figures, the log's estimate
     assert build("kf", sim, model="auto", particles=None, config={}).cfg.sigma_ay == scenario.sensor_spec.sigma_ay
     assert build("kf", log, model="auto", particles=None, config={}).cfg.sigma_ay == log.sensors.sigma[1]

@@ -3,7 +3,6 @@ co-simulation it was recorded from, check-log, the CLI, and the real MBDS record
 
 from __future__ import annotations
 
-import dataclasses
 import gzip
 import importlib.util
 import json
@@ -24,7 +23,7 @@ from tirefilter.cosim.fmu import VehicleFMU
 from tirefilter.io.results import ESTIMATE_COLUMNS, INPUT_TRUTH_COLUMNS, read_results, truth_column
 from tirefilter.cosim.run import run_scenario
 from tirefilter.errors import ConfigError, LogError, ReplayError
-from tirefilter.estimators import build_estimator, build_log_estimator, mpf_config_for_log
+from tirefilter.estimators import build_log_estimator, mpf_config_for_log
 from tirefilter.estimators.base import Estimate
 from tirefilter.replay import check_log, read_log, replay_log, result_columns, write_log
 from tirefilter.scenarios import load_scenario
@@ -40,14 +39,20 @@ FROM_COSIM = {"t": "t", "delta": "meas_delta", "ax": "meas_ax", "ay": "meas_ay",
 
 
 def _cosim(model: str):
-    """paper-sim for 10 s with the MPF: (scenario, estimator, Result-CSV columns)."""
+    """paper-sim for 10 s with the MPF that a replay of its log builds (the same filter; what the
+    log tells it, its noise, first samples and step, in place of what the scenario tells):
+    (scenario, estimator, Result-CSV columns). The sensors do not depend on the estimator, so a
+    first run gives the log the second run's estimator is built from."""
     scenario = load_scenario("paper-sim")
     scenario = replace(scenario, duration=DURATION, surface_changes=())
-    est = build_estimator("mpf", scenario, model=model, particles=PARTICLES,
-                          config={"mpf": {"x0_std": [0.05, 0.05, 0.002]}})  # a known start: no divergence
-    _, rows = run_scenario(scenario, estimator=est, seed=SEED, keep_rows=True)
     with VehicleFMU("2") as fmu:
         names = ESTIMATE_COLUMNS + tuple(map(truth_column, fmu.output_names)) + INPUT_TRUTH_COLUMNS
+    _, rows = run_scenario(scenario, seed=SEED, keep_rows=True)
+    r = {c: rows[:, j] for j, c in enumerate(names)}
+    signals = {name: r[col] for name, col in FROM_COSIM.items() if name != "t"}
+    est = build_log_estimator("mpf", load_vehicle(VEHICLE), r["t"], signals, model=model, particles=PARTICLES,
+                              config={"mpf": {"x0_std": [0.05, 0.05, 0.002]}})  # a known start: no divergence
+    _, rows = run_scenario(scenario, estimator=est, seed=SEED, keep_rows=True)
     return scenario, est, {c: rows[:, j] for j, c in enumerate(names)}
 
 
@@ -79,8 +84,10 @@ def _toml_value(v) -> str:
 
 
 def _config_file(path: Path, cfg) -> Path:
-    """An `[mpf]` table that sets every option to the value in `cfg`."""
-    items = [f"{k} = {_toml_value(v)}" for k, v in dataclasses.asdict(cfg).items() if v is not None]
+    """An `[mpf]` table that sets every option (`USER_OPTIONS`) to the value in `cfg`."""
+    from tirefilter.estimators.mpf.config import USER_OPTIONS
+
+    items = [f"{k} = {_toml_value(getattr(cfg, k))}" for k in USER_OPTIONS]
     path.write_text("[mpf]\n" + "\n".join(items) + "\n")
     return path
 
@@ -91,8 +98,8 @@ VEHICLE = REPO / "src" / "tirefilter" / "scenarios" / "data" / "vehicles" / "mid
 # ---- the round trip -----------------------------------------------------------------------
 @pytest.mark.parametrize("model", ["lateral", "full"])
 def test_replay_reproduces_the_cosimulation(request, tmp_path, capsys, model):
-    """A log written from a co-simulation, replayed with the same vehicle, configuration
-    and seed, gives the co-simulation's estimates exactly (same generator, same inputs)."""
+    """A log written from a co-simulation, replayed with the same vehicle, options and seed,
+    gives the co-simulation's estimates exactly (the same filter, generator and inputs)."""
     scenario, est, r = request.getfixturevalue(f"cosim_{model}")
     assert scenario.vehicle == load_vehicle(VEHICLE)
     log = write_log(tmp_path / "log.csv", {name: r[col] for name, col in FROM_COSIM.items()})

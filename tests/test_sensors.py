@@ -19,6 +19,7 @@ from tirefilter.estimators.sensors import (
     DISTURBANCE_RW, FALLBACK_SIGMA, MEMS_BIAS0_STD, MEMS_BIAS_RW, checked_against, sensors_for_log,
 )
 from tirefilter.estimators.mpf import MPFConfig, StiffnessMPF
+from tirefilter.estimators.mpf.adaptation import DRIFT_TIME, FORGETTING_MAX, FORGETTING_MIN, SURPRISE_TIME
 from tirefilter.stats.noise import held_share, white_noise_std
 from tirefilter.vehicle.params import VehicleParams, load_vehicle
 
@@ -147,18 +148,18 @@ def test_adaptive_forgetting_follows_the_normalised_innovation():
     for _ in range(50):
         mpf._adapt_forgetting(fit, nu, 0.01)
     assert mpf.surprise == pytest.approx(1.0) and mpf.lam == pytest.approx(0.99)
-    z, a = 1.0, -math.expm1(-0.01 / cfg.surprise_time)
+    z, a = 1.0, -math.expm1(-0.01 / SURPRISE_TIME)
     for k in range(5):  # residuals 3x their spread: s_k = 9
         mpf._adapt_forgetting(3 * fit, nu, 0.01)
         z += a * (9.0 - z)
         assert mpf.surprise == pytest.approx(z, rel=1e-12)
-        assert mpf.lam == pytest.approx(max(1 - 0.01 * z, cfg.forgetting_min), rel=1e-12)
+        assert mpf.lam == pytest.approx(max(1 - 0.01 * z, FORGETTING_MIN), rel=1e-12)
     for _ in range(200):
         mpf._adapt_forgetting(10 * fit, nu, 0.01)
-    assert mpf.lam == cfg.forgetting_min
+    assert mpf.lam == FORGETTING_MIN
     for _ in range(400):
         mpf._adapt_forgetting(0.1 * fit, nu, 0.01)
-    assert mpf.surprise < 0.02 and mpf.lam == cfg.forgetting_max  # 1 - 0.01 z would exceed the cap
+    assert mpf.surprise < 0.02 and mpf.lam == FORGETTING_MAX  # 1 - 0.01 z would exceed the cap
     fixed = StiffnessMPF(VEHICLE, replace(cfg, forgetting_mode="fixed"))
     fixed.reset(np.random.default_rng(0))
     fixed._adapt_forgetting(10 * fit, nu, 0.01)
@@ -174,7 +175,7 @@ def test_drift_statistic_forgets_fast_when_the_sampled_deviations_lean_one_way()
     mpf = StiffnessMPF(VEHICLE, cfg)
     mpf.reset(np.random.default_rng(0))
     L11 = np.broadcast_to(np.diag([4.0, 9.0]), (3, 2, 2))  # predictive scale: std 2 and 3
-    a = -math.expm1(-0.01 / cfg.drift_time)
+    a = -math.expm1(-0.01 / DRIFT_TIME)
     d = np.zeros(2)
     for k in range(3):
         dw = np.tile([2.0 * 0.5, -3.0 * 0.5], (3, 1))  # whitened: (0.5, -0.5) in every particle
@@ -183,10 +184,10 @@ def test_drift_statistic_forgets_fast_when_the_sampled_deviations_lean_one_way()
         d += a * (np.array([0.5, -0.5]) - d)
         z = d @ d * (2 - a) / (a * 2)
         assert mpf.drift == pytest.approx(d, rel=1e-12)
-        assert mpf.lam == pytest.approx(max(min(0.99, 1 - 0.01 * z), cfg.forgetting_min), rel=1e-12)
+        assert mpf.lam == pytest.approx(max(min(0.99, 1 - 0.01 * z), FORGETTING_MIN), rel=1e-12)
     for _ in range(100):
         mpf._track_drift(np.tile([2.0, -3.0], (3, 1)), L11, 0.01)
-    assert mpf.lam == cfg.forgetting_min
+    assert mpf.lam == FORGETTING_MIN
     rng = np.random.default_rng(1)
     mpf.drift[:] = 0.0
     zs = []

@@ -15,6 +15,7 @@ from tirefilter.errors import ConfigError
 from tirefilter.estimators import build_estimator
 from tirefilter.estimators.base import Inputs, Measurement
 from tirefilter.estimators.mpf import MPFConfig, StiffnessMPF
+from tirefilter.estimators.mpf.adaptation import CX_EXCITATION_TIME
 from tirefilter.metrics import settling_time, stiffness_errors
 from tirefilter.scenarios import load_scenario
 
@@ -241,15 +242,9 @@ def test_a_gap_draws_vx_again_from_the_undriven_wheels(backend):
 
 @pytest.mark.parametrize("options,match", [
     ({"slip_hold": "end"}, "expected interval or start"),
-    ({"undriven_stiffness": "guess"}, "expected learned, surface or nominal"),
-    ({"cx_excitation_time": 0.0}, "cx_excitation_time"),
-    ({"cx_excitation_time": math.inf}, "cx_excitation_time"),
+    ({"undriven_stiffness": "surface"}, "expected learned or nominal"),
     ({"restart_at_bound_after": -1.0}, "must be >= 0"),
     ({"x0_vx_wheel_std": -0.1}, "must be >= 0"),
-    ({"surprise_inflation": -0.5}, "must be >= 0"),
-    ({"inflation_after": -1.0}, "must be >= 0"),
-    ({"inflation_after": math.nan}, "must be >= 0"),
-    ({"inflation_baseline_time": -2.0}, "must be >= 0"),
 ])
 def test_bad_slip_and_restart_options_are_rejected(options, match):
     with pytest.raises(ConfigError, match=match):
@@ -259,22 +254,16 @@ def test_bad_slip_and_restart_options_are_rejected(options, match):
 def test_defaults_and_the_papers_variant():
     """The interval slip, a 0.02 m/s v^X start spread, the bound restart and the undriven axle
     scaled by the excitation weight of Cx (nominal until Cx is excited) are the defaults; the
-    paper's eq. (9) (slip of t_k held), its nominal undriven axle and the surface-scaled
-    undriven axle are options."""
+    paper's eq. (9) (slip of t_k held) and its nominal undriven axle are its switches."""
     cfg = MPFConfig()
-    assert (cfg.slip_hold, cfg.undriven_stiffness, cfg.x0_vx_wheel_std, cfg.restart_at_bound_after,
-            cfg.cx_excitation_time) == ("interval", "learned", 0.02, 2.0, 1.0)
-    # the surprise inflation of the draw (derivations, "Surprise inflation") an option; when on, armed after 5 s of open gate and
-    # unbounded ("Surprise inflation")
-    assert (cfg.surprise_inflation, cfg.inflation_in_statistics, cfg.inflation_after,
-            cfg.inflation_prior_bound) == (0.0, False, 5.0, False)
+    assert (cfg.slip_hold, cfg.undriven_stiffness, cfg.x0_vx_wheel_std, cfg.restart_at_bound_after) == (
+        "interval", "learned", 0.02, 2.0)
     vehicle = load_scenario("paper-sim").vehicle
     est = StiffnessMPF(vehicle)
     est.reset(np.random.default_rng(0))
     assert est.undriven_share == 0.0 and est.full_share == pytest.approx(vehicle.Cx_undriven / vehicle.Cx)
-    assert StiffnessMPF(vehicle, MPFConfig(undriven_stiffness="nominal")).undriven_share == 0.0
-    surface = StiffnessMPF(vehicle, MPFConfig(slip_hold="start", undriven_stiffness="surface"))
-    assert surface.undriven_share == pytest.approx(vehicle.Cx_undriven / vehicle.Cx)
+    nominal = StiffnessMPF(vehicle, MPFConfig(undriven_stiffness="nominal"))
+    assert nominal.undriven_share == 0.0 and nominal.full_share == 0.0
 
 
 def test_cx_excitation_weight_is_the_contraction_of_the_linear_gaussian_posterior():
@@ -313,7 +302,7 @@ def test_cx_excitation_counts_the_changes_of_the_slip_only():
     assert est.cx_info == 0.0 and est.cx_weight == 0.0 and est.undriven_share == 0.0
     for _ in range(3000):  # 30 s: (1 - a)^6000 is nothing
         est._excite_cx(vx, np.array([0.0, omega(0.02), vx / vehicle.wheel_radius, vx]), dt)
-    q = math.exp(-dt / est.cfg.cx_excitation_time)  # 1 - a
+    q = math.exp(-dt / CX_EXCITATION_TIME)  # 1 - a
     want = (0.01 / vehicle.mass) ** 2 * q * q / (1 - q * q) / est.cfg.sigma[0] ** 2
     assert est.cx_info == pytest.approx(want, rel=1e-9)
     rho = want * est._cx_prior_var() / (1 + want * est._cx_prior_var())
@@ -326,11 +315,14 @@ def test_cx_excitation_counts_the_changes_of_the_slip_only():
 
 @pytest.mark.parametrize("backend", ["numpy", "numba"])
 @pytest.mark.parametrize("drive", ["front", "rear"])
-def test_undriven_axle_on_the_surface_is_linear_in_w(drive, backend):
-    """a + B w of `_model` equals the accelerations of eq. (1) computed by hand with the
-    driven axle at C_x,nom + w_x and the undriven one at C_u,nom (1 + w_x / C_x,nom)."""
+def test_undriven_axle_at_full_excitation_is_linear_in_w(drive, backend):
+    """With Cx fully excited (rho = 1), a + B w of `_model` equals the accelerations of eq. (1)
+    computed by hand with the driven axle at C_x,nom + w_x and the undriven one at
+    C_u,nom (1 + w_x / C_x,nom)."""
     v = replace(load_scenario("paper-sim").vehicle, drive=drive)
-    est = StiffnessMPF(v, MPFConfig(backend=backend, undriven_stiffness="surface"))
+    est = StiffnessMPF(v, MPFConfig(backend=backend))
+    est.cx_weight = 1.0
+    est._set_undriven_share()
     rng = np.random.default_rng(4)
     n = 7
     x = np.column_stack([20 + rng.normal(0, 1, n), rng.normal(0, 0.3, n), rng.normal(0, 0.1, n)])
@@ -389,8 +381,8 @@ def _steady_turn(vehicle, ay, vx=20.0):
     return r, alpha_f + (vy + vehicle.lf * r) / vx
 
 
-def _gate_trace(vehicle, backend, gate_ay, ay_samples, r, delta, sigma_ay=0.05, ax_samples=None, **cfg):
-    est = StiffnessMPF(vehicle, MPFConfig(model="lateral", particles=200, backend=backend, gate_ay=gate_ay,
+def _gate_trace(vehicle, backend, ay_samples, r, delta, sigma_ay=0.05, ax_samples=None, **cfg):
+    est = StiffnessMPF(vehicle, MPFConfig(model="lateral", particles=200, backend=backend,
                                           sigma=(0.05, sigma_ay, 0.0035), bias0_std=(0.0, 0.0, 0.0),
                                           bias_rw=(0.0, 0.0, 0.0), disturbance_rw=(0.0, 0.0, 0.0), **cfg))
     est.reset(np.random.default_rng(1))
@@ -400,64 +392,28 @@ def _gate_trace(vehicle, backend, gate_ay, ay_samples, r, delta, sigma_ay=0.05, 
 
 
 @pytest.mark.parametrize("backend", ["numpy", "numba"])
-def test_the_combined_gate_closes_under_braking(backend):
+def test_the_linear_region_gate_reads_the_lateral_acceleration_only(backend):
     """A steady turn at a^Y = 3 m/s^2 (inside gate_ay_max = 4) with a^X = -3 m/s^2 (braking)
-    from sample 150 to 249, one a^X sample missing in it: the lateral test (the paper's) keeps
-    the gate open on every sample after the 1 s warm-up; the combined one (|(a^X, a^Y)| = 4.24,
-    derivations, "State noise from the data") closes it on exactly the braking samples, the missing one holding the
-    last a^X; "auto" is the combined test in the lateral model."""
+    from sample 150 to 249, one a^X sample missing in it: the linear-region test (the paper's,
+    |a^Y| alone) keeps the gate open on every sample after the 1 s warm-up."""
     vehicle = load_scenario("paper-sim").vehicle
     r, delta = _steady_turn(vehicle, 3.0)
     k = np.arange(300)
-    braking = (k >= 150) & (k < 250)
-    ax = np.where(braking, -3.0, 0.0)
+    ax = np.where((k >= 150) & (k < 250), -3.0, 0.0)
     ax[200] = math.nan
-    ay = np.full(300, 3.0)
-    after = k >= 100
-    lateral = _gate_trace(vehicle, backend, "measured", ay, r, delta, ax_samples=ax, gate_accel="lateral")
-    assert np.array_equal(lateral, after)
-    for mode in ("combined", "auto"):
-        combined = _gate_trace(vehicle, backend, "measured", ay, r, delta, ax_samples=ax, gate_accel=mode)
-        assert np.array_equal(combined, after & ~braking), mode
-    with pytest.raises(ConfigError, match="gate_accel"):
-        StiffnessMPF(vehicle, MPFConfig(gate_accel="friction"))
+    assert np.array_equal(_gate_trace(vehicle, backend, np.full(300, 3.0), r, delta, ax_samples=ax), k >= 100)
 
 
 @pytest.mark.parametrize("backend", ["numpy", "numba"])
 def test_a_missing_ay_sample_does_not_open_the_linear_region_gate(backend):
     """A steady turn at a^Y = 5 m/s^2 (beyond gate_ay_max = 4) with every other a^Y sample
     missing (the guard's held samples): the gate stays closed on every sample (a missing
-    sample holds the last a^Y, derivations, "Linear-region test"); counting a missing sample as 0, the old
-    rule, opens it on exactly the missing samples after the 1 s warm-up."""
+    sample holds the last a^Y, derivations, "Linear-region test")."""
     vehicle = load_scenario("paper-sim").vehicle
     r, delta = _steady_turn(vehicle, 5.0)
     k = np.arange(300)
     ay = np.where(k % 2 == 1, math.nan, 5.0)
-    for gate_ay in ("measured", "predicted"):
-        assert not _gate_trace(vehicle, backend, gate_ay, ay, r, delta).any(), gate_ay
-    active = _gate_trace(vehicle, backend, "measured-zero", ay, r, delta)
-    assert np.array_equal(active, (k % 2 == 1) & (k >= 100))
-    with pytest.raises(ConfigError, match="gate_ay"):
-        StiffnessMPF(vehicle, MPFConfig(gate_ay="zero"))
-
-
-@pytest.mark.parametrize("backend", ["numpy", "numba"])
-def test_the_predicted_gate_does_not_select_samples_by_their_noise(backend):
-    """A steady turn with a^Y noise of 1 m/s^2 (seeded): at a true 4.5 m/s^2 the measured test
-    opens on exactly the samples whose noise took them below 4 (94 of 300 after warm-up, each
-    with a residual biased towards zero), the one-step prediction on none; at 3.0 m/s^2 the
-    prediction opens on all 300, the measured test loses the 48 that the noise took above 4."""
-    vehicle = load_scenario("paper-sim").vehicle
-    noise = np.random.default_rng(5).standard_normal(400)
-    after = np.arange(400) >= 100
-    for ay_true, n_predicted in ((4.5, 0), (3.0, 300)):
-        r, delta = _steady_turn(vehicle, ay_true)
-        y = ay_true + noise
-        measured = _gate_trace(vehicle, backend, "measured", y, r, delta, sigma_ay=1.0)
-        assert np.array_equal(measured, (y < 4.0) & after), ay_true
-        predicted = _gate_trace(vehicle, backend, "predicted", y, r, delta, sigma_ay=1.0)
-        assert predicted.sum() == n_predicted and not predicted[~after].any(), ay_true
-    assert (3.0 + noise[after] >= 4.0).sum() == 48
+    assert not _gate_trace(vehicle, backend, ay, r, delta).any()
 
 
 def _lateral_drive_with_process_noise(q_true: float, seed: int = 3, T: float = 30.0) -> np.ndarray:
@@ -507,15 +463,15 @@ def test_state_noise_from_data_recovers_a_known_process_noise():
         assert q[0] < 0.01, (q_true, q)
 
 
-@pytest.mark.parametrize("when", ["off", "warmup", "gate"])
-def test_warmup_redraw_draws_the_stiffness_statistics_again(when, monkeypatch):
+@pytest.mark.parametrize("x0_given", [True, False])
+def test_without_a_given_initial_state_the_stiffness_statistics_are_drawn_again(x0_given, monkeypatch):
     """A steady turn at a^Y = 3 m/s^2, the gate open from the end of the 1 s warm-up on: the
-    stiffness statistics are drawn from the prior at the reset, and with `warmup_redraw` once
-    more, on the first sample at t >= gate_warmup ("warmup") or on the sample after the gate's
-    first open one ("gate"); the particles' states are kept."""
+    stiffness statistics are drawn from the prior at the reset, and without a given initial state
+    (`x0_given = False`, a log's) once more, on the sample after the gate's first open one; the
+    particles' states are kept."""
     vehicle = load_scenario("paper-sim").vehicle
     r, delta = _steady_turn(vehicle, 3.0)
-    est = StiffnessMPF(vehicle, MPFConfig(model="lateral", particles=200, warmup_redraw=when,
+    est = StiffnessMPF(vehicle, MPFConfig(model="lateral", particles=200, x0_given=x0_given,
                                           bias0_std=(0.0, 0.0, 0.0), bias_rw=(0.0, 0.0, 0.0),
                                           disturbance_rw=(0.0, 0.0, 0.0)))
     draws, k_now = [], [None]
@@ -536,7 +492,7 @@ def test_warmup_redraw_draws_the_stiffness_statistics_again(when, monkeypatch):
         active.append(est.step(0.01 * k, Inputs(delta, math.nan, math.nan, 20.0), Measurement(math.nan, 3.0, r)).active)
     first_open = int(np.argmax(active))
     assert 95 <= first_open <= 101 and all(active[first_open:]), first_open
-    expected = {"off": [None], "warmup": [None, 100], "gate": [None, first_open + 1]}[when]
+    expected = [None] if x0_given else [None, first_open + 1]
     assert draws == expected, draws
 
 

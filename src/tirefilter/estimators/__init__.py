@@ -62,7 +62,8 @@ def mpf_config_for_log(vehicle, t, signals: dict, *, model: str, particles: int 
     speeds), `sample_period` is the median time step of
     the log, and the initial state mean is taken from the log's first finite samples:
     full model (v^X, 0, r) with v^X from `vx` or else from the undriven axle's wheel speed
-    (R_w omega), lateral model (0, r); r is the first yaw-rate sample (0 if none).
+    (R_w omega), lateral model (0, r); r is the first yaw-rate sample (0 if none). The log gives
+    no v^Y: `x0_given` is False (the stiffness statistics drawn again once the gate first opens).
     `t` (n,) are the sample times, `signals` maps log signal names to (n,) arrays (NaN =
     missing sample).
     """
@@ -102,13 +103,11 @@ def _mpf_config_for_log_start(vehicle, sample_period: float | None, first_sample
         x0_mean = (vx0 if math.isfinite(vx0) else 20.0, 0.0, r0)
     else:
         x0_mean = (0.0, r0)
-    # a recorded car: the model's process noise is unknown, so it comes from the data, and the log starts
-    # mid-drive with the state unknown, so the stiffness statistics are drawn again once the gate first opens
-    # (derivations, "State noise from the data"; a co-simulated scenario keeps the paper's: no state noise, no redraw)
+    # the log starts mid-drive with v^Y unknown: no given initial state (`x0_given`: the stiffness statistics
+    # are drawn again once the gate first opens; derivations, "State noise from the data")
     return _mpf_config(model, particles=particles, sample_period=sample_period,
                        sigma=sensors.sigma, bias0_std=sensors.bias0_std, bias_rw=sensors.bias_rw, x0_mean=x0_mean,
-                       sigma_omega=sensors.sigma_omega, state_noise_from_data=True, warmup_redraw="gate",
-                       overrides=overrides)
+                       sigma_omega=sensors.sigma_omega, x0_given=False, overrides=overrides)
 
 
 def _mpf_config(model: str, *, particles: int | None, sample_period: float | None, sigma, x0_mean, overrides: dict,
@@ -116,21 +115,27 @@ def _mpf_config(model: str, *, particles: int | None, sample_period: float | Non
     """What a scenario and a log both set, then the user's overrides."""
     from tirefilter.estimators.mpf import MPFConfig
 
+    from tirefilter.estimators.mpf.config import USER_OPTIONS
+
     defaults = MPFConfig()
     config = MPFConfig(model=model, particles=particles or defaults.particles,
                        sample_period=sample_period or defaults.sample_period, sigma=tuple(sigma),
                        x0_mean=tuple(x0_mean), **kw)
-    return apply_overrides(config, overrides)
+    return apply_overrides(config, overrides, options=USER_OPTIONS)
 
 
-def apply_overrides(config, overrides: dict, source: str = "--config [mpf]"):
+def apply_overrides(config, overrides: dict, source: str = "--config [mpf]", options=None):
+    """`config` with the values of the table `overrides` (a `--config` table, named `source` in
+    errors), checked by kind and then by the configuration's `validated()`. `options`: the keys the
+    table may set (the MPF's documented `USER_OPTIONS`); default every field of the configuration."""
     if not isinstance(overrides, dict):
         raise ConfigError(source, "", f"expected a table of options, got {overrides!r}")
     known = {f.name: f for f in dataclasses.fields(config)}
+    allowed = sorted(known if options is None else options)
     values = {}
     for key, value in overrides.items():
-        if key not in known:
-            raise ConfigError(source, key, f"unknown option (known: {', '.join(sorted(known))})")
+        if key not in allowed:
+            raise ConfigError(source, key, f"unknown option (known: {', '.join(allowed)})")
         values[key] = tuple(value) if isinstance(value, list) else value
         _check_type(source, key, values[key], getattr(config, key), str(known[key].type))
     try:

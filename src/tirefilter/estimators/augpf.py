@@ -41,7 +41,7 @@ While the MPF's learning gate is closed (`baseline_common.gate_open`) m and s2 a
 (no artificial dynamics); weighting and resampling go on. The vehicle model is the MPF's own
 (`vehicle.single_track`: `accelerations`, `propagate` with the wheel slip of the step's start,
 `measurement`), so the two filters differ in the inference only. Kept from the MPF (not in the paper): the plausibility check and restart.
-Left out: the MPF's informed start and its outlier gate. IMU bias: as in the MPF, a Gaussian per particle.
+Left out: the MPF's informed start. IMU bias: as in the MPF, a Gaussian per particle.
 """
 
 from __future__ import annotations

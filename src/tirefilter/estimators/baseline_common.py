@@ -21,10 +21,9 @@ from tirefilter.errors import ConfigError
 # MPFConfig fields a baseline configuration may share (copied where it has them)
 SHARED_FIELDS = (
     "particles", "forgetting", "model", "integrator", "init_center", "init_distribution", "init_std",
-    "init_half_width", "init_reference", "init_sigma", "x0_mean", "x0_std", "gate_speed", "gate_steer",
+    "init_half_width", "init_reference", "x0_mean", "x0_std", "gate_speed", "gate_steer",
     "gate_ay_max", "gate_alpha_max", "gate_vy_std", "gate_warmup", "bound_low", "bound_high", "sigma", "bias_rw",
-    "bias0_std", "sample_period", "max_step", "x0_vx_from_wheels", "plausible_beta",
-    "plausible_yaw_rate",
+    "bias0_std", "sample_period", "max_step", "plausible_beta", "plausible_yaw_rate",
 )
 GATE_FIELDS = ("gate_speed", "gate_steer", "gate_ay_max", "gate_alpha_max", "gate_vy_std", "gate_warmup")
 

@@ -158,6 +158,19 @@ class _Slave:
         raise RuntimeError(message)
 
 
+def _with_start(setting, start):
+    """`setting` (an `estimators.Setting`) whose MPF configuration takes the table `start` (the config's
+    `[mpf_start]`: `mpf.config.START_FIELDS`, what a scenario tells the filter about its start)."""
+    import dataclasses
+
+    from tirefilter.estimators import apply_overrides
+    from tirefilter.estimators.mpf.config import START_FIELDS
+
+    base = setting.mpf_config
+    return dataclasses.replace(setting, mpf_config=lambda model, particles, overrides: apply_overrides(
+        base(model, particles, overrides), start, "config [mpf_start]", options=START_FIELDS))
+
+
 class _EstimatorLogic(_Slave):
     """An online estimator as a Co-Simulation FMU (subclasses set `estimator_name`)."""
 
@@ -284,17 +297,19 @@ class _EstimatorLogic(_Slave):
             config[key] = {"backend": "numpy", **config.get(key, {})}
         table = dict(config.get(self.option_table, {}))
         table["forgetting"] = float(forgetting)
-        table["sample_period"] = 1.0 / rate
         config[self.option_table] = table
+        start = config.pop("mpf_start", {})
         self.Ts = 1.0 / rate
         # built as for a log whose every signal is present but has no sample yet: the IMU noise from the
         # vehicle parameters (else the defaults), the MEMS bias model, the state's prior mean the defaults'
         nan2 = np.full(2, math.nan)
         signals = {"delta": nan2, "omega_f": nan2, "omega_r": nan2, "vx": nan2, "ax": nan2, "ay": nan2,
                    "yaw_rate": nan2}
+        setting = for_log(vehicle, np.array([0.0, self.Ts]), signals, source="FMU")  # (its sample period: Ts)
+        if start:  # what an SSP's scenario tells the MPF about the start (`ssp.scenario_run_parameters`)
+            setting = _with_start(setting, start)
         try:
-            est = build(self.estimator_name, for_log(vehicle, np.array([0.0, self.Ts]), signals, source="FMU"),
-                        model=MODELS[model], particles=int(particles), config=config)
+            est = build(self.estimator_name, setting, model=MODELS[model], particles=int(particles), config=config)
         except ConfigError as exc:  # the FMU parameters are checked above: what is left is in `config`
             raise _param_error("config", str(exc)) from None
         _, rng = spawn_seeds(int(seed))

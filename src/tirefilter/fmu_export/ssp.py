@@ -46,9 +46,9 @@ TRUTH_RECORDED = ("vy", "yaw_rate", "true_Cf_y_mean", "true_Cr_y_mean", "true_Cx
                   "true_b_ax", "true_b_ay", "true_b_yaw_rate")
 
 
-def config_toml(config) -> str:
+def config_toml(config, keys=None) -> str:
     """An estimator configuration dataclass as the `[table]` TOML of --config (None
-    fields left out; floats written exactly)."""
+    fields left out; floats written exactly): the fields named in `keys` (default every one)."""
     def value(x):
         if isinstance(x, bool):
             return "true" if x else "false"
@@ -64,18 +64,20 @@ def config_toml(config) -> str:
         raise TypeError(f"cannot write {x!r} as TOML")
 
     lines = []
-    for f in dataclasses.fields(config):
-        x = getattr(config, f.name)
-        if x is None or f.name in ("particles", "model", "forgetting", "sample_period"):
+    for name in keys or [f.name for f in dataclasses.fields(config)]:
+        x = getattr(config, name)
+        if x is None or name in ("particles", "model", "forgetting", "sample_period"):
             continue  # None: the default; the others are FMU parameters
-        lines.append(f"{f.name} = {value(x)}")
+        lines.append(f"{name} = {value(x)}")
     return "\n".join(lines) + "\n"
 
 
 def scenario_run_parameters(scenario, *, seed: int, particles: int | None = None, model: str = "auto"):
     """(vehicle FMU parameters, estimator FMU parameters, driver FMU parameters, estimator
-    options TOML) of one run of `scenario`, as `tirefilter run` sets them up."""
+    options TOML) of one run of `scenario`, as `tirefilter run` sets them up: the MPF's options
+    (`[mpf]`) and what the scenario tells it about the start (`[mpf_start]`, `START_FIELDS`)."""
     from tirefilter.estimators import check_model_signals, mpf_config_for_scenario, resolve_model
+    from tirefilter.estimators.mpf.config import START_FIELDS, USER_OPTIONS
     from tirefilter.fmu_export.variables import RW_AS_VARIANCE
     from tirefilter.runs import spawn_seeds
 
@@ -104,7 +106,8 @@ def scenario_run_parameters(scenario, *, seed: int, particles: int | None = None
         if sensor not in scenario.sensors:
             est[fmu_input] = math.nan  # a missing sensor: NaN, as the in-process master gives
     driver = {"t_first": float(scenario.communication_step)}
-    return vehicle, est, driver, "[mpf]\n" + config_toml(cfg)
+    return vehicle, est, driver, ("[mpf]\n" + config_toml(cfg, USER_OPTIONS) + "\n[mpf_start]\n"
+                                  + config_toml(cfg, START_FIELDS))
 
 
 def _ssv(parameters: dict[str, dict], types: dict[str, dict], name: str) -> str:

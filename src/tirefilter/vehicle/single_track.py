@@ -221,7 +221,7 @@ def accelerations(x, u, p: np.ndarray, full: bool, rear_drive: bool, slip=None, 
             slip = floored_wheel_slip(vx, p[P_WHEEL_RADIUS] * u[1:3, None])  # (2, 1) against vx (N,)
         lam_f, lam_r = slip
         Ffx, Frx = p[P_CX_F] * lam_f, p[P_CX_R] * lam_r
-        s = p[P_UNDRIVEN_SHARE]  # d F_undriven / d w_x per unit slip ("surface"; 0: "nominal")
+        s = p[P_UNDRIVEN_SHARE]  # d F_undriven / d w_x per unit slip ("learned"; 0: "nominal")
         if rear_drive:
             B[:, 0, 0] = lam_r * (1.0 / m) + (s * lam_f) * (cd / m)
             B[:, 1, 0] = (s * lam_f) * (sd / m)

@@ -26,7 +26,7 @@ The package, one concern per module:
                      update, sample w, statistics update, forget, propagate), the estimate and
                      the learned state carried between drives
   supervision.py     the learning gate, plausibility, gaps, restarts, the informed start
-  adaptation.py      adaptive forgetting, surprise inflation, state noise from the data, the
+  adaptation.py      adaptive forgetting, state noise from the data, the
                      std calibration (batch-means sandwich), the undriven axle's share of Cx
   compiled.py        the compiled step (the numba backend's path for every usual sample)
   kernels.py         its numba kernels (`kernels_weigh`, `kernels_update`)

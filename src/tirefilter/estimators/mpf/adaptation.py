@@ -1,6 +1,6 @@
 """The stiffness MPF's adaptive parts (a mixin of `StiffnessMPF`, on its attributes): the
 adaptive forgetting and its surprise statistics (derivations, "Adaptive forgetting"), the
-surprise inflation of the draw of w, the state noise from the data, the calibration of the std
+state noise from the data, the calibration of the std
 of the lateral stiffness (batch-means sandwich), and the undriven axle's share of the learned
 Cx (derivations, "The undriven axle")."""
 
@@ -17,34 +17,37 @@ from tirefilter.vehicle import single_track
 
 NAN = math.nan
 LOAD_GAIN_MIN = 0.3  # the floor of the load-transfer gain 1 - kappa a^Y^2 (`StiffnessMPF._load_gains`, `_load_band`)
+# adaptive forgetting (derivations, "Adaptive forgetting"): lambda_k within [FORGETTING_MIN, FORGETTING_MAX]
+FORGETTING_MIN = 0.97  # a memory of 0.33 s at 100 Hz after a surface change
+FORGETTING_MAX = 0.999  # a memory of 10 s at 100 Hz on a drive that fits
+SURPRISE_TIME = 0.15  # s, smoothing of z_k: a step change shows within a tenth of a second
+DRIFT_TIME = 1.0  # s, smoothing of z'_k (the lean of the sampled w): a stale mean leans for seconds
+# s: a driven-axle slip level held longer than this is confounded with the a^X bias and v^X errors; only its
+# changes within it count as excitation of Cx (derivations, "The undriven axle")
+CX_EXCITATION_TIME = 1.0
 
 
 class Adaptation:
-    """Forgetting, inflation, state noise, calibration and the undriven axle's Cx share of
-    `StiffnessMPF`."""
+    """Forgetting, state noise, calibration and the undriven axle's Cx share of `StiffnessMPF`."""
 
-    # ---- adaptive forgetting and surprise inflation ----------------------------------------
+    # ---- the a^Y residual of the calibration, adaptive forgetting ---------------------------
     def _predict_ay(self, yk: np.ndarray, a: np.ndarray, e: np.ndarray, logw: np.ndarray | None = None) -> None:
-        """`ay_pred`, the one-step prediction of the a^Y sample that the linear-region test reads
-        with `gate_ay = "predicted"` (derivations, "Linear-region test"): the sample less the residuals e
-        (N, |a|) of the weighting, averaged with the predictive weights (`logw`, default the
-        particles' before this sample's likelihood), i.e. sum_i w_{k-1}^i (h + b + d mu)^i_ay.
-        NaN when the sample is missing."""
-        if self.cfg.gate_ay != "predicted" and self._calib is None:
+        """`_e_ay`, the a^Y residual of `_calibrate` ("Batch-means sandwich"): the residuals e (N, |a|) of
+        the weighting averaged with the predictive weights (`logw`, default the particles' before this
+        sample's likelihood). Left NaN when the sample is missing or without the calibration."""
+        if self._calib is None:
             return
         q = [j for j in range(len(a)) if self.channels[a[j]] == 1]
         if q:
             lw = self.logw if logw is None else logw
-            self._e_ay = float(np.exp(lw) @ e[:, q[0]])  # (the residual of `_calibrate`, "Batch-means sandwich")
-            if self.cfg.gate_ay == "predicted":
-                self.ay_pred = float(yk[a[q[0]]] - self._e_ay)
+            self._e_ay = float(np.exp(lw) @ e[:, q[0]])
 
     def _adapt_forgetting(self, v: np.ndarray, nu: np.ndarray, dt: float) -> None:
         """The forgetting factor of the next propagation from how well the accelerometers
         fit the predictive (derivations, "Adaptive forgetting"). `v` (N, nc) are the whitened residuals of
         the weighting, Student-t with nu (N,) dof: E[v^T v] = nc nu / (nu - 2). Their
         normalised square, averaged with the predictive weights (before this sample's
-        likelihood), is smoothed over `surprise_time` into z_k; lambda_k = 1 - (1 - lambda) z_k,
+        likelihood), is smoothed over `SURPRISE_TIME` into z_k; lambda_k = 1 - (1 - lambda) z_k,
         clipped: z = 1 gives the configured lambda, a surface change (z >> 1) forgets fast,
         a drive that fits better than its noise figures (z < 1) forgets slowly."""
         cfg = self.cfg
@@ -56,17 +59,14 @@ class Adaptation:
             self._smooth_surprise(s_k, dt)
 
     def _smooth_surprise(self, s_k: float, dt: float) -> None:
-        """z_k: s_k smoothed over `surprise_time`; lambda_k = 1 - (1 - lambda) z_k, clipped."""
-        cfg = self.cfg
-        self.surprise += -math.expm1(-dt / cfg.surprise_time) * (s_k - self.surprise)
-        if cfg.inflation_baseline_time > 0:
-            self.surprise_level += -math.expm1(-dt / cfg.inflation_baseline_time) * (s_k - self.surprise_level)
-        self.lam = min(max(1.0 - (1.0 - cfg.forgetting) * self.surprise, cfg.forgetting_min), cfg.forgetting_max)
+        """z_k: s_k smoothed over `SURPRISE_TIME`; lambda_k = 1 - (1 - lambda) z_k, clipped."""
+        self.surprise += -math.expm1(-dt / SURPRISE_TIME) * (s_k - self.surprise)
+        self.lam = min(max(1.0 - (1.0 - self.cfg.forgetting) * self.surprise, FORGETTING_MIN), FORGETTING_MAX)
 
     def _cap_forgetting(self, z: float) -> None:
         """lambda_k no larger than 1 - (1 - lambda) z (the drift statistic z, `_track_drift`)."""
         cfg = self.cfg
-        self.lam = min(self.lam, max(1.0 - (1.0 - cfg.forgetting) * z, cfg.forgetting_min))
+        self.lam = min(self.lam, max(1.0 - (1.0 - cfg.forgetting) * z, FORGETTING_MIN))
 
     def _track_drift(self, dw: np.ndarray, L11: np.ndarray, dt: float) -> None:
         """The second surprise statistic of the adaptive forgetting (derivations, "Adaptive forgetting"):
@@ -74,7 +74,7 @@ class Adaptation:
         mean zero while the statistics' mean is right, whatever the deviation spread; a
         stale mean makes it lean one way sample after sample. Its weighted mean over the
         particles is smoothed into `drift` (n_w,), whose square, scaled by (2 - a) / a for
-        the smoothing a = 1 - exp(-dt / drift_time), is about 1 per component under the
+        the smoothing a = 1 - exp(-dt / DRIFT_TIME), is about 1 per component under the
         model (the per-sample whitened values have unit variance up to nu / (nu - 2))."""
         cfg = self.cfg
         if cfg.forgetting_mode == "fixed":
@@ -83,39 +83,9 @@ class Adaptation:
         ubar = np.exp(self.logw) @ u
         if not np.all(np.isfinite(ubar)):
             return
-        a = -math.expm1(-dt / cfg.drift_time)
+        a = -math.expm1(-dt / DRIFT_TIME)
         self.drift = self.drift + a * (ubar - self.drift)
         self._cap_forgetting(float(self.drift @ self.drift) * (2.0 - a) / (a * len(ubar)))
-
-    def _draw_inflation(self) -> float:
-        """c of the surprise inflation (derivations, "Surprise inflation"): the factor on the conditional scale of
-        the draw of w_k, max(1, 1 + surprise_inflation (z - 1)) with z the smoothed innovation
-        statistic of this sample (`_smooth_surprise`; over its own level with `inflation_baseline_time`),
-        bounded by the prior (`inflation_prior_bound`); 1 when
-        off, with fixed forgetting, or before the learning gate has been open `inflation_after` s since the
-        start or the last restart."""
-        cfg = self.cfg
-        if cfg.surprise_inflation <= 0 or cfg.forgetting_mode != "adaptive" or self.learned_time < cfg.inflation_after:
-            return 1.0
-        z = self.surprise / max(1.0, self.surprise_level) if cfg.inflation_baseline_time > 0 else self.surprise
-        c = 1.0 + cfg.surprise_inflation * (z - 1.0)
-        # at most the prior's uncertainty of the stiffness, s^2 + init_sigma^2 (relative), over the
-        # deviation spread of the last estimate (eq. (27b))
-        s = cfg.init_std if cfg.init_distribution == "normal" else cfg.init_half_width / math.sqrt(3.0)
-        spread = self._sigma2_rel
-        if spread > 0 and cfg.inflation_prior_bound:
-            c = min(c, (s * s + cfg.init_sigma**2) / spread)
-        return max(1.0, c)
-
-    def _draw_factors(self, ones: np.ndarray | None = None) -> np.ndarray:
-        """The compiled draw's std factors (2,): sqrt(c) for the draw that drives the state, and for
-        the one the statistics learn from sqrt(c) or 1 (`inflation_in_statistics`); `ones` (the
-        array [1, 1], returned as it is when c = 1) saves the allocation in the usual case."""
-        c = self._draw_inflation()
-        if c == 1.0 and ones is not None:
-            return ones
-        root = math.sqrt(c)
-        return np.array([root, root if self.cfg.inflation_in_statistics else 1.0])
 
     # ---- state noise from the data ---------------------------------------------------------
     def state_noise_estimated(self) -> dict | None:
@@ -154,19 +124,11 @@ class Adaptation:
             self.q_state = np.maximum(self.q_state + a * (g - self.q_state), 0.0)
 
     def _state_noise_scale(self, dt: float) -> np.ndarray:
-        """Std of the additive state noise over a step dt (nx,): `state_noise` sqrt(dt), and on
-        v^Y also vy_jitter sqrt(z - z_on) sqrt(dt) while the adaptive forgetting's smoothed
-        innovation statistic z of the previous sample exceeds z_on, the z that puts lambda at its
-        floor `forgetting_min` (a change: docs/results.md, "Options of the MPF")."""
-        cfg = self.cfg
+        """Std of the additive state noise over a step dt (nx,): the larger of `state_noise` and, with
+        `state_noise_from_data`, the intensity estimated from the data (`q_state`), times sqrt(dt)."""
         q = self.state_noise.tolist()  # (on Python floats: a few numpy calls on 3 values cost more, bit for bit the same)
-        if cfg.state_noise_from_data:
+        if self.cfg.state_noise_from_data:
             q = [math.sqrt(max(a * a, b)) for a, b in zip(q, self.q_state.tolist())]
-        # z at which the forgetting reaches its floor, 1 - (1 - lambda) z = lambda_min: the change statistic fires
-        z_on = (1.0 - cfg.forgetting_min) / max(1.0 - cfg.forgetting, 1e-12)
-        if cfg.vy_jitter > 0 and cfg.forgetting_mode == "adaptive" and self.surprise > z_on:
-            iy = 1 if self.full else 0
-            q[iy] = math.sqrt(q[iy] * q[iy] + cfg.vy_jitter**2 * (self.surprise - z_on))
         root = math.sqrt(dt)
         return np.array([root * v for v in q])
 
@@ -240,7 +202,7 @@ class Adaptation:
         its nominal stiffness), the slip level unknown."""
         self.cx_info = 0.0  # I_k, information on dC_x from the changes of the driven axle's slip, 1/N^2
         self.cx_weight = 0.0  # rho_k = cx_excitation_weight(I_k, prior variance)
-        self._slip_level = NAN  # the slip smoothed over cx_excitation_time
+        self._slip_level = NAN  # the slip smoothed over CX_EXCITATION_TIME
         self._set_undriven_share()
 
     def _cx_prior_var(self) -> float:
@@ -259,7 +221,7 @@ class Adaptation:
         """The excitation weight of Cx after sample k (derivations, "The undriven axle"), full model.
 
         The driven axle's slip at the posterior-mean v^X, lambda_k, minus its level smoothed over
-        `cx_excitation_time` T (a level held longer is confounded with the a^X bias and v^X
+        `CX_EXCITATION_TIME` T (a level held longer is confounded with the a^X bias and v^X
         errors) is the regressor of dC_x in a^X, b_k = (lambda_k - level_k) / m. While the gate is
         open its information accumulates with the statistics' forgetting factor lambda_k (eq. (20)),
         I_k = lambda_k I_{k-1} + b_k^2 / sigma_ax^2, frozen while the gate is closed, and
@@ -273,7 +235,7 @@ class Adaptation:
             return
         if not math.isfinite(self._slip_level):
             self._slip_level = slip
-        self._slip_level += -math.expm1(-dt / self.cfg.cx_excitation_time) * (slip - self._slip_level)
+        self._slip_level += -math.expm1(-dt / CX_EXCITATION_TIME) * (slip - self._slip_level)
         if self.active:
             b = (slip - self._slip_level) / self.vehicle.mass
             self.cx_info = self._lam_step * self.cx_info + b * b / self.R[0, 0]

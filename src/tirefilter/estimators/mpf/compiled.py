@@ -12,6 +12,7 @@ import numpy as np
 
 from tirefilter.estimators.base import Estimate, Measurement
 from tirefilter.estimators.mpf import predictive
+from tirefilter.estimators.mpf.adaptation import DRIFT_TIME
 from tirefilter.stats import effective_sample_size, normalize_log_weights
 from tirefilter.vehicle.single_track import GRAVITY
 
@@ -92,8 +93,6 @@ class CompiledStep:
             self._smooth_surprise(innovation, dt)
         if self.predictive_wanted and not start and a.size:  # the model check's (`estimators.mpf.predictive`)
             predictive.keep(self, t, yk, a, wk.e, wk.Lc, wk.nu_w, logw_pred, compiled=True)
-        if wk.predicted_ay and a.size:  # (the calibration's residual alone waits for the gate: `_ay_residual`)
-            self._predict_ay(yk, a, wk.e, logw_pred)
         self.w_prev = wk.w
         # af, ar in the order before any resampling: the next propagation reads only a, B and slip
         self._at_x = (wk.a, wk.B, wk.af, wk.ar, wk.slip if self.full else None)
@@ -102,9 +101,8 @@ class CompiledStep:
         if count < cfg.particles:  # some particles left the plausible region (`_plausible`)
             self.logw = normalize_log_weights(np.where(wk.ok, self.logw, -np.inf))
             ess = -1.0
-        if cfg.state_noise_from_data and a.size and weigh:  # (the scale of this propagation's noise, unless the
-            # surprise that vy_jitter reads has changed since it was drawn)
-            self._match_state_noise(logw_pred, dt, None if start or cfg.vy_jitter > 0 else noise_scale)
+        if cfg.state_noise_from_data and a.size and weigh:  # (the scale of this propagation's noise)
+            self._match_state_noise(logw_pred, dt, None if start else noise_scale)
         if ess < 0:
             ess = float(effective_sample_size(self.logw))
         resample = ess < cfg.resample_threshold * cfg.particles
@@ -123,7 +121,7 @@ class CompiledStep:
         vx_est = vx_est if self.full else uk[3]
         if self._gate_or_restart(t, uk, y, vx_est, alpha, vy_std, pinned):
             return self._restart(t, uk, y)
-        if self.active and self._calib is not None and not wk.predicted_ay and a.size:
+        if self.active and self._calib is not None and a.size:
             self._ay_residual(a, logw_pred, wk)
         N = cfg.particles
         z = rng.standard_normal((N, self.n_w))
@@ -134,16 +132,15 @@ class CompiledStep:
         else:
             nu_draw = wk.nu_w[wk.idx] + nc if nc else wk.nu_w[wk.idx]
             chi = rng.chisquare(nu_draw)
-        use_mask = bool(nc and cfg.outlier_prob < 1)
         drift = bool(self.active and nc and adaptive)
         if drift and self.drift is not wk.drift_checked:  # (the kernel writes into it)
             if not (self.drift.flags.c_contiguous and self.drift.dtype == np.float64):
                 self.drift = np.array(self.drift, float)
             wk.drift_checked = self.drift
         zd, k_mean, k_std = nb.sample_update(
-            wk.idx, wk.own, wk.scratch, (z, chi, nu_draw, self._draw_factors(wk.ones2)), wk.w, (self.R, a, yk),
-            (self._outlier_bound(nc) if use_mask else 0.0, -math.expm1(-dt / cfg.drift_time), wk.lo, wk.hi),
-            (use_mask, bool(a.size and self.bias_on), self.active, drift), nc, (self.drift, wk.mom, wk.q, wk.no_k if self.k_roll is None else self.k_roll), sizes)
+            wk.idx, wk.own, wk.scratch, (z, chi, nu_draw, wk.ones2), wk.w, (self.R, a, yk),
+            (0.0, -math.expm1(-dt / DRIFT_TIME), wk.lo, wk.hi),
+            (False, bool(a.size and self.bias_on), self.active, drift), nc, (self.drift, wk.mom, wk.q, wk.no_k if self.k_roll is None else self.k_roll), sizes)
         if zd == zd:  # `_track_drift` (the statistic is NaN when not computed)
             self._cap_forgetting(zd)
         if self.full:
@@ -164,8 +161,6 @@ class CompiledStep:
         object with the constructor's). `roll`: the roll gradient's mean and std where `sample_update`
         returned them."""
         xm, xs, mb, vm, s2, bm, vyr = mom.tolist()
-        if self.cfg.inflation_prior_bound:  # (`_draw_inflation`'s bound)
-            self._sigma2_rel = max(v / c**2 for v, c in zip(s2, self.C_ref.tolist()))
         root, C = _sqrt_or_nan, self._C_nom_list
         f0 = f1 = 1.0
         k_mean, k_std = self._roll_moments() if roll is None else roll
@@ -283,13 +278,12 @@ class _MPFWork:
         # otherwise from the arrays
         self.sizes_all = np.empty((0, 0, 0)) if mpf.full else np.empty((0, 0))
         self.sizes_any = np.empty(0)
-        # the predictive weights kept for `_predict_ay` and `_match_state_noise` (the calibration's residual,
-        # `_ay_residual`, "Batch-means sandwich"; the gate's a^Y prediction, "Linear-region test"; the state noise from the data, "State noise from the data")
-        self.predicted_ay = cfg.gate_ay == "predicted"
-        self.keep_pred = self.predicted_ay or cfg.state_noise_from_data or mpf._calib is not None
+        # the predictive weights kept for the calibration's residual (`_ay_residual`, "Batch-means sandwich") and
+        # `_match_state_noise` ("State noise from the data")
+        self.keep_pred = cfg.state_noise_from_data or mpf._calib is not None
         self.logw_pred, self.q_pred = np.zeros(N), np.zeros(N)
         self.ay_col = mpf.channels.index(1)  # the a^Y column of e when every channel is there
-        self.ones2 = np.ones(2)  # `_draw_factors` without the surprise inflation
+        self.ones2 = np.ones(2)  # `sample_update`'s std factors of the draw of w: the draw as it is
         self.drift_checked = None  # the drift statistic's array once checked C-contiguous float64
         self.lo = cfg.bound_low * mpf.C_ref - mpf.C_nom
         self.hi = cfg.bound_high * mpf.C_ref - mpf.C_nom

@@ -30,6 +30,10 @@ from tirefilter.vehicle.single_track import GRAVITY
 
 
 _NO_RELAX = np.zeros((2, 0))  # the compiled twin's "no relaxed slip angles"
+# the prior of the stiffness statistics (derivations, "Initialisation"):
+INIT_SIGMA = 0.1  # relative prior guess of the deviation spread (Lambda_0): twice paper-sim's true 5%
+WITHIN_SHARE = 0.25  # share of the prior variance of the mean inside each particle's NiW (the means carry the rest)
+NU0_MARGIN = 4.0  # nu_0 = n_w + 1 + this: > 0 for a finite inverse-Wishart mean, small: the prior weighs a few samples
 
 
 def _reflected_walk(k: np.ndarray, bounds, rw: float, dt: float, rng: np.random.Generator) -> np.ndarray:
@@ -57,14 +61,12 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         # nominal axle stiffness: driven axle's Cx is estimated, the other axle's is nominal
         self.C_nom_fx, self.C_nom_rx = single_track.longitudinal_stiffness(v)
         other = self.C_nom_fx if self.rear_drive else self.C_nom_rx
-        # "surface": the undriven axle's longitudinal stiffness moves with the driven axle's estimate,
-        # C_u = C_u,nom (1 + w_x / C_x,nom): its force adds share * slip_u * w_x to B's first column;
-        # "learned": C_u = C_u,nom (1 + rho w_x / C_x,nom), share = rho * C_u,nom / C_x,nom with rho the
-        # excitation weight of Cx (`_excite_cx`, derivations, "The undriven axle"), 0 until the wheel slip has taught Cx
-        self.full_share = other / v.Cx if self.cfg.undriven_stiffness in ("surface", "learned") else 0.0
-        self.undriven_share = self.full_share if self.cfg.undriven_stiffness == "surface" else 0.0
+        # "learned": the undriven axle's longitudinal stiffness C_u = C_u,nom (1 + rho w_x / C_x,nom): its force
+        # adds share * slip_u * w_x to B's first column, share = rho * C_u,nom / C_x,nom with rho the excitation
+        # weight of Cx (`_excite_cx`, derivations, "The undriven axle"), 0 until the wheel slip has taught Cx
+        self.full_share = other / v.Cx if self.cfg.undriven_stiffness == "learned" else 0.0
+        self.undriven_share = 0.0
         self.full = self.cfg.model == "full"
-        self._gate_combined = self.cfg.gate_accel == "combined" or (self.cfg.gate_accel == "auto" and not self.full)
         self.params = ("Cx", "Cf_y", "Cr_y") if self.full else ("Cf_y", "Cr_y")
         self.C_nom = np.array([v.Cx, v.Cf_y, v.Cr_y] if self.full else [v.Cf_y, v.Cr_y])
         self.n_w = len(self.params)
@@ -89,7 +91,7 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         # residual is the model's error, not the road's (derivations, "Bias defaults and wandering offsets")
         self.q_bias, self.q_bias_nonlinear = q_sensor + q_road, q_sensor
         q = np.asarray(self.cfg.state_noise, float)[-(3 if self.full else 2):]
-        self.state_noise = q if np.any(q > 0) or self.cfg.vy_jitter > 0 or self.cfg.state_noise_from_data else None
+        self.state_noise = q if np.any(q > 0) or self.cfg.state_noise_from_data else None
         ref = np.asarray(self.cfg.init_reference if self.cfg.init_reference is not None else self.C_nom, float)
         center = np.asarray(self.cfg.init_center if self.cfg.init_center is not None else ref, float)
         if ref.shape != (self.n_w,) or center.shape != (self.n_w,):
@@ -150,23 +152,17 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         self.active = False
         self.resamples = 0
         self.restarts = 0
-        self._redrawn = False  # `warmup_redraw` done
+        self._redrawn = False  # the redraw of `x0_given = False` done
         self.q_state = np.zeros(3 if self.full else 2)  # the state noise intensity from the data, per s
         self.gap_redraws = 0  # gaps after which v^X was drawn again from the wheel speeds
         self._contradiction_since = None
         self._bound_since = None  # time since which a stiffness mean sits at a projection bound
         self.surprise = 1.0  # z_k of the adaptive forgetting: 1 while the data fit the predictive
-        self.surprise_level = 1.0  # z smoothed over `inflation_baseline_time` (`_draw_inflation`)
         self.linear_region = True  # |a^Y| below the gate's linear-region bound at the last sample
-        self.ay_last = math.nan  # the last finite a^Y of the linear-region test (`gate_ay`)
+        self.ay_last = math.nan  # the last finite a^Y of the linear-region test (`held_ay`)
         self.ay_load = self._ay_step = 0.0  # the measured a^Y of the load transfer (`_next_ay_load`)
-        self.ax_last = math.nan  # the last finite a^X of the linear-region test (`gate_accel` combined)
-        self.ay_pred = math.nan  # the one-step prediction of this sample's a^Y (`gate_ay = "predicted"`)
         self.lam = self.cfg.forgetting  # the forgetting factor applied at the next propagation
         self.drift = np.zeros(self.n_w)  # smoothed whitened w_k - mu_{k|k-1} (adaptive forgetting)
-        self._sigma2_rel = 0.0  # largest relative deviation spread of the last estimate (`_draw_inflation`)
-        self.learned_time = 0.0  # s with the learning gate open since the start or the last restart
-        self._t_gate = None  # the time of the last gate decision (`_gate_or_restart`)
         self.cx_weight_max = 0.0 if self.full else None  # the largest excitation weight of Cx so far (`_excite_cx`)
         self._reset_cx_excitation()
         # the wheel-speed pre-filter (sigma_omega > 0, full model) and the last sample's measured a^X that drives it
@@ -196,13 +192,13 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         else:
             s = cfg.init_half_width / math.sqrt(3.0)
             u = rng.uniform(-cfg.init_half_width, cfg.init_half_width, (N, n))
-        share = cfg.within_share if s > 0 else 0.0
+        share = WITHIN_SHARE if s > 0 else 0.0
         means = self.C_center + np.sqrt(1.0 - share) * u * self.C_ref
-        sigma0 = cfg.init_sigma * self.C_ref  # prior guess of the deviation std
-        nu0 = n + 1.0 + cfg.nu0_margin
+        sigma0 = INIT_SIGMA * self.C_ref  # prior guess of the deviation std
+        nu0 = n + 1.0 + NU0_MARGIN
         self.nu0 = nu0
         Lam0 = np.diag(sigma0**2) * (nu0 - n - 1.0)  # so that E[Sigma] = diag(sigma0^2)
-        gamma0 = max(share * s * s / cfg.init_sigma**2, 1e-6)  # gamma E[Sigma] = share s^2 C_ref^2
+        gamma0 = max(share * s * s / INIT_SIGMA**2, 1e-6)  # gamma E[Sigma] = share s^2 C_ref^2
         self.stats = NiW(np.full(N, gamma0), means - self.C_nom, np.broadcast_to(Lam0, (N, n, n)).copy(),
                          np.full(N, nu0))
         if self._carried is not None:  # statistics learned on an earlier drive replace the prior
@@ -352,15 +348,15 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
             uk = np.where(np.isfinite(u_now), u_now, self.u_prev)
         if not self.full and not math.isfinite(uk[3]):
             raise ConfigError("inputs", "vx", f"the lateral model needs vx; none given up to t = {t} s")
-        if self.u_prev is None and self.full and self.cfg.x0_vx_from_wheels:
+        if self.u_prev is None and self.full:  # v^X centred on R_w omega of the undriven axle
             self._draw_vx_from_wheels(uk)
         if not math.isfinite(uk[0]):
             uk = uk.copy() if uk is u_now else uk
             uk[0] = 0.0
 
-        # the stiffness statistics drawn again from the prior once the state has settled (`warmup_redraw`)
-        if cfg.warmup_redraw != "off" and not self._redrawn and self.t_prev is not None and (
-                self.active if cfg.warmup_redraw == "gate" else t - self.t_start >= cfg.gate_warmup):
+        # without a given initial state, the stiffness statistics drawn again from the prior once the gate has
+        # first opened (`x0_given`)
+        if not cfg.x0_given and not self._redrawn and self.t_prev is not None and self.active:
             self._redrawn = True
             self._draw_prior_stats()
         # 1. propagate from the previous sample
@@ -468,24 +464,17 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
                                               L22_chol=Lc[:, :nc, :nc], x2_white=v[:, :nc])
         else:
             mu_c, Lam_c, nu_c = mu_w, L11, nu_w
-        c_draw = self._draw_inflation()
-        w = t_sample(mu_c, Lam_c * c_draw if c_draw != 1.0 else Lam_c, nu_c, self.rng)
-        # the draw the statistics learn from: the same one, or at c = 1 (`inflation_in_statistics`)
-        w_learn = w if c_draw == 1.0 or cfg.inflation_in_statistics else mu_c + (w - mu_c) / math.sqrt(c_draw)
-        learn = None
-        if nc and cfg.outlier_prob < 1:  # per-particle outlier gate on the accelerometer residuals
-            vc = solve_lower(Lc[:, :nc, :nc], e[:, :nc])
-            learn = np.sum(vc * vc, axis=1) < self._outlier_bound(nc)
+        w = t_sample(mu_c, Lam_c, nu_c, self.rng)
 
         # 4. bias, eq. (30), with the predicted statistics (docs/derivations.md, "Order of Algorithm 1")
         if a.size and self.bias_on:
             self._bias_update(yk, h, D, a)
         if self.active:
             if nc:
-                self._track_drift(w_learn - mu_w, L11, dt)  # before the update: mu_w may be the statistics' own array
+                self._track_drift(w - mu_w, L11, dt)  # before the update: mu_w may be the statistics' own array
             lo = cfg.bound_low * self.C_ref - self.C_nom
             hi = cfg.bound_high * self.C_ref - self.C_nom
-            self.stats.update(w_learn, learn)  # eq. (19) with the w_k that drives the state (or its uninflated twin)
+            self.stats.update(w)  # eq. (19) with the w_k that drives the state
             self.stats.mu = np.clip(self.stats.mu, lo, hi)  # parameter projection (Sec. V)
         self.w_prev = w
         self._at_x = model_k  # the first stage of the next propagation, at this x and u
@@ -554,8 +543,6 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         Esig = np.diagonal(self.stats.Lam, axis1=1, axis2=2) / (self.stats.nu - self.n_w - 1.0)[:, None]  # E[Sigma]
         var_mean = q @ (self.stats.gamma[:, None] * Esig) + spread  # posterior variance of the mean
         sigma2 = q @ Esig + spread  # eq. (27b), diagonal, with nu - n_w - 1
-        if self.cfg.inflation_prior_bound:  # (`_draw_inflation`'s bound)
-            self._sigma2_rel = float(np.max(sigma2 / self.C_ref**2))
         return self._estimate_from(ess, x_mean, x_std, mbar, var_mean, sigma2, q @ self.b)
 
     def _estimate_from(self, ess, x_mean, x_std, mbar, var_mean, sigma2, b_mean) -> Estimate:

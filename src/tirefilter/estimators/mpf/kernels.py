@@ -19,7 +19,7 @@ vehicle model's per-particle code in its compiled twin `vehicle.single_track_num
                   forgetting, the NiW update (eq. (19)) with the projection of Sec. V, and the
                   moments of eq. (26)-(27)
 
-and, for the options a replay turns on, `match_state_noise` (the state noise from the data) and
+and, for the options that need them, `match_state_noise` (the state noise from the data) and
 `walk_roll` (the roll gradient's random walk and the roll gain per particle).
 
 Why three passes and not one kernel per stage: at N = 500 a stage does a few hundred

@@ -2,7 +2,7 @@
 story): `resample_gate` (systematic resampling and the gate's moments) and `sample_update`
 (the conditional draw of w, the bias update, the drift of the adaptive forgetting, the NiW
 update with the projection, the moments of the estimate), with their helpers; and the per-particle
-parts of the replay's options: `match_state_noise` (the state noise from the data) and `walk_roll`
+parts of the options: `match_state_noise` (the state noise from the data) and `walk_roll`
 (the roll gradient's walk)."""
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 gate (observability and the linear tire region, Sec. V), the restarts (a contradiction between
 slip and a^Y, a stiffness mean held at a projection bound, every particle implausible), the
 plausibility check, v^X drawn from the wheel speeds at the start and after a gap in the data,
-the informed start, and the outlier gate's bound."""
+and the informed start."""
 
 from __future__ import annotations
 
@@ -14,6 +14,8 @@ from tirefilter.estimators.base import Estimate, Measurement
 from tirefilter.estimators.baseline_common import gate_open, held_ay
 from tirefilter.stats import normalize_log_weights
 from tirefilter.vehicle import single_track
+
+RESTART_ALPHA = 0.15  # rad: an estimated slip angle beyond this with |a^Y| below gate_ay_max is no tyre's (restart test)
 
 
 class Supervision:
@@ -34,24 +36,15 @@ class Supervision:
         sideslip, which the sampled w explains regardless), or a stiffness mean `pinned` at a
         projection bound for `restart_at_bound_after` s."""
         cfg = self.cfg
-        ay = self.ay_pred if cfg.gate_ay == "predicted" else y.ay
-        self.ay_pred = math.nan
-        if cfg.gate_ay != "measured-zero":  # a missing sample is no evidence of the linear region ("Linear-region test")
-            ay = self.ay_last = held_ay(ay, self.ay_last)
-        if self._gate_combined:  # the friction circle's load, sqrt(a^X^2 + a^Y^2) ("State noise from the data")
-            ax = self.ax_last = held_ay(y.ax, self.ax_last)
-            if math.isfinite(ax) and math.isfinite(ay):
-                ay = math.hypot(ax, ay)
+        # a missing sample is no evidence of the linear region: the last one holds ("Linear-region test")
+        ay = self.ay_last = held_ay(y.ay, self.ay_last)
         ay_m = ay if math.isfinite(ay) else 0.0
         self.linear_region = abs(ay_m) < cfg.gate_ay_max
         self.active = gate_open(cfg, t=t, t_start=self.t_start, vx=vx_est, delta=uk[0], ay_meas=ay, alpha=alpha,
                                 vy_std=vy_std)
-        if self.active and self._t_gate is not None:  # (`inflation_after`)
-            self.learned_time += t - self._t_gate
-        self._t_gate = t
         # (the measured a^Y: a state locked onto a wrong slip predicts the large a^Y of that slip)
         ay_y = y.ay if math.isfinite(y.ay) else 0.0
-        contradiction = cfg.restart_alpha > 0 and alpha > cfg.restart_alpha and abs(ay_y) < cfg.gate_ay_max
+        contradiction = alpha > RESTART_ALPHA and abs(ay_y) < cfg.gate_ay_max
         self._contradiction_since = (self._contradiction_since or t) if contradiction else None
         if contradiction and t - self._contradiction_since >= cfg.restart_after:
             return True
@@ -73,14 +66,6 @@ class Supervision:
         elif t - self._bound_since >= cfg.restart_at_bound_after:
             return True
         return False
-
-    def _outlier_bound(self, nc: int) -> float:
-        cache = self.__dict__.setdefault("_bounds", {})
-        if nc not in cache:
-            from scipy.stats import chi2  # only with the outlier gate on; scipy.stats imports slowly
-
-            cache[nc] = float(chi2.ppf(self.cfg.outlier_prob, nc))
-        return cache[nc]
 
     # ---- start-up, plausibility, gaps and restarts -----------------------------------------
     def _informed_start(self, uk, yk) -> np.ndarray:
@@ -189,8 +174,6 @@ class Supervision:
             self._load_level[:] = 0.0
         self.t_start, self.t_prev, self.u_prev, self.active = t, t, uk, False
         self._contradiction_since = self._bound_since = None
-        self.learned_time, self._t_gate = 0.0, None  # a new start: the inflation disarmed (`inflation_after`)
-        self.ay_pred = math.nan  # (the old cloud's prediction)
         self._at_x = self._model(self.x, uk)
         self._keep_relaxed(self._at_x)
         self.w_prev = self.stats.mu.copy()  # the next propagation uses the prior means
