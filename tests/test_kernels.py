@@ -538,13 +538,14 @@ OPTIONS = {"outlier-noise-euler": dict(outlier_prob=0.9, state_noise=(0.02, 0.01
            "calibration-batches": dict(calibration_batch=0.03),
            # the load-transfer gain per particle (derivations, "Load transfer") in the propagation and the weighting
            # (paper-sim's vehicle file states kappa = 0: a file without the key has it estimated)
-           "load-sensitivity": dict(vehicle=dict(load_sensitivity=None), load_sensitivity_prior=(0.0, 0.03),
-                                    load_sensitivity_rw=1e-3),
+           "load-sensitivity": dict(vehicle=dict(load_sensitivity=None), load_sensitivity_estimate=True,
+                                    load_sensitivity_prior=(0.0, 0.03), load_sensitivity_rw=1e-3),
            # kappa stated by the vehicle file: the same gain for every particle, no walk
-           "load-given": dict(vehicle=dict(load_sensitivity=0.02)),
+           "load-given": dict(vehicle=dict(load_sensitivity=0.02), load_sensitivity_estimate=True),
            # the tyres' relaxation (derivations, "Tyre relaxation"; a key of the vehicle file), sub-stepped and not,
            # with the load-transfer gain
-           "relaxation": dict(vehicle=dict(relaxation_length=0.5, load_sensitivity=None)),
+           "relaxation": dict(vehicle=dict(relaxation_length=0.5, load_sensitivity=None),
+                              load_sensitivity_estimate=True),
            "relaxation-substeps": dict(vehicle=dict(relaxation_length=0.3), max_step=0.004, integrator="euler")}
 # the state noise from the data (derivations, "State noise from the data") subtracts two nearly equal spreads each step, which
 # amplifies the backends' rounding differences (6e-12 relative in the statistics after 60 steps)

@@ -8,9 +8,6 @@ from pathlib import Path
 from tirefilter.config import check_known_keys, get_choice, get_number, read_toml
 
 DRIVES = ("front", "rear", "all")
-# m, the lateral relaxation length of a vehicle file that does not state one: a passenger-car tyre's, about
-# the length of its contact patch's lateral deflection to build the force (derivations, "Tyre relaxation")
-RELAXATION_LENGTH_DEFAULT = 0.5
 
 
 @dataclass(frozen=True)
@@ -34,11 +31,11 @@ class VehicleParams:
     imu_x: float = 0.0  # m, IMU ahead of the CG
     imu_y: float = 0.0  # m, IMU left of the CG
     # m, the tyres' lateral relaxation length: the slip the force follows lags the kinematic one by
-    # relaxation_length / v^X (derivations, "Tyre relaxation"); absent: a passenger-car tyre's
-    # (RELAXATION_LENGTH_DEFAULT); 0: at once, the paper's model
-    relaxation_length: float = RELAXATION_LENGTH_DEFAULT
+    # relaxation_length / v^X (derivations, "Tyre relaxation"); 0 (absent): at once, the paper's model
+    relaxation_length: float = 0.0
     # s^4/m^2, the load sensitivity kappa of the axles' effective stiffness C_0 (1 - kappa a^Y^2) (derivations,
-    # "Load transfer"); None (absent): the MPF estimates it; 0: the paper's linear axle
+    # "Load transfer") where the MPF's `load_sensitivity_estimate` is on; None (absent): the MPF estimates it;
+    # 0: the paper's linear axle
     load_sensitivity: float | None = None
     # IMU white-noise std; None (absent): estimated from the data (estimators.sensors)
     sigma_ax: float | None = None  # m/s^2

@@ -131,7 +131,7 @@ class MPFConfig:
     # parameter of each particle (True; False: the paper's linear axle, kappa = 0) drawn uniform over
     # load_sensitivity_prior and walking by load_sensitivity_rw per sqrt(s), reflected at the bounds (a vehicle
     # file's `load_sensitivity` fixes it); the reported stiffness is then the axle's at a^Y = 0, the static load
-    load_sensitivity_estimate: bool = True
+    load_sensitivity_estimate: bool = False
     load_sensitivity_prior: tuple[float, float] = (0.0, 0.015)
     load_sensitivity_rw: float = 1e-3
     # sensors
