@@ -17,7 +17,7 @@ STD). Then the mean absolute errors per model and estimator, as markdown tables 
 (docs/results.md, "Peer drives"). The default run is modest (12 drives of 60 s, one worker).
 
     .venv/bin/python benchmarks/bench_peer.py --set [--duration 60] [--workers 2] [--config FILE.toml] [--drives 2 6 ...]
-        [--relaxation]
+        [--vehicle-key KEY=VALUE ...]
 
 The peer set (`SET_DRIVES`): 14 drives of the multi-body CommonRoad model (MB, body roll)
 and of the two-track model (TT: load transfer, load-sensitive tyres with relaxation, the IMU
@@ -29,7 +29,7 @@ the defaults unless `--config`) in `--workers` processes. Per drive and in total
 reported std, the coverage of the truth by the 90 % band over the second half, the
 sideslip RMSE over the drive and over the rows with |a^Y| >= 4 m/s^2, the roll gradient and
 (where estimated) the load sensitivity kappa at the last row, restarts; against the targets
-SET_TARGETS. `--relaxation`: the TT drives' vehicle files state their tyres' relaxation length;
+SET_TARGETS. `--vehicle-key relaxation_length=0` (say): every drive's vehicle file states that key;
 `--drives`: a subset. It measures; it tunes nothing.
 """
 
@@ -132,14 +132,17 @@ def run_set_drive(job: tuple) -> dict:
     from tirefilter.peer.drive import DriveSpec, simulate, write_drive
     from tirefilter.peer.score import final_scores, read_columns
 
-    (model, vehicle_id, maneuver, speed, ay, seed), duration, config_path, relaxation = job
+    (model, vehicle_id, maneuver, speed, ay, seed), duration, config_path, keys = job
     config = read_toml(config_path) if config_path else {}
     t0 = time.perf_counter()
     drive = simulate(DriveSpec(model=model, vehicle=vehicle_id, maneuver=maneuver, duration=duration, seed=seed,
-                               speed=speed, ay=ay, relaxation_in_vehicle=relaxation))
+                               speed=speed, ay=ay))
     gen_s = time.perf_counter() - t0
     with tempfile.TemporaryDirectory() as tmp:
         log, vehicle = write_drive(drive, Path(tmp) / "drive.csv", Path(tmp) / "vehicle.toml")
+        if keys:  # --vehicle-key: stated in every drive's vehicle file
+            with open(vehicle, "a") as f:
+                f.write("".join(f"{key} = {value}\n" for key, value in keys))
         t1 = time.perf_counter()
         est = replay_as_cli(log, vehicle, Path(tmp) / "result.csv", config)
         wall = time.perf_counter() - t1
@@ -220,7 +223,10 @@ def set_tables(rows: list[dict]) -> str:
 
 def main_set(args) -> None:
     drives = SET_DRIVES if args.drives is None else [SET_DRIVES[i] for i in args.drives]
-    jobs = [(d, args.duration, args.config, args.relaxation) for d in drives]
+    keys = [tuple(kv.split("=", 1)) for kv in args.vehicle_key]
+    if any(len(kv) != 2 for kv in keys):
+        sys.exit(f"--vehicle-key takes KEY=VALUE, got {args.vehicle_key!r}")
+    jobs = [(d, args.duration, args.config, keys) for d in drives]
     t0 = time.perf_counter()
     rows = []
     with ProcessPoolExecutor(max(1, args.workers)) as pool:
@@ -232,7 +238,7 @@ def main_set(args) -> None:
               f"TT: two-track, logger dropouts), data-sheet vehicle files, the MPF (N = 500, seed 0) replayed as "
               f"`tirefilter replay` does with "
               f"{'`--config ' + args.config + '`' if args.config else 'the default settings (no --config)'}"
-              f"{', TT vehicle files with relaxation_length' if args.relaxation else ''}; "
+              f"{''.join(', vehicle files with ' + kv for kv in args.vehicle_key)}; "
               f"{args.workers} workers, run time {time.perf_counter() - t0:.0f} s.")
     print(header + "\n\n" + set_tables(rows))
 
@@ -304,8 +310,8 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--set", action="store_true",
                     help="the peer set (SET_DRIVES: MB and TT, the MPF) instead of the grid")
-    ap.add_argument("--relaxation", action="store_true",
-                    help="with --set: the TT drives' vehicle files state the tyres' relaxation length (relaxation_length)")
+    ap.add_argument("--vehicle-key", action="append", default=[], metavar="KEY=VALUE",
+                    help="with --set: every drive's vehicle file states this key (e.g. relaxation_length=0; repeatable)")
     ap.add_argument("--drives", nargs="+", type=int, choices=range(len(SET_DRIVES)),
                     help="with --set: only these drives of SET_DRIVES (indices 0-13, in the table's order)")
     args = ap.parse_args()

@@ -190,3 +190,19 @@ def test_roll_gradient_is_limited_to_005():
     assert vehicle_from_dict({**base, "roll_gradient": 0.05}, "v.toml").roll_gradient == 0.05
     with pytest.raises(ConfigError, match="roll_gradient"):
         vehicle_from_dict({**base, "roll_gradient": 0.0502}, "v.toml")
+
+
+def test_relaxation_and_load_sensitivity_keys():
+    """A vehicle file without `relaxation_length` has none (0, the paper's model), one without
+    `load_sensitivity` has kappa estimated where the MPF's switch is on (None); a stated value, 0 included,
+    is kept; kappa in [0, 0.05] s^4/m^2."""
+    base = {"mass": 1500.0, "yaw_inertia": 2500.0, "lf": 1.2, "lr": 1.5, "wheel_radius": 0.31, "cg_height": 0.55,
+            "Cf_y": 8e4, "Cr_y": 9e4, "Cx": 1.5e5}
+    v = vehicle_from_dict(base, "v.toml")
+    assert (v.relaxation_length, v.load_sensitivity) == (0.0, None)
+    v = vehicle_from_dict({**base, "relaxation_length": 0.5, "load_sensitivity": 0.0}, "v.toml")
+    assert (v.relaxation_length, v.load_sensitivity) == (0.5, 0.0)
+    assert vehicle_from_dict({**base, "load_sensitivity": 0.05}, "v.toml").load_sensitivity == 0.05
+    for bad in (-1e-4, 0.0502):
+        with pytest.raises(ConfigError, match="load_sensitivity"):
+            vehicle_from_dict({**base, "load_sensitivity": bad}, "v.toml")

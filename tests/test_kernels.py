@@ -650,11 +650,15 @@ OPTIONS = {"noise-euler": dict(state_noise=(0.02, 0.01, 0.002), integrator="eule
            # step's update on floats from the moments against the reference's `_calibrate`
            "calibration-batches": dict(calibration_batch=0.03),
            # the load-transfer gain per particle (derivations, "Load transfer") in the propagation and the weighting
-           "load-sensitivity": dict(load_sensitivity_estimate=True, load_sensitivity_prior=(0.0, 0.03),
-                                    load_sensitivity_rw=1e-3),
+           # (paper-sim's vehicle file states kappa = 0: a file without the key has it estimated)
+           "load-sensitivity": dict(vehicle=dict(load_sensitivity=None), load_sensitivity_estimate=True,
+                                    load_sensitivity_prior=(0.0, 0.03), load_sensitivity_rw=1e-3),
+           # kappa stated by the vehicle file: the same gain for every particle, no walk
+           "load-given": dict(vehicle=dict(load_sensitivity=0.02), load_sensitivity_estimate=True),
            # the tyres' relaxation (derivations, "Tyre relaxation"; a key of the vehicle file), sub-stepped and not,
            # with the load-transfer gain
-           "relaxation": dict(vehicle=dict(relaxation_length=0.5), load_sensitivity_estimate=True),
+           "relaxation": dict(vehicle=dict(relaxation_length=0.5, load_sensitivity=None),
+                              load_sensitivity_estimate=True),
            "relaxation-substeps": dict(vehicle=dict(relaxation_length=0.3), max_step=0.004, integrator="euler")}
 # the state noise from the data (derivations, "State noise from the data") subtracts two nearly equal spreads each step, which
 # amplifies the backends' rounding differences (6e-12 relative in the statistics after 60 steps)
@@ -693,6 +697,10 @@ def test_stiffness_mpf_backends_equal_options(options, model, monkeypatch):
     if options == "load-sensitivity":
         assert np.ptp(ref.k_load) > 0 and abs(ref._ay_step) > 0.5
         assert_equal_to_rounding(fast.k_load, ref.k_load, "load sensitivity")
+    if options == "load-given":
+        assert abs(ref._ay_step) > 0.5
+        for est in (fast, ref):
+            assert not est.load_estimated and np.all(est.k_load == 0.02)
     _assert_mpf_runs_equal(a, b, fast, ref)
 
 

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import replace
 
@@ -104,12 +105,13 @@ def test_state_file_errors(tmp_path):
 
 
 def test_a_state_saved_before_a_vehicle_key_existed_loads_when_the_key_is_at_its_default(tmp_path):
-    """A vehicle key added since the state was saved (relaxation_length) counts as its default."""
-    vehicle = load_scenario("paper-sim").vehicle
+    """A vehicle key added since the state was saved (relaxation_length, load_sensitivity) counts as its default
+    (a vehicle file without them: 0, None)."""
+    vehicle = dataclasses.replace(load_scenario("paper-sim").vehicle, relaxation_length=0.0, load_sensitivity=None)
     est = StiffnessMPF(vehicle, MPFConfig(particles=8, backend="numpy"))
     est.reset(np.random.default_rng(0))
     path = save_state(est, tmp_path / "state.json")
     record = json.loads(path.read_text())
-    del record["vehicle"]["relaxation_length"]
+    del record["vehicle"]["relaxation_length"], record["vehicle"]["load_sensitivity"]
     path.write_text(json.dumps(record))
     load_state(est, path)

@@ -542,3 +542,34 @@ def test_std_calibration_options_are_checked():
                            ({"calibration_memory": 0.0}, "calibration_memory")):
         with pytest.raises(ConfigError, match=match):
             StiffnessMPF(vehicle, MPFConfig(**options))
+
+
+@pytest.mark.parametrize("backend", ["numpy", "numba"])
+def test_load_sensitivity_from_the_vehicle_file(backend):
+    """kappa (derivations, "Load transfer") with `load_sensitivity_estimate` on: estimated where the vehicle file
+    has no `load_sensitivity` (a spread over the prior that walks), fixed at the file's value where it states one
+    (every particle the same, no walk), and a stated 0 or the switch off (the default) is the paper's linear
+    axle: the same outputs bit for bit."""
+    v = load_scenario("paper-sim").vehicle
+    assert v.load_sensitivity == 0.0 and v.relaxation_length == 0.0  # (the single-track truth says so)
+    r = 20.0 * 0.2  # a steady turn at 4 m/s^2
+
+    def drive(vehicle, **cfg):
+        est = StiffnessMPF(vehicle, MPFConfig(particles=16, backend=backend, gate_warmup=0.05,
+                                              **{"load_sensitivity_estimate": True, **cfg}))
+        est.reset(np.random.default_rng(5))
+        k0 = None if est.k_load is None else est.k_load.copy()
+        out = [est.step(0.01 * k, Inputs(delta=0.03, omega_f=20.0 / v.wheel_radius, omega_r=20.0 / v.wheel_radius,
+                                         vx=20.0), Measurement(ax=0.0, ay=r, yaw_rate=0.2))
+               for k in range(30)]
+        return est, k0, np.array([[e.Cf_y, e.Cr_y, e.vy, e.yaw_rate] for e in out])
+
+    est, k0, _ = drive(replace(v, load_sensitivity=None))
+    assert est.load_estimated and np.ptp(k0) > 0 and not np.array_equal(est.k_load, k0)
+    assert not MPFConfig().load_sensitivity_estimate
+    est, k0, _ = drive(replace(v, load_sensitivity=0.01))
+    assert not est.load_estimated and np.all(k0 == 0.01) and np.all(est.k_load == 0.01)
+    zero, _, a = drive(v)
+    off, _, b = drive(replace(v, load_sensitivity=None), load_sensitivity_estimate=False)
+    assert zero.k_load is None and off.k_load is None
+    np.testing.assert_array_equal(a, b)

@@ -51,7 +51,7 @@ DRIVES = {0: "front", 1: "rear", 2: "all"}
 VEHICLE_UNITS = {
     "mass": "kg", "yaw_inertia": "kg.m2", "lf": "m", "lr": "m", "wheel_radius": "m", "cg_height": "m",
     "Cf_y": "N/rad", "Cr_y": "N/rad", "Cx": "N", "steering_ratio": "1", "roll_gradient": "rad.s2/m", "imu_x": "m",
-    "imu_y": "m", "relaxation_length": "m", "sigma_ax": "m/s2", "sigma_ay": "m/s2", "sigma_yaw_rate": "rad/s", "Cx_undriven": "N",
+    "imu_y": "m", "relaxation_length": "m", "load_sensitivity": "s4/m2", "sigma_ax": "m/s2", "sigma_ay": "m/s2", "sigma_yaw_rate": "rad/s", "Cx_undriven": "N",
     "wheel_inertia_f": "kg.m2", "wheel_inertia_r": "kg.m2", "brake_front_share": "1", "awd_front_share": "1",
     "rolling_resistance": "1", "drag_coefficient": "N.s2/m2", "bias0_std_ax": "m/s2", "bias0_std_ay": "m/s2",
     "bias0_std_yaw_rate": "rad/s", "bias_q_ax": "m2/s5", "bias_q_ay": "m2/s5", "bias_q_yaw_rate": "rad2/s3",
@@ -65,7 +65,7 @@ UNITS = {
     "m/s": {"m": 1, "s": -1}, "m/s2": {"m": 1, "s": -2}, "rad": {"rad": 1}, "rad/s": {"rad": 1, "s": -1},
     "N": {"kg": 1, "m": 1, "s": -2}, "N/rad": {"kg": 1, "m": 1, "s": -2, "rad": -1},
     "N.m": {"kg": 1, "m": 2, "s": -2}, "N.s2/m2": {"kg": 1, "m": -1}, "rad.s2/m": {"rad": 1, "s": 2, "m": -1},
-    "m2/s5": {"m": 2, "s": -5}, "rad2/s3": {"rad": 2, "s": -3},
+    "m2/s5": {"m": 2, "s": -5}, "rad2/s3": {"rad": 2, "s": -3}, "s4/m2": {"s": 4, "m": -2},
 }
 
 

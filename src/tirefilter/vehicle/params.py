@@ -31,8 +31,12 @@ class VehicleParams:
     imu_x: float = 0.0  # m, IMU ahead of the CG
     imu_y: float = 0.0  # m, IMU left of the CG
     # m, the tyres' lateral relaxation length: the slip the force follows lags the kinematic one by
-    # relaxation_length / v^X (derivations, "Tyre relaxation"); 0: at once, the paper's model
+    # relaxation_length / v^X (derivations, "Tyre relaxation"); 0 (absent): at once, the paper's model
     relaxation_length: float = 0.0
+    # s^4/m^2, the load sensitivity kappa of the axles' effective stiffness C_0 (1 - kappa a^Y^2) (derivations,
+    # "Load transfer") where the MPF's `load_sensitivity_estimate` is on; None (absent): the MPF estimates it;
+    # 0: the paper's linear axle
+    load_sensitivity: float | None = None
     # IMU white-noise std; None (absent): estimated from the data (estimators.sensors)
     sigma_ax: float | None = None  # m/s^2
     sigma_ay: float | None = None  # m/s^2
@@ -140,7 +144,7 @@ def vehicle_from_dict(data: dict, path) -> VehicleParams:
         if f.name in _POSITIVE or f.name in ("steering_ratio", "Cx_undriven") or f.name.startswith("sigma"):
             lo, lo_open = 0.0, True
         elif f.name in ("cg_height", "rolling_resistance", "drag_coefficient", "roll_gradient",
-                        "relaxation_length") or f.name.startswith(
+                        "relaxation_length", "load_sensitivity") or f.name.startswith(
                 "bias"):
             lo = 0.0
         if f.name in ("brake_front_share", "awd_front_share"):
@@ -149,5 +153,7 @@ def vehicle_from_dict(data: dict, path) -> VehicleParams:
             hi = 0.05
         if f.name == "relaxation_length":
             hi = 5.0
+        if f.name == "load_sensitivity":
+            hi = 0.05
         values[f.name] = get_number(data, f.name, path, lo=lo, lo_open=lo_open, hi=hi, **kwargs)
     return VehicleParams(**values)

@@ -69,8 +69,8 @@ class MPFConfig:
     # the load transfer's effective axle stiffness (derivations, "Load transfer"): the lateral axle forces
     # (C_n + w) alpha (1 - kappa a^Y^2), a^Y the last measured one over the roll gain, kappa (s^4/m^2) a
     # parameter of each particle (True; False: the paper's linear axle, kappa = 0) drawn uniform over
-    # load_sensitivity_prior and walking by load_sensitivity_rw per sqrt(s), reflected at the bounds; the
-    # reported stiffness is then the axle's at a^Y = 0, the static load
+    # load_sensitivity_prior and walking by load_sensitivity_rw per sqrt(s), reflected at the bounds (a vehicle
+    # file's `load_sensitivity` fixes it); the reported stiffness is then the axle's at a^Y = 0, the static load
     load_sensitivity_estimate: bool = False
     # process noise of the state from the data (derivations, "State noise from the data"): the intensity per
     # component that makes the corrections the weights make to the state's mean consistent with the spread they

@@ -76,8 +76,11 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         # from the data"), the roll gain 1 + k g per particle
         self.roll_estimated = v.roll_gradient is None and self.cfg.roll_estimate
         # the load transfer's gain 1 - kappa a^Y^2 on the lateral axle forces, kappa per particle (`k_load`,
-        # derivations, "Load transfer")
-        self.load_estimated = self.cfg.load_sensitivity_estimate
+        # derivations, "Load transfer"): estimated where the vehicle file does not state it, the file's value
+        # (the same for every particle, no walk) where it does; neither with the switch off or a stated 0
+        self.load_estimated = self.cfg.load_sensitivity_estimate and v.load_sensitivity is None
+        self.load_given = (float(v.load_sensitivity) if self.cfg.load_sensitivity_estimate and v.load_sensitivity
+                           else None)
         self.k_load, self._ay_step = None, 0.0  # (drawn by `reset`)
         # the tyres' relaxation (derivations, "Tyre relaxation"): the relaxed slip angles (2, N) at the last sample
         self.relaxing = v.relaxation_length > 0
@@ -220,8 +223,10 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         self.logw = np.full(N, -math.log(N))
         # the roll gradient of each particle, uniform over the prior (None: the vehicle file's, `roll_gain`)
         self.k_roll = rng.uniform(*cfg.roll_gradient_prior, N) if self.roll_estimated else None
-        # the load sensitivity of each particle, uniform over the prior (None: the paper's linear axle)
-        self.k_load = rng.uniform(*cfg.load_sensitivity_prior, N) if self.load_estimated else None
+        # the load sensitivity of each particle, uniform over the prior, or the vehicle file's (None: the paper's
+        # linear axle)
+        self.k_load = (rng.uniform(*cfg.load_sensitivity_prior, N) if self.load_estimated else
+                       None if self.load_given is None else np.full(N, self.load_given))
         self.relaxed = None  # (the first model evaluation's kinematic slip angles, `_keep_relaxed`)
 
     # ---- the roll gain (derivations, "The roll gain from the data") --------------------------
@@ -363,7 +368,7 @@ class StiffnessMPF(CompiledStep, Adaptation, Supervision):
         dt = t - self.t_prev if self.t_prev is not None else cfg.sample_period
         if self.t_prev is not None and dt <= 0:
             raise ConfigError("inputs", "t", f"time must increase: {t} after {self.t_prev}")
-        if self.k_load is not None and self.t_prev is not None:  # kappa's walk, the step's first draw on both paths
+        if self.load_estimated and self.t_prev is not None:  # kappa's walk, the step's first draw on both paths
             self._walk_load(dt)
         self._next_ay_load(y.ay)
         if self._nb is not None:  # every sample by three compiled passes; the numpy code below is the reference
