@@ -146,22 +146,8 @@ INLINE void bias_update(const mpf_dims *dm, const int64_t *idx, const mpf_own *o
             inn[i * nb + q] = y[ch] - h[s * m + ch] - t - b[i * mch + ch];
         }
     }
-    for (int64_t i = 0; i < n; i++) { /* chol(S) in place */
-        for (int j = 0; j < na; j++) {
-            const double Sjj = Sx(i, j, j);
-            double d = Sjj;
-            for (int k = 0; k < j; k++)
-                d = d - Sx(i, j, k) * Sx(i, j, k);
-            const double Ljj = sqrt(py_max(d, fabs(Sjj) * 1e-14 + 1e-300));
-            Sx(i, j, j) = Ljj;
-            for (int r = j + 1; r < na; r++) {
-                double acc = Sx(i, r, j);
-                for (int k = 0; k < j; k++)
-                    acc = acc - Sx(i, r, k) * Sx(i, j, k);
-                Sx(i, r, j) = acc * (1.0 / Ljj);
-            }
-        }
-    }
+    for (int64_t i = 0; i < n; i++) /* chol(S) in place */
+        chol_lower(&Sx(i, 0, 0), nb, &Sx(i, 0, 0), nb, na);
     for (int64_t i = 0; i < n; i++) {
         for (int c = 0; c < mch; c++) { /* Kt[:, c] = S^-1 P[a, c] */
             for (int q = 0; q < na; q++) {
@@ -247,22 +233,8 @@ INLINE void sample(const mpf_dims *dm, const int64_t *idx, const mpf_own *own, c
         }
         learn[i] = use_mask ? vv < bound : 1;
     }
-    for (int64_t i = 0; i < n; i++) { /* chol(Lam_c) in place */
-        for (int j = 0; j < n_w; j++) {
-            const double Sjj = LWx(i, j, j);
-            double d = Sjj;
-            for (int k = 0; k < j; k++)
-                d = d - LWx(i, j, k) * LWx(i, j, k);
-            const double Ljj = sqrt(py_max(d, fabs(Sjj) * 1e-14 + 1e-300));
-            LWx(i, j, j) = Ljj;
-            for (int r = j + 1; r < n_w; r++) {
-                double acc = LWx(i, r, j);
-                for (int k = 0; k < j; k++)
-                    acc = acc - LWx(i, r, k) * LWx(i, j, k);
-                LWx(i, r, j) = acc * (1.0 / Ljj);
-            }
-        }
-    }
+    for (int64_t i = 0; i < n; i++) /* chol(Lam_c) in place */
+        chol_lower(&LWx(i, 0, 0), n_w, &LWx(i, 0, 0), n_w, n_w);
     const int same = infl[0] == infl[1];
     double *wl = same ? w : wl_buf;
     for (int64_t i = 0; i < n; i++) { /* mu_c + chol(Lam_c) z sqrt(nu_draw / chi), times infl */
@@ -278,23 +250,8 @@ INLINE void sample(const mpf_dims *dm, const int64_t *idx, const mpf_own *own, c
         }
     }
     /* 5. the drift (chol(L11) in place of Lam_c's factor, then the solve), the NiW update, the projection */
-    for (int64_t i = 0; i < (active && drift ? n : 0); i++) {
-        const int64_t s = idx[i];
-        for (int j = 0; j < n_w; j++) {
-            const double Sjj = L11x(s, j, j);
-            double d = Sjj;
-            for (int k = 0; k < j; k++)
-                d = d - LWx(i, j, k) * LWx(i, j, k);
-            const double Ljj = sqrt(py_max(d, fabs(Sjj) * 1e-14 + 1e-300));
-            LWx(i, j, j) = Ljj;
-            for (int r = j + 1; r < n_w; r++) {
-                double acc = L11x(s, r, j);
-                for (int k = 0; k < j; k++)
-                    acc = acc - LWx(i, r, k) * LWx(i, j, k);
-                LWx(i, r, j) = acc * (1.0 / Ljj);
-            }
-        }
-    }
+    for (int64_t i = 0; i < (active && drift ? n : 0); i++)
+        chol_lower(&L11x(idx[i], 0, 0), n_w, &LWx(i, 0, 0), n_w, n_w);
     for (int64_t i = 0; i < (active && drift ? n : 0); i++) {
         for (int j = 0; j < n_w; j++) {
             double acc = wl[i * n_w + j] - mu[i * n_w + j];

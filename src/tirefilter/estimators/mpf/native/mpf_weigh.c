@@ -148,23 +148,10 @@ INLINE void weigh(const mpf_dims *dm, const mpf_own *own, const mpf_scratch *sc,
     }
     /* Lc = chol(S) in place, then v = Lc^-1 e and the weight, each in a short loop of its own */
     for (int64_t i = 0; i < (na ? n : 0); i++) {
-        for (int j = 0; j < na; j++) {
-            const double Sjj = LCx(i, j, j);
-            double d = Sjj;
-            for (int k = 0; k < j; k++)
-                d = d - LCx(i, j, k) * LCx(i, j, k);
-            const double Ljj = sqrt(py_max(d, fabs(Sjj) * 1e-14 + 1e-300));
-            LCx(i, j, j) = Ljj;
-            const double inv = 1.0 / Ljj;
-            for (int r = j + 1; r < na; r++) {
-                double acc = LCx(i, r, j);
-                for (int k = 0; k < j; k++)
-                    acc = acc - LCx(i, r, k) * LCx(i, j, k);
-                LCx(i, r, j) = acc * inv;
-            }
+        chol_lower(&LCx(i, 0, 0), m, &LCx(i, 0, 0), m, na);
+        for (int j = 1; j < na; j++) /* the upper triangle zero */
             for (int r = 0; r < j; r++)
                 LCx(i, r, j) = 0.0;
-        }
     }
     for (int64_t i = 0; i < (na ? n : 0); i++) {
         const double dof = nu_w[i];

@@ -15,6 +15,29 @@
 static inline double py_max(double a, double b) { return b > a ? b : a; }
 static inline double py_min(double a, double b) { return b < a ? b : a; }
 
+/* The lower Cholesky factor of the n x n matrix a (row stride lda, lower triangle read) into l (row
+   stride ldl; l == a with ldl == lda factors in place), the numba kernels' operation order: a pivot
+   below |a_jj| 1e-14 (a rounding-level loss of definiteness) is floored there. The upper triangle of l
+   is left as it was. */
+static inline void chol_lower(const double *a, int lda, double *l, int ldl, int n)
+{
+    for (int j = 0; j < n; j++) {
+        const double ajj = a[j * lda + j];
+        double d = ajj;
+        for (int k = 0; k < j; k++)
+            d = d - l[j * ldl + k] * l[j * ldl + k];
+        const double ljj = sqrt(py_max(d, fabs(ajj) * 1e-14 + 1e-300));
+        l[j * ldl + j] = ljj;
+        const double inv = 1.0 / ljj;
+        for (int r = j + 1; r < n; r++) {
+            double acc = a[r * lda + j];
+            for (int k = 0; k < j; k++)
+                acc = acc - l[r * ldl + k] * l[j * ldl + k];
+            l[r * ldl + j] = acc * inv;
+        }
+    }
+}
+
 /* `_steer_consts`: the factors that depend only on the steering angle u0 and the vehicle,
  * (cos, sin, 1 / m, 1 / I, cos / m, sin / m, lf sin / I, -sin / m, lf cos / I, -lr / I) */
 static inline void st_steer_consts(double u0, const double *vp, double k[10])
